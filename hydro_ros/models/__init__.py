@@ -1,0 +1,1 @@
+"""Physical models of valve-controlled hydraulic cylinders (no ROS imports)."""

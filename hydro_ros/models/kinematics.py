@@ -1,0 +1,44 @@
+"""Cylinder mount kinematics of the SAM boom: P-I eqs. (3)-(5).
+
+theta is the triangle angle at the boom joint between the two cylinder mounts; the joint
+position reported on /joint_states is theta - theta_offset (INFERRED mapping, config/sam.yaml).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+
+@njit(cache=True)
+def cylinder_length(theta: float, l1: float, l2: float) -> float:
+    return math.sqrt(l1 * l1 + l2 * l2 - 2.0 * l1 * l2 * math.cos(theta))
+
+
+@njit(cache=True)
+def piston_position(theta: float, l1: float, l2: float, l3: float) -> float:
+    """Eq. (3): x(theta) = sqrt(l1^2 + l2^2 - 2 l1 l2 cos theta) - l3."""
+    return cylinder_length(theta, l1, l2) - l3
+
+
+@njit(cache=True)
+def torque_arm(theta: float, l1: float, l2: float) -> float:
+    """Eq. (5): r(theta) = dx/dtheta = l1 l2 sin theta / cylinder length."""
+    return l1 * l2 * math.sin(theta) / cylinder_length(theta, l1, l2)
+
+
+@njit(cache=True)
+def torque_arm_derivative(theta: float, l1: float, l2: float) -> float:
+    """dr/dtheta, the R'(theta) of eq. (7)."""
+    length = cylinder_length(theta, l1, l2)
+    arm = l1 * l2 * math.sin(theta) / length
+    return (l1 * l2 * math.cos(theta) - arm * arm) / length
+
+
+@njit(cache=True)
+def triangle_angle(x: float, l1: float, l2: float, l3: float) -> float:
+    """Inverse of eq. (3) on 0 < theta < pi."""
+    length = x + l3
+    cosine = (l1 * l1 + l2 * l2 - length * length) / (2.0 * l1 * l2)
+    return math.acos(min(1.0, max(-1.0, cosine)))

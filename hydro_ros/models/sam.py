@@ -1,0 +1,449 @@
+"""The 7-state SAM plant model of P-I eqs. (18)-(19), with P-II's flow polynomials and bulk modulus.
+
+State y = [p_A, p_B, x_s, x_s', x, x', z] (chamber pressures [Pa], normalised spool position and
+rate, piston position [m] and velocity [m/s], LuGre bristle deflection [m]).
+
+Deviations from the printed equations, each for a stated reason:
+* spool eq. uses K*omega_n^2 (digest section 8 #1), B-chamber volume uses A_B (#2), the s < 0
+  opening is -(x_s + offset) (#3), centre leakage is laminar in m^3/(s Pa) (#4);
+* the boom is integrated through the full eq. (7), x'' = (F - F_ext)/m_red + r' v^2 / r^2,
+  rather than eq. (19)'s x'' = (F - F_ext)/m_red, so the rigid-body energy is consistent;
+* gravity torques tau = g cos(joint) (m L) are INFERRED (digest section 2.6), with the boom's
+  centre of gravity at `boom_cog_distance` and its parallel-axis inertia included;
+* end stops are stiff penalty springs and pressures are floored at a cavitation pressure.
+
+Integration: classic fixed-step RK4 with `simulation.substeps` steps per sensor sample (0.1 ms
+at 1 kHz). Near zero pressure drop the orifice law is linearised inside `laminar_band`, which
+bounds the stiffest eigenvalue at ~5e3 1/s (RK4 limit ~0.6 ms); test_sam_model.py shows that
+halving the step changes pressures by < 1 kPa and position by < 1 um over a 10 s manoeuvre.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+from numba import njit
+
+from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient, leak_flow
+from hydro_ros.models.friction import bristle_rate, friction_force, stribeck_curve
+from hydro_ros.models.kinematics import (
+    piston_position,
+    torque_arm,
+    torque_arm_derivative,
+    triangle_angle,
+)
+from hydro_ros.models.valve import NOTCHES, chamber_valve_flows, spool_acceleration, spool_opening
+from hydro_ros.names import Injection
+
+STATE_NAMES = ("p_a", "p_b", "spool", "spool_rate", "piston", "piston_velocity", "bristle")
+N_STATES = len(STATE_NAMES)
+DELAY_BUFFER = 4096  # samples of valve-command history kept for the valve_delay effect
+
+# Parameter vector layout; numba reads these module globals as compile-time constants.
+(
+    AREA_A, AREA_B, STROKE, V0_A, V0_B, MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET,
+    SPOOL_OMEGA, SPOOL_DAMPING, LAMINAR_BAND,
+    OIL_MODULUS, HOSE_MODULUS, HOSE_VOLUME, AIR_FRACTION,
+    VISCOUS, STATIC, COULOMB, STRIBECK, BRISTLE,
+    BOOM_MASS, BOOM_LENGTH, BOOM_COG, LEFT_MASS, RIGHT_MASS, LOAD_DISTANCE, PAYLOAD,
+    SUPPLY, TANK,
+    K_INTERNAL, K_EXTERNAL_A, K_EXTERNAL_B,
+    OFFSET, OPENING_GAIN, FLOW_GAIN, STUCK, DEADZONE, DELAY_SAMPLES,
+    STOP_LOWER, STOP_UPPER, STOP_STIFFNESS, STOP_DAMPING, CAVITATION, GRAVITY,
+    N_PARAMS,
+) = range(46)
+
+
+@njit(cache=True)
+def _rhs(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centre: np.ndarray, dy: np.ndarray) -> None:
+    p_a = y[0]
+    p_b = y[1]
+    x = y[4]
+    v = y[5]
+    z = y[6]
+    # valve (eqs. 10-15)
+    s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5)
+    q_a, q_b = chamber_valve_flows(s, p_a, p_b, p[SUPPLY], p[TANK], poly, centre, p[LAMINAR_BAND], p[FLOW_GAIN])
+    # cylinder leakages (eqs. 41-43)
+    band = p[LAMINAR_BAND]
+    q_int = leak_flow(p[K_INTERNAL], p_a - p_b, band)
+    q_ext_a = leak_flow(p[K_EXTERNAL_A], p_a - p[TANK], band)
+    q_ext_b = leak_flow(p[K_EXTERNAL_B], p_b - p[TANK], band)
+    # chambers (eqs. 8-9 with P-II eq. 19)
+    volume_a = p[V0_A] + p[AREA_A] * x
+    volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - x)
+    bulk_a = effective_bulk_modulus(p_a, volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], p[AIR_FRACTION])
+    bulk_b = effective_bulk_modulus(p_b, volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], p[AIR_FRACTION])
+    dy[0] = bulk_a / volume_a * (q_a - q_int - q_ext_a - p[AREA_A] * v)
+    dy[1] = bulk_b / volume_b * (q_b + q_int - q_ext_b + p[AREA_B] * v)
+    # spool (eq. 15)
+    dy[2] = y[3]
+    dy[3] = spool_acceleration(y[2], y[3], reference, p[SPOOL_OMEGA], p[SPOOL_DAMPING])
+    # boom (eqs. 7, 16, 20, 21)
+    theta = triangle_angle(x, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
+    arm = torque_arm(theta, p[MOUNT_L1], p[MOUNT_L2])
+    arm_rate = torque_arm_derivative(theta, p[MOUNT_L1], p[MOUNT_L2])
+    left = p[LEFT_MASS] + p[PAYLOAD]
+    inertia = (
+        p[BOOM_MASS] * (p[BOOM_LENGTH] ** 2 / 12.0 + p[BOOM_COG] ** 2)
+        + (left + p[RIGHT_MASS]) * p[LOAD_DISTANCE] ** 2
+    )
+    gravity_torque = p[GRAVITY] * math.cos(theta - p[THETA_OFFSET]) * (
+        (left - p[RIGHT_MASS]) * p[LOAD_DISTANCE] + p[BOOM_MASS] * p[BOOM_COG]
+    )
+    reduced_mass = inertia / (arm * arm)
+    g = stribeck_curve(v, p[COULOMB], p[STATIC], p[STRIBECK])
+    z_rate = bristle_rate(v, z, p[BRISTLE], g)
+    bristle_damping = 2.0 * math.sqrt(p[BRISTLE] * reduced_mass)
+    friction = friction_force(v, z, z_rate, p[BRISTLE], bristle_damping, p[VISCOUS])
+    stop = 0.0
+    if x < p[STOP_LOWER]:
+        stop = max(p[STOP_STIFFNESS] * (p[STOP_LOWER] - x) - p[STOP_DAMPING] * v, 0.0)
+    elif x > p[STOP_UPPER]:
+        stop = min(p[STOP_STIFFNESS] * (p[STOP_UPPER] - x) - p[STOP_DAMPING] * v, 0.0)
+    force = p_a * p[AREA_A] - p_b * p[AREA_B] - friction + stop
+    dy[4] = v
+    dy[5] = (force - gravity_torque / arm) / reduced_mass + arm_rate * v * v / (arm * arm)
+    dy[6] = z_rate
+
+
+@njit(cache=True)
+def _rk4(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centre: np.ndarray, h: float, work: np.ndarray) -> None:
+    k1 = work[0]
+    k2 = work[1]
+    k3 = work[2]
+    k4 = work[3]
+    tmp = work[4]
+    _rhs(y, reference, p, poly, centre, k1)
+    for i in range(N_STATES):
+        tmp[i] = y[i] + 0.5 * h * k1[i]
+    _rhs(tmp, reference, p, poly, centre, k2)
+    for i in range(N_STATES):
+        tmp[i] = y[i] + 0.5 * h * k2[i]
+    _rhs(tmp, reference, p, poly, centre, k3)
+    for i in range(N_STATES):
+        tmp[i] = y[i] + h * k3[i]
+    _rhs(tmp, reference, p, poly, centre, k4)
+    for i in range(N_STATES):
+        y[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    floor = p[CAVITATION]
+    if y[0] < floor:
+        y[0] = floor
+    if y[1] < floor:
+        y[1] = floor
+
+
+@njit(cache=True)
+def _integrate_samples(
+    y: np.ndarray,
+    params: np.ndarray,
+    poly: np.ndarray,
+    centre: np.ndarray,
+    commands: np.ndarray,
+    references: np.ndarray,
+    closed_loop: bool,
+    gain: float,
+    max_command: float,
+    delay_buffer: np.ndarray,
+    delay_position: int,
+    sample_time: float,
+    substeps: int,
+    states_out: np.ndarray,
+    commands_out: np.ndarray,
+) -> int:
+    work = np.empty((5, N_STATES))
+    h = sample_time / substeps
+    size = delay_buffer.shape[0]
+    for k in range(params.shape[0]):
+        p = params[k]
+        if closed_loop:
+            theta = triangle_angle(y[4], p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
+            u = gain * (references[k] - (theta - p[THETA_OFFSET]))
+        else:
+            u = commands[k]
+        u = min(max(u, -max_command), max_command)
+        commands_out[k] = u
+        delay_buffer[delay_position % size] = u
+        applied = delay_buffer[(delay_position - int(p[DELAY_SAMPLES])) % size]
+        delay_position += 1
+        for _ in range(substeps):
+            _rk4(y, applied, p, poly, centre, h, work)
+        states_out[k] = y
+    return delay_position
+
+
+@njit(cache=True)
+def valve_and_leak_flows(states: np.ndarray, params: np.ndarray, poly: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """Per-sample flows [Q_A, Q_B, Q_int, Q_extA, Q_extB] (m^3/s) of recorded states."""
+    out = np.empty((states.shape[0], 5))
+    for k in range(states.shape[0]):
+        y = states[k]
+        p = params[k]
+        s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5)
+        q_a, q_b = chamber_valve_flows(s, y[0], y[1], p[SUPPLY], p[TANK], poly, centre, p[LAMINAR_BAND], p[FLOW_GAIN])
+        out[k, 0] = q_a
+        out[k, 1] = q_b
+        out[k, 2] = leak_flow(p[K_INTERNAL], y[0] - y[1], p[LAMINAR_BAND])
+        out[k, 3] = leak_flow(p[K_EXTERNAL_A], y[0] - p[TANK], p[LAMINAR_BAND])
+        out[k, 4] = leak_flow(p[K_EXTERNAL_B], y[1] - p[TANK], p[LAMINAR_BAND])
+    return out
+
+
+def _apply(params: np.ndarray, name: str, level: np.ndarray, sample_rate: float) -> None:
+    """Add one injection's level (per row of ``params``) to the parameter matrix."""
+    if name in ("external_leakage_a", "external_leakage_ab"):
+        params[:, K_EXTERNAL_A] += leak_coefficient(1.0) * level
+    if name in ("external_leakage_b", "external_leakage_ab"):
+        params[:, K_EXTERNAL_B] += leak_coefficient(1.0) * level
+    if name == "internal_leakage":
+        params[:, K_INTERNAL] += leak_coefficient(1.0) * level
+    elif name == "spool_too_small_opening":
+        params[:, OPENING_GAIN] *= 1.0 - level
+    elif name == "spool_too_large_opening":
+        params[:, OPENING_GAIN] *= 1.0 + level
+    elif name == "spool_stuck_closed":
+        params[:, STUCK] = np.maximum(params[:, STUCK], (level >= 0.5).astype(float))
+    elif name == "spool_offset":
+        params[:, OFFSET] += level
+    elif name == "valve_deadzone":
+        params[:, DEADZONE] += level
+    elif name == "valve_delay":
+        params[:, DELAY_SAMPLES] += np.round(level * sample_rate)
+    elif name == "valve_flow_gain":
+        params[:, FLOW_GAIN] *= 1.0 + level
+    elif name == "entrained_air":
+        params[:, AIR_FRACTION] += level
+    elif name == "coulomb_friction":
+        params[:, COULOMB] += level
+        params[:, STATIC] += level
+    elif name == "viscous_friction":
+        params[:, VISCOUS] += level
+    elif name == "payload_mass":
+        params[:, PAYLOAD] += level
+
+
+SENSOR_INJECTIONS = frozenset(
+    {"pressure_sensor_bias_a", "pressure_sensor_bias_b", "supply_pressure_sensor_bias", "velocity_sensor_bias"}
+)
+
+
+@dataclass
+class SamModel:
+    """Parameters of one SAM actuator taken from a machine config (contract section 3)."""
+
+    config: dict[str, Any]
+    actuator: str = "boom"
+    base: np.ndarray = field(init=False)
+    poly: np.ndarray = field(init=False)
+    centre_leakage: np.ndarray = field(init=False)
+    sample_rate: float = field(init=False)
+    substeps: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        cfg = self.config
+        try:
+            act = cfg["actuators"][self.actuator]
+        except KeyError:
+            raise ValueError(f"config has no actuator {self.actuator!r}") from None
+        cyl, mount, valve = act["cylinder"], act["mount"], act["valve"]
+        fluid, fric, load = act["fluid"], act["friction"], act["load"]
+        sim = cfg.get("simulation", {})
+        p = np.zeros(N_PARAMS)
+        area_a = math.pi * cyl["piston_diameter"] ** 2 / 4.0
+        p[AREA_A] = area_a
+        p[AREA_B] = area_a - math.pi * cyl["rod_diameter"] ** 2 / 4.0
+        p[STROKE] = cyl["stroke"]
+        p[V0_A] = cyl["dead_volume_a"]
+        p[V0_B] = cyl["dead_volume_b"]
+        p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3] = mount["l1"], mount["l2"], mount["l3"]
+        p[THETA_OFFSET] = mount["theta_offset"]
+        p[SPOOL_OMEGA] = valve["natural_frequency"]
+        p[SPOOL_DAMPING] = valve["damping"]
+        p[LAMINAR_BAND] = valve["laminar_band"]
+        p[OIL_MODULUS] = fluid["oil_bulk_modulus"]
+        p[HOSE_MODULUS] = fluid["hose_bulk_modulus"]
+        p[HOSE_VOLUME] = fluid["hose_volume"]
+        p[VISCOUS] = fric["viscous"]
+        p[STATIC] = fric["static"]
+        p[COULOMB] = fric["coulomb"]
+        p[STRIBECK] = fric["stribeck_velocity"]
+        p[BRISTLE] = fric["bristle_stiffness"]
+        p[BOOM_MASS] = load["boom_mass"]
+        p[BOOM_LENGTH] = load["boom_length"]
+        p[BOOM_COG] = load["boom_cog_distance"]
+        p[LEFT_MASS] = load["left_mass"]
+        p[RIGHT_MASS] = load["right_mass"]
+        p[LOAD_DISTANCE] = load["load_distance"]
+        p[SUPPLY] = cfg["supply_pressure"]
+        p[TANK] = cfg["tank_pressure"]
+        p[OPENING_GAIN] = 1.0
+        p[FLOW_GAIN] = 1.0
+        p[STOP_LOWER] = sim.get("end_stop_lower", 0.0)
+        p[STOP_UPPER] = min(sim.get("end_stop_upper", cyl["stroke"]), cyl["stroke"])
+        p[STOP_STIFFNESS] = sim.get("end_stop_stiffness", 1.0e8)
+        p[STOP_DAMPING] = sim.get("end_stop_damping", 2.0e6)
+        p[CAVITATION] = sim.get("cavitation_pressure", -9.0e4)
+        p[GRAVITY] = sim.get("gravity", 9.81)
+        self.base = p
+        self.poly = np.array([valve["kv_poly"][notch] for notch in NOTCHES], dtype=float)
+        self.centre_leakage = np.array([valve["centre_leakage"][notch] for notch in NOTCHES], dtype=float)
+        self.sample_rate = float(cfg["sample_rate_hz"])
+        self.substeps = int(sim.get("substeps", 10))
+
+    @property
+    def joint_name(self) -> str:
+        return str(self.config["actuators"][self.actuator]["joint"])
+
+    def parameter_matrix(self, times: np.ndarray, injections: Sequence[Injection] = ()) -> np.ndarray:
+        """Parameter vector per sample time, with every plant-side injection applied."""
+        params = np.repeat(self.base[None, :], len(times), axis=0)
+        for injection in injections:
+            if injection.name in SENSOR_INJECTIONS:
+                continue
+            level = injection_levels(injection, times)
+            _apply(params, injection.name, level, self.sample_rate)
+        if np.any(params[:, DELAY_SAMPLES] >= DELAY_BUFFER):
+            raise ValueError(f"valve_delay exceeds {DELAY_BUFFER / self.sample_rate:.2f} s")
+        if np.any(params[:, DEADZONE] >= 1.0):
+            raise ValueError("valve_deadzone must be < 1 (fraction of spool travel)")
+        return params
+
+    def joint_from_piston(self, x: np.ndarray | float) -> np.ndarray:
+        p = self.base
+        xs = np.atleast_1d(np.asarray(x, dtype=float))
+        theta = np.array([triangle_angle(v, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3]) for v in xs])
+        return theta - p[THETA_OFFSET]
+
+    def piston_from_joint(self, joint: float) -> float:
+        p = self.base
+        return piston_position(joint + p[THETA_OFFSET], p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
+
+    def torque_arm_at(self, x: float) -> float:
+        p = self.base
+        return torque_arm(triangle_angle(x, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3]), p[MOUNT_L1], p[MOUNT_L2])
+
+    def inertia(self, payload: float = 0.0) -> float:
+        p = self.base
+        return (
+            p[BOOM_MASS] * (p[BOOM_LENGTH] ** 2 / 12.0 + p[BOOM_COG] ** 2)
+            + (p[LEFT_MASS] + payload + p[RIGHT_MASS]) * p[LOAD_DISTANCE] ** 2
+        )
+
+    def load_force(self, x: float, payload: float = 0.0) -> float:
+        """F_ext of eq. (21): the gravity load on the piston [N] at piston position x."""
+        p = self.base
+        theta = triangle_angle(x, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
+        torque = p[GRAVITY] * math.cos(theta - p[THETA_OFFSET]) * (
+            (p[LEFT_MASS] + payload - p[RIGHT_MASS]) * p[LOAD_DISTANCE] + p[BOOM_MASS] * p[BOOM_COG]
+        )
+        return torque / torque_arm(theta, p[MOUNT_L1], p[MOUNT_L2])
+
+    def resting_state(self, joint: float, p_b: float | None = None) -> np.ndarray:
+        """State at rest at ``joint`` with chamber pressures balancing the load.
+
+        p_B defaults to the centre-leakage equilibrium of the closed valve (eq. 14 = 0), or to
+        10 % of supply when the valve has no centre leakage.
+        """
+        p = self.base
+        x = self.piston_from_joint(joint)
+        if p_b is None:
+            cl = self.centre_leakage
+            if cl[1] + cl[3] > 0.0:
+                p_b = (cl[1] * p[SUPPLY] + cl[3] * p[TANK]) / (cl[1] + cl[3])
+            else:
+                p_b = 0.1 * p[SUPPLY]
+        p_a = (self.load_force(x) + p_b * p[AREA_B]) / p[AREA_A]
+        return np.array([p_a, p_b, 0.0, 0.0, x, 0.0, 0.0])
+
+
+def injection_levels(injection: Injection, times: np.ndarray) -> np.ndarray:
+    """Vectorised :meth:`Injection.level` over sample times."""
+    times = np.asarray(times, dtype=float)
+    if injection.ramp_s > 0.0:
+        fraction = np.clip((times - injection.onset_s) / injection.ramp_s, 0.0, 1.0)
+    else:
+        fraction = (times >= injection.onset_s).astype(float)
+    return injection.value * fraction
+
+
+class SamPlant:
+    """A running SAM: state, time, injections, stepping in blocks of sensor samples.
+
+    Inputs are either valve commands (open loop) or joint-position references that a simulated
+    operator follows with a saturated proportional law (closed loop).
+    """
+
+    def __init__(
+        self,
+        model: SamModel,
+        *,
+        injections: Sequence[Injection] = (),
+        initial_joint: float | None = None,
+        operator_gain: float = 4.0,
+        max_command: float = 1.0,
+    ) -> None:
+        self.model = model
+        self.injections: list[Injection] = list(injections)
+        joint0 = model.config.get("simulation", {}).get("initial_joint_position", 0.0) if initial_joint is None else initial_joint
+        self.state = model.resting_state(joint0)
+        self.sample_index = 0
+        self.operator_gain = operator_gain
+        self.max_command = max_command
+        self._delay_buffer = np.zeros(DELAY_BUFFER)
+        self._delay_position = 0
+
+    @property
+    def sample_time(self) -> float:
+        return 1.0 / self.model.sample_rate
+
+    @property
+    def time(self) -> float:
+        return self.sample_index * self.sample_time
+
+    def sample_times(self, n: int) -> np.ndarray:
+        """Times at the end of the next ``n`` samples."""
+        return (self.sample_index + 1 + np.arange(n)) * self.sample_time
+
+    def advance(
+        self,
+        n: int,
+        *,
+        commands: np.ndarray | None = None,
+        references: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Step ``n`` samples; returns (times, states (n, 7), valve commands (n,))."""
+        if (commands is None) == (references is None):
+            raise ValueError("give exactly one of commands (open loop) or references (closed loop)")
+        times = self.sample_times(n)
+        params = self.model.parameter_matrix(times, self.injections)
+        inputs = np.ascontiguousarray(commands if commands is not None else references, dtype=float)
+        if inputs.shape != (n,):
+            raise ValueError(f"expected {n} inputs, got shape {inputs.shape}")
+        if not np.all(np.isfinite(inputs)):
+            raise ValueError("valve commands or references contain NaN or inf")
+        states = np.empty((n, N_STATES))
+        applied = np.empty(n)
+        self._delay_position = _integrate_samples(
+            self.state,
+            params,
+            self.model.poly,
+            self.model.centre_leakage,
+            inputs,
+            inputs,
+            references is not None,
+            self.operator_gain,
+            self.max_command,
+            self._delay_buffer,
+            self._delay_position,
+            self.sample_time,
+            self.model.substeps,
+            states,
+            applied,
+        )
+        if not np.all(np.isfinite(self.state)):
+            raise FloatingPointError(f"SAM model diverged before t = {times[-1]:.3f} s (state {self.state})")
+        self.sample_index += n
+        return times, states, applied

@@ -1,0 +1,42 @@
+"""Closed-form references for the SAM model: P-I eqs. (39)-(40) and the hydraulic natural frequency."""
+
+from __future__ import annotations
+
+import math
+
+from hydro_ros.models.chamber import effective_bulk_modulus
+from hydro_ros.models.sam import (
+    AREA_A, AREA_B, HOSE_MODULUS, HOSE_VOLUME, OIL_MODULUS, STROKE, SUPPLY, TANK, V0_A, V0_B, SamModel,
+)
+from hydro_ros.models.valve import BT, PA, flow_coefficient
+
+
+def extension_steady_pressures(model: SamModel, spool: float, external_force: float) -> tuple[float, float]:
+    """Eqs. (39, corrected: F_ext A_A^2 K_BT^2, digest section 8 #5) and (40).
+
+    Steady extension with PA and BT open by ``spool`` > 0 and friction lumped into F_ext.
+    """
+    p = model.base
+    a_a, a_b, p_s, p_t = p[AREA_A], p[AREA_B], p[SUPPLY], p[TANK]
+    k_pa = flow_coefficient(model.poly, PA, spool)
+    k_bt = flow_coefficient(model.poly, BT, spool)
+    denominator = a_a**3 * k_bt**2 + a_b**3 * k_pa**2
+    p_a = (external_force * a_a**2 * k_bt**2 + a_b**3 * k_pa**2 * p_s + a_a**2 * a_b * k_bt**2 * p_t) / denominator
+    p_b = (-external_force * k_pa**2 * a_b**2 + a_a * a_b**2 * k_pa**2 * p_s + a_a**3 * k_bt**2 * p_t) / denominator
+    return p_a, p_b
+
+
+def hydraulic_natural_frequency(model: SamModel, x: float, p_a: float = 0.0, p_b: float = 0.0) -> float:
+    """omega_h / (2 pi) [Hz] of the closed-valve cylinder at piston position ``x``.
+
+    omega_h^2 = (B_A A_A^2 / V_A + B_B A_B^2 / V_B) / m_reduced (digest claim 25, INFERRED
+    formula; Merritt's two-chamber hydraulic spring against the boom's reduced mass).
+    """
+    p = model.base
+    volume_a = p[V0_A] + p[AREA_A] * x
+    volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - x)
+    bulk_a = effective_bulk_modulus(p_a, volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
+    bulk_b = effective_bulk_modulus(p_b, volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
+    stiffness = bulk_a * p[AREA_A] ** 2 / volume_a + bulk_b * p[AREA_B] ** 2 / volume_b
+    reduced_mass = model.inertia() / model.torque_arm_at(x) ** 2
+    return math.sqrt(stiffness / reduced_mass) / (2.0 * math.pi)

@@ -1,0 +1,95 @@
+"""4/3 proportional valve: spool dynamics and notch flows.
+
+P-I eq. (15) spool dynamics (with the K*omega_n^2 correction, digest section 8 #1), P-I
+eqs. (10)-(14) notch and centre-leakage flows with the opening-sign correction (#3), and
+P-II Table 1 flow-coefficient polynomials. Notch order in coefficient arrays: PA, PB, AT, BT.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+NOTCHES = ("PA", "PB", "AT", "BT")
+PA, PB, AT, BT = 0, 1, 2, 3
+CENTRE_BAND = 0.01  # |spool| below which the laminar centre leakage acts (P-I eqs. 13-14)
+
+
+@njit(cache=True)
+def spool_acceleration(x_s: float, v_s: float, reference: float, omega_n: float, damping: float) -> float:
+    """Eq. (15): x_s'' = omega_n^2 (reference - x_s) - 2 omega_n d_r x_s'."""
+    return omega_n * omega_n * (reference - x_s) - 2.0 * omega_n * damping * v_s
+
+
+@njit(cache=True)
+def flow_coefficient(poly: np.ndarray, notch: int, x_s: float) -> float:
+    """P-II Table 1: K_v(x_s) = c3 x^3 + c2 x^2 + c1 x + c0 [m^3/(s Pa^0.5)], x_s signed."""
+    c3 = poly[notch, 0]
+    c2 = poly[notch, 1]
+    c1 = poly[notch, 2]
+    c0 = poly[notch, 3]
+    return ((c3 * x_s + c2) * x_s + c1) * x_s + c0
+
+
+@njit(cache=True)
+def signed_root(dp: float, laminar_band: float) -> float:
+    """sgn(dp) sqrt(|dp|), linear inside |dp| < laminar_band so the slope stays finite."""
+    if abs(dp) < laminar_band:
+        return dp / math.sqrt(laminar_band)
+    return math.copysign(math.sqrt(abs(dp)), dp)
+
+
+@njit(cache=True)
+def spool_opening(x_s: float, offset: float, deadzone: float, opening_gain: float, stuck: bool) -> float:
+    """Signed effective opening s in [-1.5, 1.5] seen by the notches.
+
+    offset shifts the spool (eqs. 10-11, s = x_s + offset); deadzone is a spool overlap that
+    keeps the notches closed for |s| < deadzone and rescales so full travel still opens fully;
+    opening_gain < 1 / > 1 emulates a spool jammed to a too small / too large opening
+    (P-II section 4.2); a stuck spool sits at centre.
+    """
+    if stuck:
+        return 0.0
+    s = x_s + offset
+    if deadzone > 0.0:
+        magnitude = max(abs(s) - deadzone, 0.0) / (1.0 - deadzone)
+        s = math.copysign(magnitude, s)
+    s = opening_gain * min(max(s, -1.0), 1.0)
+    return s
+
+
+@njit(cache=True)
+def chamber_valve_flows(
+    s: float,
+    p_a: float,
+    p_b: float,
+    p_s: float,
+    p_t: float,
+    poly: np.ndarray,
+    centre_leakage: np.ndarray,
+    laminar_band: float,
+    flow_gain: float,
+) -> tuple[float, float]:
+    """Eqs. (10)-(14): valve flows (Q_A, Q_B) into chambers A and B [m^3/s].
+
+    The polynomial is evaluated at the spool position clipped to its fitted range [-1, 1];
+    the opening magnitude |s| may exceed 1 for a too-large-opening fault.
+    """
+    q_a = 0.0
+    q_b = 0.0
+    x_fit = min(max(s, -1.0), 1.0)
+    opening = abs(s)
+    if s > 0.0:
+        q_a = flow_coefficient(poly, PA, x_fit) * opening * signed_root(p_s - p_a, laminar_band)
+        q_b = -flow_coefficient(poly, BT, x_fit) * opening * signed_root(p_b - p_t, laminar_band)
+    elif s < 0.0:
+        q_a = -flow_coefficient(poly, AT, x_fit) * opening * signed_root(p_a - p_t, laminar_band)
+        q_b = flow_coefficient(poly, PB, x_fit) * opening * signed_root(p_s - p_b, laminar_band)
+    q_a *= flow_gain
+    q_b *= flow_gain
+    if abs(s) < CENTRE_BAND:
+        q_a += centre_leakage[PA] * (p_s - p_a) - centre_leakage[AT] * (p_a - p_t)
+        q_b += centre_leakage[PB] * (p_s - p_b) - centre_leakage[BT] * (p_b - p_t)
+    return q_a, q_b

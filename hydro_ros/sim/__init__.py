@@ -1,0 +1,1 @@
+"""Simulation of a monitored machine: sensors, operator excitation and scenarios (no ROS)."""

@@ -1,0 +1,84 @@
+"""Sensor models of the SAM: pressure transmitters, joint encoder, supply transducer.
+
+Pressures: additive Gaussian noise (P-II: R = 1e10 Pa^2), fault biases, saturation to the
+transmitter range. Joint angle: incremental encoder quantised to its resolution; joint
+velocity: backward difference of the quantised angle through a first-order low-pass (P-II
+differentiates the angle; the filter is INFERRED). The sample rate is the config's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from hydro_ros.models.sam import SamModel, injection_levels
+from hydro_ros.names import Injection
+
+
+@dataclass
+class Measurements:
+    """One block of sensor samples (all arrays of the same length)."""
+
+    times: np.ndarray
+    joint_position: np.ndarray
+    joint_velocity: np.ndarray
+    pressure_a: np.ndarray
+    pressure_b: np.ndarray
+    supply_pressure: np.ndarray
+    valve_command: np.ndarray
+
+
+class SensorModel:
+    """Stateful (velocity filter, encoder history) so blocks can be measured one after another."""
+
+    def __init__(self, model: SamModel, rng: np.random.Generator, injections: Sequence[Injection] = ()) -> None:
+        sensors: dict[str, Any] = model.config["sensors"]
+        self.model = model
+        self.rng = rng
+        self.injections = list(injections)
+        self.noise_std = float(sensors["pressure_noise_std"])
+        self.range = tuple(float(v) for v in sensors["pressure_range"])
+        self.resolution = float(sensors["encoder_resolution"])
+        cutoff = float(sensors.get("velocity_filter_hz", 20.0))
+        dt = 1.0 / model.sample_rate
+        self._alpha = dt / (dt + 1.0 / (2.0 * math.pi * cutoff))
+        self._previous_angle: float | None = None
+        self._velocity = 0.0
+
+    def _bias(self, name: str, times: np.ndarray) -> np.ndarray | float:
+        total: np.ndarray | float = 0.0
+        for injection in self.injections:
+            if injection.name == name:
+                total = total + injection_levels(injection, times)
+        return total
+
+    def _pressure(self, true: np.ndarray, bias: np.ndarray | float) -> np.ndarray:
+        noisy = true + bias + self.rng.normal(0.0, self.noise_std, size=true.shape)
+        return np.clip(noisy, *self.range)
+
+    def measure(self, times: np.ndarray, states: np.ndarray, commands: np.ndarray) -> Measurements:
+        angle = self.model.joint_from_piston(states[:, 4])
+        counts = np.round(angle / self.resolution)
+        quantised = counts * self.resolution
+        previous = quantised[0] if self._previous_angle is None else self._previous_angle
+        raw_rate = np.diff(np.concatenate(([previous], quantised))) * self.model.sample_rate
+        velocity = np.empty_like(raw_rate)
+        filtered = self._velocity
+        for k, rate in enumerate(raw_rate):
+            filtered += self._alpha * (rate - filtered)
+            velocity[k] = filtered
+        self._velocity = filtered
+        self._previous_angle = float(quantised[-1])
+        supply = np.full(len(times), self.model.config["supply_pressure"], dtype=float)
+        return Measurements(
+            times=times,
+            joint_position=quantised,
+            joint_velocity=velocity + self._bias("velocity_sensor_bias", times),
+            pressure_a=self._pressure(states[:, 0], self._bias("pressure_sensor_bias_a", times)),
+            pressure_b=self._pressure(states[:, 1], self._bias("pressure_sensor_bias_b", times)),
+            supply_pressure=self._pressure(supply, self._bias("supply_pressure_sensor_bias", times)),
+            valve_command=commands.copy(),
+        )

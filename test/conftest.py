@@ -1,0 +1,26 @@
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from hydro_ros.config import load_machine_config
+
+REPO = Path(__file__).resolve().parent.parent
+SAM_CONFIG = REPO / "config" / "sam.yaml"
+
+
+@pytest.fixture(scope="session")
+def sam_config() -> dict:
+    return load_machine_config(SAM_CONFIG)
+
+
+@pytest.fixture
+def ros_domain(worker_id: str = "main") -> int:
+    """A test-unique ROS domain on localhost only (brief: never leave the machine, never cross)."""
+    domain = 10 + (os.getpid() + hash(os.environ.get("PYTEST_CURRENT_TEST", ""))) % 200
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    return domain
