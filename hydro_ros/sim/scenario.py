@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
@@ -26,7 +27,7 @@ class Scenario:
         """Ground truth stored in the bag's custom_data (contract section 2)."""
         return {
             "machine": config["machine"],
-            "config": config.get("_path"),
+            "config": Path(str(config.get("_path", ""))).name,
             "actuator": self.actuator,
             "seed": self.seed,
             "duration_s": self.duration_s,
