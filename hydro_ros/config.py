@@ -83,7 +83,7 @@ def config_dir() -> Path:
 
         try:
             return Path(get_package_share_directory("hydro_ros")) / "config"
-        except (PackageNotFoundError, KeyError, ValueError):
+        except (PackageNotFoundError, KeyError, ValueError, OSError):
             pass
     except ImportError:
         pass

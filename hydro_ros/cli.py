@@ -1,0 +1,126 @@
+"""``hydro-ros``: the package's one command line (contract section 5).
+
+Every sub-command exits 0 on success and non-zero with a one-line error naming the bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Callable, Sequence
+
+from hydro_ros.config import ConfigError, load_machine_config
+from hydro_ros.names import INJECTION_UNITS, parse_injection
+
+
+class CliError(Exception):
+    """A user-facing failure: printed as one line, exit status 1."""
+
+
+def _injections(texts: Sequence[str], kind: str, timed: bool) -> list:
+    out = []
+    for text in texts:
+        if not timed and "@" in text:
+            raise CliError(f"--{kind} {text!r}: effects are present from t = 0; use --fault NAME=VALUE@T for timed faults")
+        try:
+            out.append(parse_injection(text))
+        except ValueError as exc:
+            raise CliError(f"--{kind} {exc}") from None
+    return out
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hydro_ros.bags.reader import read_bag
+    from hydro_ros.bags.writer import BagExistsError, ContractBagWriter
+    from hydro_ros.plots import plot_bag
+    from hydro_ros.sim.scenario import Scenario, run_blocks
+
+    config = load_machine_config(args.config)
+    if args.duration <= 0:
+        raise CliError(f"--duration {args.duration}: must be > 0 s")
+    injections = _injections(args.fault, "fault", True) + _injections(args.effect, "effect", False)
+    actuator = next(iter(config["actuators"]))
+    scenario = Scenario(args.duration, injections, seed=args.seed, actuator=actuator)
+    joint = config["actuators"][actuator]["joint"]
+    variance = float(config["sensors"]["pressure_noise_std"]) ** 2
+    try:
+        writer = ContractBagWriter(args.out, actuators={actuator: joint}, pressure_variance=variance)
+    except BagExistsError as exc:
+        raise CliError(str(exc)) from None
+    total = int(round(args.duration * float(config["sample_rate_hz"])))
+    with writer, tqdm(total=total, unit="sample", desc="simulate", disable=args.quiet) as bar:
+        writer.set_truth(scenario.truth(config))
+        for _, _, block in run_blocks(config, scenario, progress=bar.update):
+            writer.write(actuator, block)
+    plot = plot_bag(read_bag(args.out), Path(str(args.out).rstrip("/") + ".png"))
+    print(json.dumps({"bag": str(args.out), "messages": writer.messages, "plot": str(plot)}))
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from hydro_ros.nodes.bag_player import replay
+
+    return replay(args.bag, rate=args.rate, loop=args.loop, clock=not args.no_clock)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from hydro_ros.demo import run_demo
+
+    return run_demo(Path(args.out), config_path=args.config, duration=args.duration)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="hydro-ros", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    units = "; ".join(f"{name}: {unit}" for name, unit in sorted(INJECTION_UNITS.items()))
+    sim = sub.add_parser(
+        "sim",
+        help="simulate a scenario into a contract bag",
+        description=f"Simulate the machine under its simulated operator into a contract bag. VALUE units: {units}.",
+    )
+    sim.add_argument("--config", required=True, help="machine config, e.g. config/sam.yaml")
+    sim.add_argument("--duration", type=float, required=True, help="simulated seconds")
+    sim.add_argument("--fault", action="append", default=[], metavar="NAME=VALUE@T[:RAMP]",
+                     help="fault switched on at T s, developing linearly over RAMP s (repeatable)")
+    sim.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
+                     help="physical effect present from the start (repeatable)")
+    sim.add_argument("--seed", type=int, default=0, help="random seed of operator and sensor noise")
+    sim.add_argument("--out", required=True, help="bag directory to create (must not exist)")
+    sim.add_argument("--quiet", action="store_true", help="no progress bar")
+    sim.set_defaults(func=cmd_sim)
+
+    replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
+    replay.add_argument("bag", help="bag directory")
+    replay.add_argument("--rate", type=float, default=1.0, help="playback rate (1 = recorded speed)")
+    replay.add_argument("--loop", action="store_true", help="start again at the end")
+    replay.add_argument("--no-clock", action="store_true", help="do not publish /clock")
+    replay.set_defaults(func=cmd_replay)
+
+    demo = sub.add_parser("demo", help="the main job: simulate a developing leak and run it through the nodes")
+    demo.add_argument("--out", default="out/demo", help="directory for the bag and plots")
+    demo.add_argument("--config", default=None, help="machine config (default: the installed sam.yaml)")
+    demo.add_argument("--duration", type=float, default=60.0, help="simulated seconds")
+    demo.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return func(args)
+    except (CliError, ConfigError, ValueError, FileNotFoundError, FloatingPointError) as exc:
+        print(f"hydro-ros {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

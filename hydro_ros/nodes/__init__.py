@@ -1,0 +1,1 @@
+"""Thin ROS 2 nodes wiring the libraries to the contract topics."""

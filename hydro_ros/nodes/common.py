@@ -1,0 +1,41 @@
+"""QoS profiles named once, and the one `main` shape every executable shares (ros2/examples)."""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any, Callable
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+# 1 kHz sensor streams: reliable with a deep queue so a bag replay loses nothing.
+SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+# State that late joiners must see (halt, catalog, results).
+LATCHED_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
+def message_class(type_name: str) -> Any:
+    """'sensor_msgs/msg/FluidPressure' -> the Python class."""
+    package, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+
+
+def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None:
+    """Init, spin, shut down cleanly; Ctrl-C exits without a traceback."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = factory()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()

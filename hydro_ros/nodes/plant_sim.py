@@ -1,0 +1,178 @@
+"""plant_sim: the SAM plant model in (scaled) real time on the contract topics.
+
+Publishes the measured topics of contract section 1 (raw CDR, the same bytes a bag holds),
+optionally /clock. Valve commands come from the simulated operator (`excitation: operator`,
+then they are published on /hydraulics/valve_commands as the machine would) or from that topic
+(`excitation: topic`). Faults and effects are injected at run time by setting the parameters
+`fault.<name>` (units: `hydro-ros sim --help`). Health on /diagnostics as `hydro_ros/plant_sim`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import FluidPressure, JointState
+
+from hydro_ros.bags import topics
+from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
+from hydro_ros.config import default_config_path, load_machine_config
+from hydro_ros.names import INJECTABLE, Injection
+from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, run_node
+from hydro_ros.sim.scenario import Scenario, start
+
+COMMAND_TIMEOUT_S = 0.5  # a valve command older than this closes the valve (fail safe)
+MAX_CATCH_UP_S = 0.25  # simulate at most this much per tick; beyond it the node reports lag
+
+
+class PlantSim(Node):
+    def __init__(self) -> None:
+        super().__init__("plant_sim")
+        self.declare_parameter("config", str(default_config_path("sam")))
+        self.declare_parameter("seed", 0)
+        self.declare_parameter("excitation", "operator")
+        self.declare_parameter("real_time_factor", 1.0)
+        self.declare_parameter("publish_clock", False)
+        self.declare_parameter("tick_period", 0.01)
+        for name in sorted(INJECTABLE):
+            self.declare_parameter(f"fault.{name}", 0.0)
+        self.config = load_machine_config(self.get_parameter("config").value)
+        self.actuator = next(iter(self.config["actuators"]))
+        self.joint = self.config["actuators"][self.actuator]["joint"]
+        self.excitation = self.get_parameter("excitation").value
+        if self.excitation not in ("operator", "topic"):
+            raise ValueError(f"parameter excitation={self.excitation!r}: expected 'operator' or 'topic'")
+        self.rtf = float(self.get_parameter("real_time_factor").value)
+        if not (self.rtf > 0.0 and math.isfinite(self.rtf)):
+            raise ValueError(f"parameter real_time_factor={self.rtf}: must be > 0")
+        self.publish_clock = bool(self.get_parameter("publish_clock").value)
+        self.run = start(self.config, Scenario(float("inf"), (), seed=int(self.get_parameter("seed").value), actuator=self.actuator))
+        self.variance = float(self.config["sensors"]["pressure_noise_std"]) ** 2
+        self._pending: dict[str, float] = {}
+        self.add_on_set_parameters_callback(self._on_parameters)
+
+        self.pub_joint = self.create_publisher(JointState, topics.JOINT_STATES, SENSOR_QOS)
+        self.pub_pa = self.create_publisher(FluidPressure, topics.pressure_a(self.actuator), SENSOR_QOS)
+        self.pub_pb = self.create_publisher(FluidPressure, topics.pressure_b(self.actuator), SENSOR_QOS)
+        self.pub_supply = self.create_publisher(FluidPressure, topics.SUPPLY_PRESSURE, SENSOR_QOS)
+        self.pub_valve = None
+        self.command = 0.0
+        self.command_wall = -math.inf
+        if self.excitation == "operator":
+            self.pub_valve = self.create_publisher(JointState, topics.VALVE_COMMANDS, SENSOR_QOS)
+        else:
+            self.create_subscription(JointState, topics.VALVE_COMMANDS, self._on_command, SENSOR_QOS)
+        self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.publish_clock else None
+        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+
+        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.start_wall = time.monotonic()
+        self.stamp_origin_ns = 0 if self.publish_clock else self.get_clock().now().nanoseconds
+        self.lag_s = 0.0
+        self.command_stale = False
+        self.create_timer(float(self.get_parameter("tick_period").value), self._tick, clock=self.steady)
+        self.create_timer(1.0, self._diagnose, clock=self.steady)
+        self.get_logger().info(
+            f"simulating {self.config['machine']} ({self.actuator}) at {self.config['sample_rate_hz']:.0f} Hz, "
+            f"x{self.rtf:g} real time, excitation={self.excitation}"
+        )
+
+    def _on_parameters(self, params: list) -> SetParametersResult:
+        for param in params:
+            if not param.name.startswith("fault."):
+                continue
+            value = param.value
+            if not isinstance(value, (int, float)) or not math.isfinite(value):
+                return SetParametersResult(successful=False, reason=f"{param.name}: value must be a finite number")
+            self._pending[param.name.removeprefix("fault.")] = float(value)
+        return SetParametersResult(successful=True)
+
+    def _on_command(self, msg: JointState) -> None:
+        if self.actuator in msg.name:
+            value = msg.position[msg.name.index(self.actuator)] if len(msg.position) == len(msg.name) else math.nan
+            if math.isfinite(value):
+                self.command = max(-1.0, min(1.0, value))
+                self.command_wall = time.monotonic()
+            else:
+                self.get_logger().warn(f"ignored valve command for {self.actuator}: {value!r} (NaN or missing)")
+
+    def _apply_pending(self) -> None:
+        now = self.run.plant.time
+        for name, value in self._pending.items():
+            for holder in (self.run.plant.injections, self.run.sensors.injections):
+                holder[:] = [i for i in holder if i.name != name]
+                if value != 0.0:
+                    holder.append(Injection(name, value, onset_s=now))
+            self.get_logger().info(f"fault {name} = {value:g} from t = {now:.3f} s")
+        self._pending.clear()
+
+    def _tick(self) -> None:
+        if self._pending:
+            self._apply_pending()
+        rate = self.run.plant.model.sample_rate
+        due = int((time.monotonic() - self.start_wall) * self.rtf * rate) - self.run.plant.sample_index
+        if due <= 0:
+            return
+        limit = int(MAX_CATCH_UP_S * rate)
+        self.lag_s = max(0.0, (due - limit) / rate)
+        n = min(due, limit)
+        commands: float | None = None
+        if self.excitation == "topic":
+            self.command_stale = time.monotonic() - self.command_wall > COMMAND_TIMEOUT_S
+            commands = 0.0 if self.command_stale else self.command
+        _, _, block = self.run.step(n, None if commands is None else np.full(n, commands))
+        self._publish(block)
+
+    def _publish(self, block) -> None:
+        origin = self.stamp_origin_ns
+        for k in range(len(block.times)):
+            stamp = origin + int(round(block.times[k] * 1e9))
+            self.pub_joint.publish(encode_joint_state(
+                stamp, "", [self.joint], [float(block.joint_position[k])], [float(block.joint_velocity[k])], []))
+            self.pub_pa.publish(encode_fluid_pressure(stamp, self.actuator, float(block.pressure_a[k]), self.variance))
+            self.pub_pb.publish(encode_fluid_pressure(stamp, self.actuator, float(block.pressure_b[k]), self.variance))
+            self.pub_supply.publish(encode_fluid_pressure(stamp, "supply", float(block.supply_pressure[k]), self.variance))
+            if self.pub_valve is not None:
+                self.pub_valve.publish(encode_joint_state(stamp, "", [self.actuator], [float(block.valve_command[k])], [], []))
+        if self.pub_clock is not None:
+            msg = ClockMsg()
+            stamp = origin + int(round(block.times[-1] * 1e9))
+            msg.clock.sec, msg.clock.nanosec = divmod(stamp, 1_000_000_000)
+            self.pub_clock.publish(msg)
+
+    def _diagnose(self) -> None:
+        status = DiagnosticStatus(name="hydro_ros/plant_sim", hardware_id=str(self.config["machine"]))
+        sim_time = self.run.plant.time
+        wall = time.monotonic() - self.start_wall
+        achieved = sim_time / wall if wall > 0 else 0.0
+        problems = []
+        if self.lag_s > 0.0:
+            problems.append(f"behind real time by {self.lag_s:.2f} s")
+        if self.excitation == "topic" and self.command_stale:
+            problems.append("valve command stale, valve held closed")
+        status.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
+        status.message = "; ".join(problems) or "ok"
+        active = [f"{i.name}={i.value:g}" for i in self.run.plant.injections + self.run.sensors.injections]
+        status.values = [
+            KeyValue(key="sim_time_s", value=f"{sim_time:.3f}"),
+            KeyValue(key="real_time_factor", value=f"{achieved:.2f}"),
+            KeyValue(key="active_faults", value=",".join(sorted(set(active))) or "none"),
+        ]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(array)
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node(PlantSim, args)
+
+
+if __name__ == "__main__":
+    main()

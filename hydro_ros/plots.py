@@ -1,0 +1,45 @@
+"""Plots people would rather look at than JSON (matplotlib, Agg backend, PNG)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from hydro_ros.bags.reader import BagData  # noqa: E402
+
+
+def plot_bag(data: BagData, out: str | Path) -> Path:
+    """Pressures, joint motion and valve command of every actuator, fault onsets marked."""
+    out = Path(out)
+    t = data.times
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 7))
+    for name, values in data.pressure_a.items():
+        axes[0].plot(t, values / 1e6, lw=0.6, label=f"{name} p_A")
+    for name, values in data.pressure_b.items():
+        axes[0].plot(t, values / 1e6, lw=0.6, label=f"{name} p_B")
+    if data.supply_pressure is not None:
+        axes[0].plot(t, data.supply_pressure / 1e6, lw=0.4, color="grey", label="supply")
+    axes[0].set_ylabel("pressure [MPa]")
+    for name, values in data.joint_position.items():
+        axes[1].plot(t, values, lw=0.8, label=name)
+    axes[1].set_ylabel("joint [rad]")
+    for name, values in data.valve_command.items():
+        axes[2].plot(t, values, lw=0.6, label=name)
+    axes[2].set_ylabel("valve command [-]")
+    axes[2].set_xlabel("time from first sample [s]")
+    for fault in (data.truth or {}).get("faults", []):
+        for ax in axes:
+            ax.axvline(fault["onset_s"], color="red", ls="--", lw=0.8)
+        axes[0].annotate(fault["name"], (fault["onset_s"], axes[0].get_ylim()[1]), color="red", fontsize=8, va="top")
+    for ax in axes:
+        ax.legend(loc="upper right", fontsize=7)
+        ax.grid(alpha=0.3)
+    fig.suptitle(str(data.path.name))
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

@@ -1,0 +1,31 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "hydro_ros"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/launch", glob("launch/*.py")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="hydro_ros developers",
+    maintainer_email="hydro-ros@example.org",
+    description="Condition monitoring and energy-optimal motion for hydraulic manipulators",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "plant_sim = hydro_ros.nodes.plant_sim:main",
+            "bag_player = hydro_ros.nodes.bag_player:main",
+            "hydro-ros = hydro_ros.cli:main",
+        ],
+    },
+)
