@@ -99,7 +99,7 @@ def read_bag(path: str | Path) -> BagData:
     bad = 0
     try:
         with file.open("rb") as stream:
-            for schema, channel, message in NonSeekingReader(stream, validate_crcs=True).iter_messages():
+            for schema, channel, message in NonSeekingReader(stream, validate_crcs=True).iter_messages(log_time_order=False):
                 total += 1
                 topic = channel.topic
                 counts[topic] = counts.get(topic, 0) + 1

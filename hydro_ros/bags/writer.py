@@ -1,4 +1,11 @@
-"""Write contract bags: ROS 2 bag directory, MCAP storage (zstd chunks), CDR messages."""
+"""Write contract bags: ROS 2 bag directory (metadata.yaml + one MCAP file), CDR messages.
+
+The MCAP file is written with the `mcap` library in the layout `ros2 bag record` produces:
+schema and channel records precede the messages in the data section and chunks are closed
+every ~1 MB, so a bag cut short by a crash loses only its last chunk (rosbags' writer keeps
+schemas and channels for the summary at the end, which a truncated file never reaches).
+metadata.yaml follows rosbag2 version 9; ground truth goes into its custom_data.
+"""
 
 from __future__ import annotations
 
@@ -6,8 +13,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.rosbag2.writer import CompressionFormat, CompressionMode
+import yaml
+from mcap.writer import CompressionType, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from hydro_ros.bags import topics
@@ -22,7 +29,7 @@ class BagExistsError(FileExistsError):
 
 
 class ContractBagWriter:
-    """Context manager writing one machine's sensor topics; ground truth goes into custom_data."""
+    """Context manager writing one machine's sensor topics."""
 
     def __init__(self, path: str | Path, *, actuators: dict[str, str], pressure_variance: float) -> None:
         """``actuators`` maps actuator name -> joint name (machine config order)."""
@@ -31,38 +38,91 @@ class ContractBagWriter:
             raise BagExistsError(f"bag {self.path}: already exists, refusing to overwrite")
         self.actuators = actuators
         self.variance = pressure_variance
-        self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
-        self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        self._connections: dict[str, Any] = {}
+        self.file = self.path / f"{self.path.name}.mcap"
+        self.custom_data: dict[str, str] = {}
         self.messages = 0
+        self._counts: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._types = topics.sensor_topics(list(actuators))
+        self._first = None
+        self._last = 0
 
     def __enter__(self) -> "ContractBagWriter":
-        self._writer.open()
-        for topic, msgtype in topics.sensor_topics(list(self.actuators)).items():
-            self._connections[topic] = self._writer.add_connection(topic, msgtype, typestore=TYPESTORE)
+        self.path.mkdir(parents=True)
+        self._stream = self.file.open("wb")
+        self._mcap = Writer(self._stream, compression=CompressionType.ZSTD)
+        self._mcap.start(profile="ros2", library="hydro_ros")
+        schemas: dict[str, int] = {}
+        for topic, msgtype in self._types.items():
+            if msgtype not in schemas:
+                definition, _ = TYPESTORE.generate_msgdef(msgtype, ros_version=2)
+                schemas[msgtype] = self._mcap.register_schema(msgtype, "ros2msg", definition.encode())
+            self._channels[topic] = self._mcap.register_channel(topic, "cdr", schemas[msgtype])
+            self._counts[topic] = 0
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._writer.close()
+        self._mcap.finish()
+        self._stream.close()
+        self._write_metadata()
 
     def set_truth(self, truth: dict[str, Any]) -> None:
-        self._writer.set_custom_data(topics.TRUTH_KEY, json.dumps(truth, sort_keys=True))
+        self.custom_data[topics.TRUTH_KEY] = json.dumps(truth, sort_keys=True)
+
+    def _write_metadata(self) -> None:
+        start = self._first or 0
+        duration = {"nanoseconds": self._last - start}
+        starting = {"nanoseconds_since_epoch": start}
+        info = {
+            "version": 9,
+            "storage_identifier": "mcap",
+            "duration": duration,
+            "starting_time": starting,
+            "message_count": self.messages,
+            "topics_with_message_count": [
+                {
+                    "message_count": self._counts[topic],
+                    "topic_metadata": {
+                        "name": topic,
+                        "type": msgtype,
+                        "serialization_format": "cdr",
+                        "offered_qos_profiles": [],
+                        "type_description_hash": TYPESTORE.hash_rihs01(msgtype),
+                    },
+                }
+                for topic, msgtype in self._types.items()
+            ],
+            "compression_format": "",
+            "compression_mode": "",
+            "relative_file_paths": [self.file.name],
+            "files": [{"path": self.file.name, "starting_time": starting, "duration": duration, "message_count": self.messages}],
+            "custom_data": self.custom_data,
+            "ros_distro": "kilted",
+        }
+        (self.path / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False))
 
     def write(self, actuator: str, block: Measurements) -> None:
         """Write one actuator's block of samples; stamps (and bag log times) are sample times."""
         joint = self.actuators[actuator]
-        conn = self._connections
-        write = self._writer.write
+        channels = self._channels
+        names = (topics.JOINT_STATES, topics.pressure_a(actuator), topics.pressure_b(actuator), topics.SUPPLY_PRESSURE, topics.VALVE_COMMANDS)
+        ids = [channels[name] for name in names]
+        add = self._mcap.add_message
         for k in range(len(block.times)):
             stamp = int(round(block.times[k] * 1e9))
-            write(conn[topics.JOINT_STATES], stamp, encode_joint_state(
-                stamp, "", [joint], [float(block.joint_position[k])], [float(block.joint_velocity[k])], []))
-            write(conn[topics.pressure_a(actuator)], stamp, encode_fluid_pressure(
-                stamp, actuator, float(block.pressure_a[k]), self.variance))
-            write(conn[topics.pressure_b(actuator)], stamp, encode_fluid_pressure(
-                stamp, actuator, float(block.pressure_b[k]), self.variance))
-            write(conn[topics.SUPPLY_PRESSURE], stamp, encode_fluid_pressure(
-                stamp, "supply", float(block.supply_pressure[k]), self.variance))
-            write(conn[topics.VALVE_COMMANDS], stamp, encode_joint_state(
-                stamp, "", [actuator], [float(block.valve_command[k])], [], []))
-        self.messages += 5 * len(block.times)
+            payloads = (
+                encode_joint_state(stamp, "", [joint], [float(block.joint_position[k])], [float(block.joint_velocity[k])], []),
+                encode_fluid_pressure(stamp, actuator, float(block.pressure_a[k]), self.variance),
+                encode_fluid_pressure(stamp, actuator, float(block.pressure_b[k]), self.variance),
+                encode_fluid_pressure(stamp, "supply", float(block.supply_pressure[k]), self.variance),
+                encode_joint_state(stamp, "", [actuator], [float(block.valve_command[k])], [], []),
+            )
+            for channel, payload in zip(ids, payloads):
+                add(channel, stamp, payload, stamp)
+        n = len(block.times)
+        for name in names:
+            self._counts[name] += n
+        self.messages += len(names) * n
+        if n:
+            self._first = self._first if self._first is not None else int(round(block.times[0] * 1e9))
+            self._last = int(round(block.times[-1] * 1e9))

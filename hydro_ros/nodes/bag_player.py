@@ -48,7 +48,7 @@ class BagPlayer(Node):
     def _messages(self) -> Iterator[tuple[str, str, int, bytes]]:
         with self.file.open("rb") as stream:
             try:
-                for schema, channel, message in NonSeekingReader(stream, validate_crcs=True).iter_messages():
+                for schema, channel, message in NonSeekingReader(stream, validate_crcs=True).iter_messages(log_time_order=False):
                     yield channel.topic, schema.name if schema else "", message.log_time, message.data
             except Exception as exc:  # noqa: BLE001 - damage ends playback, not the node
                 error = f"{self.file}: damaged after {self.published} messages ({type(exc).__name__}: {exc})"

@@ -1,0 +1,32 @@
+# make demo | make test | make bench | make bags   (each sets up .venv first)
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
+
+.PHONY: setup test demo bench bags clean
+
+$(VENV)/.installed: requirements.txt setup.py
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -r requirements.txt
+	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .
+	touch $@
+
+setup: $(VENV)/.installed
+
+test: setup
+	$(PY) -m pytest -q test
+
+demo: setup
+	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-42} $(VENV)/bin/hydro-ros demo --out out/demo
+
+bench: setup
+	$(PY) bench/run.py --out bench/results.json
+
+bags: setup
+	$(PY) scripts/make_sample_bags.py --out bags
+
+clean:
+	rm -rf build install log out .pytest_cache

@@ -1,0 +1,110 @@
+"""Contract bags: readable by rosbags and mcap, CDR identical to rosbags', damage tolerated."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
+
+from hydro_ros.bags import topics
+from hydro_ros.bags.cdr import decode_fluid_pressure, decode_joint_state, encode_fluid_pressure, encode_joint_state
+from hydro_ros.bags.reader import BagError, mcap_file, read_bag
+from hydro_ros.bags.writer import TYPESTORE, BagExistsError, ContractBagWriter
+from hydro_ros.names import Injection
+from hydro_ros.sim.scenario import Scenario, run_blocks
+
+
+@pytest.fixture(scope="module")
+def leak_bag(tmp_path_factory, sam_config) -> Path:
+    path = tmp_path_factory.mktemp("bags") / "leak"
+    scenario = Scenario(6.0, [Injection("external_leakage_a", 1.0, 2.0), Injection("pressure_sensor_bias_b", 3e5, 4.0)], seed=3)
+    with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
+        writer.set_truth(scenario.truth(sam_config))
+        for _, _, block in run_blocks(sam_config, scenario):
+            writer.write("boom", block)
+    return path
+
+
+def test_cdr_matches_rosbags_serialiser():
+    fp = TYPESTORE.types["sensor_msgs/msg/FluidPressure"]
+    header = TYPESTORE.types["std_msgs/msg/Header"]
+    stamp = TYPESTORE.types["builtin_interfaces/msg/Time"]
+    msg = fp(header=header(stamp=stamp(sec=12, nanosec=345), frame_id="boomy"), fluid_pressure=8.5e6, variance=1e10)
+    assert TYPESTORE.serialize_cdr(msg, fp.__msgtype__).tobytes() == encode_fluid_pressure(12_000_000_345, "boomy", 8.5e6, 1e10)
+    js = TYPESTORE.types["sensor_msgs/msg/JointState"]
+    msg = js(header=header(stamp=stamp(sec=1, nanosec=2), frame_id=""), name=["a", "joint_b"],
+             position=np.array([1.5, -2.0]), velocity=np.array([0.25, 0.5]), effort=np.array([], dtype=float))
+    ours = encode_joint_state(1_000_000_002, "", ["a", "joint_b"], [1.5, -2.0], [0.25, 0.5], [])
+    assert TYPESTORE.serialize_cdr(msg, js.__msgtype__).tobytes() == ours
+    assert decode_joint_state(ours) == (1_000_000_002, ["a", "joint_b"], (1.5, -2.0), (0.25, 0.5))
+    assert decode_fluid_pressure(encode_fluid_pressure(5, "x", 1.0, 2.0)) == (5, 1.0, 2.0)
+
+
+def test_bag_is_readable_by_rosbags_with_contract_types(leak_bag, sam_config):
+    with AnyReader([leak_bag]) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        assert types == topics.sensor_topics(["boom"])
+        first = {}
+        for connection, log_time, raw in reader.messages():
+            msg = reader.deserialize(raw, connection.msgtype)
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            assert stamp == log_time  # contract: bag log time = header.stamp
+            first.setdefault(connection.topic, msg)
+        assert list(first[topics.JOINT_STATES].name) == ["boom_joint"]
+        assert list(first[topics.VALVE_COMMANDS].name) == ["boom"]
+        assert 1e6 < first["/hydraulics/boom/pressure_a"].fluid_pressure < 25e6
+
+
+def test_bag_is_readable_by_mcap_reader(leak_bag):
+    with mcap_file(leak_bag).open("rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        assert {s.name for s in summary.schemas.values()} == {topics.JOINT_STATE_TYPE, topics.FLUID_PRESSURE_TYPE}
+        assert summary.statistics.message_count == 5 * 6000
+
+
+def test_reader_aligns_samples_and_keeps_truth(leak_bag):
+    data = read_bag(leak_bag)
+    assert data.complete and data.message_count == 30000
+    assert len(data.times) == 6000 and data.times[1] == pytest.approx(0.001)
+    for series in (data.pressure_a["boom"], data.pressure_b["boom"], data.supply_pressure, data.valve_command["boom"],
+                   data.joint_position["boom_joint"]):
+        assert np.all(np.isfinite(series))
+    assert data.truth["faults"][0]["name"] == "external_leakage_a"
+    # the sensor bias of the truth is visible in the data: supply is unbiased, p_B jumps by ~0.3 MPa at 4 s
+    assert np.mean(data.supply_pressure) == pytest.approx(10e6, rel=2e-3)
+
+
+def test_truncated_bag_returns_what_was_readable(leak_bag, tmp_path):
+    damaged = tmp_path / "damaged"
+    shutil.copytree(leak_bag, damaged)
+    file = mcap_file(damaged)
+    raw = file.read_bytes()
+    file.write_bytes(raw[: len(raw) // 2])
+    data = read_bag(damaged)
+    assert not data.complete
+    assert "damaged after" in data.errors[0] and str(file) in data.errors[0]
+    assert 0 < data.message_count < 30000
+    assert len(data.times) > 500
+
+
+def test_garbage_and_missing_bags_fail_clearly(tmp_path):
+    with pytest.raises(BagError, match="no such file"):
+        read_bag(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BagError, match="no .mcap file"):
+        read_bag(tmp_path / "empty")
+    junk = tmp_path / "junk"
+    junk.mkdir()
+    (junk / "junk.mcap").write_bytes(b"this is not an mcap file at all" * 10)
+    with pytest.raises(BagError, match="junk.mcap"):
+        read_bag(junk)
+
+
+def test_writer_refuses_to_overwrite(leak_bag):
+    with pytest.raises(BagExistsError, match="already exists"):
+        ContractBagWriter(leak_bag, actuators={"boom": "boom_joint"}, pressure_variance=1.0)

@@ -1,0 +1,53 @@
+"""hydro-ros as a user runs it: --help, one-line errors without traceback, sim writes a bag."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from test.conftest import SAM_CONFIG
+
+CLI = [sys.executable, "-m", "hydro_ros.cli"]
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("sub", ["sim", "replay", "demo"])
+def test_every_subcommand_has_help(sub):
+    result = run(sub, "--help")
+    assert result.returncode == 0 and "usage: hydro-ros" in result.stdout
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["sim", "--config", "missing.yaml", "--duration", "1", "--out", "X"], "missing.yaml: no such file"),
+        (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--fault", "bogus_leak=1@2", "--out", "X"], "unknown fault or effect 'bogus_leak'"),
+        (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--fault", "internal_leakage=oops", "--out", "X"], "cannot parse"),
+        (["sim", "--config", str(SAM_CONFIG), "--duration", "-1", "--out", "X"], "--duration -1.0"),
+        (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--effect", "payload_mass=50@3", "--out", "X"], "effects are present from t = 0"),
+    ],
+)
+def test_bad_input_gives_one_line_error(args, needle, tmp_path):
+    result = subprocess.run([*CLI, *args], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert result.returncode == 1
+    assert needle in result.stderr
+    assert "Traceback" not in result.stderr and len(result.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "X").exists()
+
+
+def test_sim_writes_bag_and_plot(tmp_path):
+    out = tmp_path / "bag"
+    result = run("sim", "--config", str(SAM_CONFIG), "--duration", "2", "--fault", "internal_leakage=0.5@1",
+                 "--effect", "payload_mass=50", "--seed", "4", "--out", str(out), "--quiet")
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert report["messages"] == 10000
+    assert (out / "metadata.yaml").is_file() and (tmp_path / "bag.png").stat().st_size > 10000
+    again = run("sim", "--config", str(SAM_CONFIG), "--duration", "2", "--out", str(out), "--quiet")
+    assert again.returncode == 1 and "already exists" in again.stderr
