@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Iterator
 
 import rclpy
-from mcap.reader import NonSeekingReader
+from mcap.reader import NonSeekingReader, make_reader
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -31,6 +31,8 @@ class BagPlayer(Node):
         self.declare_parameter("loop", bool(loop))
         self.declare_parameter("publish_clock", True if clock is None else clock)
         self.declare_parameter("tick_period", 0.005)
+        # like `ros2 bag play --delay`: give subscribers time to match before the first message
+        self.declare_parameter("start_delay", 1.0)
         self.path = Path(self.get_parameter("bag").value)
         self.rate = float(self.get_parameter("rate").value)
         if not (self.rate > 0 and math.isfinite(self.rate)):
@@ -42,6 +44,8 @@ class BagPlayer(Node):
         self.finished = False
         self.published = 0
         self.errors: list[str] = []
+        self._advertise()
+        self._delay = float(self.get_parameter("start_delay").value)
         self._restart()
         self.create_timer(float(self.get_parameter("tick_period").value), self._tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
@@ -55,11 +59,26 @@ class BagPlayer(Node):
                 self.errors.append(error)
                 self.get_logger().error(error)
 
+    def _advertise(self) -> None:
+        """Create every publisher up front from the MCAP summary, when the file has one."""
+        try:
+            with self.file.open("rb") as stream:
+                summary = make_reader(stream).get_summary()
+        except Exception:  # noqa: BLE001 - a damaged summary only means publishers are made lazily
+            return
+        if summary is None:
+            return
+        for channel in summary.channels.values():
+            schema = summary.schemas.get(channel.schema_id)
+            if schema is not None:
+                self._publisher(channel.topic, schema.name)
+
     def _restart(self) -> None:
         self._stream = self._messages()
         self._next = next(self._stream, None)
         self._bag_start = self._next[2] if self._next else 0
-        self._wall_start = time.monotonic()
+        self._wall_start = time.monotonic() + self._delay
+        self._delay = 0.0
 
     def _publisher(self, topic: str, type_name: str):
         pub = self.publishers_by_topic.get(topic)
@@ -71,7 +90,10 @@ class BagPlayer(Node):
     def _tick(self) -> None:
         if self.finished:
             return
-        play_until = self._bag_start + int((time.monotonic() - self._wall_start) * self.rate * 1e9)
+        elapsed = time.monotonic() - self._wall_start
+        if elapsed < 0.0:
+            return
+        play_until = self._bag_start + int(elapsed * self.rate * 1e9)
         last = None
         while self._next is not None and self._next[2] <= play_until:
             topic, type_name, log_time, data = self._next

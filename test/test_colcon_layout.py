@@ -1,0 +1,33 @@
+"""`colcon build` installs every node where `ros2 run hydro_ros <node>` looks for it."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from test.conftest import REPO
+
+EXECUTABLES = ("plant_sim", "bag_player")
+
+
+def test_colcon_build_installs_executables_in_the_ament_index(tmp_path):
+    src = tmp_path / "src" / "hydro_ros"
+    shutil.copytree(REPO, src, ignore=shutil.ignore_patterns(".venv", ".git", "build", "install", "log", "out", "bags", "*.egg-info", "__pycache__"))
+    colcon = Path(sys.executable).parent / "colcon"
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}:{os.environ['PATH']}")
+    result = subprocess.run([str(colcon), "build", "--base-paths", "src"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
+    prefix = tmp_path / "install" / "hydro_ros"
+    # ros2 run: ament index -> prefix -> lib/<package>/<executable>
+    probe = subprocess.run(
+        [sys.executable, "-c", "from ament_index_python.packages import get_package_prefix as g; print(g('hydro_ros'))"],
+        env=dict(env, AMENT_PREFIX_PATH=str(prefix)), capture_output=True, text=True, check=True)
+    assert Path(probe.stdout.strip()) == prefix
+    for name in EXECUTABLES:
+        exe = prefix / "lib" / "hydro_ros" / name
+        assert exe.is_file() and os.access(exe, os.X_OK), f"{exe} missing"
+    assert (prefix / "share" / "hydro_ros" / "config" / "sam.yaml").is_file()
+    assert (prefix / "share" / "hydro_ros" / "package.xml").is_file()
