@@ -1,0 +1,70 @@
+"""Every contract fault and effect switches on at its time t and acts in its physical direction."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hydro_ros.models.sam import SamModel, SamPlant
+from hydro_ros.names import INJECTABLE, Injection, parse_injection
+from hydro_ros.sim.sensors import SensorModel
+
+ONSET = 1.0
+N = 3000
+COMMANDS = np.concatenate([np.zeros(500), np.full(1500, 0.3), np.full(1000, -0.3)])
+
+# name -> (value, observable(clean, faulty) that must be True after onset)
+EXPECTED = {
+    "external_leakage_a": (2.0, lambda c, f: f["p_a"][-1] < c["p_a"][-1] - 1e5 or f["x"][-1] < c["x"][-1] - 1e-3),
+    "external_leakage_b": (2.0, lambda c, f: f["x"][-1] != c["x"][-1]),
+    "external_leakage_ab": (2.0, lambda c, f: f["x"][-1] != c["x"][-1]),
+    "internal_leakage": (2.0, lambda c, f: f["x"][-1] != c["x"][-1]),
+    "spool_too_small_opening": (0.5, lambda c, f: abs(f["x"][1999] - f["x"][999]) < 0.8 * abs(c["x"][1999] - c["x"][999])),
+    "spool_too_large_opening": (0.3, lambda c, f: abs(f["x"][1999] - f["x"][999]) > 1.1 * abs(c["x"][1999] - c["x"][999])),
+    "spool_stuck_closed": (1.0, lambda c, f: abs(f["x"][1999] - f["x"][999]) < 1e-3),
+    "spool_offset": (0.05, lambda c, f: f["x"][-1] > c["x"][-1]),
+    "valve_deadzone": (0.2, lambda c, f: abs(f["x"][1999] - f["x"][999]) < 0.8 * abs(c["x"][1999] - c["x"][999])),
+    "valve_delay": (0.1, lambda c, f: (f["x"][2080] - f["x"][1999]) > (c["x"][2080] - c["x"][1999]) + 1e-4),
+    "valve_flow_gain": (0.3, lambda c, f: abs(f["x"][1999] - f["x"][999]) > 1.1 * abs(c["x"][1999] - c["x"][999])),
+    "entrained_air": (0.02, lambda c, f: not np.allclose(f["p_b"], c["p_b"], atol=1e3)),
+    "coulomb_friction": (3000.0, lambda c, f: f["x"][1999] < c["x"][1999]),
+    "viscous_friction": (2e5, lambda c, f: f["x"][1999] < c["x"][1999]),
+    "payload_mass": (200.0, lambda c, f: f["p_a"][-1] > c["p_a"][-1] + 1e5),
+    "pressure_sensor_bias_a": (3e5, lambda c, f: np.mean(f["m_pa"][1500:] - c["m_pa"][1500:]) == pytest.approx(3e5, rel=1e-6)),
+    "pressure_sensor_bias_b": (3e5, lambda c, f: np.mean(f["m_pb"][1500:] - c["m_pb"][1500:]) == pytest.approx(3e5, rel=1e-6)),
+    "supply_pressure_sensor_bias": (-5e5, lambda c, f: np.mean(f["m_ps"][1500:] - c["m_ps"][1500:]) == pytest.approx(-5e5, rel=1e-6)),
+    "velocity_sensor_bias": (0.01, lambda c, f: np.mean(f["m_v"][1500:] - c["m_v"][1500:]) == pytest.approx(0.01, rel=1e-6)),
+}
+
+
+def _run(config, injections):
+    model = SamModel(config)
+    plant = SamPlant(model, injections=injections, initial_joint=0.0)
+    times, states, applied = plant.advance(N, commands=COMMANDS)
+    meas = SensorModel(model, np.random.default_rng(0), injections).measure(times, states, applied)
+    return {"p_a": states[:, 0], "p_b": states[:, 1], "x": states[:, 4], "m_pa": meas.pressure_a, "m_pb": meas.pressure_b,
+            "m_ps": meas.supply_pressure, "m_v": meas.joint_velocity}
+
+
+def test_every_injectable_name_is_covered():
+    assert set(EXPECTED) == set(INJECTABLE)
+
+
+@pytest.fixture(scope="module")
+def clean(sam_config):
+    return _run(sam_config, [])
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_injection_switches_on_at_onset_and_acts(sam_config, clean, name):
+    value, acts = EXPECTED[name]
+    faulty = _run(sam_config, [Injection(name, value, ONSET)])
+    before = int(ONSET * 1000) - 1
+    for key in ("p_a", "p_b", "x", "m_pa", "m_pb", "m_ps"):
+        np.testing.assert_array_equal(faulty[key][:before], clean[key][:before], err_msg=f"{name} acted before onset ({key})")
+    assert acts(clean, faulty), f"{name}={value} had no effect in its physical direction"
+
+
+def test_developing_fault_ramps():
+    injection = parse_injection("internal_leakage=2@10:4")
+    assert [injection.level(t) for t in (9.9, 10.0, 12.0, 14.0, 20.0)] == [0.0, 0.0, 1.0, 2.0, 2.0]
