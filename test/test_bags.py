@@ -75,7 +75,7 @@ def test_reader_aligns_samples_and_keeps_truth(leak_bag):
                    data.joint_position["boom_joint"]):
         assert np.all(np.isfinite(series))
     assert data.truth["faults"][0]["name"] == "external_leakage_a"
-    # the sensor bias of the truth is visible in the data: supply is unbiased, p_B jumps by ~0.3 MPa at 4 s
+    # the supply transducer carries no injected bias: its mean is the configured supply pressure
     assert np.mean(data.supply_pressure) == pytest.approx(10e6, rel=2e-3)
 
 

@@ -28,6 +28,21 @@ class BagExistsError(FileExistsError):
     pass
 
 
+def sample_payloads(block: Measurements, k: int, stamp: int, actuator: str, joint: str, variance: float) -> tuple[bytes, ...]:
+    """CDR of sample ``k`` for the topics of :func:`sample_topics`, in that order."""
+    return (
+        encode_joint_state(stamp, "", [joint], [float(block.joint_position[k])], [float(block.joint_velocity[k])], []),
+        encode_fluid_pressure(stamp, actuator, float(block.pressure_a[k]), variance),
+        encode_fluid_pressure(stamp, actuator, float(block.pressure_b[k]), variance),
+        encode_fluid_pressure(stamp, "supply", float(block.supply_pressure[k]), variance),
+        encode_joint_state(stamp, "", [actuator], [float(block.valve_command[k])], [], []),
+    )
+
+
+def sample_topics(actuator: str) -> tuple[str, ...]:
+    return (topics.JOINT_STATES, topics.pressure_a(actuator), topics.pressure_b(actuator), topics.SUPPLY_PRESSURE, topics.VALVE_COMMANDS)
+
+
 class ContractBagWriter:
     """Context manager writing one machine's sensor topics."""
 
@@ -105,18 +120,12 @@ class ContractBagWriter:
         """Write one actuator's block of samples; stamps (and bag log times) are sample times."""
         joint = self.actuators[actuator]
         channels = self._channels
-        names = (topics.JOINT_STATES, topics.pressure_a(actuator), topics.pressure_b(actuator), topics.SUPPLY_PRESSURE, topics.VALVE_COMMANDS)
+        names = sample_topics(actuator)
         ids = [channels[name] for name in names]
         add = self._mcap.add_message
         for k in range(len(block.times)):
             stamp = int(round(block.times[k] * 1e9))
-            payloads = (
-                encode_joint_state(stamp, "", [joint], [float(block.joint_position[k])], [float(block.joint_velocity[k])], []),
-                encode_fluid_pressure(stamp, actuator, float(block.pressure_a[k]), self.variance),
-                encode_fluid_pressure(stamp, actuator, float(block.pressure_b[k]), self.variance),
-                encode_fluid_pressure(stamp, "supply", float(block.supply_pressure[k]), self.variance),
-                encode_joint_state(stamp, "", [actuator], [float(block.valve_command[k])], [], []),
-            )
+            payloads = sample_payloads(block, k, stamp, actuator, joint, self.variance)
             for channel, payload in zip(ids, payloads):
                 add(channel, stamp, payload, stamp)
         n = len(block.times)

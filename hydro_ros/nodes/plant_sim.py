@@ -22,7 +22,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import FluidPressure, JointState
 
 from hydro_ros.bags import topics
-from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
+from hydro_ros.bags.writer import sample_payloads
 from hydro_ros.config import default_config_path, load_machine_config
 from hydro_ros.names import INJECTABLE, Injection
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, run_node
@@ -132,15 +132,12 @@ class PlantSim(Node):
 
     def _publish(self, block) -> None:
         origin = self.stamp_origin_ns
+        publishers = (self.pub_joint, self.pub_pa, self.pub_pb, self.pub_supply, self.pub_valve)
         for k in range(len(block.times)):
             stamp = origin + int(round(block.times[k] * 1e9))
-            self.pub_joint.publish(encode_joint_state(
-                stamp, "", [self.joint], [float(block.joint_position[k])], [float(block.joint_velocity[k])], []))
-            self.pub_pa.publish(encode_fluid_pressure(stamp, self.actuator, float(block.pressure_a[k]), self.variance))
-            self.pub_pb.publish(encode_fluid_pressure(stamp, self.actuator, float(block.pressure_b[k]), self.variance))
-            self.pub_supply.publish(encode_fluid_pressure(stamp, "supply", float(block.supply_pressure[k]), self.variance))
-            if self.pub_valve is not None:
-                self.pub_valve.publish(encode_joint_state(stamp, "", [self.actuator], [float(block.valve_command[k])], [], []))
+            for publisher, payload in zip(publishers, sample_payloads(block, k, stamp, self.actuator, self.joint, self.variance)):
+                if publisher is not None:
+                    publisher.publish(payload)
         if self.pub_clock is not None:
             msg = ClockMsg()
             stamp = origin + int(round(block.times[-1] * 1e9))
