@@ -1,6 +1,6 @@
 """Cylinder mount kinematics of the SAM boom: P-I eqs. (3)-(5).
 
-theta is the triangle angle at the boom joint between the two cylinder mounts; the joint
+Scalar or array arguments (numba compiles each). theta is the triangle angle at the boom joint between the two cylinder mounts; the joint
 position reported on /joint_states is theta - theta_offset (INFERRED mapping, config/sam.yaml).
 """
 
@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 
 @njit(cache=True)
 def cylinder_length(theta: float, l1: float, l2: float) -> float:
-    return math.sqrt(l1 * l1 + l2 * l2 - 2.0 * l1 * l2 * math.cos(theta))
+    return np.sqrt(l1 * l1 + l2 * l2 - 2.0 * l1 * l2 * np.cos(theta))
 
 
 @njit(cache=True)
@@ -25,7 +26,7 @@ def piston_position(theta: float, l1: float, l2: float, l3: float) -> float:
 @njit(cache=True)
 def torque_arm(theta: float, l1: float, l2: float) -> float:
     """Eq. (5): r(theta) = dx/dtheta = l1 l2 sin theta / cylinder length."""
-    return l1 * l2 * math.sin(theta) / cylinder_length(theta, l1, l2)
+    return l1 * l2 * np.sin(theta) / cylinder_length(theta, l1, l2)
 
 
 @njit(cache=True)
