@@ -61,6 +61,33 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fdi(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hydro_ros.bags.reader import BagError
+    from hydro_ros.fdi.offline import analyse_bag
+    from hydro_ros.plots import plot_fdi
+
+    config = load_machine_config(args.config)
+    out = Path(args.json)
+    if not out.parent.is_dir():
+        raise CliError(f"--json {out}: directory {out.parent} does not exist")
+    try:
+        with tqdm(unit="sample", desc="fdi", disable=args.quiet) as bar:
+            run = analyse_bag(args.bag, config, args.method, progress=bar.update)
+    except BagError as exc:
+        raise CliError(str(exc)) from None
+    result = run.to_json()
+    plot = plot_fdi(run, out.with_suffix(".png"))
+    result["plot"] = str(plot)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    for message in result.get("errors", []):
+        print(f"hydro-ros fdi: warning: {message}", file=sys.stderr)
+    for name, actuator in result["actuators"].items():
+        print(f"{name}: {actuator['fault']} (first detection {actuator['first_detection_s']} s)")
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bag_player import replay
 
@@ -93,6 +120,14 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--out", required=True, help="bag directory to create (must not exist)")
     sim.add_argument("--quiet", action="store_true", help="no progress bar")
     sim.set_defaults(func=cmd_sim)
+
+    fdi = sub.add_parser("fdi", help="fault detection and isolation over a bag (contract JSON + residual plot)")
+    fdi.add_argument("--bag", required=True, help="contract bag directory or .mcap file")
+    fdi.add_argument("--config", required=True, help="machine config, e.g. config/sam.yaml")
+    fdi.add_argument("--method", choices=("ukf", "parity"), default=None, help="residual generator (default: the config's fdi.method)")
+    fdi.add_argument("--json", required=True, help="output JSON; the residual plot goes beside it as .png")
+    fdi.add_argument("--quiet", action="store_true", help="no progress bar")
+    fdi.set_defaults(func=cmd_fdi)
 
     replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
     replay.add_argument("bag", help="bag directory")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -10,6 +11,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from hydro_ros.bags.reader import BagData  # noqa: E402
+
+if TYPE_CHECKING:
+    from hydro_ros.fdi.offline import FdiRun
 
 
 def plot_bag(data: BagData, out: str | Path) -> Path:
@@ -39,6 +43,35 @@ def plot_bag(data: BagData, out: str | Path) -> Path:
         ax.legend(loc="upper right", fontsize=7)
         ax.grid(alpha=0.3)
     fig.suptitle(str(data.path.name))
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def plot_fdi(run: "FdiRun", out: str | Path) -> Path:
+    """Per actuator: 5 s mean residuals of both chambers against their adaptive thresholds."""
+    out = Path(out)
+    actuators = run.monitor.actuators
+    fig, axes = plt.subplots(2 * len(actuators), 1, sharex=True, figsize=(10, 3.2 * 2 * len(actuators)), squeeze=False)
+    onsets = [(f["name"], f["onset_s"]) for f in ((run.data.truth or {}).get("faults", []) if run.data else [])]
+    for i, actuator in enumerate(actuators):
+        for c, chamber in enumerate("AB"):
+            ax = axes[2 * i + c, 0]
+            ax.plot(run.times, run.residual_mean[:, i, c], lw=0.8, label=f"mean r_p{chamber}")
+            ax.plot(run.times, run.threshold[:, i, c], color="k", lw=0.6, ls="--", label="threshold")
+            ax.plot(run.times, -run.threshold[:, i, c], color="k", lw=0.6, ls="--")
+            ax.set_ylabel(f"{actuator} r_p{chamber} [MPa]")
+            for alarm in run.alarms:
+                if alarm.actuator == actuator:
+                    ax.axvline(alarm.time_s, color="orange", lw=0.8)
+                    if c == 0:
+                        ax.annotate(alarm.fault.value, (alarm.time_s, ax.get_ylim()[1]), fontsize=7, va="top", color="darkorange")
+            for name, onset in onsets:
+                ax.axvline(onset, color="red", ls=":", lw=0.8)
+            ax.grid(alpha=0.3)
+            ax.legend(loc="lower left", fontsize=7)
+    axes[-1, 0].set_xlabel("time from first sample [s]  (red dotted: true onset, orange: alarm)")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
