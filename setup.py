@@ -25,6 +25,7 @@ setup(
         "console_scripts": [
             "plant_sim = hydro_ros.nodes.plant_sim:main",
             "bag_player = hydro_ros.nodes.bag_player:main",
+            "fdi_node = hydro_ros.nodes.fdi_node:main",
             "hydro-ros = hydro_ros.cli:main",
         ],
     },

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import sys
 from typing import Any, Callable
 
 import rclpy
@@ -30,7 +31,11 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None
     rclpy.init(args=args)
     node = None
     try:
-        node = factory()
+        try:
+            node = factory()
+        except ValueError as exc:  # bad parameter or config (ConfigError is one): one line, no traceback
+            print(f"{getattr(factory, '__name__', 'node')}: error: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -101,7 +101,7 @@ class PlantSim(Node):
                 self.command = max(-1.0, min(1.0, value))
                 self.command_wall = time.monotonic()
             else:
-                self.get_logger().warn(f"ignored valve command for {self.actuator}: {value!r} (NaN or missing)")
+                self.get_logger().warning(f"ignored valve command for {self.actuator}: {value!r} (NaN or missing)")
 
     def _apply_pending(self) -> None:
         now = self.run.plant.time

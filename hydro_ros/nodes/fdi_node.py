@@ -1,0 +1,321 @@
+"""fdi_node: condition monitoring of every actuator of the machine config, live or on a replayed bag.
+
+Subscribes to the contract's measured topics as raw CDR (no message objects at 1 kHz), aligns the
+topics on their sample stamps and runs :class:`hydro_ros.fdi.monitor.FdiMonitor` on blocks of
+complete samples every ``process_period``. Publishes one DiagnosticStatus per actuator
+(``hydro_ros/fdi/<actuator>``), the latched ``/fdi/halt`` and decimated ``/fdi/residuals``
+(sensor_msgs/JointState: name = ``<actuator>/<quantity>``, position = value in MPa, stamp = the
+sample time). Services: ``~/acknowledge``, ``~/reset`` (std_srvs/Trigger), ``~/self_test``
+(diagnostic_msgs/SelfTest).
+
+Robustness: a sample whose topics do not all arrive within ``sync_window`` is processed as a gap
+(the filter holds, no residual); stamps at or before the last processed one are dropped and
+counted; a topic silent for ``stale_timeout`` of wall time makes its actuators STALE (no alarm is
+raised from stale data). All counters are in the diagnostic values.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.srv import SelfTest
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from sensor_msgs.msg import FluidPressure, JointState
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from hydro_ros.bags import topics
+from hydro_ros.bags.cdr import CdrError, decode_fluid_pressure, decode_joint_state
+from hydro_ros.config import default_config_path, load_machine_config
+from hydro_ros.fdi.monitor import STALE, FdiMonitor, SampleBlock
+from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, run_node
+from hydro_ros.sim.scenario import Scenario, run_blocks
+
+JP, JV, PA, PB, U = range(5)  # per-actuator fields of an assembled sample
+FIELD_NAMES = ("joint position", "joint velocity", "pressure_a", "pressure_b", "valve command")
+MAX_PENDING_S = 5.0  # samples waiting for a missing topic longer than this are given up
+
+
+class SampleAssembler:
+    """Collects per-topic values by stamp into complete samples, in stamp order."""
+
+    def __init__(self, actuators: list[str], joints: list[str], sync_window_ns: int) -> None:
+        self.actuators = {name: i for i, name in enumerate(actuators)}
+        self.joints = {name: i for i, name in enumerate(joints)}
+        self.width = 5 * len(actuators) + 1
+        self.sync_window_ns = sync_window_ns
+        self.pending: dict[int, np.ndarray] = {}
+        self.filled: dict[int, int] = {}
+        self.last_processed = -1
+        self.out_of_order = 0
+        self.incomplete = 0
+        self.undecodable = 0
+
+    def put(self, stamp: int, column: int, value: float) -> None:
+        if stamp <= self.last_processed:
+            self.out_of_order += 1
+            return
+        row = self.pending.get(stamp)
+        if row is None:
+            row = self.pending[stamp] = np.full(self.width, np.nan)
+            self.filled[stamp] = 0
+        if math.isnan(row[column]):
+            self.filled[stamp] += 1
+        row[column] = value
+
+    def put_joint_states(self, data: bytes) -> None:
+        stamp, names, position, velocity = decode_joint_state(data)
+        for name, index in self.joints.items():
+            if name in names:
+                k = names.index(name)
+                self.put(stamp, 5 * index + JP, position[k] if k < len(position) else math.nan)
+                self.put(stamp, 5 * index + JV, velocity[k] if k < len(velocity) else math.nan)
+
+    def put_commands(self, data: bytes) -> None:
+        stamp, names, position, _ = decode_joint_state(data)
+        for name, index in self.actuators.items():
+            if name in names:
+                k = names.index(name)
+                self.put(stamp, 5 * index + U, position[k] if k < len(position) else math.nan)
+
+    def put_pressure(self, data: bytes, column: int) -> None:
+        stamp, value, _ = decode_fluid_pressure(data)
+        self.put(stamp, column, value)
+
+    def take(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stamps (ns) and rows ready to process: complete, or given up after the sync window."""
+        if not self.pending:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, self.width))
+        complete = [s for s, n in self.filled.items() if n == self.width]
+        newest = max(complete) if complete else max(self.pending) - int(MAX_PENDING_S * 1e9)
+        ready = []
+        for stamp in sorted(self.pending):
+            if stamp > newest:
+                break
+            if self.filled[stamp] < self.width:
+                if newest - stamp <= self.sync_window_ns:
+                    break
+                self.incomplete += 1
+            ready.append(stamp)
+        rows = np.array([self.pending.pop(s) for s in ready]).reshape(len(ready), self.width)
+        for stamp in ready:
+            del self.filled[stamp]
+        if ready:
+            self.last_processed = ready[-1]
+        return np.asarray(ready, dtype=np.int64), rows
+
+
+class FdiNode(Node):
+    def __init__(self) -> None:
+        super().__init__("fdi_node")
+        self.declare_parameter("config", str(default_config_path("sam")))
+        self.declare_parameter("method", "")
+        self.declare_parameter("process_period", 0.02)
+        self.declare_parameter("diagnostics_period", 1.0)
+        self.declare_parameter("residual_rate", 50.0)
+        self.declare_parameter("sync_window", 0.05)
+        self.declare_parameter("stale_timeout", 0.5)
+        self.config = load_machine_config(self.get_parameter("config").value)
+        method = str(self.get_parameter("method").value) or None
+        self.monitor = FdiMonitor(self.config, method)
+        self.machine = str(self.config["machine"])
+        self.stale_timeout = float(self.get_parameter("stale_timeout").value)
+        actuators = self.monitor.actuators
+        self.assembler = SampleAssembler(actuators, self.monitor.joints, int(float(self.get_parameter("sync_window").value) * 1e9))
+
+        self.last_arrival: dict[str, float] = {}
+        self._subscribe_raw(JointState, topics.JOINT_STATES, self.assembler.put_joint_states)
+        self._subscribe_raw(JointState, topics.VALVE_COMMANDS, self.assembler.put_commands)
+        self._subscribe_raw(FluidPressure, topics.SUPPLY_PRESSURE,
+                            lambda d: self.assembler.put_pressure(d, self.assembler.width - 1))
+        for i, actuator in enumerate(actuators):
+            self._subscribe_raw(FluidPressure, topics.pressure_a(actuator), lambda d, c=5 * i + PA: self.assembler.put_pressure(d, c))
+            self._subscribe_raw(FluidPressure, topics.pressure_b(actuator), lambda d, c=5 * i + PB: self.assembler.put_pressure(d, c))
+
+        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.pub_halt = self.create_publisher(Bool, "/fdi/halt", LATCHED_QOS)
+        self.pub_residuals = self.create_publisher(JointState, "/fdi/residuals", 10)
+        self.create_service(Trigger, "~/acknowledge", self._on_acknowledge)
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self.create_service(SelfTest, "~/self_test", self._on_self_test)
+
+        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.started = time.monotonic()
+        self.samples = 0
+        self.halt: bool | None = None
+        self._levels: list[int] = []
+        self._residual_interval_ns = int(1e9 / max(float(self.get_parameter("residual_rate").value), 1e-3))
+        self._last_residual_ns = -(1 << 62)
+        self.create_timer(float(self.get_parameter("process_period").value), self._process, clock=self.steady)
+        self.create_timer(float(self.get_parameter("diagnostics_period").value), self._publish_diagnostics, clock=self.steady)
+        self._publish_halt()
+        self.get_logger().info(f"monitoring {', '.join(actuators)} of {self.machine} with the {self.monitor.method} method")
+
+    def _subscribe_raw(self, msg_type: Any, topic: str, handler: Any) -> None:
+        def callback(data: bytes) -> None:
+            self.last_arrival[topic] = time.monotonic()
+            try:
+                handler(data)
+            except CdrError:
+                self.assembler.undecodable += 1
+
+        self.create_subscription(msg_type, topic, callback, SENSOR_QOS, raw=True)
+
+    # processing -------------------------------------------------------------------------------
+    def _process(self) -> None:
+        stamps, rows = self.assembler.take()
+        if len(stamps) == 0:
+            self._check_levels()
+            return
+        n_act = len(self.monitor.actuators)
+        per = rows[:, :-1].reshape(len(stamps), n_act, 5)
+        block = SampleBlock(
+            times=stamps * 1e-9,
+            joint_position=per[:, :, JP], joint_velocity=per[:, :, JV],
+            pressure_a=per[:, :, PA], pressure_b=per[:, :, PB],
+            supply_pressure=rows[:, -1], valve_command=per[:, :, U],
+        )
+        result = self.monitor.process(block)
+        self.samples += len(stamps)
+        for alarm in result.alarms:
+            self.get_logger().warning(f"{alarm.actuator}: {alarm.fault.value} (pattern {alarm.code}) at stamp {alarm.time_s:.3f} s")
+        self._publish_residuals(stamps, result)
+        self._check_levels()
+
+    def _publish_residuals(self, stamps: np.ndarray, result: Any) -> None:
+        if stamps[-1] - self._last_residual_ns < self._residual_interval_ns:
+            return
+        self._last_residual_ns = int(stamps[-1])
+        msg = JointState()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamps[-1]), 1_000_000_000)
+        names, values = [], []
+        for i, actuator in enumerate(self.monitor.actuators):
+            for c, chamber in enumerate("AB"):
+                names += [f"{actuator}/mean_r_p{chamber}", f"{actuator}/threshold_p{chamber}"]
+                values += [float(result.mean_residual[-1, i, c]), float(result.threshold[-1, i, c])]
+        msg.name = names
+        msg.position = values
+        self.pub_residuals.publish(msg)
+
+    def _stale_topics(self, index: int) -> list[str]:
+        actuator = self.monitor.actuators[index]
+        needed = (topics.JOINT_STATES, topics.VALVE_COMMANDS, topics.SUPPLY_PRESSURE, topics.pressure_a(actuator), topics.pressure_b(actuator))
+        now = time.monotonic()
+        return [t for t in needed if now - self.last_arrival.get(t, self.started) > self.stale_timeout]
+
+    def _level(self, index: int) -> int:
+        status = self.monitor.status(index)
+        if status.fault is None and self._stale_topics(index):
+            return STALE
+        return status.level
+
+    def _check_levels(self) -> None:
+        levels = [self._level(i) for i in range(len(self.monitor.actuators))]
+        if levels != self._levels:
+            self._levels = levels
+            self._publish_diagnostics()
+            self._publish_halt()
+
+    def _publish_halt(self) -> None:
+        halt = self.monitor.halt
+        if halt != self.halt:
+            self.halt = halt
+            self.pub_halt.publish(Bool(data=halt))
+            if halt:
+                self.get_logger().error("severe fault: requesting halt on /fdi/halt")
+
+    def statuses(self) -> list[DiagnosticStatus]:
+        out = []
+        a = self.assembler
+        for i, actuator in enumerate(self.monitor.actuators):
+            status = self.monitor.status(i)
+            stale = self._stale_topics(i)
+            level = STALE if status.fault is None and stale else status.level
+            message = "stale" if level == STALE else status.message
+            values = {
+                "mean_r_pA_MPa": f"{self.monitor.last_mean_residual[i, 0]:.5f}",
+                "mean_r_pB_MPa": f"{self.monitor.last_mean_residual[i, 1]:.5f}",
+                "threshold_pA_MPa": f"{self.monitor.last_threshold[i, 0]:.5f}",
+                "threshold_pB_MPa": f"{self.monitor.last_threshold[i, 1]:.5f}",
+                "pattern": status.code,
+                "first_detection_stamp_s": "" if status.detected_at is None else f"{status.detected_at:.3f}",
+                "method": self.monitor.method,
+                "samples": str(self.samples),
+                "gap_samples": str(self.monitor.invalid_samples),
+                "incomplete_samples": str(a.incomplete),
+                "out_of_order_dropped": str(a.out_of_order),
+                "undecodable_messages": str(a.undecodable),
+                "stale_topics": ",".join(stale),
+            }
+            out.append(DiagnosticStatus(level=bytes([level]), name=f"hydro_ros/fdi/{actuator}", message=message,
+                                        hardware_id=self.machine,
+                                        values=[KeyValue(key=k, value=v) for k, v in values.items()]))
+        return out
+
+    def _publish_diagnostics(self) -> None:
+        array = DiagnosticArray(status=self.statuses())
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(array)
+
+    # services -----------------------------------------------------------------------------------
+    def _on_acknowledge(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        cleared = [f"{a}: {self.monitor.status(i).message}" for i, a in enumerate(self.monitor.actuators) if self.monitor.status(i).fault]
+        self.monitor.acknowledge()
+        self.get_logger().info(f"alarms acknowledged ({'; '.join(cleared) or 'none latched'})")
+        self._check_levels()
+        self._publish_halt()
+        response.success = True
+        response.message = f"acknowledged: {'; '.join(cleared) or 'no latched alarm'}"
+        return response
+
+    def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.monitor.reset()
+        self.get_logger().info("filters, averages and latches reset")
+        self._check_levels()
+        self._publish_halt()
+        response.success = True
+        response.message = f"reset; detection re-arms after {self.monitor.settings.window_s:g} s of data"
+        return response
+
+    def _on_self_test(self, _request: SelfTest.Request, response: SelfTest.Response) -> SelfTest.Response:
+        """Unscented weights sane, the filter tracks a simulated healthy machine, sensor topics fresh."""
+        checks = []
+        weights_ok = bool(np.all(np.isfinite(self.monitor.bank.weights)) and abs(self.monitor.bank.weights[0] + 8 * self.monitor.bank.weights[2] - 1.0) < 1e-6)
+        checks.append(("unscented weights sum to one", weights_ok))
+        # a short fault-free simulation of the first actuator through a fresh monitor of the same config
+        probe = FdiMonitor(self.config, self.monitor.method)
+        n_act = len(probe.actuators)
+        scenario = Scenario(probe.settings.window_s + 1.0, (), seed=0, actuator=probe.actuators[0])
+        alarms = []
+        for _, _, m in run_blocks(self.config, scenario):
+            n = len(m.times)
+            wide = {k: np.zeros((n, n_act)) for k in ("jp", "jv", "pa", "pb", "u")}
+            for key, values in (("jp", m.joint_position), ("jv", m.joint_velocity), ("pa", m.pressure_a), ("pb", m.pressure_b), ("u", m.valve_command)):
+                wide[key][:, 0] = values
+            result = probe.process(SampleBlock(m.times, wide["jp"], wide["jv"], wide["pa"], wide["pb"], m.supply_pressure, wide["u"]))
+            alarms += result.alarms
+        converged = bool(np.all(np.abs(result.mean_residual[-1, 0]) < result.threshold[-1, 0]))
+        checks.append(("filter tracks a simulated healthy machine without alarm", converged and not alarms))
+        fresh = [i for i in range(n_act) if not self._stale_topics(i)]
+        checks.append((f"sensor topics fresh for {len(fresh)}/{n_act} actuators", len(fresh) == n_act))
+        response.id = f"hydro_ros/fdi/{self.machine}"
+        response.passed = bytes([all(ok for _, ok in checks)])  # `byte passed` in SelfTest.srv
+        response.status = [
+            DiagnosticStatus(level=bytes([0 if ok else 2]), name=f"hydro_ros/fdi/self_test/{name}", message="ok" if ok else "failed",
+                             hardware_id=self.machine)
+            for name, ok in checks
+        ]
+        return response
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node(FdiNode, args)
+
+
+if __name__ == "__main__":
+    main()

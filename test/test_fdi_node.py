@@ -1,0 +1,127 @@
+"""fdi_node on a real DDS graph: plant_sim or bag_player -> fdi_node -> a probe subscriber."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.srv import SelfTest
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
+from hydro_ros.nodes.common import LATCHED_QOS
+from hydro_ros.nodes.fdi_node import SampleAssembler
+from test.conftest import REPO, SAM_CONFIG
+from test.ros_graph import node_process, probe_node, spin_until
+
+FDI_STATUS = "hydro_ros/fdi/boom"
+
+
+def _fdi_statuses(messages: list[DiagnosticArray]) -> list:
+    return [s for m in messages for s in m.status if s.name == FDI_STATUS]
+
+
+def _call(node, client, request, timeout=20.0):
+    assert client.wait_for_service(timeout_sec=timeout), f"service {client.srv_name} not available"
+    future = client.call_async(request)
+    assert spin_until(node, future.done, timeout)
+    return future.result()
+
+
+def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
+    diags: list[DiagnosticArray] = []
+    halts: list[bool] = []
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3"), \
+            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        node.create_subscription(Bool, "/fdi/halt", lambda m: halts.append(m.data), LATCHED_QOS)
+        assert spin_until(node, lambda: len(_fdi_statuses(diags)) >= 3, 30), "no fdi diagnostics"
+        assert spin_until(node, lambda: halts == [False], 5), "halt not latched false at start"
+        # let the 5 s window fill, then no alarm on the healthy plant
+        spin_until(node, lambda: False, 6.0)
+        assert all(s.message == "ok" for s in _fdi_statuses(diags)), [s.message for s in _fdi_statuses(diags)]
+        client = AsyncParameterClient(node, "plant_sim")
+        assert client.wait_for_services(10.0)
+        future = client.set_parameters([Parameter("fault.external_leakage_a", value=3.0)])
+        assert spin_until(node, future.done, 10)
+        assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message != "ok", 20), "leak not detected"
+        alarmed = _fdi_statuses(diags)[-1]
+        assert alarmed.message == "external_leakage_a" and alarmed.level == bytes([1])  # WARN, minor fault
+        assert alarmed.hardware_id == "sam"
+        assert halts[-1] is False  # a leak is minor: no halt request
+        ack = _call(node, node.create_client(Trigger, "/fdi_node/acknowledge"), Trigger.Request())
+        assert ack.success and "external_leakage_a" in ack.message
+        test = _call(node, node.create_client(SelfTest, "/fdi_node/self_test"), SelfTest.Request())
+        assert test.passed == b"\x01", [(s.name, s.message) for s in test.status]
+
+
+def test_silent_sensors_are_stale_not_alarmed(ros_domain):
+    diags: list[DiagnosticArray] = []
+    with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", "stale_timeout:=0.3"), \
+            probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        assert spin_until(node, lambda: len(_fdi_statuses(diags)) >= 2, 30)
+        status = _fdi_statuses(diags)[-1]
+        assert status.level == bytes([3]) and status.message == "stale"
+        stale = {v.key: v.value for v in status.values}["stale_topics"]
+        assert "/hydraulics/boom/pressure_a" in stale and "/joint_states" in stale
+        test = _call(node, node.create_client(SelfTest, "/fdi_node/self_test"), SelfTest.Request())
+        assert test.passed == b"\x00"  # the model checks pass, the sensor freshness check fails
+        assert [s.message for s in test.status][:2] == ["ok", "ok"]
+
+
+def test_bag_replay_with_sim_time_isolates_the_recorded_fault(ros_domain):
+    diags: list[DiagnosticArray] = []
+    bag = REPO / "bags" / "external_leakage_b"
+    with probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", "use_sim_time:=true"):
+            with node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={bag}", "-p", "publish_clock:=true", "-p", "start_delay:=3.0"):
+                assert spin_until(node, lambda: any(s.message == "external_leakage_b" for s in _fdi_statuses(diags)), 45)
+        first = next(s for s in _fdi_statuses(diags) if s.message == "external_leakage_b")
+        values = {v.key: v.value for v in first.values}
+        assert 10.0 < float(values["first_detection_stamp_s"]) < 16.0  # onset at 10 s of the bag
+        assert int(values["gap_samples"]) == 0 and int(values["out_of_order_dropped"]) == 0
+        assert not any(s.message not in ("ok", "stale", "external_leakage_b") for s in _fdi_statuses(diags))
+
+
+def _sample(assembler: SampleAssembler, stamp: int, pressure_a: float = 5e6) -> None:
+    assembler.put_joint_states(encode_joint_state(stamp, "", ["boom_joint"], [0.1], [0.0], []))
+    assembler.put_commands(encode_joint_state(stamp, "", ["boom"], [0.0], [], []))
+    assembler.put_pressure(encode_fluid_pressure(stamp, "", pressure_a, 0.0), 2)
+    assembler.put_pressure(encode_fluid_pressure(stamp, "", 2e6, 0.0), 3)
+    assembler.put_pressure(encode_fluid_pressure(stamp, "", 1e7, 0.0), 5)
+
+
+def test_assembler_orders_samples_drops_late_ones_and_gives_up_on_missing_topics():
+    assembler = SampleAssembler(["boom"], ["boom_joint"], sync_window_ns=50_000_000)
+    for stamp in (3_000_000, 1_000_000, 2_000_000):  # out of arrival order
+        _sample(assembler, stamp)
+    stamps, rows = assembler.take()
+    assert list(stamps) == [1_000_000, 2_000_000, 3_000_000] and not any(math.isnan(v) for v in rows.ravel())
+    _sample(assembler, 2_500_000)  # older than what was processed: dropped, counted
+    assert assembler.out_of_order == 6 and not assembler.pending  # six values: angle, rate, command, three pressures
+    # a sample missing its p_B waits for the sync window, then goes through as a gap
+    assembler.put_pressure(encode_fluid_pressure(4_000_000, "", 5e6, 0.0), 2)
+    _sample(assembler, 10_000_000)
+    stamps, _ = assembler.take()
+    assert list(stamps) == [] and 4_000_000 in assembler.pending
+    _sample(assembler, 60_000_000)
+    stamps, rows = assembler.take()
+    assert list(stamps) == [4_000_000, 10_000_000, 60_000_000] and assembler.incomplete == 1
+    assert math.isnan(rows[0, 3]) and rows[0, 2] == 5e6
+    _sample(assembler, 70_000_000, pressure_a=float("nan"))  # a NaN reading is kept, the monitor masks it
+    stamps, rows = assembler.take()
+    assert list(stamps) == [70_000_000] and math.isnan(rows[0, 2])
+
+
+@pytest.mark.parametrize("method", ["parity"])
+def test_fdi_node_refuses_a_method_the_machine_cannot_run(ros_domain, method):
+    with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"method:={method}") as proc:
+        output, _ = proc.communicate(timeout=30)
+    assert proc.returncode != 0 and "pilot pressures" in output
