@@ -65,6 +65,11 @@ def matching_faults(table: tuple[PatternRow, ...], code: int, pa_gt_pb: bool, la
     return frozenset(row.fault for row in table if row.matches(code, pa_gt_pb, large, direction))
 
 
+def compatible_faults(table: tuple[PatternRow, ...], code: int) -> frozenset[Fault]:
+    """Faults whose pattern contains every crossing seen: a partial pattern on its way to theirs."""
+    return frozenset(row.fault for row in table if row.code & code == code)
+
+
 @dataclass
 class Alarm:
     """A change of an actuator's alarm: first detection, or its cause becoming known."""
@@ -84,10 +89,12 @@ class Isolator:
 
     actuator: str
     table: tuple[PatternRow, ...] = UKF_TABLE
+    settle_s: float = 1.0  # evidence must persist this long before it narrows the cause (INFERRED)
     detected_at: float | None = None
     latched_code: int = 0
     candidates: frozenset[Fault] = field(default_factory=frozenset)
     history: list[str] = field(default_factory=list)
+    _pending: tuple[float, int, frozenset[Fault]] | None = None
 
     @property
     def fault(self) -> Fault | None:
@@ -98,24 +105,48 @@ class Isolator:
             return next(iter(self.candidates))
         return Fault.UNISOLATED
 
-    def observe(self, time_s: float, code: int, pa_gt_pb: bool, large: bool, direction: int) -> Alarm | None:
-        """Feed one change of the evidence; returns an Alarm when the reported fault changes."""
-        if code == 0:
-            return None
+    def observe(self, time_s: float, code: int, pa_gt_pb: bool, large: bool, direction: int) -> list[Alarm]:
+        """Feed one change of the evidence (at ``time_s``); returns alarms for changes of the fault.
+
+        Detection is immediate (first crossing, as the papers time it). A pattern narrows the
+        cause only once it has held for ``settle_s``, so the few hundred milliseconds in which
+        one residual has crossed and the other is still on its way (P-II: r_pB led r_pA by 3 s
+        for the internal leak) do not pass for an external leak.
+        """
+        alarms = self.advance(time_s)
         before = self.fault
-        if self.detected_at is None:
+        if code != 0 and self.detected_at is None:
             self.detected_at = time_s
         self.latched_code |= code
-        names = matching_faults(self.table, code, pa_gt_pb, large, direction)
-        if names:
-            narrowed = self.candidates & names
-            # an empty intersection means the evidence contradicts the earlier cause: trust the newest
-            self.candidates = narrowed if narrowed else names
-            self.history.append(f"{time_s:.3f}s {code_string(code)} -> {','.join(sorted(f.value for f in names))}")
+        self._pending = (time_s, code, matching_faults(self.table, code, pa_gt_pb, large, direction)) if code else None
         after = self.fault
         if after is not None and after != before:
-            return Alarm(time_s, self.actuator, after, code_string(self.latched_code))
-        return None
+            alarms.append(Alarm(time_s, self.actuator, after, code_string(self.latched_code)))
+        return alarms
+
+    def advance(self, time_s: float) -> list[Alarm]:
+        """Let time pass: a pending pattern that has held for ``settle_s`` narrows the candidates."""
+        if self._pending is None or time_s - self._pending[0] < self.settle_s:
+            return []
+        since, code, exact = self._pending
+        self._pending = None
+        before = self.fault
+        partial = compatible_faults(self.table, code)
+        if not self.candidates or (exact and all(f == Fault.SPOOL_STUCK_CLOSED for f in exact)):
+            # "large" residuals in both chambers single out the stuck spool whatever came before
+            self.candidates = exact or partial
+        elif exact and self.candidates & exact:
+            self.candidates = self.candidates & exact
+        elif exact and not self.candidates & partial:
+            self.candidates = exact  # the evidence contradicts the earlier cause: trust the newest
+        elif not exact and self.candidates & partial:
+            self.candidates = self.candidates & partial
+        # else: a partial pattern on the way between two full ones (e.g. a valve fault flipping) -> keep
+        self.history.append(f"{since:.3f}s {code_string(code)} -> {','.join(sorted(f.value for f in exact or partial))}")
+        after = self.fault
+        if after != before:
+            return [Alarm(since + self.settle_s, self.actuator, after, code_string(self.latched_code))]
+        return []
 
     def acknowledge(self) -> None:
         """Operator acknowledgement: clear the latch; a persisting fault is detected again."""
@@ -123,3 +154,4 @@ class Isolator:
         self.latched_code = 0
         self.candidates = frozenset()
         self.history.clear()
+        self._pending = None

@@ -43,7 +43,8 @@ class FdiSettings:
     mask_pressure_b: float = 2.0e5  # [Pa] residuals zeroed while p_B is below this (P-II "close to zero")
     mask_retracted: float = 2.0e-3  # [m] ... or while the piston is within this of full retraction (P-III)
     large_factor: float = 10.0  # "Large": both |mean residuals| above this multiple of their thresholds
-    command_deadband: float = 0.02  # |5 s mean valve command| below this leaves the command sign unknown
+    settle_s: float = 1.0  # [s] a crossing pattern must hold this long before it narrows the cause
+    command_deadband: float = 0.005  # |5 s mean valve command| below this leaves the command sign unknown
     stale_timeout_s: float = 0.2  # [s] a sensor silent this long makes the actuator STALE
     severe_faults: tuple[Fault, ...] = DEFAULT_SEVERE
     ukf: UkfSettings = field(default_factory=UkfSettings)
@@ -152,7 +153,7 @@ class FdiMonitor:
         self._residual_mean = MovingAverage(self.window, 2 * n)
         self._pressure_mean = MovingAverage(self.window, 2 * n)
         self._command_mean = MovingAverage(self.window, n)
-        self.isolators = [Isolator(a) for a in self.actuators]
+        self.isolators = [Isolator(a, settle_s=self.settings.settle_s) for a in self.actuators]
         self.samples_seen = 0
         self._last_key = [None] * n
         self._last_valid = np.zeros((n, 5))
@@ -253,11 +254,8 @@ class FdiMonitor:
             if self._last_key[a] != column[0]:
                 changes = np.concatenate(([0], changes))
             for k in changes:
-                if code[k, a] == 0:
-                    continue
-                alarm = isolator.observe(float(times[k]), int(code[k, a]), bool(pa_gt_pb[k, a]), bool(large[k, a]), int(direction[k, a]))
-                if alarm is not None:
-                    alarms.append(alarm)
+                alarms += isolator.observe(float(times[k]), int(code[k, a]), bool(pa_gt_pb[k, a]), bool(large[k, a]), int(direction[k, a]))
+            alarms += isolator.advance(float(times[-1]))
             self._last_key[a] = column[-1]
         return alarms
 

@@ -1,0 +1,236 @@
+"""FDI evaluation that is not an inverse crime (``hydro-ros fdi-eval``).
+
+The plant that generates the data differs from the monitor's model by a random, per-seed model
+mismatch: every notch's flow coefficient, the oil and hose bulk moduli, the valve centre leakage,
+the friction and the pressure-sensor noise level. The monitor keeps the nominal config. On that
+data each fault type and size is scored by detection rate, isolation accuracy and detection delay,
+and long fault-free runs give the false-alarm rate (threshold-crossing episodes per hour).
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from hydro_ros.config import with_overrides
+from hydro_ros.fdi.monitor import FdiMonitor, SampleBlock
+from hydro_ros.models.valve import NOTCHES
+from hydro_ros.names import Injection
+from hydro_ros.sim.scenario import Scenario, run_blocks
+
+# Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order
+# fit RMSE is 1-2 % of K_v, an identified valve on another day/temperature is worse: 5 %.
+MISMATCH = {
+    "flow_coefficient": 0.05,
+    "oil_bulk_modulus": 0.25,
+    "hose_bulk_modulus": 0.25,
+    "centre_leakage": 0.3,
+    "friction": 0.3,
+    "pressure_noise_std": 0.3,
+}
+
+LEAKS = ("external_leakage_a", "external_leakage_b", "external_leakage_ab", "internal_leakage")
+LEAK_SIZES = (0.1, 0.2, 0.3, 0.5, 1.0, 2.0)  # [L/min at 10 MPa]
+VALVE_FAULTS = (("spool_too_small_opening", 0.4), ("spool_too_large_opening", 0.4), ("spool_stuck_closed", 1.0))
+
+
+def mismatched_config(config: dict[str, Any], seed: int, scale: float = 1.0) -> dict[str, Any]:
+    """The plant's config: the nominal one with every MISMATCH parameter drawn for ``seed``."""
+    rng = np.random.default_rng(10_000 + seed)
+
+    def factor(name: str) -> float:
+        return 1.0 + scale * MISMATCH[name] * rng.uniform(-1.0, 1.0)
+
+    overrides: dict[str, Any] = {"actuators": {}}
+    for name, actuator in config["actuators"].items():
+        valve, fluid, friction = actuator["valve"], actuator["fluid"], actuator["friction"]
+        f_static = factor("friction")
+        overrides["actuators"][name] = {
+            "valve": {
+                "kv_poly": {n: list(np.multiply(valve["kv_poly"][n], factor("flow_coefficient"))) for n in NOTCHES},
+                "centre_leakage": {n: valve["centre_leakage"][n] * factor("centre_leakage") for n in NOTCHES},
+            },
+            "fluid": {
+                "oil_bulk_modulus": fluid["oil_bulk_modulus"] * factor("oil_bulk_modulus"),
+                "hose_bulk_modulus": fluid["hose_bulk_modulus"] * factor("hose_bulk_modulus"),
+            },
+            "friction": {
+                "static": friction["static"] * f_static,
+                "coulomb": friction["coulomb"] * f_static,
+                "viscous": friction["viscous"] * factor("friction"),
+            },
+        }
+    overrides["sensors"] = {"pressure_noise_std": config["sensors"]["pressure_noise_std"] * factor("pressure_noise_std")}
+    return with_overrides(config, overrides)
+
+
+@dataclass
+class Case:
+    fault: str | None
+    value: float
+    seed: int
+    onset_s: float = 20.0
+    duration_s: float = 60.0
+    mismatch: float = 1.0
+
+
+@dataclass
+class Outcome:
+    fault: str | None
+    value: float
+    seed: int
+    detected: bool
+    early_alarm: bool  # an alarm before the onset (a false alarm)
+    delay_s: float | None
+    isolated: str | None
+    correct: bool
+    mean_leak_l_min: float | None
+    crossing_episodes: int
+    monitored_s: float
+
+
+def _leak_flow_l_min(fault: str, value: float, states: np.ndarray) -> np.ndarray:
+    """Actual leak flow [L/min] of a leak quoted at 10 MPa, from the true chamber pressures."""
+    p_a, p_b = np.maximum(states[:, 0], 0.0), np.maximum(states[:, 1], 0.0)
+    if fault == "external_leakage_a":
+        drop = p_a
+    elif fault == "external_leakage_b":
+        drop = p_b
+    elif fault == "external_leakage_ab":
+        return value * (np.sqrt(p_a / 1e7) + np.sqrt(p_b / 1e7))
+    else:
+        drop = np.abs(states[:, 0] - states[:, 1])
+    return value * np.sqrt(drop / 1e7)
+
+
+def _blocks(config: dict[str, Any], case: Case, monitor: FdiMonitor):
+    """(true states, monitor result) per block of the case's mismatched plant."""
+    plant_config = mismatched_config(config, case.seed, case.mismatch)
+    injections = [Injection(case.fault, case.value, case.onset_s)] if case.fault else []
+    scenario = Scenario(case.duration_s, injections, seed=case.seed, actuator=monitor.actuators[0])
+    for times, states, m in run_blocks(plant_config, scenario):
+        col = lambda v: v[:, None]  # noqa: E731 - one actuator
+        yield states, monitor.process(SampleBlock(times, col(m.joint_position), col(m.joint_velocity), col(m.pressure_a),
+                                                  col(m.pressure_b), m.supply_pressure, col(m.valve_command)))
+
+
+def calibrate_threshold_constant(config: dict[str, Any], seeds: Iterable[int], duration_s: float = 120.0,
+                                 margin: float = 1.25) -> float:
+    """c0 of eq. (25) for fault-free data of mismatched plants, keeping P-II's c2.
+
+    The paper tuned c0 "based on the accuracy of the model" by experiment; here it is the largest
+    excess of a fault-free 5 s mean residual over the quadratic term, times a safety margin, over
+    training seeds that the evaluation does not use.
+    """
+    worst = 0.0
+    for seed in seeds:
+        monitor = FdiMonitor(config)
+        c2 = monitor.settings.threshold_quadratic
+        skip = monitor.window
+        for _, result in _blocks(config, Case(None, 0.0, seed, duration_s=duration_s), monitor):
+            armed = slice(max(skip, 0), None)
+            skip -= len(result.times)
+            mean_pressure_sq = (result.threshold[armed] - monitor.settings.threshold_constant) / c2
+            excess = np.abs(result.mean_residual[armed]) - c2 * mean_pressure_sq
+            if excess.size:
+                worst = max(worst, float(excess.max()))
+    return margin * worst
+
+
+def run_case(config: dict[str, Any], case: Case) -> Outcome:
+    monitor = FdiMonitor(config)
+    first: float | None = None
+    early = False
+    episodes = 0
+    previous = 0
+    leak: list[np.ndarray] = []
+    for states, result in _blocks(config, case, monitor):
+        times = result.times
+        alarming = (result.code[:, 0] != 0).astype(np.int8)
+        episodes += int(np.count_nonzero(np.diff(np.concatenate(([previous], alarming))) == 1))
+        previous = int(alarming[-1])
+        for alarm in result.alarms:
+            if alarm.time_s < case.onset_s or case.fault is None:
+                early = True
+            elif first is None:
+                first = alarm.time_s
+        if case.fault in LEAKS:
+            after = times >= case.onset_s
+            if after.any():
+                leak.append(_leak_flow_l_min(case.fault, case.value, states[after]))
+    status = monitor.status(0)
+    isolated = status.fault.value if status.fault is not None else None
+    detected = first is not None
+    return Outcome(
+        fault=case.fault, value=case.value, seed=case.seed, detected=detected, early_alarm=early,
+        delay_s=None if first is None else first - case.onset_s, isolated=isolated,
+        correct=detected and not early and isolated == case.fault,
+        mean_leak_l_min=float(np.mean(np.concatenate(leak))) if leak else None,
+        crossing_episodes=episodes, monitored_s=case.duration_s - monitor.settings.window_s,
+    )
+
+
+def _run(args: tuple[dict[str, Any], Case]) -> Outcome:
+    return run_case(*args)
+
+
+def run_cases(config: dict[str, Any], cases: list[Case], workers: int = 2, progress: Callable[[int], None] | None = None) -> list[Outcome]:
+    if workers <= 1:
+        out = []
+        for case in cases:
+            out.append(run_case(config, case))
+            if progress:
+                progress(1)
+        return out
+    with ProcessPoolExecutor(workers) as pool:
+        out = []
+        for outcome in pool.map(_run, [(config, c) for c in cases]):
+            out.append(outcome)
+            if progress:
+                progress(1)
+        return out
+
+
+def scenario_matrix(seeds: Iterable[int], leak_sizes: Iterable[float] = LEAK_SIZES, duration_s: float = 60.0) -> list[Case]:
+    cases = [Case(f, v, s, duration_s=duration_s) for f in LEAKS for v in leak_sizes for s in seeds]
+    cases += [Case(f, v, s, duration_s=duration_s) for f, v in VALVE_FAULTS for s in seeds]
+    return cases
+
+
+def summarise(outcomes: list[Outcome], fault_free: list[Outcome]) -> dict[str, Any]:
+    """Per fault type and size: detection rate, isolation accuracy, median delay; FA per hour."""
+    rows = []
+    keys = sorted({(o.fault, o.value) for o in outcomes}, key=lambda k: (k[0], k[1]))
+    for fault, value in keys:
+        group = [o for o in outcomes if o.fault == fault and o.value == value]
+        delays = [o.delay_s for o in group if o.delay_s is not None]
+        leaks = [o.mean_leak_l_min for o in group if o.mean_leak_l_min is not None]
+        rows.append({
+            "fault": fault, "value": value, "runs": len(group),
+            "detection_rate": sum(o.detected for o in group) / len(group),
+            "isolation_accuracy": sum(o.correct for o in group) / len(group),
+            "median_delay_s": float(np.median(delays)) if delays else None,
+            "mean_leak_flow_l_min": float(np.mean(leaks)) if leaks else None,
+            "early_alarms": sum(o.early_alarm for o in group),
+            "isolated_as": sorted({o.isolated or "none" for o in group}),
+        })
+    hours = sum(o.monitored_s for o in fault_free) / 3600.0
+    episodes = sum(o.crossing_episodes for o in fault_free)
+    smallest = {}
+    for fault in LEAKS:
+        ok = [r for r in rows if r["fault"] == fault and r["detection_rate"] >= 0.8 and r["isolation_accuracy"] >= 0.8]
+        best = min(ok, key=lambda r: r["value"]) if ok else None
+        smallest[fault] = None if best is None else {"value_l_min_at_10mpa": best["value"], "mean_flow_l_min": best["mean_leak_flow_l_min"]}
+    return {
+        "rows": rows,
+        "fault_free": {"hours": hours, "crossing_episodes": episodes,
+                       "false_alarms_per_hour": episodes / hours if hours > 0 else math.nan,
+                       "runs_with_alarm": sum(o.crossing_episodes > 0 for o in fault_free), "runs": len(fault_free)},
+        "smallest_detectable": smallest,
+        "mismatch": MISMATCH,
+        "outcomes": [asdict(o) for o in outcomes + fault_free],
+    }
