@@ -86,7 +86,7 @@ class MovingAverage:
         sums = np.cumsum(extended, axis=0)
         # mean of the N samples ending at each block sample; cumsum differences stay exact enough
         # because the whole history is re-summed every block (no recursive drift)
-        out = (sums[self.window :] - np.concatenate((np.zeros((1, block.shape[1])), sums[: m - 1]))) / self.window
+        out = (sums[self.window :] - sums[:m]) / self.window
         self.history = extended[m:].copy()
         return out
 
