@@ -88,6 +88,29 @@ def cmd_fdi(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fdi_eval(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hydro_ros.fdi.evaluation import evaluate, markdown_table
+    from hydro_ros.plots import plot_fdi_evaluation
+
+    config = load_machine_config(args.config)
+    for name in ("seeds", "calibration_seeds", "workers"):
+        if getattr(args, name) < 1:
+            raise CliError(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 1")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with tqdm(unit="run", desc="fdi-eval", disable=args.quiet) as bar:
+        summary = evaluate(config, seeds=args.seeds, calibration_seeds=args.calibration_seeds, duration_s=args.duration,
+                           fault_free_minutes=args.fault_free_minutes, workers=args.workers, progress=bar.update)
+    (out / "fdi_eval.json").write_text(json.dumps(summary, indent=2) + "\n")
+    table = markdown_table(summary)
+    (out / "fdi_eval.md").write_text(table)
+    plot_fdi_evaluation(summary, out / "fdi_eval.png")
+    print(table)
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bag_player import replay
 
@@ -128,6 +151,17 @@ def build_parser() -> argparse.ArgumentParser:
     fdi.add_argument("--json", required=True, help="output JSON; the residual plot goes beside it as .png")
     fdi.add_argument("--quiet", action="store_true", help="no progress bar")
     fdi.set_defaults(func=cmd_fdi)
+
+    ev = sub.add_parser("fdi-eval", help="score the FDI on simulated faults with plant-model mismatch (table, JSON, plot)")
+    ev.add_argument("--config", required=True, help="machine config, e.g. config/sam.yaml")
+    ev.add_argument("--out", required=True, help="directory for fdi_eval.json, fdi_eval.md and fdi_eval.png")
+    ev.add_argument("--seeds", type=int, default=5, help="mismatched plants per fault type and size")
+    ev.add_argument("--calibration-seeds", type=int, default=10, help="fault-free training plants for the threshold constant")
+    ev.add_argument("--duration", type=float, default=90.0, help="seconds per fault run (onset at 20 s)")
+    ev.add_argument("--fault-free-minutes", type=float, default=60.0, help="total fault-free minutes for the false-alarm rate")
+    ev.add_argument("--workers", type=int, default=2, help="parallel processes")
+    ev.add_argument("--quiet", action="store_true", help="no progress bar")
+    ev.set_defaults(func=cmd_fdi_eval)
 
     replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
     replay.add_argument("bag", help="bag directory")

@@ -76,3 +76,26 @@ def plot_fdi(run: "FdiRun", out: str | Path) -> Path:
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def plot_fdi_evaluation(summary: dict, out: str | Path) -> Path:
+    """Detection rate and isolation accuracy against leak size, one line per leak type."""
+    out = Path(out)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
+    faults = sorted({row["fault"] for row in summary["rows"] if row["fault"] and "leakage" in row["fault"]})
+    for fault in faults:
+        rows = sorted((r for r in summary["rows"] if r["fault"] == fault), key=lambda r: r["value"])
+        sizes = [r["mean_leak_flow_l_min"] for r in rows]
+        axes[0].plot(sizes, [r["detection_rate"] for r in rows], marker="o", label=fault)
+        axes[1].plot(sizes, [r["isolation_accuracy"] for r in rows], marker="o", label=fault)
+    for ax, title in zip(axes, ("detection rate", "isolation accuracy")):
+        ax.set_xscale("log")
+        ax.set_xlabel("mean actual leak flow after onset [L/min]")
+        ax.set_title(title)
+        ax.axvspan(0.17, 0.40, color="grey", alpha=0.2, label="P-II external leaks detected")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
