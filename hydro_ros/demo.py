@@ -1,7 +1,6 @@
-"""`make demo`: simulate the SAM with a developing leak, play it through the nodes, show the operator view.
-
-Until the FDI issue lands the operator view shows the plant's own health and the measured
-chamber pressures; the leak is visible as p_A falling under a steady load.
+"""`make demo`: simulate the SAM with a developing leak, analyse it offline, then play it through
+bag_player -> fdi_node on a DDS graph and show what the operator's HMI would: the actuator's
+health turning from ok to the isolated fault name on /diagnostics.
 """
 
 from __future__ import annotations
@@ -32,7 +31,8 @@ def _operator_view(duration_s: float, rate: float) -> list[str]:
     levels = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
     node.create_subscription(
         DiagnosticArray, "/diagnostics",
-        lambda m: health.update({s.name: f"{levels.get(int.from_bytes(s.level, 'little') if isinstance(s.level, bytes) else s.level, s.level)} {s.message}" for s in m.status}), 10)
+        lambda m: health.update({s.name.removeprefix("hydro_ros/"): f"{levels.get(s.level[0], s.level)} {s.message}"
+                                 for s in m.status if s.name.startswith("hydro_ros/fdi/")}), 10)
     lines = []
     end = time.monotonic() + duration_s / rate + 5.0
     next_print = time.monotonic() + 1.0
@@ -51,7 +51,7 @@ def _operator_view(duration_s: float, rate: float) -> list[str]:
     return lines
 
 
-def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.0, rate: float = 5.0) -> int:
+def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.0, rate: float = 2.0) -> int:
     from hydro_ros.cli import main as cli
 
     out.mkdir(parents=True, exist_ok=True)
@@ -62,19 +62,26 @@ def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.
 
         shutil.rmtree(bag)
     onset = duration / 3
-    print(f"1/2 simulating {duration:.0f} s of the SAM, external leak A developing from {onset:.0f} s to 1.5 L/min")
+    print(f"1/3 simulating {duration:.0f} s of the SAM, external leak A developing from {onset:.0f} s to 1.5 L/min")
     status = cli(["sim", "--config", config, "--duration", str(duration), "--seed", "7",
                   "--fault", f"external_leakage_a=1.5@{onset:g}:{onset:g}", "--out", str(bag), "--quiet"])
     if status:
         return status
-    print(f"2/2 replaying it x{rate:g} through bag_player on a DDS graph (ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}), operator view:")
+    print("2/3 offline FDI over the bag (hydro-ros fdi):")
+    status = cli(["fdi", "--bag", str(bag), "--config", config, "--json", str(out / "fdi.json"), "--quiet"])
+    if status:
+        return status
+    print(f"3/3 replaying it x{rate:g}: bag_player -> fdi_node on a DDS graph "
+          f"(ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}), operator view:")
+    fdi = subprocess.Popen([sys.executable, "-m", "hydro_ros.nodes.fdi_node", "--ros-args", "-p", f"config:={config}",
+                            "-p", "use_sim_time:=true"], stderr=subprocess.DEVNULL)
     player = subprocess.Popen([sys.executable, "-m", "hydro_ros.nodes.bag_player", "--ros-args",
-                               "-p", f"bag:={bag}", "-p", f"rate:={rate}"], stderr=subprocess.DEVNULL)
+                               "-p", f"bag:={bag}", "-p", f"rate:={rate}", "-p", "start_delay:=3.0"], stderr=subprocess.DEVNULL)
     try:
         _operator_view(duration, rate)
     finally:
-        player.terminate()
-        player.wait(timeout=10)
-    print(f"bag:  {bag}\nplot: {bag}.png")
-    print("FDI alarms appear here once fdi_node lands (issue 3).")
+        for process in (player, fdi):
+            process.terminate()
+            process.wait(timeout=10)
+    print(f"bag:  {bag}\nplot: {bag}.png\nFDI:  {out / 'fdi.json'} and {out / 'fdi.png'}")
     return 0

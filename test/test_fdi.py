@@ -119,8 +119,9 @@ def test_short_partial_patterns_do_not_isolate_and_acknowledge_clears():
 
 @pytest.mark.parametrize(
     ("bag", "fault"),
-    [("fault_free", None), ("external_leakage_a", "external_leakage_a"), ("external_leakage_b", "external_leakage_b"),
-     ("internal_leakage", "internal_leakage")],
+    [("fault_free", None)] + [(name, name) for name in (
+        "external_leakage_a", "external_leakage_b", "external_leakage_ab", "internal_leakage",
+        "spool_too_small_opening", "spool_too_large_opening", "spool_stuck_closed")],
 )
 def test_shipped_bags_are_isolated_after_onset_and_silent_before(sam_config, bag, fault):
     run = analyse_bag(BAGS / bag, sam_config)
@@ -132,6 +133,7 @@ def test_shipped_bags_are_isolated_after_onset_and_silent_before(sam_config, bag
     assert result["fault"] == fault
     assert all(alarm.time_s > onset for alarm in run.alarms)
     assert result["first_detection_s"] - onset < 6.0
+    assert result["level"] == ("error" if fault.startswith("spool") else "warn")
 
 
 @pytest.fixture(scope="module")
