@@ -108,3 +108,41 @@ def test_garbage_and_missing_bags_fail_clearly(tmp_path):
 def test_writer_refuses_to_overwrite(leak_bag):
     with pytest.raises(BagExistsError, match="already exists"):
         ContractBagWriter(leak_bag, actuators={"boom": "boom_joint"}, pressure_variance=1.0)
+
+
+def test_flipped_byte_in_a_chunk_is_reported_and_earlier_chunks_kept(leak_bag, tmp_path):
+    from hydro_ros.bags.reader import mcap_file, read_bag
+
+    source = mcap_file(leak_bag).read_bytes()
+    damaged = bytearray(source)
+    damaged[len(source) // 2] ^= 0xFF  # inside a compressed chunk in the middle of the file
+    target = tmp_path / "flipped.mcap"
+    target.write_bytes(bytes(damaged))
+    full = read_bag(leak_bag)
+    data = read_bag(target)
+    assert any("damaged" in e for e in data.errors)
+    assert 0 < len(data.stamps_ns) < len(full.stamps_ns)
+    assert np.array_equal(data.pressure_a["boom"], full.pressure_a["boom"][: len(data.stamps_ns)])
+
+
+def test_joint_states_with_changing_names_are_decoded_per_message(tmp_path):
+    from mcap.writer import Writer
+
+    from hydro_ros.bags.cdr import encode_joint_state
+    from hydro_ros.bags.reader import read_bag
+    from hydro_ros.bags.writer import TYPESTORE  # noqa: F401 - the schema text comes from the same store
+
+    path = tmp_path / "names.mcap"
+    with path.open("wb") as stream:
+        writer = Writer(stream)
+        writer.start("ros2", "test")
+        schema = writer.register_schema("sensor_msgs/msg/JointState", "ros2msg", b"")
+        channel = writer.register_channel("/joint_states", "cdr", schema)
+        for k in range(10):
+            names, pos = (["a", "b"], [1.0 * k, 2.0 * k]) if k % 3 else (["b"], [-1.0])
+            writer.add_message(channel, k, encode_joint_state(k, "", names, pos, [], []), k)
+        writer.finish()
+    data = read_bag(path)
+    assert list(data.stamps_ns) == list(range(10))
+    assert np.isnan(data.joint_position["a"][0]) and data.joint_position["a"][4] == 4.0
+    assert data.joint_position["b"][3] == -1.0 and data.joint_position["b"][5] == 10.0

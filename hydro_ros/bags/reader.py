@@ -1,7 +1,7 @@
 """Read a contract bag into aligned numpy arrays, fast and without ROS.
 
 Reads the MCAP file sequentially (so a truncated or corrupt file yields everything before the
-damage), decodes the fixed-layout types by hand, and aligns every topic on the sample stamps
+damage), decodes the fixed-layout types in compiled batches (hydro_ros.bags.mcap_scan), and aligns every topic on the sample stamps
 of /joint_states. Damage is reported in ``BagData.errors`` and never raises past what was read.
 """
 
@@ -14,10 +14,16 @@ from typing import Any
 
 import numpy as np
 import yaml
-from mcap.reader import NonSeekingReader
 
 from hydro_ros.bags import topics
-from hydro_ros.bags.cdr import CdrError, decode_fluid_pressure, decode_joint_state
+from hydro_ros.bags.cdr import CdrError, decode_joint_state
+from hydro_ros.bags.mcap_scan import (
+    McapScanner,
+    MessageBatch,
+    decode_fluid_pressures,
+    decode_joint_states,
+    same_bytes,
+)
 
 
 class BagError(ValueError):
@@ -82,8 +88,56 @@ class _Series:
     __slots__ = ("stamps", "values")
 
     def __init__(self) -> None:
-        self.stamps: list[int] = []
-        self.values: list[Any] = []
+        self.stamps: list[np.ndarray] = []
+        self.values: list[np.ndarray] = []
+
+    def add(self, stamps: np.ndarray, values: np.ndarray) -> None:
+        self.stamps.append(np.asarray(stamps, dtype=np.int64))
+        self.values.append(np.asarray(values, dtype=float))
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.concatenate(self.stamps), np.concatenate(self.values)
+
+
+class _JointStateChannel:
+    """Decodes one JointState channel; names are checked per message against the first one's."""
+
+    def __init__(self) -> None:
+        self.names: list[str] | None = None
+        self.reference: np.ndarray | None = None
+        self.series: dict[str, tuple[_Series, _Series]] = {}
+
+    def add(self, batch: MessageBatch, bad: list[int]) -> None:
+        buf, starts, ends = batch.buffer, batch.starts, batch.ends
+        if self.names is None:
+            for k in range(len(starts)):
+                try:
+                    _, names, _, _ = decode_joint_state(bytes(buf[starts[k] : ends[k]]))
+                except CdrError:
+                    continue
+                self.names = names
+                _, ranges, _, _, _ = decode_joint_states(buf, starts[k : k + 1], ends[k : k + 1], 1)
+                self.reference = buf[ranges[0, 0] : ranges[0, 1]].copy()
+                break
+            if self.names is None:
+                bad[0] += len(starts)
+                return
+        stamps, ranges, position, velocity, ok = decode_joint_states(buf, starts, ends, len(self.names))
+        same = same_bytes(buf, ranges, self.reference) & ok
+        for j, name in enumerate(self.names):
+            pos, vel = self.series.setdefault(name, (_Series(), _Series()))
+            pos.add(stamps[same], position[same, j])
+            vel.add(stamps[same], velocity[same, j])
+        for k in np.flatnonzero(~same):  # other names or malformed: the per-message decoder decides
+            try:
+                stamp, names, pos_values, vel_values = decode_joint_state(bytes(buf[starts[k] : ends[k]]))
+            except CdrError:
+                bad[0] += 1
+                continue
+            for i, name in enumerate(names):
+                pos, vel = self.series.setdefault(name, (_Series(), _Series()))
+                pos.add([stamp], [pos_values[i] if i < len(pos_values) else np.nan])
+                vel.add([stamp], [vel_values[i] if i < len(vel_values) else np.nan])
 
 
 def read_bag(path: str | Path) -> BagData:
@@ -91,59 +145,54 @@ def read_bag(path: str | Path) -> BagData:
     file = mcap_file(path)
     errors: list[str] = []
     truth = _read_truth(path, errors)
-    joint: dict[str, dict[str, _Series]] = {}
-    valves: dict[str, _Series] = {}
+    joint_channels: dict[int, _JointStateChannel] = {}
     pressures: dict[str, _Series] = {}
     counts: dict[str, int] = {}
-    total = 0
-    bad = 0
+    bad = [0]
+    scanner = None
     try:
         with file.open("rb") as stream:
-            for schema, channel, message in NonSeekingReader(stream, validate_crcs=True).iter_messages(log_time_order=False):
-                total += 1
-                topic = channel.topic
-                counts[topic] = counts.get(topic, 0) + 1
-                try:
-                    if schema is not None and schema.name == topics.FLUID_PRESSURE_TYPE:
-                        stamp, value, _ = decode_fluid_pressure(message.data)
-                        series = pressures.setdefault(topic, _Series())
-                        series.stamps.append(stamp)
-                        series.values.append(value)
-                    elif schema is not None and schema.name == topics.JOINT_STATE_TYPE:
-                        stamp, names, position, velocity = decode_joint_state(message.data)
-                        if topic == topics.VALVE_COMMANDS:
-                            for i, name in enumerate(names):
-                                series = valves.setdefault(name, _Series())
-                                series.stamps.append(stamp)
-                                series.values.append(position[i] if i < len(position) else np.nan)
-                        elif topic == topics.JOINT_STATES:
-                            for i, name in enumerate(names):
-                                entry = joint.setdefault(name, {"position": _Series(), "velocity": _Series()})
-                                entry["position"].stamps.append(stamp)
-                                entry["position"].values.append(position[i] if i < len(position) else np.nan)
-                                entry["velocity"].stamps.append(stamp)
-                                entry["velocity"].values.append(velocity[i] if i < len(velocity) else np.nan)
-                except CdrError as exc:
-                    bad += 1
-                    if bad == 1:
-                        errors.append(f"{file}: message on {topic} at log time {message.log_time} undecodable ({exc})")
-    except Exception as exc:  # noqa: BLE001 - any damage to the stream ends reading, not the caller
-        errors.append(f"{file}: damaged after {total} messages ({type(exc).__name__}: {exc})".strip())
-    if bad > 1:
-        errors.append(f"{file}: {bad} undecodable messages in all")
+            scanner = McapScanner(stream)
+            for batch in scanner.batches():
+                channel = scanner.channels.get(batch.channel_id)
+                if channel is None:
+                    bad[0] += len(batch.starts)
+                    continue
+                counts[channel.topic] = counts.get(channel.topic, 0) + len(batch.starts)
+                if channel.schema == topics.FLUID_PRESSURE_TYPE:
+                    stamps, values, ok = decode_fluid_pressures(batch.buffer, batch.starts, batch.ends)
+                    pressures.setdefault(channel.topic, _Series()).add(stamps[ok], values[ok])
+                    bad[0] += int(np.count_nonzero(~ok))
+                elif channel.schema == topics.JOINT_STATE_TYPE and channel.topic in (topics.JOINT_STATES, topics.VALVE_COMMANDS):
+                    joint_channels.setdefault(batch.channel_id, _JointStateChannel()).add(batch, bad)
+    except Exception as exc:  # noqa: BLE001 - any damage (McapDamage, zstd, struct) ends reading, not the caller
+        done = scanner.messages if scanner is not None else 0
+        errors.append(f"{file}: damaged after {done} messages ({exc})")
+    total = scanner.messages if scanner is not None else 0
+    if bad[0]:
+        errors.append(f"{file}: {bad[0]} undecodable messages")
+    joint: dict[str, dict[str, _Series]] = {}
+    valves: dict[str, _Series] = {}
+    for channel_id, decoded in joint_channels.items():
+        is_valve = scanner.channels[channel_id].topic == topics.VALVE_COMMANDS
+        for name, (pos, vel) in decoded.series.items():
+            if is_valve:
+                valves[name] = pos
+            else:
+                joint[name] = {"position": pos, "velocity": vel}
     if not joint:
         if total == 0 and errors:
             raise BagError(errors[-1])
         raise BagError(f"bag {path}: no {topics.JOINT_STATES} samples; not a contract bag")
 
-    base = np.array(sorted({s for entry in joint.values() for s in entry["position"].stamps}), dtype=np.int64)
+    base = np.unique(np.concatenate([entry["position"].arrays()[0] for entry in joint.values()]))
 
     def aligned(series: _Series) -> np.ndarray:
         out = np.full(len(base), np.nan)
-        stamps = np.asarray(series.stamps, dtype=np.int64)
+        stamps, values = series.arrays()
         index = np.searchsorted(base, stamps)
         ok = (index < len(base)) & (base[np.minimum(index, len(base) - 1)] == stamps)
-        out[index[ok]] = np.asarray(series.values, dtype=float)[ok]
+        out[index[ok]] = values[ok]
         return out
 
     data = BagData(path=path, stamps_ns=base, truth=truth, message_count=total, topic_counts=counts, errors=errors)
