@@ -48,6 +48,14 @@ def load_machine_config(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"config {path}: not valid YAML ({first_line})") from None
     if not isinstance(raw, dict):
         raise ConfigError(f"config {path}: expected a mapping at the top level")
+    if "extends" in raw:
+        # a variant of another machine config: that file, with this file's keys merged over it
+        base_path = path.parent / str(raw.pop("extends"))
+        if base_path.resolve() == path.resolve():
+            raise ConfigError(f"config {path}: extends itself")
+        base = load_machine_config(base_path)
+        base.pop("_path", None)
+        raw = with_overrides(base, raw)
     config = _coerce_numbers(raw)
     missing = [key for key in _REQUIRED_SAM_KEYS if key not in config]
     if missing:

@@ -1,9 +1,12 @@
 """Sensor models of the SAM: pressure transmitters, joint encoder, supply transducer.
 
 Pressures: additive Gaussian noise (P-II: R = 1e10 Pa^2), fault biases, saturation to the
-transmitter range. Joint angle: incremental encoder quantised to its resolution; joint
-velocity: backward difference of the quantised angle through a first-order low-pass (P-II
-differentiates the angle; the filter is INFERRED). The sample rate is the config's.
+transmitter range. Joint motion from `sensors.motion_sensor`:
+* `encoder` (P-II): incremental encoder quantised to its resolution; velocity = backward
+  difference of the quantised angle through a first-order low-pass (filter INFERRED);
+* `mems` (P-III): accelerometer inclination (noise, quantised to 0.032 deg) and gyro rate (noise,
+  constant bias, quantised to 0.02 deg/s) fused by the complementary filter of P-III.
+The sample rate is the config's.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from hydro_ros.fdi.complementary import ComplementaryFilter
 from hydro_ros.models.sam import SamModel, injection_levels
 from hydro_ros.names import Injection
 
@@ -47,6 +51,13 @@ class SensorModel:
         self._alpha = dt / (dt + 1.0 / (2.0 * math.pi * cutoff))
         self._previous_angle: float | None = None
         self._velocity = 0.0
+        self.motion_sensor = str(sensors.get("motion_sensor", "encoder"))
+        if self.motion_sensor not in ("encoder", "mems"):
+            raise ValueError(f"sensors.motion_sensor {self.motion_sensor!r}: expected encoder or mems")
+        if self.motion_sensor == "mems":
+            mems = sensors["mems"]
+            self.mems = {key: float(value) for key, value in mems.items()}
+            self.complementary = ComplementaryFilter(self.mems["k_p"], self.mems["k_i"], model.sample_rate)
 
     def _bias(self, name: str, times: np.ndarray) -> np.ndarray | float:
         total: np.ndarray | float = 0.0
@@ -59,8 +70,20 @@ class SensorModel:
         noisy = true + bias + self.rng.normal(0.0, self.noise_std, size=true.shape)
         return np.clip(noisy, *self.range)
 
+    def _mems(self, angle: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        m = self.mems
+        rate = states[:, 5] / np.array([self.model.torque_arm_at(x) for x in states[:, 4]])  # eq. (4) inverted
+        inclination = angle + self.rng.normal(0.0, m["inclination_noise_std"], size=angle.shape)
+        inclination = np.round(inclination / m["inclination_resolution"]) * m["inclination_resolution"]
+        gyro = rate + m["gyro_bias"] + self.rng.normal(0.0, m["gyro_noise_std"], size=rate.shape)
+        gyro = np.round(gyro / m["gyro_resolution"]) * m["gyro_resolution"]
+        return self.complementary(inclination, gyro)
+
     def measure(self, times: np.ndarray, states: np.ndarray, commands: np.ndarray) -> Measurements:
         angle = self.model.joint_from_piston(states[:, 4])
+        if self.motion_sensor == "mems":
+            joint, velocity = self._mems(angle, states)
+            return self._measurements(times, states, commands, joint, velocity)
         counts = np.round(angle / self.resolution)
         quantised = counts * self.resolution
         previous = quantised[0] if self._previous_angle is None else self._previous_angle
@@ -72,10 +95,13 @@ class SensorModel:
             velocity[k] = filtered
         self._velocity = filtered
         self._previous_angle = float(quantised[-1])
+        return self._measurements(times, states, commands, quantised, velocity)
+
+    def _measurements(self, times, states, commands, joint: np.ndarray, velocity: np.ndarray) -> Measurements:
         supply = np.full(len(times), self.model.config["supply_pressure"], dtype=float)
         return Measurements(
             times=times,
-            joint_position=quantised,
+            joint_position=joint,
             joint_velocity=velocity + self._bias("velocity_sensor_bias", times),
             pressure_a=self._pressure(states[:, 0], self._bias("pressure_sensor_bias_a", times)),
             pressure_b=self._pressure(states[:, 1], self._bias("pressure_sensor_bias_b", times)),
