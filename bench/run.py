@@ -60,9 +60,8 @@ def bag_read(config: dict, seconds: float = 30.0) -> dict:
 
 
 def ukf_speed(config: dict, steps: int = 20000, reference_steps: int = 1500) -> dict:
-    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
-
-    from hydro_ros.fdi.ukf import UkfBank, UkfSettings, reduced_model_step
+    from hydro_ros.fdi.reference import filterpy_twin
+    from hydro_ros.fdi.ukf import UkfBank, UkfSettings
 
     model = SamModel(config)
     rng = np.random.default_rng(0)
@@ -82,24 +81,10 @@ def ukf_speed(config: dict, steps: int = 20000, reference_steps: int = 1500) -> 
 
     ours = per_step(1, steps)
     batched = per_step(4, steps)
-    settings = UkfSettings()
-    bank = UkfBank([model], settings)
-    scale = np.array([1e6, 1e6, 1.0, 1.0])
-
-    def fx(state, dt, u):
-        out = np.empty(4)
-        reduced_model_step(state / scale, u, bank.params[0], bank.poly[0], bank.centre[0], dt, out)
-        return out * scale
-
-    points = MerweScaledSigmaPoints(4, settings.alpha, settings.beta, settings.kappa)
-    ref = UnscentedKalmanFilter(4, 2, bank.dt, hx=lambda s: s[:2], fx=fx, points=points)
-    ref.x, ref.P = np.array(settings.initial_state, float), np.diag(settings.initial_covariance)
-    ref.Q, ref.R = np.diag(settings.process_noise), np.diag(settings.measurement_noise)
+    _, step = filterpy_twin(UkfBank([model], UkfSettings()))
     start = time.perf_counter()
     for k in range(reference_steps):
-        ref.predict(u=inputs[k])
-        ref.sigmas_f = points.sigma_points(ref.x, ref.P)
-        ref.update(measured[k])
+        step(inputs[k], measured[k])
     theirs = (time.perf_counter() - start) / reference_steps
     return {"hydro_ros_steps_per_s": 1.0 / ours, "hydro_ros_4_actuator_batch_steps_per_s_per_actuator": 1.0 / batched,
             "filterpy_steps_per_s": 1.0 / theirs, "speedup_vs_filterpy": theirs / ours, "target_speedup": 10.0,

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from hydro_ros.config import with_overrides
 from hydro_ros.fdi.evaluation import Case, mismatched_config, run_case
 from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Isolator
 from hydro_ros.fdi.monitor import FdiMonitor, MovingAverage
 from hydro_ros.fdi.offline import analyse_bag, blocks_from_bag
-from hydro_ros.fdi.ukf import UkfBank, UkfSettings, reduced_model_step, unscented_weights
+from hydro_ros.fdi.reference import filterpy_twin
+from hydro_ros.fdi.ukf import UkfBank, UkfSettings, unscented_weights
 from hydro_ros.bags.reader import read_bag
 from hydro_ros.names import Fault
 from test.conftest import REPO
@@ -40,25 +40,8 @@ def test_ukf_matches_filterpy_on_recorded_data(sam_config):
     bank = UkfBank(monitor.models, settings)
     _, ours = bank.run(inputs, measured, np.ones(measured.shape[:2], dtype=bool))
 
-    scale = np.array([1e6, 1e6, 1.0, 1.0])
-
-    def fx(state, dt, u):
-        out = np.empty(4)
-        reduced_model_step(state / scale, u, bank.params[0], bank.poly[0], bank.centre[0], dt, out)
-        return out * scale
-
-    points = MerweScaledSigmaPoints(4, settings.alpha, settings.beta, settings.kappa)
-    reference = UnscentedKalmanFilter(4, 2, bank.dt, hx=lambda s: s[:2], fx=fx, points=points)
-    reference.x = np.array(settings.initial_state, dtype=float)
-    reference.P = np.diag(settings.initial_covariance)
-    reference.Q = np.diag(settings.process_noise)
-    reference.R = np.diag(settings.measurement_noise)
-    theirs = np.empty((len(x), 2))
-    for k in range(len(x)):
-        reference.predict(u=inputs[k, 0])
-        reference.sigmas_f = points.sigma_points(reference.x, reference.P)
-        reference.update(measured[k, 0])
-        theirs[k] = reference.x[:2]
+    reference, step = filterpy_twin(bank)
+    theirs = np.array([step(inputs[k, 0], measured[k, 0])[:2] for k in range(len(x))])
     assert np.max(np.abs(ours[:, 0] - theirs)) < 1.0  # [Pa] on pressures of ~1e7 Pa
     assert np.allclose(bank.state_si()[0, 2:], reference.x[2:], atol=1e-8)
 

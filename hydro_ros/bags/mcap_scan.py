@@ -88,22 +88,23 @@ def scan_records(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
 
 
 @njit(cache=True)
-def _header(buf, s, e):
-    """(stamp_ns, offset after frame_id) or (0, -1) when malformed."""
+def _align(offset, s, alignment):
+    rel = offset - s - 4
+    return offset + ((-rel) % alignment)
+
+
+@njit(cache=True)
+def _body(buf, s, e, alignment, need):
+    """(stamp_ns, offset of the first field after std_msgs/Header aligned to ``alignment``),
+    or (0, -1) when the message is malformed or has fewer than ``need`` bytes left there."""
     if e - s < 16 or buf[s] != 0 or buf[s + 1] != 1:
         return np.int64(0), np.int64(-1)
     sec = np.int64(np.int32(_u32(buf, s + 4)))
     nsec = np.int64(_u32(buf, s + 8))
-    end = s + 16 + np.int64(_u32(buf, s + 12))
-    if end > e:
+    offset = _align(s + 16 + np.int64(_u32(buf, s + 12)), s, alignment)
+    if offset + need > e:
         return np.int64(0), np.int64(-1)
-    return sec * 1_000_000_000 + nsec, end
-
-
-@njit(cache=True)
-def _align(offset, s, alignment):
-    rel = offset - s - 4
-    return offset + ((-rel) % alignment)
+    return sec * 1_000_000_000 + nsec, offset
 
 
 @njit(cache=True)
@@ -119,12 +120,8 @@ def decode_fluid_pressures(buf, starts, ends):
     values = np.full(m, np.nan)
     ok = np.zeros(m, np.bool_)
     for k in range(m):
-        s, e = starts[k], ends[k]
-        stamp, offset = _header(buf, s, e)
+        stamp, offset = _body(buf, starts[k], ends[k], 8, 16)
         if offset < 0:
-            continue
-        offset = _align(offset, s, 8)
-        if offset + 16 > e:
             continue
         stamps[k] = stamp
         values[k] = _f64(buf, offset)
@@ -146,11 +143,8 @@ def decode_joint_states(buf, starts, ends, width):
     ok = np.zeros(m, np.bool_)
     for k in range(m):
         s, e = starts[k], ends[k]
-        stamp, offset = _header(buf, s, e)
+        stamp, offset = _body(buf, s, e, 4, 4)
         if offset < 0:
-            continue
-        offset = _align(offset, s, 4)
-        if offset + 4 > e:
             continue
         count = np.int64(_u32(buf, offset))
         name_ranges[k, 0] = offset

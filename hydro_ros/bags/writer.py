@@ -19,7 +19,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from hydro_ros.bags import topics
 from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
-from hydro_ros.sim.sensors import Measurements
+from hydro_ros.samples import Samples
 
 TYPESTORE = get_typestore(Stores.ROS2_KILTED)
 
@@ -28,7 +28,7 @@ class BagExistsError(FileExistsError):
     pass
 
 
-def sample_payloads(block: Measurements, k: int, stamp: int, actuator: str, joint: str, variance: float) -> tuple[bytes, ...]:
+def sample_payloads(block: Samples, k: int, stamp: int, actuator: str, joint: str, variance: float) -> tuple[bytes, ...]:
     """CDR of sample ``k`` for the topics of :func:`sample_topics`, in that order."""
     return (
         encode_joint_state(stamp, "", [joint], [float(block.joint_position[k])], [float(block.joint_velocity[k])], []),
@@ -116,7 +116,7 @@ class ContractBagWriter:
         }
         (self.path / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False))
 
-    def write(self, actuator: str, block: Measurements) -> None:
+    def write(self, actuator: str, block: Samples) -> None:
         """Write one actuator's block of samples; stamps (and bag log times) are sample times."""
         joint = self.actuators[actuator]
         channels = self._channels

@@ -17,7 +17,8 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from hydro_ros.config import with_overrides
-from hydro_ros.fdi.monitor import FdiMonitor, SampleBlock
+from hydro_ros.fdi.monitor import FdiMonitor
+from hydro_ros.samples import Samples
 from hydro_ros.models.valve import NOTCHES
 from hydro_ros.names import Injection
 from hydro_ros.sim.scenario import Scenario, run_blocks
@@ -112,10 +113,8 @@ def _blocks(config: dict[str, Any], case: Case, monitor: FdiMonitor):
     plant_config = mismatched_config(config, case.seed, case.mismatch)
     injections = [Injection(case.fault, case.value, case.onset_s)] if case.fault else []
     scenario = Scenario(case.duration_s, injections, seed=case.seed, actuator=monitor.actuators[0])
-    for times, states, m in run_blocks(plant_config, scenario):
-        col = lambda v: v[:, None]  # noqa: E731 - one actuator
-        yield states, monitor.process(SampleBlock(times, col(m.joint_position), col(m.joint_velocity), col(m.pressure_a),
-                                                  col(m.pressure_b), m.supply_pressure, col(m.valve_command)))
+    for _, states, measured in run_blocks(plant_config, scenario):
+        yield states, monitor.process(measured.as_columns())
 
 
 def calibrate_threshold_constant(config: dict[str, Any], seeds: Iterable[int], duration_s: float = 120.0,

@@ -19,6 +19,7 @@ from hydro_ros.fdi.ukf import PRESSURE_UNIT, UkfBank, UkfSettings
 from hydro_ros.models.kinematics import piston_position, torque_arm
 from hydro_ros.models.sam import MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET, SamModel
 from hydro_ros.names import Fault
+from hydro_ros.samples import Samples
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3  # diagnostic_msgs/DiagnosticStatus levels
 
@@ -90,22 +91,6 @@ class MovingAverage:
         out = (sums[self.window :] - sums[:m]) / self.window
         self.history = extended[m:].copy()
         return out
-
-
-@dataclass
-class SampleBlock:
-    """Aligned sensor samples of all monitored actuators: arrays (n,) or (n, A)."""
-
-    times: np.ndarray
-    joint_position: np.ndarray
-    joint_velocity: np.ndarray
-    pressure_a: np.ndarray
-    pressure_b: np.ndarray
-    supply_pressure: np.ndarray
-    valve_command: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.times)
 
 
 @dataclass
@@ -188,7 +173,7 @@ class FdiMonitor:
         x = piston_position(theta, self._l1, self._l2, self._l3)
         return x, torque_arm(theta, self._l1, self._l2) * joint_velocity
 
-    def process(self, block: SampleBlock) -> BlockResult:
+    def process(self, block: Samples) -> BlockResult:
         n = len(block)
         n_act = len(self.actuators)
         supply = np.broadcast_to(np.asarray(block.supply_pressure, dtype=float).reshape(n, -1), (n, n_act))

@@ -10,7 +10,8 @@ import numpy as np
 
 from hydro_ros.bags.reader import BagData, BagError, read_bag
 from hydro_ros.fdi.isolation import Alarm
-from hydro_ros.fdi.monitor import BlockResult, FdiMonitor, SampleBlock
+from hydro_ros.fdi.monitor import BlockResult, FdiMonitor
+from hydro_ros.samples import Samples
 
 BLOCK = 5000  # samples per call of the monitor: long enough to amortise, short enough for progress
 
@@ -46,7 +47,7 @@ class FdiRun:
         return out
 
 
-def blocks_from_bag(data: BagData, monitor: FdiMonitor) -> SampleBlock:
+def blocks_from_bag(data: BagData, monitor: FdiMonitor) -> Samples:
     """The bag's samples for the monitor's actuators; a clear error names a missing topic."""
     columns: dict[str, list[np.ndarray]] = {k: [] for k in ("jp", "jv", "pa", "pb", "u")}
     for actuator, joint in zip(monitor.actuators, monitor.joints):
@@ -65,15 +66,13 @@ def blocks_from_bag(data: BagData, monitor: FdiMonitor) -> SampleBlock:
     if data.supply_pressure is None:
         raise BagError(f"bag {data.path}: no /hydraulics/supply_pressure")
     stack = {key: np.stack(values, axis=1) for key, values in columns.items()}
-    return SampleBlock(data.times, stack["jp"], stack["jv"], stack["pa"], stack["pb"], data.supply_pressure, stack["u"])
+    return Samples(data.times, stack["jp"], stack["jv"], stack["pa"], stack["pb"], data.supply_pressure, stack["u"])
 
 
-def run_monitor(monitor: FdiMonitor, samples: SampleBlock, progress: Callable[[int], None] | None = None) -> FdiRun:
+def run_monitor(monitor: FdiMonitor, samples: Samples, progress: Callable[[int], None] | None = None) -> FdiRun:
     results: list[BlockResult] = []
     for start in range(0, len(samples), BLOCK):
-        part = slice(start, start + BLOCK)
-        block = SampleBlock(*(np.asarray(getattr(samples, f))[part] if np.ndim(getattr(samples, f)) else getattr(samples, f)
-                              for f in SampleBlock.__dataclass_fields__))
+        block = samples.slice(slice(start, start + BLOCK))
         results.append(monitor.process(block))
         if progress is not None:
             progress(len(block))

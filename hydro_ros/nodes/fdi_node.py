@@ -32,7 +32,8 @@ from std_srvs.srv import Trigger
 from hydro_ros.bags import topics
 from hydro_ros.bags.cdr import CdrError, decode_fluid_pressure, decode_joint_state
 from hydro_ros.config import default_config_path, load_machine_config
-from hydro_ros.fdi.monitor import STALE, FdiMonitor, SampleBlock
+from hydro_ros.fdi.monitor import STALE, FdiMonitor
+from hydro_ros.samples import Samples
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, run_node
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
@@ -174,7 +175,7 @@ class FdiNode(Node):
             return
         n_act = len(self.monitor.actuators)
         per = rows[:, :-1].reshape(len(stamps), n_act, 5)
-        block = SampleBlock(
+        block = Samples(
             times=stamps * 1e-9,
             joint_position=per[:, :, JP], joint_velocity=per[:, :, JV],
             pressure_a=per[:, :, PA], pressure_b=per[:, :, PB],
@@ -263,24 +264,23 @@ class FdiNode(Node):
         self.pub_diag.publish(array)
 
     # services -----------------------------------------------------------------------------------
+    def _answer(self, response: Trigger.Response, message: str) -> Trigger.Response:
+        """Operator actions are logged, and their effect on levels and halt is published at once."""
+        self.get_logger().info(message)
+        self._check_levels()
+        self._publish_halt()
+        response.success = True
+        response.message = message
+        return response
+
     def _on_acknowledge(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         cleared = [f"{a}: {self.monitor.status(i).message}" for i, a in enumerate(self.monitor.actuators) if self.monitor.status(i).fault]
         self.monitor.acknowledge()
-        self.get_logger().info(f"alarms acknowledged ({'; '.join(cleared) or 'none latched'})")
-        self._check_levels()
-        self._publish_halt()
-        response.success = True
-        response.message = f"acknowledged: {'; '.join(cleared) or 'no latched alarm'}"
-        return response
+        return self._answer(response, f"acknowledged: {'; '.join(cleared) or 'no latched alarm'}")
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.monitor.reset()
-        self.get_logger().info("filters, averages and latches reset")
-        self._check_levels()
-        self._publish_halt()
-        response.success = True
-        response.message = f"reset; detection re-arms after {self.monitor.settings.window_s:g} s of data"
-        return response
+        return self._answer(response, f"filters, averages and latches reset; detection re-arms after {self.monitor.settings.window_s:g} s of data")
 
     def _on_self_test(self, _request: SelfTest.Request, response: SelfTest.Response) -> SelfTest.Response:
         """Unscented weights sane, the filter tracks a simulated healthy machine, sensor topics fresh."""
@@ -292,12 +292,12 @@ class FdiNode(Node):
         n_act = len(probe.actuators)
         scenario = Scenario(probe.settings.window_s + 1.0, (), seed=0, actuator=probe.actuators[0])
         alarms = []
-        for _, _, m in run_blocks(self.config, scenario):
-            n = len(m.times)
-            wide = {k: np.zeros((n, n_act)) for k in ("jp", "jv", "pa", "pb", "u")}
-            for key, values in (("jp", m.joint_position), ("jv", m.joint_velocity), ("pa", m.pressure_a), ("pb", m.pressure_b), ("u", m.valve_command)):
-                wide[key][:, 0] = values
-            result = probe.process(SampleBlock(m.times, wide["jp"], wide["jv"], wide["pa"], wide["pb"], m.supply_pressure, wide["u"]))
+        for _, _, measured in run_blocks(self.config, scenario):
+            block = measured.as_columns()
+            for name in ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command"):
+                # the other actuators see a machine at rest with its first actuator's pressures
+                setattr(block, name, np.repeat(getattr(block, name), n_act, axis=1))
+            result = probe.process(block)
             alarms += result.alarms
         converged = bool(np.all(np.abs(result.mean_residual[-1, 0]) < result.threshold[-1, 0]))
         checks.append(("filter tracks a simulated healthy machine without alarm", converged and not alarms))

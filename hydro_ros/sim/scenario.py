@@ -11,7 +11,8 @@ import numpy as np
 from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.names import Injection
 from hydro_ros.sim.excitation import OperatorReference
-from hydro_ros.sim.sensors import Measurements, SensorModel
+from hydro_ros.samples import Samples
+from hydro_ros.sim.sensors import SensorModel
 
 BLOCK = 1000  # samples per block: bounds memory for long runs
 
@@ -45,7 +46,7 @@ class ScenarioRun:
     sensors: SensorModel
     operator: OperatorReference
 
-    def step(self, n: int, commands: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, Measurements]:
+    def step(self, n: int, commands: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, Samples]:
         """Advance ``n`` samples; with ``commands`` None the simulated operator drives."""
         if commands is None:
             times, states, applied = self.plant.advance(n, references=self.operator.next(n))
@@ -75,7 +76,7 @@ def start(config: dict[str, Any], scenario: Scenario) -> ScenarioRun:
 
 def run_blocks(
     config: dict[str, Any], scenario: Scenario, progress: Callable[[int], None] | None = None
-) -> Iterator[tuple[np.ndarray, np.ndarray, Measurements]]:
+) -> Iterator[tuple[np.ndarray, np.ndarray, Samples]]:
     """Yield (times, true states, measurements) per block until ``duration_s``."""
     run = start(config, scenario)
     total = int(round(scenario.duration_s * run.plant.model.sample_rate))

@@ -12,27 +12,14 @@ The sample rate is the config's.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
 
 from hydro_ros.fdi.complementary import ComplementaryFilter
 from hydro_ros.models.sam import SamModel, injection_levels
+from hydro_ros.samples import Samples
 from hydro_ros.names import Injection
-
-
-@dataclass
-class Measurements:
-    """One block of sensor samples (all arrays of the same length)."""
-
-    times: np.ndarray
-    joint_position: np.ndarray
-    joint_velocity: np.ndarray
-    pressure_a: np.ndarray
-    pressure_b: np.ndarray
-    supply_pressure: np.ndarray
-    valve_command: np.ndarray
 
 
 class SensorModel:
@@ -79,7 +66,7 @@ class SensorModel:
         gyro = np.round(gyro / m["gyro_resolution"]) * m["gyro_resolution"]
         return self.complementary(inclination, gyro)
 
-    def measure(self, times: np.ndarray, states: np.ndarray, commands: np.ndarray) -> Measurements:
+    def measure(self, times: np.ndarray, states: np.ndarray, commands: np.ndarray) -> Samples:
         angle = self.model.joint_from_piston(states[:, 4])
         if self.motion_sensor == "mems":
             joint, velocity = self._mems(angle, states)
@@ -97,9 +84,9 @@ class SensorModel:
         self._previous_angle = float(quantised[-1])
         return self._measurements(times, states, commands, quantised, velocity)
 
-    def _measurements(self, times, states, commands, joint: np.ndarray, velocity: np.ndarray) -> Measurements:
+    def _measurements(self, times, states, commands, joint: np.ndarray, velocity: np.ndarray) -> Samples:
         supply = np.full(len(times), self.model.config["supply_pressure"], dtype=float)
-        return Measurements(
+        return Samples(
             times=times,
             joint_position=joint,
             joint_velocity=velocity + self._bias("velocity_sensor_bias", times),
