@@ -65,7 +65,7 @@ def cmd_fdi(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.bags.reader import BagError
-    from hydro_ros.fdi.offline import analyse_bag
+    from hydro_ros.fdi.offline import prepare, run_monitor
     from hydro_ros.plots import plot_fdi
 
     config = load_machine_config(args.config)
@@ -73,10 +73,12 @@ def cmd_fdi(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise CliError(f"--json {out}: directory {out.parent} does not exist")
     try:
-        with tqdm(unit="sample", desc="fdi", disable=args.quiet) as bar:
-            run = analyse_bag(args.bag, config, args.method, progress=bar.update)
+        data, monitor, samples = prepare(args.bag, config, args.method)
     except BagError as exc:
         raise CliError(str(exc)) from None
+    with tqdm(total=len(samples), unit="sample", desc="fdi", disable=args.quiet) as bar:
+        run = run_monitor(monitor, samples, progress=bar.update)
+    run.data = data
     result = run.to_json()
     plot = plot_fdi(run, out.with_suffix(".png"))
     result["plot"] = str(plot)

@@ -8,7 +8,9 @@ import sys
 
 import pytest
 
-from test.conftest import SAM_CONFIG
+from test.conftest import REPO, SAM_CONFIG
+
+BAGS = REPO / "bags"
 
 CLI = [sys.executable, "-m", "hydro_ros.cli"]
 
@@ -17,7 +19,7 @@ def run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=300)
 
 
-@pytest.mark.parametrize("sub", ["sim", "replay", "demo"])
+@pytest.mark.parametrize("sub", ["sim", "replay", "demo", "fdi", "fdi-eval"])
 def test_every_subcommand_has_help(sub):
     result = run(sub, "--help")
     assert result.returncode == 0 and "usage: hydro-ros" in result.stdout
@@ -31,6 +33,10 @@ def test_every_subcommand_has_help(sub):
         (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--fault", "internal_leakage=oops", "--out", "X"], "cannot parse"),
         (["sim", "--config", str(SAM_CONFIG), "--duration", "-1", "--out", "X"], "--duration -1.0"),
         (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--effect", "payload_mass=50@3", "--out", "X"], "effects are present from t = 0"),
+        (["fdi", "--bag", "nobag", "--config", str(SAM_CONFIG), "--json", "X"], "bag nobag: no such file or directory"),
+        (["fdi", "--bag", str(BAGS / "fault_free"), "--config", str(SAM_CONFIG), "--method", "parity", "--json", "X"], "pilot pressures"),
+        (["fdi", "--bag", str(BAGS / "fault_free"), "--config", str(SAM_CONFIG), "--json", "nodir/X.json"], "directory nodir does not exist"),
+        (["fdi-eval", "--config", str(SAM_CONFIG), "--seeds", "0", "--out", "X"], "--seeds 0"),
     ],
 )
 def test_bad_input_gives_one_line_error(args, needle, tmp_path):
@@ -51,3 +57,33 @@ def test_sim_writes_bag_and_plot(tmp_path):
     assert (out / "metadata.yaml").is_file() and (tmp_path / "bag.png").stat().st_size > 10000
     again = run("sim", "--config", str(SAM_CONFIG), "--duration", "2", "--out", str(out), "--quiet")
     assert again.returncode == 1 and "already exists" in again.stderr
+
+
+def test_fdi_writes_contract_json_and_plot(tmp_path):
+    out = tmp_path / "ext_a.json"
+    result = run("fdi", "--bag", str(BAGS / "external_leakage_a"), "--config", str(SAM_CONFIG), "--json", str(out), "--quiet")
+    assert result.returncode == 0, result.stderr
+    report = json.loads(out.read_text())
+    boom = report["actuators"]["boom"]
+    assert boom["fault"] == "external_leakage_a" and 10.0 < boom["first_detection_s"] < 16.0
+    assert {"time_s", "actuator", "fault", "code"} <= set(report["alarms"][0])
+    assert report["alarms"][-1]["fault"] == "external_leakage_a"
+    assert out.with_suffix(".png").stat().st_size > 10000
+
+
+def test_fdi_names_a_missing_topic(tmp_path):
+    from mcap.writer import Writer
+
+    from hydro_ros.bags.cdr import encode_joint_state
+
+    bag = tmp_path / "joints_only.mcap"
+    with bag.open("wb") as stream:
+        writer = Writer(stream)
+        writer.start("ros2", "test")
+        channel = writer.register_channel("/joint_states", "cdr", writer.register_schema("sensor_msgs/msg/JointState", "ros2msg", b""))
+        for k in range(100):
+            writer.add_message(channel, k, encode_joint_state(k * 1_000_000, "", ["boom_joint"], [0.0], [0.0], []), k)
+        writer.finish()
+    result = run("fdi", "--bag", str(bag), "--config", str(SAM_CONFIG), "--json", str(tmp_path / "x.json"))
+    assert result.returncode == 1 and "no /hydraulics/boom/pressure_a" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.json").exists()

@@ -88,10 +88,16 @@ def run_monitor(monitor: FdiMonitor, samples: Samples, progress: Callable[[int],
     )
 
 
-def analyse_bag(bag: str | Path, config: dict[str, Any], method: str | None = None,
-                progress: Callable[[int], None] | None = None) -> FdiRun:
+def prepare(bag: str | Path, config: dict[str, Any], method: str | None = None) -> tuple[BagData, FdiMonitor, Samples]:
+    """Everything that can fail on bad input (bag, config, method, missing topics), before any work."""
     data = read_bag(bag)
     monitor = FdiMonitor(config, method)
-    run = run_monitor(monitor, blocks_from_bag(data, monitor), progress)
+    return data, monitor, blocks_from_bag(data, monitor)
+
+
+def analyse_bag(bag: str | Path, config: dict[str, Any], method: str | None = None,
+                progress: Callable[[int], None] | None = None) -> FdiRun:
+    data, monitor, samples = prepare(bag, config, method)
+    run = run_monitor(monitor, samples, progress)
     run.data = data
     return run
