@@ -36,10 +36,12 @@ def _call(node, client, request, timeout=20.0):
 def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
     diags: list[DiagnosticArray] = []
     halts: list[bool] = []
+    residuals: list[JointState] = []
     with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3"), \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
         node.create_subscription(Bool, "/fdi/halt", lambda m: halts.append(m.data), LATCHED_QOS)
+        node.create_subscription(JointState, "/fdi/residuals", residuals.append, 10)
         assert spin_until(node, lambda: len(_fdi_statuses(diags)) >= 3, 30), "no fdi diagnostics"
         assert spin_until(node, lambda: halts == [False], 5), "halt not latched false at start"
         # let the 5 s window fill, then no alarm on the healthy plant
@@ -59,6 +61,18 @@ def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
         assert ack.success and "external_leakage_a" in ack.message
         test = _call(node, node.create_client(SelfTest, "/fdi_node/self_test"), SelfTest.Request())
         assert test.passed == b"\x01", [(s.name, s.message) for s in test.status]
+        latest = residuals[-1]
+        assert latest.name == ["boom/mean_r_pA", "boom/threshold_pA", "boom/mean_r_pB", "boom/threshold_pB"]
+        assert latest.position[0] < -latest.position[1] < 0.0  # the leak keeps r_pA below its negative threshold
+        stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in residuals[-20:]]
+        assert 0.01 < (stamps[-1] - stamps[0]) / 19 < 0.05  # decimated to ~50 Hz from 1 kHz
+        # the leak repaired and the spool stuck closed instead: severe, ERROR and a halt request
+        future = client.set_parameters([Parameter("fault.external_leakage_a", value=0.0), Parameter("fault.spool_stuck_closed", value=1.0)])
+        assert spin_until(node, future.done, 10)
+        reset = _call(node, node.create_client(Trigger, "/fdi_node/reset"), Trigger.Request())
+        assert reset.success and "re-arms" in reset.message
+        assert spin_until(node, lambda: bool(halts) and halts[-1] is True, 25), "no halt request"
+        assert _fdi_statuses(diags)[-1].level == bytes([2])
 
 
 def test_silent_sensors_are_stale_not_alarmed(ros_domain):
