@@ -48,7 +48,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
     joint = config["actuators"][actuator]["joint"]
     variance = float(config["sensors"]["pressure_noise_std"]) ** 2
     try:
-        writer = ContractBagWriter(args.out, actuators={actuator: joint}, pressure_variance=variance)
+        mobile = config["actuators"][actuator]["valve"].get("type") == "mobile"
+        writer = ContractBagWriter(args.out, actuators={actuator: joint}, pressure_variance=variance, mobile=mobile)
     except BagExistsError as exc:
         raise CliError(str(exc)) from None
     total = int(round(args.duration * float(config["sample_rate_hz"])))

@@ -76,6 +76,14 @@ INJECTION_UNITS: dict[str, str] = {
     "pressure_sensor_bias_b": "Pa added to the p_B reading",
     "supply_pressure_sensor_bias": "Pa added to the supply-pressure reading",
     "velocity_sensor_bias": "rad/s added to the joint velocity reading",
+    # pressure-compensated mobile valves (P-IV fault list; `valve.type: mobile` machines)
+    "main_spool_locking": "1 = main spool locked at centre, 0 = free",
+    "main_spool_erosion": "fractional increase of the metering flow (worn edges)",
+    "compensator_spool_locking": "1 = compensator locked fully open (flow no longer compensated)",
+    "compensator_spool_erosion": "fractional loss of the compensator's regulated pressure drop",
+    "pilot_pressure_spool_offset": "main-spool offset against the pilot-pressure balance, fraction of travel",
+    "pilot_pressure_sensor_bias": "Pa added to the pilot_pressure_1 reading",
+    "compensator_pressure_sensor_bias": "Pa added to the compensator_pressure reading",
 }
 
 INJECTABLE = frozenset(INJECTION_UNITS)

@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hydro_ros.config import load_machine_config
 from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.names import INJECTABLE, Injection, parse_injection
 from hydro_ros.sim.sensors import SensorModel
+from test.conftest import REPO
 
 ONSET = 1.0
 N = 3000
@@ -36,18 +38,53 @@ EXPECTED = {
     "velocity_sensor_bias": (0.01, lambda c, f: np.mean(f["m_v"][1500:] - c["m_v"][1500:]) == pytest.approx(0.01, rel=1e-6)),
 }
 
+# faults of pressure-compensated mobile valves (P-IV list), on config/sam_mobile.yaml
+EXPECTED_MOBILE = {
+    "main_spool_locking": (1.0, lambda c, f: abs(f["x"][1999] - f["x"][999]) < 1e-3),
+    "main_spool_erosion": (0.3, lambda c, f: abs(f["x"][1999] - f["x"][999]) > 1.1 * abs(c["x"][1999] - c["x"][999])),
+    "compensator_spool_locking": (1.0, lambda c, f: abs(f["x"][1999] - f["x"][999]) > 1.1 * abs(c["x"][1999] - c["x"][999])),
+    "compensator_spool_erosion": (0.5, lambda c, f: abs(f["x"][1999] - f["x"][999]) < 0.9 * abs(c["x"][1999] - c["x"][999])),
+    "pilot_pressure_spool_offset": (0.05, lambda c, f: f["x"][-1] > c["x"][-1]),
+    # rel 0.1: a reading near 0 Pa is clipped by the transducer range, so the noise is not symmetric there
+    "pilot_pressure_sensor_bias": (2e5, lambda c, f: np.mean(f["m_pil1"][1500:] - c["m_pil1"][1500:]) == pytest.approx(2e5, rel=0.1)),
+    "compensator_pressure_sensor_bias": (3e5, lambda c, f: np.mean(f["m_pc"][1500:] - c["m_pc"][1500:]) == pytest.approx(3e5, rel=1e-6)),
+}
+
 
 def _run(config, injections):
     model = SamModel(config)
     plant = SamPlant(model, injections=injections, initial_joint=0.0)
     times, states, applied = plant.advance(N, commands=COMMANDS)
     meas = SensorModel(model, np.random.default_rng(0), injections).measure(times, states, applied)
-    return {"p_a": states[:, 0], "p_b": states[:, 1], "x": states[:, 4], "m_pa": meas.pressure_a, "m_pb": meas.pressure_b,
-            "m_ps": meas.supply_pressure, "m_v": meas.joint_velocity}
+    out = {"p_a": states[:, 0], "p_b": states[:, 1], "x": states[:, 4], "m_pa": meas.pressure_a, "m_pb": meas.pressure_b,
+           "m_ps": meas.supply_pressure, "m_v": meas.joint_velocity}
+    if meas.mobile:
+        out.update(m_pil1=meas.pilot_pressure_1, m_pc=meas.compensator_pressure)
+    return out
 
 
 def test_every_injectable_name_is_covered():
-    assert set(EXPECTED) == set(INJECTABLE)
+    assert set(EXPECTED) | set(EXPECTED_MOBILE) == set(INJECTABLE)
+
+
+@pytest.fixture(scope="module")
+def mobile_config():
+    return load_machine_config(REPO / "config" / "sam_mobile.yaml")
+
+
+@pytest.fixture(scope="module")
+def clean_mobile(mobile_config):
+    return _run(mobile_config, [])
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED_MOBILE))
+def test_mobile_valve_injection_switches_on_at_onset_and_acts(mobile_config, clean_mobile, name):
+    value, acts = EXPECTED_MOBILE[name]
+    faulty = _run(mobile_config, [Injection(name, value, ONSET)])
+    before = int(ONSET * 1000) - 1
+    for key in ("p_a", "p_b", "x", "m_pa", "m_pb", "m_pil1", "m_pc"):
+        np.testing.assert_array_equal(faulty[key][:before], clean_mobile[key][:before], err_msg=f"{name} acted before onset ({key})")
+    assert acts(clean_mobile, faulty), f"{name}={value} had no effect in its physical direction"
 
 
 @pytest.fixture(scope="module")

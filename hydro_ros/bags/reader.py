@@ -40,6 +40,10 @@ class BagData:
     joint_velocity: dict[str, np.ndarray] = field(default_factory=dict)
     pressure_a: dict[str, np.ndarray] = field(default_factory=dict)
     pressure_b: dict[str, np.ndarray] = field(default_factory=dict)
+    pilot_pressure_1: dict[str, np.ndarray] = field(default_factory=dict)
+    pilot_pressure_2: dict[str, np.ndarray] = field(default_factory=dict)
+    compensator_pressure: dict[str, np.ndarray] = field(default_factory=dict)
+    ls_pressure: np.ndarray | None = None
     supply_pressure: np.ndarray | None = None
     valve_command: dict[str, np.ndarray] = field(default_factory=dict)
     truth: dict[str, Any] | None = None
@@ -206,6 +210,8 @@ def read_bag(path: str | Path) -> BagData:
             data.supply_pressure = aligned(series)
             continue
         parts = topic.strip("/").split("/")
-        if len(parts) == 3 and parts[0] == "hydraulics" and parts[2] in ("pressure_a", "pressure_b"):
+        if topic == topics.LS_PRESSURE:
+            data.ls_pressure = aligned(series)
+        elif len(parts) == 3 and parts[0] == "hydraulics" and parts[2] in ("pressure_a", "pressure_b", *topics.MOBILE_VALVE_PRESSURES):
             getattr(data, parts[2])[parts[1]] = aligned(series)
     return data

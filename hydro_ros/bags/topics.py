@@ -21,10 +21,24 @@ def pressure_b(actuator: str) -> str:
     return f"/hydraulics/{actuator}/pressure_b"
 
 
-def sensor_topics(actuators: list[str]) -> dict[str, str]:
-    """Every measured topic of a proportional-valve machine and its type."""
+LS_PRESSURE = "/hydraulics/ls_pressure"
+MOBILE_VALVE_PRESSURES = ("pilot_pressure_1", "pilot_pressure_2", "compensator_pressure")
+
+
+def actuator_pressure(actuator: str, quantity: str) -> str:
+    """/hydraulics/<actuator>/<quantity> for pressure_a/b and the mobile-valve pressures."""
+    return f"/hydraulics/{actuator}/{quantity}"
+
+
+def sensor_topics(actuators: list[str], mobile: bool = False) -> dict[str, str]:
+    """Every measured topic of a machine and its type; mobile valves add pilot/compensator/LS."""
     topics = {JOINT_STATES: JOINT_STATE_TYPE, SUPPLY_PRESSURE: FLUID_PRESSURE_TYPE, VALVE_COMMANDS: JOINT_STATE_TYPE}
     for actuator in actuators:
         topics[pressure_a(actuator)] = FLUID_PRESSURE_TYPE
         topics[pressure_b(actuator)] = FLUID_PRESSURE_TYPE
+        if mobile:
+            for quantity in MOBILE_VALVE_PRESSURES:
+                topics[actuator_pressure(actuator, quantity)] = FLUID_PRESSURE_TYPE
+    if mobile:
+        topics[LS_PRESSURE] = FLUID_PRESSURE_TYPE
     return topics

@@ -30,23 +30,35 @@ class BagExistsError(FileExistsError):
 
 def sample_payloads(block: Samples, k: int, stamp: int, actuator: str, joint: str, variance: float) -> tuple[bytes, ...]:
     """CDR of sample ``k`` for the topics of :func:`sample_topics`, in that order."""
-    return (
+    payloads = (
         encode_joint_state(stamp, "", [joint], [float(block.joint_position[k])], [float(block.joint_velocity[k])], []),
         encode_fluid_pressure(stamp, actuator, float(block.pressure_a[k]), variance),
         encode_fluid_pressure(stamp, actuator, float(block.pressure_b[k]), variance),
         encode_fluid_pressure(stamp, "supply", float(block.supply_pressure[k]), variance),
         encode_joint_state(stamp, "", [actuator], [float(block.valve_command[k])], [], []),
     )
+    if not block.mobile:
+        return payloads
+    # the load-sensing line sees the pressure the compensator works against
+    return payloads + (
+        encode_fluid_pressure(stamp, actuator, float(block.pilot_pressure_1[k]), 0.0),
+        encode_fluid_pressure(stamp, actuator, float(block.pilot_pressure_2[k]), 0.0),
+        encode_fluid_pressure(stamp, actuator, float(block.compensator_pressure[k]), variance),
+        encode_fluid_pressure(stamp, "ls", float(block.ls_pressure[k]), variance),
+    )
 
 
-def sample_topics(actuator: str) -> tuple[str, ...]:
-    return (topics.JOINT_STATES, topics.pressure_a(actuator), topics.pressure_b(actuator), topics.SUPPLY_PRESSURE, topics.VALVE_COMMANDS)
+def sample_topics(actuator: str, mobile: bool = False) -> tuple[str, ...]:
+    base = (topics.JOINT_STATES, topics.pressure_a(actuator), topics.pressure_b(actuator), topics.SUPPLY_PRESSURE, topics.VALVE_COMMANDS)
+    if not mobile:
+        return base
+    return base + tuple(topics.actuator_pressure(actuator, q) for q in topics.MOBILE_VALVE_PRESSURES) + (topics.LS_PRESSURE,)
 
 
 class ContractBagWriter:
     """Context manager writing one machine's sensor topics."""
 
-    def __init__(self, path: str | Path, *, actuators: dict[str, str], pressure_variance: float) -> None:
+    def __init__(self, path: str | Path, *, actuators: dict[str, str], pressure_variance: float, mobile: bool = False) -> None:
         """``actuators`` maps actuator name -> joint name (machine config order)."""
         self.path = Path(path)
         if self.path.exists():
@@ -58,7 +70,8 @@ class ContractBagWriter:
         self.messages = 0
         self._counts: dict[str, int] = {}
         self._channels: dict[str, int] = {}
-        self._types = topics.sensor_topics(list(actuators))
+        self.mobile = mobile
+        self._types = topics.sensor_topics(list(actuators), mobile)
         self._first = None
         self._last = 0
 
@@ -120,7 +133,7 @@ class ContractBagWriter:
         """Write one actuator's block of samples; stamps (and bag log times) are sample times."""
         joint = self.actuators[actuator]
         channels = self._channels
-        names = sample_topics(actuator)
+        names = sample_topics(actuator, self.mobile)
         ids = [channels[name] for name in names]
         add = self._mcap.add_message
         for k in range(len(block.times)):

@@ -35,7 +35,13 @@ from hydro_ros.models.kinematics import (
     torque_arm_derivative,
     triangle_angle,
 )
-from hydro_ros.models.valve import NOTCHES, chamber_valve_flows, spool_acceleration, spool_opening
+from hydro_ros.models.valve import (
+    NOTCHES,
+    chamber_valve_flows,
+    compensator_pressure,
+    spool_acceleration,
+    spool_opening,
+)
 from hydro_ros.names import Injection
 
 STATE_NAMES = ("p_a", "p_b", "spool", "spool_rate", "piston", "piston_velocity", "bristle")
@@ -53,8 +59,17 @@ DELAY_BUFFER = 4096  # samples of valve-command history kept for the valve_delay
     K_INTERNAL, K_EXTERNAL_A, K_EXTERNAL_B,
     OFFSET, OPENING_GAIN, FLOW_GAIN, STUCK, DEADZONE, DELAY_SAMPLES,
     STOP_LOWER, STOP_UPPER, STOP_STIFFNESS, STOP_DAMPING, CAVITATION, GRAVITY,
+    VALVE_MOBILE, COMP_DROP, COMP_LOCKED, PILOT_MAX,
     N_PARAMS,
-) = range(46)
+) = range(50)
+
+
+@njit(cache=True)
+def metering_supply(s: float, p_a: float, p_b: float, p: np.ndarray) -> float:
+    """Pressure feeding the metering notches: supply, or the compensator's for a mobile valve."""
+    if p[VALVE_MOBILE] > 0.5:
+        return compensator_pressure(s, p_a, p_b, p[SUPPLY], p[COMP_DROP], p[COMP_LOCKED] > 0.5)
+    return p[SUPPLY]
 
 
 @njit(cache=True)
@@ -66,7 +81,7 @@ def _rhs(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centr
     z = y[6]
     # valve (eqs. 10-15)
     s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5)
-    q_a, q_b = chamber_valve_flows(s, p_a, p_b, p[SUPPLY], p[TANK], poly, centre, p[LAMINAR_BAND], p[FLOW_GAIN])
+    q_a, q_b = chamber_valve_flows(s, p_a, p_b, metering_supply(s, p_a, p_b, p), p[TANK], poly, centre, p[LAMINAR_BAND], p[FLOW_GAIN])
     # cylinder leakages (eqs. 41-43)
     band = p[LAMINAR_BAND]
     q_int = leak_flow(p[K_INTERNAL], p_a - p_b, band)
@@ -183,12 +198,25 @@ def valve_and_leak_flows(states: np.ndarray, params: np.ndarray, poly: np.ndarra
         y = states[k]
         p = params[k]
         s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5)
-        q_a, q_b = chamber_valve_flows(s, y[0], y[1], p[SUPPLY], p[TANK], poly, centre, p[LAMINAR_BAND], p[FLOW_GAIN])
+        q_a, q_b = chamber_valve_flows(s, y[0], y[1], metering_supply(s, y[0], y[1], p), p[TANK], poly, centre,
+                                       p[LAMINAR_BAND], p[FLOW_GAIN])
         out[k, 0] = q_a
         out[k, 1] = q_b
         out[k, 2] = leak_flow(p[K_INTERNAL], y[0] - y[1], p[LAMINAR_BAND])
         out[k, 3] = leak_flow(p[K_EXTERNAL_A], y[0] - p[TANK], p[LAMINAR_BAND])
         out[k, 4] = leak_flow(p[K_EXTERNAL_B], y[1] - p[TANK], p[LAMINAR_BAND])
+    return out
+
+
+@njit(cache=True)
+def compensator_pressures(states: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """Per-sample pressure upstream of the main spool (the compensator_pressure topic)."""
+    out = np.empty(states.shape[0])
+    for k in range(states.shape[0]):
+        y = states[k]
+        p = params[k]
+        s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5)
+        out[k] = metering_supply(s, y[0], y[1], p)
     return out
 
 
@@ -206,8 +234,16 @@ def _apply(params: np.ndarray, name: str, level: np.ndarray, sample_rate: float)
         params[:, OPENING_GAIN] *= 1.0 + level
     elif name == "spool_stuck_closed":
         params[:, STUCK] = np.maximum(params[:, STUCK], (level >= 0.5).astype(float))
-    elif name == "spool_offset":
+    elif name in ("spool_offset", "pilot_pressure_spool_offset"):
         params[:, OFFSET] += level
+    elif name == "main_spool_locking":
+        params[:, STUCK] = np.maximum(params[:, STUCK], (level >= 0.5).astype(float))
+    elif name == "main_spool_erosion":
+        params[:, FLOW_GAIN] *= 1.0 + level
+    elif name == "compensator_spool_locking":
+        params[:, COMP_LOCKED] = np.maximum(params[:, COMP_LOCKED], (level >= 0.5).astype(float))
+    elif name == "compensator_spool_erosion":
+        params[:, COMP_DROP] *= 1.0 - level
     elif name == "valve_deadzone":
         params[:, DEADZONE] += level
     elif name == "valve_delay":
@@ -226,7 +262,8 @@ def _apply(params: np.ndarray, name: str, level: np.ndarray, sample_rate: float)
 
 
 SENSOR_INJECTIONS = frozenset(
-    {"pressure_sensor_bias_a", "pressure_sensor_bias_b", "supply_pressure_sensor_bias", "velocity_sensor_bias"}
+    {"pressure_sensor_bias_a", "pressure_sensor_bias_b", "supply_pressure_sensor_bias", "velocity_sensor_bias",
+     "pilot_pressure_sensor_bias", "compensator_pressure_sensor_bias"}
 )
 
 
@@ -287,11 +324,23 @@ class SamModel:
         p[STOP_DAMPING] = sim.get("end_stop_damping", 2.0e6)
         p[CAVITATION] = sim.get("cavitation_pressure", -9.0e4)
         p[GRAVITY] = sim.get("gravity", 9.81)
+        valve_type = valve.get("type", "proportional")
+        if valve_type not in ("proportional", "mobile"):
+            raise ValueError(f"actuator {self.actuator!r}: valve.type {valve_type!r}, expected proportional or mobile")
+        if valve_type == "mobile":
+            p[VALVE_MOBILE] = 1.0
+            p[COMP_DROP] = valve["compensator_pressure_drop"]
+            p[PILOT_MAX] = valve["pilot_pressure_max"]
+            p[DEADZONE] = valve.get("deadzone", 0.0)
         self.base = p
         self.poly = np.array([valve["kv_poly"][notch] for notch in NOTCHES], dtype=float)
         self.centre_leakage = np.array([valve["centre_leakage"][notch] for notch in NOTCHES], dtype=float)
         self.sample_rate = float(cfg["sample_rate_hz"])
         self.substeps = int(sim.get("substeps", 10))
+
+    @property
+    def mobile_valve(self) -> bool:
+        return bool(self.base[VALVE_MOBILE] > 0.5)
 
     @property
     def joint_name(self) -> str:

@@ -93,3 +93,22 @@ def chamber_valve_flows(
         q_a += centre_leakage[PA] * (p_s - p_a) - centre_leakage[AT] * (p_a - p_t)
         q_b += centre_leakage[PB] * (p_s - p_b) - centre_leakage[BT] * (p_b - p_t)
     return q_a, q_b
+
+
+@njit(cache=True)
+def compensator_pressure(s: float, p_a: float, p_b: float, p_s: float, drop: float, locked: bool) -> float:
+    """Pressure upstream of the main spool of a pressure-compensated valve (P-VI flow law, P-IV).
+
+    The compensator holds the load pressure of the metering notch plus its drop, at most the
+    supply; locked fully open it passes the supply. Compensator dynamics are not modelled (P-IV
+    did not either).
+    """
+    if locked:
+        return p_s
+    if s > 0.0:
+        load = p_a
+    elif s < 0.0:
+        load = p_b
+    else:
+        load = max(p_a, p_b)
+    return min(load + drop, p_s)

@@ -22,7 +22,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import FluidPressure, JointState
 
 from hydro_ros.bags import topics
-from hydro_ros.bags.writer import sample_payloads
+from hydro_ros.bags.writer import sample_payloads, sample_topics
 from hydro_ros.config import default_config_path, load_machine_config
 from hydro_ros.names import INJECTABLE, Injection
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, run_node
@@ -58,16 +58,18 @@ class PlantSim(Node):
         self._pending: dict[str, float] = {}
         self.add_on_set_parameters_callback(self._on_parameters)
 
-        self.pub_joint = self.create_publisher(JointState, topics.JOINT_STATES, SENSOR_QOS)
-        self.pub_pa = self.create_publisher(FluidPressure, topics.pressure_a(self.actuator), SENSOR_QOS)
-        self.pub_pb = self.create_publisher(FluidPressure, topics.pressure_b(self.actuator), SENSOR_QOS)
-        self.pub_supply = self.create_publisher(FluidPressure, topics.SUPPLY_PRESSURE, SENSOR_QOS)
-        self.pub_valve = None
+        # one publisher per sample topic, in sample_payloads' order; valve commands are only
+        # published when the simulated operator makes them
+        mobile = self.run.plant.model.mobile_valve
+        types = topics.sensor_topics([self.actuator], mobile)
+        self.publishers_in_order = [
+            None if (name == topics.VALVE_COMMANDS and self.excitation != "operator")
+            else self.create_publisher(JointState if types[name] == topics.JOINT_STATE_TYPE else FluidPressure, name, SENSOR_QOS)
+            for name in sample_topics(self.actuator, mobile)
+        ]
         self.command = 0.0
         self.command_wall = -math.inf
-        if self.excitation == "operator":
-            self.pub_valve = self.create_publisher(JointState, topics.VALVE_COMMANDS, SENSOR_QOS)
-        else:
+        if self.excitation == "topic":
             self.create_subscription(JointState, topics.VALVE_COMMANDS, self._on_command, SENSOR_QOS)
         self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.publish_clock else None
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
@@ -132,7 +134,7 @@ class PlantSim(Node):
 
     def _publish(self, block) -> None:
         origin = self.stamp_origin_ns
-        publishers = (self.pub_joint, self.pub_pa, self.pub_pb, self.pub_supply, self.pub_valve)
+        publishers = self.publishers_in_order
         for k in range(len(block.times)):
             stamp = origin + int(round(block.times[k] * 1e9))
             for publisher, payload in zip(publishers, sample_payloads(block, k, stamp, self.actuator, self.joint, self.variance)):

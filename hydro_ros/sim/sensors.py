@@ -17,7 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from hydro_ros.fdi.complementary import ComplementaryFilter
-from hydro_ros.models.sam import SamModel, injection_levels
+from hydro_ros.models.sam import COMP_DROP, PILOT_MAX, SamModel, compensator_pressures, injection_levels
 from hydro_ros.samples import Samples
 from hydro_ros.names import Injection
 
@@ -53,8 +53,9 @@ class SensorModel:
                 total = total + injection_levels(injection, times)
         return total
 
-    def _pressure(self, true: np.ndarray, bias: np.ndarray | float) -> np.ndarray:
-        noisy = true + bias + self.rng.normal(0.0, self.noise_std, size=true.shape)
+    def _pressure(self, true: np.ndarray, bias: np.ndarray | float, noise_std: float | None = None) -> np.ndarray:
+        std = self.noise_std if noise_std is None else noise_std
+        noisy = true + bias + self.rng.normal(0.0, std, size=true.shape)
         return np.clip(noisy, *self.range)
 
     def _mems(self, angle: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -84,8 +85,22 @@ class SensorModel:
         self._previous_angle = float(quantised[-1])
         return self._measurements(times, states, commands, quantised, velocity)
 
+    def _mobile_valve(self, times: np.ndarray, states: np.ndarray, commands: np.ndarray) -> dict[str, np.ndarray]:
+        """Pilot pressures (the pilot stage follows the command) and the compensator pressure."""
+        params = self.model.parameter_matrix(times, self.injections)
+        pilot_max = self.model.base[PILOT_MAX]
+        compensator = compensator_pressures(states, params)
+        pilot_noise = float(self.model.config["sensors"]["pilot_pressure_noise_std"])
+        return {
+            "pilot_pressure_1": self._pressure(pilot_max * np.clip(commands, 0.0, 1.0), self._bias("pilot_pressure_sensor_bias", times), pilot_noise),
+            "pilot_pressure_2": self._pressure(pilot_max * np.clip(-commands, 0.0, 1.0), 0.0, pilot_noise),
+            "compensator_pressure": self._pressure(compensator, self._bias("compensator_pressure_sensor_bias", times)),
+            "ls_pressure": self._pressure(np.maximum(compensator - params[:, COMP_DROP], 0.0), 0.0),
+        }
+
     def _measurements(self, times, states, commands, joint: np.ndarray, velocity: np.ndarray) -> Samples:
         supply = np.full(len(times), self.model.config["supply_pressure"], dtype=float)
+        extra = self._mobile_valve(times, states, commands) if self.model.mobile_valve else {}
         return Samples(
             times=times,
             joint_position=joint,
@@ -94,4 +109,5 @@ class SensorModel:
             pressure_b=self._pressure(states[:, 1], self._bias("pressure_sensor_bias_b", times)),
             supply_pressure=self._pressure(supply, self._bias("supply_pressure_sensor_bias", times)),
             valve_command=commands.copy(),
+            **extra,
         )
