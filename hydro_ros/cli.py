@@ -114,6 +114,26 @@ def cmd_fdi_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fdi_fit(args: argparse.Namespace) -> int:
+    from hydro_ros.fdi.evaluation import build_parity_signatures, fit_parity_thresholds, write_fitted_block
+
+    config = load_machine_config(args.config)
+    if args.train < 1 or args.held_out < 1:
+        raise CliError("--train and --held-out must be >= 1")
+    print(f"fitting parity thresholds on {args.train} fault-free mismatched plants, checking on {args.held_out} others ...")
+    thresholds, report = fit_parity_thresholds(config, range(100, 100 + args.train), range(300, 300 + args.held_out))
+    print(f"threshold factor {thresholds.factor:g} ({report['false_alarms_per_hour']:.2f} false alarms/h held out)"
+          if "false_alarms_per_hour" in report else f"no factor met the target: {report['tried']}")
+    print("building the signature table by simulating the P-IV fault list ...")
+    rows = build_parity_signatures(config, thresholds, range(100, 100 + args.signature_seeds))
+    for row in rows:
+        print(f"  {row['fault']:34s} {row['code']}  command {'any' if row['command_positive'] is None else ('+' if row['command_positive'] else '-')}")
+    if args.write:
+        write_fitted_block(Path(args.config), thresholds, rows, report)
+        print(f"written to {args.config}")
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bag_player import replay
 
@@ -165,6 +185,14 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--workers", type=int, default=2, help="parallel processes")
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
     ev.set_defaults(func=cmd_fdi_eval)
+
+    fit = sub.add_parser("fdi-fit", help="fit the parity method: statistical thresholds and the signature table (mobile valves)")
+    fit.add_argument("--config", required=True, help="machine config with valve.type mobile, e.g. config/sam_mobile.yaml")
+    fit.add_argument("--train", type=int, default=8, help="fault-free training plants (2 min each)")
+    fit.add_argument("--held-out", type=int, default=8, help="fault-free plants that set the threshold factor")
+    fit.add_argument("--signature-seeds", type=int, default=2, help="plants per fault for the signature table")
+    fit.add_argument("--write", action="store_true", help="write the result into the config's fitted block")
+    fit.set_defaults(func=cmd_fdi_fit)
 
     replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
     replay.add_argument("bag", help="bag directory")

@@ -56,6 +56,10 @@ def load_machine_config(path: str | Path) -> dict[str, Any]:
         base = load_machine_config(base_path)
         base.pop("_path", None)
         raw = with_overrides(base, raw)
+    if "fitted" in raw:
+        # values a tool fitted (hydro-ros fdi-fit) live in their own block at the end of the file
+        fitted = raw.pop("fitted")
+        raw = with_overrides(raw, fitted if isinstance(fitted, dict) else {})
     config = _coerce_numbers(raw)
     missing = [key for key in _REQUIRED_SAM_KEYS if key not in config]
     if missing:

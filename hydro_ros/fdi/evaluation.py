@@ -277,3 +277,109 @@ def markdown_table(summary: dict[str, Any]) -> str:
                  f"{summary['threshold']['paper_constant_mpa']:.3f} MPa gives "
                  f"{summary['threshold']['paper_threshold_false_alarms_per_hour']:.0f} per hour on the same plants.")
     return "\n".join(lines) + "\n"
+
+
+# P-IV fault list (digest section 6.1) with the sizes the signature table is built at
+PARITY_FAULTS = (
+    ("external_leakage_a", 2.0), ("external_leakage_b", 2.0), ("internal_leakage", 2.0),
+    ("velocity_sensor_bias", 0.02), ("pressure_sensor_bias_a", 5e5), ("pressure_sensor_bias_b", 5e5),
+    ("compensator_pressure_sensor_bias", 5e5), ("pilot_pressure_sensor_bias", 3e5),
+    ("main_spool_locking", 1.0), ("main_spool_erosion", 0.3), ("compensator_spool_locking", 1.0),
+    ("compensator_spool_erosion", 0.5), ("pilot_pressure_spool_offset", 0.05),
+)
+OPENING_EDGES = (0.0, 0.02, 0.06, 0.15, 0.3, 1.5)
+THRESHOLD_FACTORS = (2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 14.0)
+_UNBOUNDED = {"edges": [0.0, 1.5], "mean": [[0.0, 0.0]], "std": [[1.0, 1.0]], "factor": 1e12}
+
+
+def _parity_records(config: dict[str, Any], case: Case) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Armed (mean residual (n, 2), mean opening (n,), mean command (n,), times (n,)) of one run."""
+    probe = with_overrides(config, {"fdi": {"parity_thresholds": _UNBOUNDED, "parity_signatures": []}})
+    monitor = FdiMonitor(probe, "parity")
+    parts = [(r.mean_residual[:, 0], r.operating_point[:, 0], r.mean_command[:, 0], r.times) for _, r in _blocks(probe, case, monitor)]
+    residual, opening, command, times = (np.concatenate([p[i] for p in parts]) for i in range(4))
+    armed = np.arange(len(times)) >= monitor.window - 1
+    return residual[armed], opening[armed], command[armed], times[armed]
+
+
+def _crossing_episodes(residual: np.ndarray, opening: np.ndarray, thresholds: "ParityThresholds") -> int:
+    limit = thresholds(opening[:, None])[:, 0]
+    crossing = np.any(np.abs(residual) > limit, axis=1).astype(np.int8)
+    return int(np.count_nonzero(np.diff(np.concatenate(([0], crossing))) == 1))
+
+
+def fit_parity_thresholds(config: dict[str, Any], train: Iterable[int], held_out: Iterable[int], duration_s: float = 120.0,
+                          target_per_hour: float = 1.0) -> tuple["ParityThresholds", dict[str, Any]]:
+    """Bin fault-free 5 s mean residuals by mean opening; pick c for the false-alarm target on held-out plants."""
+    from hydro_ros.fdi.parity import ParityThresholds
+
+    train_runs = [_parity_records(config, Case(None, 0.0, seed, duration_s=duration_s)) for seed in train]
+    residual = np.concatenate([r[0] for r in train_runs])
+    opening = np.concatenate([r[1] for r in train_runs])
+    bins = np.clip(np.searchsorted(OPENING_EDGES, opening, side="right") - 1, 0, len(OPENING_EDGES) - 2)
+    mean, std = [], []
+    for b in range(len(OPENING_EDGES) - 1):
+        chosen = residual[bins == b]
+        if len(chosen) < 100:  # an operating point the training data never reached: borrow the widest bin's spread
+            chosen = residual
+        mean.append(tuple(float(v) for v in chosen.mean(axis=0)))
+        std.append(tuple(float(v) for v in chosen.std(axis=0)))
+    held = [_parity_records(config, Case(None, 0.0, seed, duration_s=duration_s)) for seed in held_out]
+    hours = sum(len(r[3]) for r in held) / float(config["sample_rate_hz"]) / 3600.0
+    report: dict[str, Any] = {"held_out_hours": hours, "tried": {}}
+    for factor in THRESHOLD_FACTORS:
+        thresholds = ParityThresholds(OPENING_EDGES, tuple(mean), tuple(std), factor)
+        episodes = sum(_crossing_episodes(r[0], r[1], thresholds) for r in held)
+        report["tried"][factor] = episodes / hours
+        if episodes / hours <= target_per_hour:
+            report["factor"] = factor
+            report["false_alarms_per_hour"] = episodes / hours
+            return thresholds, report
+    report["factor"] = THRESHOLD_FACTORS[-1]
+    return ParityThresholds(OPENING_EDGES, tuple(mean), tuple(std), THRESHOLD_FACTORS[-1]), report
+
+
+def build_parity_signatures(config: dict[str, Any], thresholds: "ParityThresholds", seeds: Iterable[int],
+                            duration_s: float = 60.0, onset_s: float = 20.0, share: float = 0.25) -> list[dict[str, Any]]:
+    """Signature table by simulation: per fault and command sign, the crossing pattern that dominates after onset."""
+    from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, code_string
+
+    rows: list[dict[str, Any]] = []
+    for fault, value in PARITY_FAULTS:
+        counts: dict[tuple[int, int], int] = {}
+        for seed in seeds:
+            residual, opening, command, times = _parity_records(config, Case(fault, value, seed, onset_s, duration_s))
+            limit = thresholds(opening[:, None])[:, 0]
+            code = (A_UP * (residual[:, 0] > limit[:, 0]) + A_DOWN * (residual[:, 0] < -limit[:, 0])
+                    + B_UP * (residual[:, 1] > limit[:, 1]) + B_DOWN * (residual[:, 1] < -limit[:, 1]))
+            after = times >= onset_s
+            direction = np.sign(command)
+            for c, d in zip(code[after], direction[after]):
+                if c:
+                    counts[(int(c), int(d))] = counts.get((int(c), int(d)), 0) + 1
+        total = sum(counts.values())
+        by_code: dict[int, set[int]] = {}
+        for (c, d), n in counts.items():
+            if total and n >= share * total:
+                by_code.setdefault(c, set()).add(d)
+        for c, directions in sorted(by_code.items()):
+            positive = None if len(directions - {0}) != 1 else (next(iter(directions - {0})) > 0)
+            rows.append({"fault": fault, "code": code_string(c), "command_positive": positive})
+    return rows
+
+
+FIT_MARKER = "# --- fitted by `hydro-ros fdi-fit`"
+
+
+def write_fitted_block(path: "Path", thresholds: "ParityThresholds", rows: list[dict[str, Any]], report: dict[str, Any]) -> None:
+    """Replace the fitted block at the end of a machine config file (hand-written part untouched)."""
+    import yaml
+
+    text = path.read_text()
+    head = text.split(FIT_MARKER)[0].rstrip("\n")
+    block = yaml.safe_dump({"fdi": {"parity_thresholds": thresholds.to_config(), "parity_signatures": rows}},
+                           sort_keys=False, default_flow_style=None, width=120)
+    note = (f"{FIT_MARKER}: parity thresholds from fault-free mismatched plants, factor {thresholds.factor:g} for "
+            f"<= 1 false alarm/h on {report['held_out_hours']:.2f} h held out; signature table by simulation "
+            "of the P-IV fault list. Regenerate, do not edit. ---\n")
+    path.write_text(head + "\n" + note + "fitted:\n" + "".join("  " + line + "\n" for line in block.splitlines()))

@@ -61,6 +61,21 @@ UKF_TABLE: tuple[PatternRow, ...] = (
 )
 
 
+def signature_rows(entries: list[dict]) -> tuple[PatternRow, ...]:
+    """Rows from config entries {fault, code: "0110", pa_gt_pb, large, command_positive} (null = X)."""
+    rows = []
+    for entry in entries:
+        try:
+            code = entry["code"]
+            # the config loader turns numeric-looking strings into numbers: "0110" arrives as 110.0
+            text = str(int(code)) if isinstance(code, (int, float)) else str(code)
+            rows.append(PatternRow(Fault(entry["fault"]), int(text, 2), entry.get("pa_gt_pb"),
+                                   entry.get("large"), entry.get("command_positive")))
+        except (KeyError, ValueError) as exc:
+            raise ValueError(f"fdi.parity_signatures: bad entry {entry!r} ({exc})") from None
+    return tuple(rows)
+
+
 def matching_faults(table: tuple[PatternRow, ...], code: int, pa_gt_pb: bool, large: bool, direction: int) -> frozenset[Fault]:
     return frozenset(row.fault for row in table if row.matches(code, pa_gt_pb, large, direction))
 

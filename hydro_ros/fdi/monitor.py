@@ -14,7 +14,19 @@ from typing import Any
 
 import numpy as np
 
-from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Alarm, Isolator, code_string
+from hydro_ros.fdi.isolation import (
+    A_DOWN,
+    A_UP,
+    B_DOWN,
+    B_UP,
+    UKF_TABLE,
+    Alarm,
+    Isolator,
+    PatternRow,
+    code_string,
+    signature_rows,
+)
+from hydro_ros.fdi.parity import ParityGenerator, ParityThresholds
 from hydro_ros.fdi.ukf import PRESSURE_UNIT, UkfBank, UkfSettings
 from hydro_ros.models.kinematics import piston_position, torque_arm
 from hydro_ros.models.sam import MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET, SamModel
@@ -50,16 +62,20 @@ class FdiSettings:
     stale_timeout_s: float = 0.2  # [s] a sensor silent this long makes the actuator STALE
     severe_faults: tuple[Fault, ...] = DEFAULT_SEVERE
     ukf: UkfSettings = field(default_factory=UkfSettings)
+    parity_thresholds: ParityThresholds | None = None  # fitted by fdi-fit on fault-free data
+    parity_signatures: tuple[PatternRow, ...] = ()  # built by simulation (fdi-fit)
 
     @classmethod
     def from_config(cls, config: dict[str, Any]) -> "FdiSettings":
         section = dict(config.get("fdi") or {})
         ukf = UkfSettings.from_config(section.pop("ukf", None))
         severe = section.pop("severe_faults", None)
+        thresholds = ParityThresholds.from_config(section.pop("parity_thresholds", None))
+        signatures = signature_rows(section.pop("parity_signatures", None) or [])
         unknown = [name for name in section if name not in cls.__dataclass_fields__]
         if unknown:
             raise ValueError(f"fdi: unknown key(s) {', '.join(sorted(unknown))}")
-        settings = cls(ukf=ukf, **section)
+        settings = cls(ukf=ukf, parity_thresholds=thresholds, parity_signatures=signatures, **section)
         if severe is not None:
             try:
                 settings.severe_faults = tuple(Fault(name) for name in severe)
@@ -95,7 +111,7 @@ class MovingAverage:
 
 @dataclass
 class BlockResult:
-    """Residual evaluation of one block; pressures and thresholds in MPa."""
+    """Residual evaluation of one block: MPa for the UKF method, L/min for the parity method."""
 
     times: np.ndarray
     residual: np.ndarray  # (n, A, 2) raw masked residual
@@ -104,6 +120,8 @@ class BlockResult:
     code: np.ndarray  # (n, A) crossing pattern bits
     valid: np.ndarray  # (n, A)
     alarms: list[Alarm]
+    mean_command: np.ndarray  # (n, A) 5 s mean valve command
+    operating_point: np.ndarray | None = None  # (n, A) parity: 5 s mean pilot-measured opening
 
 
 @dataclass
@@ -122,24 +140,24 @@ class FdiMonitor:
         self.config = config
         self.settings = FdiSettings.from_config(config)
         self.method = method or self.settings.method
-        if self.method == "parity":
-            raise ValueError(
-                f"fdi method parity: machine {config.get('machine')!r} has proportional valves without pilot "
-                "pressures; the parity method needs a mobile-valve machine (use --method ukf)"
-            )
-        if self.method != "ukf":
+        if self.method not in ("ukf", "parity"):
             raise ValueError(f"fdi method {self.method!r}: expected ukf or parity")
         self.actuators = list(config["actuators"])
         self.joints = [str(config["actuators"][a]["joint"]) for a in self.actuators]
         self.models = [SamModel(config, a) for a in self.actuators]
         self.sample_rate = self.models[0].sample_rate
         self.window = int(round(self.settings.window_s * self.sample_rate))
-        self.bank = UkfBank(self.models, self.settings.ukf)
+        self.bank = UkfBank(self.models, self.settings.ukf) if self.method == "ukf" else None
+        self.parity = ParityGenerator(self.models) if self.method == "parity" else None
+        if self.parity is not None and self.settings.parity_thresholds is None:
+            raise ValueError("fdi method parity: the config has no fdi.parity_thresholds (fit them with hydro-ros fdi-fit --write)")
+        table = UKF_TABLE if self.method == "ukf" else self.settings.parity_signatures
         n = len(self.actuators)
         self._residual_mean = MovingAverage(self.window, 2 * n)
         self._pressure_mean = MovingAverage(self.window, 2 * n)
         self._command_mean = MovingAverage(self.window, n)
-        self.isolators = [Isolator(a, settle_s=self.settings.settle_s) for a in self.actuators]
+        self._opening_mean = MovingAverage(self.window, n)
+        self.isolators = [Isolator(a, table=table, settle_s=self.settings.settle_s) for a in self.actuators]
         self.samples_seen = 0
         self._last_key = [None] * n
         self._last_valid = np.zeros((n, 5))
@@ -152,7 +170,11 @@ class FdiMonitor:
 
     def reset(self) -> None:
         """Restart filters and averages (the ``~/reset`` service); also clears the latches."""
-        self.bank.reset()
+        if self.bank is not None:
+            self.bank.reset()
+        if self.parity is not None:
+            self.parity.reset()
+        self._opening_mean.reset()
         self._residual_mean.reset()
         self._pressure_mean.reset()
         self._command_mean.reset()
@@ -179,23 +201,38 @@ class FdiMonitor:
         supply = np.broadcast_to(np.asarray(block.supply_pressure, dtype=float).reshape(n, -1), (n, n_act))
         raw = np.stack([block.joint_position, block.joint_velocity, block.valve_command, supply,
                         block.pressure_a, block.pressure_b], axis=2).reshape(n, n_act, 6)
-        valid = np.all(np.isfinite(raw), axis=2)
+        mobile = None
+        operating_point = None
+        if self.parity is not None:
+            if not block.mobile:
+                raise ValueError("fdi method parity: no pilot/compensator pressures in the samples")
+            mobile = np.stack([np.broadcast_to(np.asarray(getattr(block, name), dtype=float).reshape(n, -1), (n, n_act))
+                               for name in ("pilot_pressure_1", "pilot_pressure_2", "compensator_pressure")], axis=2)
+        valid = np.all(np.isfinite(raw), axis=2) & (np.all(np.isfinite(mobile), axis=2) if mobile is not None else True)
         self.invalid_samples += int(np.count_nonzero(~valid))
         x, v = self.piston_motion(raw[:, :, 0], raw[:, :, 1])
-        inputs = np.stack([x, v, raw[:, :, 2], raw[:, :, 3]], axis=2)
         measured = raw[:, :, 4:6]
-        prior, posterior = self.bank.run(inputs, measured, valid)
-        estimate = posterior if self.settings.residual == "posterior" else prior
-        residual = (measured - estimate) / PRESSURE_UNIT
         mask = ~valid | (measured[:, :, 1] < self.settings.mask_pressure_b) | (x < self.settings.mask_retracted)
-        residual[mask] = 0.0
         # means of the measured pressures and the command hold their last valid value across gaps
         held = self._hold_last(np.concatenate([measured, raw[:, :, 2:3]], axis=2), valid)
-        mean_residual = self._residual_mean(residual.reshape(n, -1)).reshape(n, n_act, 2)
         mean_pressure = self._pressure_mean(held[:, :, :2].reshape(n, -1) / PRESSURE_UNIT).reshape(n, n_act, 2)
         mean_command = self._command_mean(held[:, :, 2])
         s = self.settings
-        threshold = s.threshold_constant + s.threshold_quadratic * mean_pressure**2
+        if self.bank is not None:
+            inputs = np.stack([x, v, raw[:, :, 2], raw[:, :, 3]], axis=2)
+            prior, posterior = self.bank.run(inputs, measured, valid)
+            estimate = posterior if s.residual == "posterior" else prior
+            residual = (measured - estimate) / PRESSURE_UNIT
+            residual[mask] = 0.0
+            mean_residual = self._residual_mean(residual.reshape(n, -1)).reshape(n, n_act, 2)
+            threshold = s.threshold_constant + s.threshold_quadratic * mean_pressure**2
+        else:
+            residual, opening = self.parity.run(x, v, measured[:, :, 0], measured[:, :, 1], mobile[:, :, 0], mobile[:, :, 1],
+                                                mobile[:, :, 2], valid)
+            residual[mask] = 0.0
+            mean_residual = self._residual_mean(residual.reshape(n, -1)).reshape(n, n_act, 2)
+            operating_point = self._opening_mean(opening)
+            threshold = s.parity_thresholds(operating_point)
         code = (
             A_UP * (mean_residual[:, :, 0] > threshold[:, :, 0])
             + A_DOWN * (mean_residual[:, :, 0] < -threshold[:, :, 0])
@@ -205,14 +242,14 @@ class FdiMonitor:
         armed = (self.samples_seen + np.arange(1, n + 1)) >= self.window
         code[~armed] = 0
         pa_gt_pb = mean_pressure[:, :, 0] > mean_pressure[:, :, 1]
-        large = np.all(np.abs(mean_residual) > s.large_residual, axis=2)
+        large = np.all(np.abs(mean_residual) > s.large_residual, axis=2) if self.bank is not None else np.zeros_like(pa_gt_pb)
         direction = np.where(np.abs(mean_command) < s.command_deadband, 0, np.sign(mean_command)).astype(np.int8)
         alarms = self._isolate(block.times, code, pa_gt_pb, large, direction)
         self.samples_seen += n
         self.last_mean_residual = mean_residual[-1]
         self.last_threshold = threshold[-1]
         self.last_mean_pressure = mean_pressure[-1]
-        return BlockResult(block.times, residual, mean_residual, threshold, code, valid, alarms)
+        return BlockResult(block.times, residual, mean_residual, threshold, code, valid, alarms, mean_command, operating_point)
 
     def _hold_last(self, values: np.ndarray, valid: np.ndarray) -> np.ndarray:
         """Forward-fill invalid samples per actuator with the last valid one (kept across blocks)."""

@@ -8,6 +8,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from hydro_ros.bags import topics
 from hydro_ros.bags.reader import BagData, BagError, read_bag
 from hydro_ros.fdi.isolation import Alarm
 from hydro_ros.fdi.monitor import BlockResult, FdiMonitor
@@ -66,7 +67,15 @@ def blocks_from_bag(data: BagData, monitor: FdiMonitor) -> Samples:
     if data.supply_pressure is None:
         raise BagError(f"bag {data.path}: no /hydraulics/supply_pressure")
     stack = {key: np.stack(values, axis=1) for key, values in columns.items()}
-    return Samples(data.times, stack["jp"], stack["jv"], stack["pa"], stack["pb"], data.supply_pressure, stack["u"])
+    mobile = {}
+    if monitor.method == "parity":
+        for quantity in topics.MOBILE_VALVE_PRESSURES:
+            source = getattr(data, quantity)
+            for actuator in monitor.actuators:
+                if actuator not in source:
+                    raise BagError(f"bag {data.path}: no {topics.actuator_pressure(actuator, quantity)} (needed by the parity method)")
+            mobile[quantity] = np.stack([source[a] for a in monitor.actuators], axis=1)
+    return Samples(data.times, stack["jp"], stack["jv"], stack["pa"], stack["pb"], data.supply_pressure, stack["u"], **mobile)
 
 
 def run_monitor(monitor: FdiMonitor, samples: Samples, progress: Callable[[int], None] | None = None) -> FdiRun:

@@ -1,0 +1,139 @@
+"""Parity-equation residuals for pressure-compensated mobile valves (P-IV style, digest section 6.3).
+
+P-IV is known only from the thesis summary, so this design is INFERRED from its statements: no
+Kalman filter; a reduced-order, load-independent model (motion measured); the pilot pressures as
+the measure of the main-spool position; the measured pressure upstream of the main spool in
+place of the supply; thresholds from statistics of fault-free modelling errors as functions of
+the operating point.
+
+Residuals are in equation-error form (no integration, so no drift), one per chamber, as flows:
+
+    r_QA = Q_A(s_pil, p_comp, p_A) - A_A x' - (V_A / B_A) p_A'
+    r_QB = Q_B(s_pil, p_comp, p_B) + A_B x' - (V_B / B_B) p_B'
+
+s_pil = (p_pil,1 - p_pil,2) / p_pil,max through the nominal dead zone. A leak out of a chamber
+shows as a positive residual of that chamber equal to the leak flow. The derivative needs no
+filter: its 5 s mean telescopes to a difference of pressures 5 s apart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from hydro_ros.models.chamber import effective_bulk_modulus
+from hydro_ros.models.sam import (
+    AREA_A,
+    AREA_B,
+    DEADZONE,
+    HOSE_MODULUS,
+    HOSE_VOLUME,
+    LAMINAR_BAND,
+    OIL_MODULUS,
+    PILOT_MAX,
+    STROKE,
+    TANK,
+    V0_A,
+    V0_B,
+    SamModel,
+)
+from hydro_ros.models.valve import chamber_valve_flows, spool_opening
+
+FLOW_UNIT = 1.0 / 60000.0  # [m^3/s] per L/min: residuals are reported in L/min
+
+
+@njit(cache=True)
+def parity_residuals(piston, velocity, p_a, p_b, pilot_1, pilot_2, compensator, valid, previous, params, poly, centre, dt,
+                     residual_out, opening_out):
+    """Per sample and actuator: (r_QA, r_QB) [L/min] and the pilot-measured opening; arrays (n, A)."""
+    for a in range(piston.shape[1]):
+        p = params[a]
+        for k in range(piston.shape[0]):
+            if not valid[k, a]:
+                residual_out[k, a, 0] = 0.0
+                residual_out[k, a, 1] = 0.0
+                opening_out[k, a] = 0.0
+                continue
+            s = spool_opening((pilot_1[k, a] - pilot_2[k, a]) / p[PILOT_MAX], 0.0, p[DEADZONE], 1.0, False)
+            q_a, q_b = chamber_valve_flows(s, p_a[k, a], p_b[k, a], compensator[k, a], p[TANK], poly[a], centre[a],
+                                           p[LAMINAR_BAND], 1.0)
+            volume_a = p[V0_A] + p[AREA_A] * piston[k, a]
+            volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - piston[k, a])
+            bulk_a = effective_bulk_modulus(p_a[k, a], volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
+            bulk_b = effective_bulk_modulus(p_b[k, a], volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
+            rate_a = (p_a[k, a] - previous[a, 0]) / dt if previous[a, 2] > 0.5 else 0.0
+            rate_b = (p_b[k, a] - previous[a, 1]) / dt if previous[a, 2] > 0.5 else 0.0
+            previous[a, 0] = p_a[k, a]
+            previous[a, 1] = p_b[k, a]
+            previous[a, 2] = 1.0
+            residual_out[k, a, 0] = (q_a - p[AREA_A] * velocity[k, a] - volume_a / bulk_a * rate_a) / FLOW_UNIT
+            residual_out[k, a, 1] = (q_b + p[AREA_B] * velocity[k, a] - volume_b / bulk_b * rate_b) / FLOW_UNIT
+            opening_out[k, a] = abs(s)
+
+
+class ParityGenerator:
+    """Residual generator of the parity method for the actuators of a machine."""
+
+    def __init__(self, models: list[SamModel]) -> None:
+        missing = [m.actuator for m in models if not m.mobile_valve]
+        if missing:
+            raise ValueError(
+                f"fdi method parity: actuator(s) {', '.join(missing)} have proportional valves without pilot "
+                "pressures; the parity method needs a mobile-valve machine (valve.type: mobile) - use --method ukf"
+            )
+        self.params = np.stack([m.base for m in models])
+        self.poly = np.stack([m.poly for m in models])
+        self.centre = np.stack([m.centre_leakage for m in models])
+        self.dt = 1.0 / models[0].sample_rate
+        self.previous = np.zeros((len(models), 3))
+
+    def reset(self) -> None:
+        self.previous[:] = 0.0
+
+    def run(self, piston: np.ndarray, velocity: np.ndarray, p_a: np.ndarray, p_b: np.ndarray, pilot_1: np.ndarray,
+            pilot_2: np.ndarray, compensator: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n, n_act = piston.shape
+        residual = np.empty((n, n_act, 2))
+        opening = np.empty((n, n_act))
+        arrays = [np.ascontiguousarray(np.nan_to_num(v), dtype=float) for v in (piston, velocity, p_a, p_b, pilot_1, pilot_2, compensator)]
+        parity_residuals(*arrays, np.ascontiguousarray(valid), self.previous, self.params, self.poly, self.centre, self.dt,
+                         residual, opening)
+        return residual, opening
+
+
+@dataclass
+class ParityThresholds:
+    """Threshold per chamber as a function of the 5 s mean opening: |mu_bin| + c sigma_bin [L/min].
+
+    Fitted on fault-free data (:func:`hydro_ros.fdi.evaluation.fit_parity_thresholds`), ``c`` set
+    for a target false-alarm rate on held-out fault-free data.
+    """
+
+    edges: tuple[float, ...]  # opening bin edges, len = bins + 1
+    mean: tuple[tuple[float, float], ...]  # per bin (chamber A, chamber B)
+    std: tuple[tuple[float, float], ...]
+    factor: float
+
+    @classmethod
+    def from_config(cls, section: dict[str, Any] | None) -> "ParityThresholds | None":
+        if not section:
+            return None
+        try:
+            return cls(tuple(float(v) for v in section["edges"]), tuple(tuple(map(float, m)) for m in section["mean"]),
+                       tuple(tuple(map(float, s)) for s in section["std"]), float(section["factor"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"fdi.parity_thresholds: malformed ({exc})") from None
+
+    def to_config(self) -> dict[str, Any]:
+        return {"edges": list(self.edges), "mean": [list(m) for m in self.mean], "std": [list(s) for s in self.std],
+                "factor": self.factor}
+
+    def __call__(self, mean_opening: np.ndarray) -> np.ndarray:
+        """(n, A) mean openings -> (n, A, 2) thresholds."""
+        index = np.clip(np.searchsorted(self.edges, mean_opening, side="right") - 1, 0, len(self.mean) - 1)
+        mean = np.abs(np.asarray(self.mean))[index]
+        std = np.asarray(self.std)[index]
+        return mean + self.factor * std
