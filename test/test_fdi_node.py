@@ -77,6 +77,27 @@ def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
         assert _fdi_statuses(diags)[-1].level == bytes([2])
 
 
+def test_live_parity_method_on_the_mobile_valve_machine(ros_domain):
+    mobile = REPO / "config" / "sam_mobile.yaml"
+    diags: list[DiagnosticArray] = []
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={mobile}", "-p", "seed:=2"), \
+            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={mobile}"), probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        assert spin_until(node, lambda: len(_fdi_statuses(diags)) >= 2 and _fdi_statuses(diags)[-1].message == "ok", 30)
+        spin_until(node, lambda: False, 5.0)  # the 5 s window fills
+        assert all(s.message in ("ok", "stale") for s in _fdi_statuses(diags))
+        values = {v.key: v.value for v in _fdi_statuses(diags)[-1].values}
+        assert values["method"] == "parity" and "mean_r_QA_L_min" in values
+        client = AsyncParameterClient(node, "plant_sim")
+        assert client.wait_for_services(10.0)
+        future = client.set_parameters([Parameter("fault.velocity_sensor_bias", value=0.02)])
+        assert spin_until(node, future.done, 10)
+        assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message == "velocity_sensor_bias", 25), \
+            [s.message for s in _fdi_statuses(diags)[-5:]]
+        values = {v.key: v.value for v in _fdi_statuses(diags)[-1].values}
+        assert int(values["incomplete_samples"]) == 0 and int(values["out_of_order_dropped"]) == 0
+
+
 def test_silent_sensors_are_stale_not_alarmed(ros_domain):
     diags: list[DiagnosticArray] = []
     with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", "stale_timeout:=0.3"), \

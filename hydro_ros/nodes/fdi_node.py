@@ -33,22 +33,22 @@ from hydro_ros.bags import topics
 from hydro_ros.bags.cdr import CdrError, decode_fluid_pressure, decode_joint_state
 from hydro_ros.config import default_config_path, load_machine_config
 from hydro_ros.fdi.monitor import STALE, FdiMonitor
-from hydro_ros.samples import Samples
+from hydro_ros.samples import PER_ACTUATOR, Samples
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, run_node
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
-JP, JV, PA, PB, U = range(5)  # per-actuator fields of an assembled sample
-FIELD_NAMES = ("joint position", "joint velocity", "pressure_a", "pressure_b", "valve command")
+JP, JV, PA, PB, U, PIL1, PIL2, PC = range(8)  # per-actuator fields of an assembled sample (the last 3: mobile valves)
 MAX_PENDING_S = 5.0  # samples waiting for a missing topic longer than this are given up
 
 
 class SampleAssembler:
     """Collects per-topic values by stamp into complete samples, in stamp order."""
 
-    def __init__(self, actuators: list[str], joints: list[str], sync_window_ns: int) -> None:
+    def __init__(self, actuators: list[str], joints: list[str], sync_window_ns: int, mobile: bool = False) -> None:
         self.actuators = {name: i for i, name in enumerate(actuators)}
         self.joints = {name: i for i, name in enumerate(joints)}
-        self.width = 5 * len(actuators) + 1
+        self.fields = 8 if mobile else 5
+        self.width = self.fields * len(actuators) + 1
         self.sync_window_ns = sync_window_ns
         self.pending: dict[int, np.ndarray] = {}
         self.filled: dict[int, int] = {}
@@ -74,15 +74,15 @@ class SampleAssembler:
         for name, index in self.joints.items():
             if name in names:
                 k = names.index(name)
-                self.put(stamp, 5 * index + JP, position[k] if k < len(position) else math.nan)
-                self.put(stamp, 5 * index + JV, velocity[k] if k < len(velocity) else math.nan)
+                self.put(stamp, self.fields * index + JP, position[k] if k < len(position) else math.nan)
+                self.put(stamp, self.fields * index + JV, velocity[k] if k < len(velocity) else math.nan)
 
     def put_commands(self, data: bytes) -> None:
         stamp, names, position, _ = decode_joint_state(data)
         for name, index in self.actuators.items():
             if name in names:
                 k = names.index(name)
-                self.put(stamp, 5 * index + U, position[k] if k < len(position) else math.nan)
+                self.put(stamp, self.fields * index + U, position[k] if k < len(position) else math.nan)
 
     def put_pressure(self, data: bytes, column: int) -> None:
         stamp, value, _ = decode_fluid_pressure(data)
@@ -127,7 +127,10 @@ class FdiNode(Node):
         self.machine = str(self.config["machine"])
         self.stale_timeout = float(self.get_parameter("stale_timeout").value)
         actuators = self.monitor.actuators
-        self.assembler = SampleAssembler(actuators, self.monitor.joints, int(float(self.get_parameter("sync_window").value) * 1e9))
+        self.mobile = self.monitor.method == "parity"
+        self.assembler = SampleAssembler(actuators, self.monitor.joints, int(float(self.get_parameter("sync_window").value) * 1e9),
+                                         self.mobile)
+        width = self.assembler.fields
 
         self.last_arrival: dict[str, float] = {}
         self._subscribe_raw(JointState, topics.JOINT_STATES, self.assembler.put_joint_states)
@@ -135,8 +138,12 @@ class FdiNode(Node):
         self._subscribe_raw(FluidPressure, topics.SUPPLY_PRESSURE,
                             lambda d: self.assembler.put_pressure(d, self.assembler.width - 1))
         for i, actuator in enumerate(actuators):
-            self._subscribe_raw(FluidPressure, topics.pressure_a(actuator), lambda d, c=5 * i + PA: self.assembler.put_pressure(d, c))
-            self._subscribe_raw(FluidPressure, topics.pressure_b(actuator), lambda d, c=5 * i + PB: self.assembler.put_pressure(d, c))
+            self._subscribe_raw(FluidPressure, topics.pressure_a(actuator), lambda d, c=width * i + PA: self.assembler.put_pressure(d, c))
+            self._subscribe_raw(FluidPressure, topics.pressure_b(actuator), lambda d, c=width * i + PB: self.assembler.put_pressure(d, c))
+            if self.mobile:
+                for field, quantity in zip((PIL1, PIL2, PC), topics.MOBILE_VALVE_PRESSURES):
+                    self._subscribe_raw(FluidPressure, topics.actuator_pressure(actuator, quantity),
+                                        lambda d, c=width * i + field: self.assembler.put_pressure(d, c))
 
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.pub_halt = self.create_publisher(Bool, "/fdi/halt", LATCHED_QOS)
@@ -174,12 +181,14 @@ class FdiNode(Node):
             self._check_levels()
             return
         n_act = len(self.monitor.actuators)
-        per = rows[:, :-1].reshape(len(stamps), n_act, 5)
+        per = rows[:, :-1].reshape(len(stamps), n_act, self.assembler.fields)
+        mobile = {"pilot_pressure_1": per[:, :, PIL1], "pilot_pressure_2": per[:, :, PIL2],
+                  "compensator_pressure": per[:, :, PC]} if self.mobile else {}
         block = Samples(
             times=stamps * 1e-9,
             joint_position=per[:, :, JP], joint_velocity=per[:, :, JV],
             pressure_a=per[:, :, PA], pressure_b=per[:, :, PB],
-            supply_pressure=rows[:, -1], valve_command=per[:, :, U],
+            supply_pressure=rows[:, -1], valve_command=per[:, :, U], **mobile,
         )
         result = self.monitor.process(block)
         self.samples += len(stamps)
@@ -195,9 +204,10 @@ class FdiNode(Node):
         msg = JointState()
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamps[-1]), 1_000_000_000)
         names, values = [], []
+        quantity = "Q" if self.mobile else "p"
         for i, actuator in enumerate(self.monitor.actuators):
             for c, chamber in enumerate("AB"):
-                names += [f"{actuator}/mean_r_p{chamber}", f"{actuator}/threshold_p{chamber}"]
+                names += [f"{actuator}/mean_r_{quantity}{chamber}", f"{actuator}/threshold_{quantity}{chamber}"]
                 values += [float(result.mean_residual[-1, i, c]), float(result.threshold[-1, i, c])]
         msg.name = names
         msg.position = values
@@ -206,6 +216,8 @@ class FdiNode(Node):
     def _stale_topics(self, index: int) -> list[str]:
         actuator = self.monitor.actuators[index]
         needed = (topics.JOINT_STATES, topics.VALVE_COMMANDS, topics.SUPPLY_PRESSURE, topics.pressure_a(actuator), topics.pressure_b(actuator))
+        if self.mobile:
+            needed += tuple(topics.actuator_pressure(actuator, q) for q in topics.MOBILE_VALVE_PRESSURES)
         now = time.monotonic()
         return [t for t in needed if now - self.last_arrival.get(t, self.started) > self.stale_timeout]
 
@@ -233,16 +245,18 @@ class FdiNode(Node):
     def statuses(self) -> list[DiagnosticStatus]:
         out = []
         a = self.assembler
+        # UKF residuals are chamber pressures [MPa]; parity residuals are chamber flows [L/min]
+        labels = ("QA_L_min", "QB_L_min") if self.mobile else ("pA_MPa", "pB_MPa")
         for i, actuator in enumerate(self.monitor.actuators):
             status = self.monitor.status(i)
             stale = self._stale_topics(i)
             level = STALE if status.fault is None and stale else status.level
             message = "stale" if level == STALE else status.message
             values = {
-                "mean_r_pA_MPa": f"{self.monitor.last_mean_residual[i, 0]:.5f}",
-                "mean_r_pB_MPa": f"{self.monitor.last_mean_residual[i, 1]:.5f}",
-                "threshold_pA_MPa": f"{self.monitor.last_threshold[i, 0]:.5f}",
-                "threshold_pB_MPa": f"{self.monitor.last_threshold[i, 1]:.5f}",
+                f"mean_r_{labels[0]}": f"{self.monitor.last_mean_residual[i, 0]:.5f}",
+                f"mean_r_{labels[1]}": f"{self.monitor.last_mean_residual[i, 1]:.5f}",
+                f"threshold_{labels[0]}": f"{self.monitor.last_threshold[i, 0]:.5f}",
+                f"threshold_{labels[1]}": f"{self.monitor.last_threshold[i, 1]:.5f}",
                 "pattern": status.code,
                 "first_detection_stamp_s": "" if status.detected_at is None else f"{status.detected_at:.3f}",
                 "method": self.monitor.method,
@@ -294,9 +308,9 @@ class FdiNode(Node):
         alarms = []
         for _, _, measured in run_blocks(self.config, scenario):
             block = measured.as_columns()
-            for name in ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command"):
-                # the other actuators see a machine at rest with its first actuator's pressures
-                setattr(block, name, np.repeat(getattr(block, name), n_act, axis=1))
+            for name in PER_ACTUATOR:
+                if getattr(block, name) is not None:  # the other actuators replay the first one's samples
+                    setattr(block, name, np.repeat(getattr(block, name), n_act, axis=1))
             result = probe.process(block)
             alarms += result.alarms
         converged = bool(np.all(np.abs(result.mean_residual[-1, 0]) < result.threshold[-1, 0]))
