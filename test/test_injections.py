@@ -67,37 +67,26 @@ def test_every_injectable_name_is_covered():
     assert set(EXPECTED) | set(EXPECTED_MOBILE) == set(INJECTABLE)
 
 
-@pytest.fixture(scope="module")
-def mobile_config():
-    return load_machine_config(REPO / "config" / "sam_mobile.yaml")
+MACHINES = {"sam": ("sam.yaml", EXPECTED), "sam_mobile": ("sam_mobile.yaml", EXPECTED_MOBILE)}
 
 
 @pytest.fixture(scope="module")
-def clean_mobile(mobile_config):
-    return _run(mobile_config, [])
+def machines():
+    """Config and fault-free run per machine, computed once."""
+    out = {}
+    for machine, (file, _) in MACHINES.items():
+        config = load_machine_config(REPO / "config" / file)
+        out[machine] = (config, _run(config, []))
+    return out
 
 
-@pytest.mark.parametrize("name", sorted(EXPECTED_MOBILE))
-def test_mobile_valve_injection_switches_on_at_onset_and_acts(mobile_config, clean_mobile, name):
-    value, acts = EXPECTED_MOBILE[name]
-    faulty = _run(mobile_config, [Injection(name, value, ONSET)])
+@pytest.mark.parametrize(("machine", "name"), [(m, n) for m, (_, expected) in MACHINES.items() for n in sorted(expected)])
+def test_injection_switches_on_at_onset_and_acts(machines, machine, name):
+    config, clean = machines[machine]
+    value, acts = MACHINES[machine][1][name]
+    faulty = _run(config, [Injection(name, value, ONSET)])
     before = int(ONSET * 1000) - 1
-    for key in ("p_a", "p_b", "x", "m_pa", "m_pb", "m_pil1", "m_pc"):
-        np.testing.assert_array_equal(faulty[key][:before], clean_mobile[key][:before], err_msg=f"{name} acted before onset ({key})")
-    assert acts(clean_mobile, faulty), f"{name}={value} had no effect in its physical direction"
-
-
-@pytest.fixture(scope="module")
-def clean(sam_config):
-    return _run(sam_config, [])
-
-
-@pytest.mark.parametrize("name", sorted(EXPECTED))
-def test_injection_switches_on_at_onset_and_acts(sam_config, clean, name):
-    value, acts = EXPECTED[name]
-    faulty = _run(sam_config, [Injection(name, value, ONSET)])
-    before = int(ONSET * 1000) - 1
-    for key in ("p_a", "p_b", "x", "m_pa", "m_pb", "m_ps"):
+    for key in clean:
         np.testing.assert_array_equal(faulty[key][:before], clean[key][:before], err_msg=f"{name} acted before onset ({key})")
     assert acts(clean, faulty), f"{name}={value} had no effect in its physical direction"
 
