@@ -90,9 +90,9 @@ def test_live_parity_method_on_the_mobile_valve_machine(ros_domain):
         assert values["method"] == "parity" and "mean_r_QA_L_min" in values
         client = AsyncParameterClient(node, "plant_sim")
         assert client.wait_for_services(10.0)
-        future = client.set_parameters([Parameter("fault.velocity_sensor_bias", value=0.02)])
+        future = client.set_parameters([Parameter("fault.pressure_sensor_bias_b", value=5e5)])
         assert spin_until(node, future.done, 10)
-        assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message == "velocity_sensor_bias", 25), \
+        assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message == "pressure_sensor_bias_b", 25), \
             [s.message for s in _fdi_statuses(diags)[-5:]]
         values = {v.key: v.value for v in _fdi_statuses(diags)[-1].values}
         assert int(values["incomplete_samples"]) == 0 and int(values["out_of_order_dropped"]) == 0
