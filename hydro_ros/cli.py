@@ -134,6 +134,21 @@ def cmd_fdi_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_can_convert(args: argparse.Namespace) -> int:
+    from hydro_ros.bags.writer import BagExistsError
+    from hydro_ros.can.convert import convert_log
+
+    config = load_machine_config(args.config)
+    if Path(args.out).exists():
+        raise CliError(f"--out {args.out}: already exists, refusing to overwrite")
+    try:
+        report = convert_log(args.logfile, config, args.out)
+    except BagExistsError as exc:
+        raise CliError(str(exc)) from None
+    print(json.dumps({"bag": str(args.out), **report.to_json()}))
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bag_player import replay
 
@@ -193,6 +208,15 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--signature-seeds", type=int, default=2, help="plants per fault for the signature table")
     fit.add_argument("--write", action="store_true", help="write the result into the config's fitted block")
     fit.set_defaults(func=cmd_fdi_fit)
+
+    can_cmd = sub.add_parser("can", help="CAN bus tools")
+    can_sub = can_cmd.add_subparsers(dest="can_command", required=True)
+    convert = can_sub.add_parser("convert", help="a machine's CAN log (candump .log, .asc, .blf) -> contract bag",
+                                 description="Decode a CAN log with config/machine_bus.dbc; bad frames are counted, never written.")
+    convert.add_argument("logfile", help="candump .log, Vector .asc or .blf")
+    convert.add_argument("--config", required=True, help="machine config (its actuators' can_slot map the DBC slots)")
+    convert.add_argument("--out", required=True, help="bag directory to create (must not exist)")
+    convert.set_defaults(func=cmd_can_convert)
 
     replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
     replay.add_argument("bag", help="bag directory")

@@ -19,7 +19,7 @@ def run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=300)
 
 
-@pytest.mark.parametrize("sub", ["sim", "replay", "demo", "fdi", "fdi-eval"])
+@pytest.mark.parametrize("sub", ["sim", "replay", "demo", "fdi", "fdi-eval", "fdi-fit", "can"])
 def test_every_subcommand_has_help(sub):
     result = run(sub, "--help")
     assert result.returncode == 0 and "usage: hydro-ros" in result.stdout
@@ -37,6 +37,7 @@ def test_every_subcommand_has_help(sub):
         (["fdi", "--bag", str(BAGS / "fault_free"), "--config", str(SAM_CONFIG), "--method", "parity", "--json", "X"], "pilot pressures"),
         (["fdi", "--bag", str(BAGS / "fault_free"), "--config", str(SAM_CONFIG), "--json", "nodir/X.json"], "directory nodir does not exist"),
         (["fdi-eval", "--config", str(SAM_CONFIG), "--seeds", "0", "--out", "X"], "--seeds 0"),
+        (["can", "convert", "missing.blf", "--config", str(SAM_CONFIG), "--out", "X"], "log missing.blf: no such file"),
     ],
 )
 def test_bad_input_gives_one_line_error(args, needle, tmp_path):
