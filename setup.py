@@ -26,6 +26,7 @@ setup(
             "plant_sim = hydro_ros.nodes.plant_sim:main",
             "bag_player = hydro_ros.nodes.bag_player:main",
             "fdi_node = hydro_ros.nodes.fdi_node:main",
+            "can_bridge = hydro_ros.nodes.can_bridge:main",
             "hydro-ros = hydro_ros.cli:main",
         ],
     },

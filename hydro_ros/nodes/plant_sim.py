@@ -41,6 +41,8 @@ class PlantSim(Node):
         self.declare_parameter("real_time_factor", 1.0)
         self.declare_parameter("publish_clock", False)
         self.declare_parameter("tick_period", 0.01)
+        self.declare_parameter("can_interface", "")  # e.g. socketcan / udp_multicast: also emit the sensors as CAN frames
+        self.declare_parameter("can_channel", "")
         for name in sorted(INJECTABLE):
             self.declare_parameter(f"fault.{name}", 0.0)
         self.config = load_machine_config(self.get_parameter("config").value)
@@ -72,6 +74,16 @@ class PlantSim(Node):
         if self.excitation == "topic":
             self.create_subscription(JointState, topics.VALVE_COMMANDS, self._on_command, SENSOR_QOS)
         self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.publish_clock else None
+        self.can_bus = None
+        interface = str(self.get_parameter("can_interface").value)
+        if interface:
+            import can
+
+            from hydro_ros.can.codec import MachineBus
+
+            self.can_codec = MachineBus(self.config)
+            self.can_bus = can.Bus(interface=interface, channel=str(self.get_parameter("can_channel").value))
+            self.can_counter = 0
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
 
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -140,11 +152,28 @@ class PlantSim(Node):
             for publisher, payload in zip(publishers, sample_payloads(block, k, stamp, self.actuator, self.joint, self.variance)):
                 if publisher is not None:
                     publisher.publish(payload)
+        if self.can_bus is not None:
+            self._send_frames(block)
         if self.pub_clock is not None:
             msg = ClockMsg()
             stamp = origin + int(round(block.times[-1] * 1e9))
             msg.clock.sec, msg.clock.nanosec = divmod(stamp, 1_000_000_000)
             self.pub_clock.publish(msg)
+
+    def _send_frames(self, block) -> None:
+        import can
+
+        from hydro_ros.can.codec import sample_values
+
+        for k in range(len(block.times)):
+            for frame_id, data in self.can_codec.encode_cycle(sample_values(block, k, self.actuator, self.joint), self.can_counter):
+                self.can_bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+            self.can_counter = (self.can_counter + 1) % 16
+
+    def destroy_node(self) -> None:
+        if self.can_bus is not None:
+            self.can_bus.shutdown()
+        super().destroy_node()
 
     def _diagnose(self) -> None:
         status = DiagnosticStatus(name="hydro_ros/plant_sim", hardware_id=str(self.config["machine"]))

@@ -1,0 +1,255 @@
+"""can_bridge: the machine's CAN bus (config/machine_bus.dbc) -> the contract topics, with health.
+
+A reader thread takes frames off a python-can bus (any interface: socketcan on a machine,
+virtual / udp_multicast in tests) into a queue; a timer decodes them with the checked codec,
+groups the frames of one sensor cycle by their rolling counter and publishes each cycle's values
+with the timestamp of its first frame, so consumers see consistent samples. Bad frames are
+counted by kind and never published. Per-message health goes to /diagnostics
+(`hydro_ros/can_bridge/<MESSAGE>`: rate against the DBC cycle time, stale, counter gaps, checksum
+and length errors) with a bus status (`hydro_ros/can_bridge/bus`: connection, error frames,
+unknown ids, reconnects). A lost bus is reopened with exponential back-off.
+
+`forward_commands` (off by default: it drives a machine) sends /hydraulics/valve_commands as
+VALVEn_REQUEST frames; the bridge then leaves /hydraulics/valve_commands to ROS and does not
+publish the applied commands it reads back.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from typing import Any
+
+import can
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from sensor_msgs.msg import FluidPressure, JointState
+
+from hydro_ros.bags import topics
+from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
+from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_values
+from hydro_ros.config import default_config_path, load_machine_config
+from hydro_ros.nodes.common import SENSOR_QOS, run_node
+
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+QUEUE_LIMIT = 200_000  # frames; beyond this the oldest are dropped and counted (the node is far behind)
+
+
+class BusReader(threading.Thread):
+    """Owns the python-can bus: receives into a deque, reconnects with back-off when it fails."""
+
+    def __init__(self, open_bus: Any, backoff: tuple[float, float]) -> None:
+        super().__init__(daemon=True, name="can-reader")
+        self.open_bus = open_bus
+        self.backoff_min, self.backoff_max = backoff
+        self.frames: collections.deque = collections.deque(maxlen=QUEUE_LIMIT)
+        self.bus: can.BusABC | None = None
+        self.connected = False
+        self.reconnects = 0
+        self.error_frames = 0
+        self.last_error = ""
+        self.received = 0
+        self.stopping = threading.Event()
+        self.lock = threading.Lock()
+
+    def run(self) -> None:
+        delay = self.backoff_min
+        while not self.stopping.is_set():
+            try:
+                with self.lock:
+                    self.bus = self.open_bus()
+                self.connected = True
+                delay = self.backoff_min
+                while not self.stopping.is_set():
+                    message = self.bus.recv(timeout=0.1)
+                    if message is None:
+                        if getattr(self.bus, "state", None) == can.BusState.ERROR:
+                            raise can.CanOperationError("bus-off")
+                        continue
+                    if message.is_error_frame:
+                        self.error_frames += 1
+                        continue
+                    self.received += 1
+                    self.frames.append(message)
+            except (can.CanError, OSError, ValueError) as exc:
+                self.last_error = f"{type(exc).__name__}: {exc}"
+            finally:
+                self.connected = False
+                with self.lock:
+                    if self.bus is not None:
+                        self.bus.shutdown()
+                        self.bus = None
+            if not self.stopping.wait(delay):
+                self.reconnects += 1
+                delay = min(delay * 2.0, self.backoff_max)
+
+    def send(self, frame_id: int, data: bytes) -> bool:
+        with self.lock:
+            if self.bus is None:
+                return False
+            try:
+                self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+                return True
+            except can.CanError as exc:
+                self.last_error = f"send: {exc}"
+                return False
+
+
+class CanBridge(Node):
+    def __init__(self) -> None:
+        super().__init__("can_bridge")
+        self.declare_parameter("config", str(default_config_path("sam")))
+        self.declare_parameter("dbc", "")
+        self.declare_parameter("interface", "socketcan")
+        self.declare_parameter("channel", "can0")
+        self.declare_parameter("bitrate", 500000)
+        self.declare_parameter("hardware_filters", True)
+        self.declare_parameter("forward_commands", False)
+        self.declare_parameter("process_period", 0.01)
+        self.declare_parameter("diagnostics_period", 1.0)
+        self.declare_parameter("stale_cycles", 50)
+        self.declare_parameter("reconnect_backoff", [0.5, 10.0])
+        self.config = load_machine_config(self.get_parameter("config").value)
+        self.codec = MachineBus(self.config, self.get_parameter("dbc").value or None)
+        self.machine = str(self.config["machine"])
+        self.forward = bool(self.get_parameter("forward_commands").value)
+        interface = str(self.get_parameter("interface").value)
+        channel = str(self.get_parameter("channel").value)
+        kwargs: dict[str, Any] = {"interface": interface, "channel": channel}
+        if interface not in ("virtual", "udp_multicast"):
+            kwargs["bitrate"] = int(self.get_parameter("bitrate").value)
+        if self.get_parameter("hardware_filters").value:
+            kwargs["can_filters"] = [{"can_id": frame_id, "can_mask": 0x7FF, "extended": False}
+                                     for frame_id, m in self.codec.by_id.items() if m.name in self.codec.expected]
+        backoff = tuple(float(v) for v in self.get_parameter("reconnect_backoff").value)
+        self.reader = BusReader(lambda: can.Bus(**kwargs), (backoff[0], backoff[1]))
+        self.bus_name = f"{interface}:{channel}"
+
+        mobile = any(slot.mobile for slot in self.codec.slots)
+        types = topics.sensor_topics([s.actuator for s in self.codec.slots], mobile)
+        self.pubs = {name: self.create_publisher(JointState if kind == topics.JOINT_STATE_TYPE else FluidPressure, name, SENSOR_QOS)
+                     for name, kind in types.items() if not (self.forward and name == topics.VALVE_COMMANDS)}
+        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        if self.forward:
+            self.create_subscription(JointState, topics.VALVE_COMMANDS, self._forward, SENSOR_QOS)
+            self._request_counter = 0
+
+        self.assembler = CycleAssembler(self.codec.expected)
+        self.counters = CounterCheck()
+        self.rejected: collections.Counter = collections.Counter()
+        self.frames_per_message: collections.Counter = collections.Counter()
+        self.last_seen: dict[str, float] = {}
+        self._window_start = time.monotonic()
+        self._window_counts: collections.Counter = collections.Counter()
+        self._rates: dict[str, float] = {}
+        self.published_cycles = 0
+        self.stale_cycles = int(self.get_parameter("stale_cycles").value)
+        self.started = time.monotonic()
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(float(self.get_parameter("process_period").value), self._process, clock=steady)
+        self.create_timer(float(self.get_parameter("diagnostics_period").value), self._diagnose, clock=steady)
+        self.reader.start()
+        self.get_logger().info(f"bridging {self.bus_name} ({self.codec.dbc_path.name}) for {self.machine}; "
+                               f"forward_commands={self.forward}")
+
+    def destroy_node(self) -> None:
+        self.reader.stopping.set()
+        self.reader.join(timeout=2.0)
+        super().destroy_node()
+
+    # frames -> topics ----------------------------------------------------------------------------
+    def _process(self) -> None:
+        frames = self.reader.frames
+        now = time.monotonic()
+        for _ in range(len(frames)):
+            message = frames.popleft()
+            try:
+                name, counter, values = self.codec.decode(message.arbitration_id, bytes(message.data))
+            except FrameError as exc:
+                self.rejected[exc.kind] += 1
+                continue
+            self.frames_per_message[name] += 1
+            self._window_counts[name] += 1
+            self.last_seen[name] = now
+            self.counters(name, counter)
+            for cycle in self.assembler.add(name, counter, values, int(round(message.timestamp * 1e9))):
+                self._publish(cycle)
+
+    def _publish(self, cycle: Any) -> None:
+        values = cycle_values(self.codec, cycle)
+        stamp = cycle.stamp_ns
+        if values["joint_position"]:
+            joints = list(values["joint_position"])
+            self.pubs[topics.JOINT_STATES].publish(encode_joint_state(
+                stamp, "", joints, [values["joint_position"][j] for j in joints], [values["joint_velocity"][j] for j in joints], []))
+        if "supply_pressure" in values:
+            self.pubs[topics.SUPPLY_PRESSURE].publish(encode_fluid_pressure(stamp, "supply", values["supply_pressure"], 0.0))
+            if topics.LS_PRESSURE in self.pubs:
+                self.pubs[topics.LS_PRESSURE].publish(encode_fluid_pressure(stamp, "ls", values["ls_pressure"], 0.0))
+        for quantity in ("pressure_a", "pressure_b", *topics.MOBILE_VALVE_PRESSURES):
+            for actuator, value in values[quantity].items():
+                self.pubs[topics.actuator_pressure(actuator, quantity)].publish(encode_fluid_pressure(stamp, actuator, value, 0.0))
+        if values["valve_command"] and topics.VALVE_COMMANDS in self.pubs:
+            actuators = list(values["valve_command"])
+            self.pubs[topics.VALVE_COMMANDS].publish(encode_joint_state(
+                stamp, "", actuators, [values["valve_command"][a] for a in actuators], [], []))
+        self.published_cycles += 1
+
+    def _forward(self, msg: JointState) -> None:
+        for slot in self.codec.slots:
+            if slot.actuator in msg.name and len(msg.position) == len(msg.name):
+                command = msg.position[msg.name.index(slot.actuator)]
+                if command == command:  # NaN never reaches a valve
+                    self.reader.send(*self.codec.encode_request(slot.number, command, self._request_counter))
+        self._request_counter = (self._request_counter + 1) % 16
+
+    # health ------------------------------------------------------------------------------------
+    def _diagnose(self) -> None:
+        now = time.monotonic()
+        elapsed = max(now - self._window_start, 1e-6)
+        self._rates = {name: self._window_counts[name] / elapsed for name in self.codec.expected}
+        self._window_start, self._window_counts = now, collections.Counter()
+        statuses = []
+        for name in sorted(self.codec.expected):
+            cycle_s = max(self.codec.cycle_ms[name], 1) / 1000.0
+            silent = now - self.last_seen.get(name, self.started)
+            gaps = self.counters.gaps.get(name, 0)
+            expected_rate = 1.0 / cycle_s
+            if silent > self.stale_cycles * cycle_s:
+                level, message = STALE, f"no frame for {silent:.2f} s"
+            elif self._rates[name] < 0.9 * expected_rate:
+                level, message = WARN, f"{self._rates[name]:.0f} frames/s, DBC cycle {expected_rate:.0f}/s"
+            else:
+                level, message = OK, "ok"
+            values = {"rate_hz": f"{self._rates[name]:.1f}", "expected_hz": f"{expected_rate:.1f}", "frames": str(self.frames_per_message[name]),
+                      "counter_gaps": str(gaps)}
+            statuses.append(self._status(f"hydro_ros/can_bridge/{name}", level, message, values))
+        reader = self.reader
+        bus_level = OK if reader.connected else ERROR
+        bus_values = {"connected": str(reader.connected), "frames_received": str(reader.received),
+                      "error_frames": str(reader.error_frames), "reconnects": str(reader.reconnects),
+                      "last_error": reader.last_error, "incomplete_cycles": str(self.assembler.incomplete),
+                      "published_cycles": str(self.published_cycles), "queue": str(len(reader.frames)),
+                      **{f"rejected_{kind}": str(n) for kind, n in sorted(self.rejected.items())}}
+        problems = [] if reader.connected else [f"bus {self.bus_name} down ({reader.last_error or 'connecting'})"]
+        if sum(self.rejected.values()):
+            problems.append(f"{sum(self.rejected.values())} bad frames")
+            bus_level = max(bus_level, WARN)
+        statuses.append(self._status("hydro_ros/can_bridge/bus", bus_level, "; ".join(problems) or "ok", bus_values))
+        array = DiagnosticArray(status=statuses)
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(array)
+
+    def _status(self, name: str, level: int, message: str, values: dict[str, str]) -> DiagnosticStatus:
+        return DiagnosticStatus(level=bytes([level]), name=name, message=message, hardware_id=self.machine,
+                                values=[KeyValue(key=k, value=v) for k, v in values.items()])
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node(CanBridge, args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,151 @@
+"""can_bridge on real DDS graphs, fed through python-can buses (virtual, udp_multicast, vcan0)."""
+
+from __future__ import annotations
+
+import os
+import random
+import time
+from pathlib import Path
+
+import can
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from sensor_msgs.msg import FluidPressure
+
+from hydro_ros.can.codec import MachineBus, crc8
+from hydro_ros.nodes.can_bridge import BusReader
+from hydro_ros.nodes.common import SENSOR_QOS
+from test.conftest import SAM_CONFIG
+from test.ros_graph import node_process, probe_node, spin_until
+
+# plant_sim's own topics are moved aside so everything the graph sees comes through the bus
+SIM_TOPICS_ASIDE = [arg for name in ("/joint_states", "/hydraulics/boom/pressure_a", "/hydraulics/boom/pressure_b",
+                                     "/hydraulics/supply_pressure", "/hydraulics/valve_commands")
+                    for arg in ("-r", f"{name}:=/sim{name}")]
+
+
+def _group(ros_domain: int) -> str:
+    return f"239.74.{ros_domain % 250}.{os.getpid() % 250}"
+
+
+def _statuses(messages, name):
+    return [s for m in messages for s in m.status if s.name == name]
+
+
+def test_reader_receives_from_a_virtual_bus_and_reopens_a_lost_one():
+    channel = f"hydro_ros_test_{os.getpid()}"
+    reader = BusReader(lambda: can.Bus(interface="virtual", channel=channel), (0.05, 0.2))
+    reader.start()
+    try:
+        sender = can.Bus(interface="virtual", channel=channel)
+        assert _wait(lambda: reader.connected, 2.0)
+        sender.send(can.Message(arbitration_id=0x111, data=bytes(8), is_extended_id=False))
+        assert _wait(lambda: len(reader.frames) == 1, 2.0)
+        reader.bus.shutdown()  # the interface goes away under the reader
+        assert _wait(lambda: reader.reconnects >= 1 and reader.connected, 5.0)
+        sender.shutdown()
+    finally:
+        reader.stopping.set()
+        reader.join(2.0)
+
+
+def _wait(condition, timeout):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def test_plant_on_can_to_bridge_to_fdi_raises_the_leak(ros_domain):
+    group = _group(ros_domain)
+    diags: list[DiagnosticArray] = []
+    with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={SAM_CONFIG}", "-p", "interface:=udp_multicast", "-p", f"channel:={group}"), \
+            node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "can_interface:=udp_multicast",
+                         "-p", f"can_channel:={group}", *SIM_TOPICS_ASIDE), \
+            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        assert spin_until(node, lambda: any(s.message == "ok" for s in _statuses(diags, "hydro_ros/fdi/boom")), 30)
+        spin_until(node, lambda: False, 6.0)
+        assert all(s.message in ("ok", "stale") for s in _statuses(diags, "hydro_ros/fdi/boom"))
+        client = AsyncParameterClient(node, "plant_sim")
+        assert client.wait_for_services(10.0)
+        future = client.set_parameters([Parameter("fault.external_leakage_a", value=3.0)])
+        assert spin_until(node, future.done, 10)
+        assert spin_until(node, lambda: _statuses(diags, "hydro_ros/fdi/boom")[-1].message == "external_leakage_a", 25)
+        bus = _statuses(diags, "hydro_ros/can_bridge/bus")[-1]
+        values = {v.key: v.value for v in bus.values}
+        assert bus.level == bytes([0]) and values["connected"] == "True" and int(values["incomplete_cycles"]) == 0
+        for name in ("JOINT1_STATE", "CYL1_PRESSURE", "VALVE1_STATE", "SUPPLY_STATE"):
+            status = _statuses(diags, f"hydro_ros/can_bridge/{name}")[-1]
+            assert status.level == bytes([0]) and float({v.key: v.value for v in status.values}["rate_hz"]) > 900
+
+
+def test_bad_frames_are_counted_and_never_published(ros_domain, sam_config):
+    group = _group(ros_domain)
+    diags: list[DiagnosticArray] = []
+    pressures: list[float] = []
+    codec = MachineBus(sam_config)
+    rng = random.Random(3)
+    with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={SAM_CONFIG}", "-p", "interface:=udp_multicast",
+                      "-p", f"channel:={group}", "-p", "hardware_filters:=false"), probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        node.create_subscription(FluidPressure, "/hydraulics/boom/pressure_a", lambda m: pressures.append(m.fluid_pressure), SENSOR_QOS)
+        assert spin_until(node, lambda: bool(_statuses(diags, "hydro_ros/can_bridge/bus")), 30)
+        sender = can.Bus(interface="udp_multicast", channel=group)
+        sample = {"joint_position": {"boom_joint": 0.1}, "joint_velocity": {"boom_joint": 0.0}, "pressure_a": {"boom": 6.0e6},
+                  "pressure_b": {"boom": 2.0e6}, "valve_command": {"boom": 0.0}, "supply_pressure": 1.0e7}
+        sent_bad = {"bad_checksum": 0, "wrong_dlc": 0, "unknown_id": 0}
+        for cycle in range(300):
+            for frame_id, data in codec.encode_cycle(sample, cycle % 16):
+                sender.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+            kind = rng.choice(list(sent_bad))
+            frame_id = {"unknown_id": 0x7F0, "wrong_dlc": 0x111, "bad_checksum": 0x111}[kind]
+            data = bytes(rng.getrandbits(8) for _ in range(5 if kind == "wrong_dlc" else 8))
+            if kind == "bad_checksum" and data[7] == crc8(0x111, data):
+                continue  # a random frame with a valid CRC is a valid frame; not what this test sends
+            sender.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+            sent_bad[kind] += 1
+            time.sleep(0.001)
+        sender.shutdown()
+
+        def counted() -> bool:
+            values = {v.key: v.value for v in _statuses(diags, "hydro_ros/can_bridge/bus")[-1].values}
+            return all(int(values.get(f"rejected_{k}", 0)) == n for k, n in sent_bad.items())
+
+        assert spin_until(node, counted, 10), ({v.key: v.value for v in _statuses(diags, "hydro_ros/can_bridge/bus")[-1].values}, sent_bad)
+        assert len(pressures) >= 290 and all(v == pytest.approx(6.0e6, abs=500) for v in pressures)
+        assert _statuses(diags, "hydro_ros/can_bridge/bus")[-1].level == bytes([1])  # WARN: bad frames seen
+
+
+def test_a_missing_bus_is_reported_and_retried(ros_domain):
+    diags: list[DiagnosticArray] = []
+    with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={SAM_CONFIG}", "-p", "interface:=socketcan",
+                      "-p", "channel:=nosuchcan0", "-p", "reconnect_backoff:=[0.1, 0.2]"), probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        assert spin_until(node, lambda: len(_statuses(diags, "hydro_ros/can_bridge/bus")) >= 3, 30)
+        bus = _statuses(diags, "hydro_ros/can_bridge/bus")[-1]
+        values = {v.key: v.value for v in bus.values}
+        assert bus.level == bytes([2]) and "down" in bus.message and int(values["reconnects"]) >= 2
+        assert all(s.level == bytes([3]) for s in _statuses(diags, "hydro_ros/can_bridge/CYL1_PRESSURE")[-1:])  # STALE
+
+
+@pytest.mark.skipif(not Path("/sys/class/net/vcan0").exists(), reason="no vcan0 on this kernel (modprobe vcan; ip link add vcan0 type vcan)")
+def test_bridge_on_vcan0(ros_domain, sam_config):
+    pressures: list[float] = []
+    codec = MachineBus(sam_config)
+    with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={SAM_CONFIG}", "-p", "interface:=socketcan", "-p", "channel:=vcan0"), \
+            probe_node("probe") as node:
+        node.create_subscription(FluidPressure, "/hydraulics/boom/pressure_a", lambda m: pressures.append(m.fluid_pressure), SENSOR_QOS)
+        spin_until(node, lambda: False, 3.0)
+        sender = can.Bus(interface="socketcan", channel="vcan0")
+        sample = {"joint_position": {"boom_joint": 0.1}, "joint_velocity": {"boom_joint": 0.0}, "pressure_a": {"boom": 6.0e6},
+                  "pressure_b": {"boom": 2.0e6}, "valve_command": {"boom": 0.0}, "supply_pressure": 1.0e7}
+        for cycle in range(100):
+            for frame_id, data in codec.encode_cycle(sample, cycle % 16):
+                sender.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+        sender.shutdown()
+        assert spin_until(node, lambda: len(pressures) >= 100, 10)
