@@ -149,3 +149,32 @@ def test_bridge_on_vcan0(ros_domain, sam_config):
                 sender.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
         sender.shutdown()
         assert spin_until(node, lambda: len(pressures) >= 100, 10)
+
+
+def test_forward_commands_sends_valve_requests_and_drops_nan(ros_domain, sam_config):
+    from sensor_msgs.msg import JointState
+
+    group = _group(ros_domain)
+    codec = MachineBus(sam_config)
+    listener = can.Bus(interface="udp_multicast", channel=group)
+    try:
+        with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={SAM_CONFIG}", "-p", "interface:=udp_multicast",
+                          "-p", f"channel:={group}", "-p", "forward_commands:=true"), probe_node("probe") as node:
+            publisher = node.create_publisher(JointState, "/hydraulics/valve_commands", SENSOR_QOS)
+            assert spin_until(node, lambda: publisher.get_subscription_count() > 0, 30)
+            spin_until(node, lambda: False, 1.0)  # the bridge's bus is open
+            for value in (float("nan"), 0.25):
+                publisher.publish(JointState(name=["boom"], position=[value]))
+                spin_until(node, lambda: False, 0.2)
+            frames = []
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end:
+                message = listener.recv(0.1)
+                if message is not None and message.arbitration_id == 0x201:
+                    frames.append(message)
+        assert len(frames) == 1  # the NaN command was not forwarded
+        signals = codec.db.get_message_by_frame_id(0x201).decode(bytes(frames[0].data))
+        assert signals["REQ1_COMMAND"] == pytest.approx(0.25, abs=1e-4)
+        assert frames[0].data[7] == crc8(0x201, bytes(frames[0].data))
+    finally:
+        listener.shutdown()

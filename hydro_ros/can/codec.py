@@ -88,6 +88,9 @@ class MachineBus:
             number = int(actuator.get("can_slot", index))
             self.slots.append(Slot(name, str(actuator["joint"]), number, actuator["valve"].get("type") == "mobile"))
         self.by_id = {m.frame_id: m for m in self.db.messages}
+        # every frame's counter and checksum signals, by message name
+        self.framing = {m.name: (next(g.name for g in m.signals if g.name.endswith("_COUNTER")),
+                                 next(g.name for g in m.signals if g.name.endswith("_CHECKSUM"))) for m in self.db.messages}
         names = ["SUPPLY_STATE"]
         for slot in self.slots:
             names += [f"JOINT{slot.number}_STATE", f"CYL{slot.number}_PRESSURE", f"VALVE{slot.number}_STATE"]
@@ -100,10 +103,10 @@ class MachineBus:
     # encoding ----------------------------------------------------------------------------------
     def _frame(self, name: str, signals: dict[str, float], counter: int) -> tuple[int, bytes]:
         message = self.db.get_message_by_name(name)
-        prefix = name.split("_")[0]
+        counter_signal, checksum_signal = self.framing[name]
         values = dict(signals)
-        values[f"{prefix}_COUNTER"] = counter
-        values[f"{prefix}_CHECKSUM"] = 0
+        values[counter_signal] = counter
+        values[checksum_signal] = 0
         data = bytearray(message.encode(values, strict=True))
         data[7] = crc8(message.frame_id, bytes(data))
         return message.frame_id, bytes(data)
@@ -143,9 +146,9 @@ class MachineBus:
             values = message.decode(bytes(data), decode_choices=False)
         except Exception as exc:  # noqa: BLE001 - cantools raises several types on bad payloads
             raise FrameError("undecodable", f"{message.name}: {exc}") from None
-        prefix = message.name.split("_")[0]
-        counter = int(values.pop(f"{prefix}_COUNTER"))
-        values.pop(f"{prefix}_CHECKSUM")
+        counter_signal, checksum_signal = self.framing[message.name]
+        counter = int(values.pop(counter_signal))
+        values.pop(checksum_signal)
         if not all(math.isfinite(float(v)) for v in values.values()):
             raise FrameError("undecodable", f"{message.name}: non-finite value")
         return message.name, counter, {k: float(v) for k, v in values.items()}
