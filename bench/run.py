@@ -159,6 +159,69 @@ def fdi_node_live(config_path: Path, measure_s: float = 20.0) -> dict:
             "messages_per_s": 5 * processed / (wall1 - wall0)}
 
 
+def can_decode(config: dict, cycles: int = 5000) -> dict:
+    """Checked decoding (DLC, CRC, counter, cycle grouping) against bare cantools decoding, same frames."""
+    from hydro_ros.can.codec import CounterCheck, CycleAssembler, MachineBus
+
+    bus = MachineBus(config)
+    sample = {"joint_position": {"boom_joint": 0.1}, "joint_velocity": {"boom_joint": 0.01}, "pressure_a": {"boom": 6e6},
+              "pressure_b": {"boom": 2e6}, "valve_command": {"boom": 0.2}, "supply_pressure": 1e7}
+    frames = [f for c in range(cycles) for f in bus.encode_cycle(sample, c % 16)]
+    start = time.perf_counter()
+    assembler, counters = CycleAssembler(bus.expected), CounterCheck()
+    for frame_id, data in frames:
+        name, counter, values = bus.decode(frame_id, data)
+        counters(name, counter)
+        assembler.add(name, counter, values, 0)
+    ours = time.perf_counter() - start
+    start = time.perf_counter()
+    for frame_id, data in frames:
+        bus.db.decode_message(frame_id, data)
+    bare = time.perf_counter() - start
+    return {"frames": len(frames), "checked_frames_per_s": len(frames) / ours, "bare_cantools_frames_per_s": len(frames) / bare,
+            "ratio_to_bare_cantools": bare / ours, "sam_frames_per_s_needed": 4000}
+
+
+def can_bridge_live(config_path: Path, measure_s: float = 15.0) -> dict:
+    """plant_sim emitting its sensors on a udp_multicast CAN bus at 1 kHz -> can_bridge: CPU share and rate."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    env = dict(os.environ, ROS_DOMAIN_ID="152", ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    os.environ.update(ROS_DOMAIN_ID="152", ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    group = "239.74.152.1"
+    aside = [a for t in ("/joint_states", "/hydraulics/boom/pressure_a", "/hydraulics/boom/pressure_b", "/hydraulics/supply_pressure",
+                         "/hydraulics/valve_commands") for a in ("-r", f"{t}:=/sim{t}")]
+    commands = [["hydro_ros.nodes.plant_sim", "-p", f"config:={config_path}", "-p", "can_interface:=udp_multicast", "-p", f"can_channel:={group}", *aside],
+                ["hydro_ros.nodes.can_bridge", "-p", f"config:={config_path}", "-p", "interface:=udp_multicast", "-p", f"channel:={group}"]]
+    procs = [subprocess.Popen([sys.executable, "-m", c[0], "--ros-args", *c[1:]], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL) for c in commands]
+    rclpy.init()
+    node = rclpy.create_node("bench_can_probe")
+    statuses: list = []
+    node.create_subscription(DiagnosticArray, "/diagnostics",
+                             lambda m: statuses.extend(s for s in m.status if s.name == "hydro_ros/can_bridge/bus"), 10)
+    try:
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end and not any(int({v.key: v.value for v in s.values}["published_cycles"]) > 2000 for s in statuses):
+            rclpy.spin_once(node, timeout_sec=0.1)
+        cpu0, wall0, first = _cpu_seconds(procs[1].pid), time.monotonic(), statuses[-1]
+        while time.monotonic() < wall0 + measure_s:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        cpu1, wall1, last = _cpu_seconds(procs[1].pid), time.monotonic(), statuses[-1]
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+        for proc in procs:
+            proc.terminate()
+            proc.wait(timeout=10)
+    v0, v1 = ({v.key: v.value for v in s.values} for s in (first, last))
+    return {"cpu_share_of_one_core": (cpu1 - cpu0) / (wall1 - wall0),
+            "cycles_published_per_s": (int(v1["published_cycles"]) - int(v0["published_cycles"])) / (wall1 - wall0),
+            "frames_per_s": (int(v1["frames_received"]) - int(v0["frames_received"])) / (wall1 - wall0),
+            "incomplete_cycles": int(v1["incomplete_cycles"]), "sample_rate_hz": 1000.0}
+
+
 def fdi_evaluation(config: dict, out_dir: Path, name: str = "fdi_eval") -> dict:
     from tqdm import tqdm
 
@@ -182,6 +245,7 @@ def main() -> int:
     out = Path(args.out)
     results = {"sam_model_1khz": model_speed(config), "bag_read": bag_read(config), "ukf": ukf_speed(config),
                "fdi_offline": fdi_offline(config), "fdi_node_live": fdi_node_live(default_config_path("sam")),
+               "can_decode": can_decode(config), "can_bridge_live": can_bridge_live(default_config_path("sam")),
                "fdi_evaluation": fdi_evaluation(config, out.parent),
                "fdi_parity_evaluation": fdi_evaluation(load_machine_config(default_config_path("sam_mobile")), out.parent,
                                                        "fdi_parity_eval")}
