@@ -149,6 +149,36 @@ def cmd_can_convert(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_gsa(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hydro_ros.gsa import LEAKS, PARAMETERS, interaction, ranking, sobol_indices
+    from hydro_ros.plots import plot_gsa
+
+    config = load_machine_config(args.config)
+    if args.samples < 2 or args.samples & (args.samples - 1):
+        raise CliError(f"--samples {args.samples}: must be a power of two >= 2 (Sobol' sequence)")
+    if args.workers < 1:
+        raise CliError(f"--workers {args.workers}: must be >= 1")
+    out = Path(args.json)
+    if not out.parent.is_dir():
+        raise CliError(f"--json {out}: directory {out.parent} does not exist")
+    results = {}
+    for name, space in (("parameters", PARAMETERS), ("leakages", LEAKS)):
+        runs = args.samples * (len(space) + 2)
+        with tqdm(total=runs, unit="run", desc=f"gsa {name}", disable=args.quiet) as bar:
+            results[name] = sobol_indices(config, space, args.samples, args.workers, progress=bar.update)
+        results[name]["ranking_4s"] = {o: ranking(results[name], o) for o in ("p_a", "p_b", "velocity")}
+        results[name]["interaction_4s"] = {o: interaction(results[name], o) for o in ("p_a", "p_b", "velocity")}
+    plot = plot_gsa(results, out.with_suffix(".png"))
+    results["plot"] = str(plot)
+    out.write_text(json.dumps(results, indent=2) + "\n")
+    for name in ("parameters", "leakages"):
+        for output, order in results[name]["ranking_4s"].items():
+            print(f"{name} {output} at 4 s (first order): {' > '.join(order)}")
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bag_player import replay
 
@@ -217,6 +247,14 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument("--config", required=True, help="machine config (its actuators' can_slot map the DBC slots)")
     convert.add_argument("--out", required=True, help="bag directory to create (must not exist)")
     convert.set_defaults(func=cmd_can_convert)
+
+    gsa = sub.add_parser("gsa", help="Sobol' sensitivity of the SAM model (P-I): parameters and leakages")
+    gsa.add_argument("--config", required=True, help="machine config, e.g. config/sam.yaml")
+    gsa.add_argument("--samples", type=int, default=1024, help="Sobol' base sample N (power of two); runs = N (k + 2)")
+    gsa.add_argument("--workers", type=int, default=2, help="parallel processes")
+    gsa.add_argument("--json", required=True, help="output JSON; the plot goes beside it as .png")
+    gsa.add_argument("--quiet", action="store_true", help="no progress bar")
+    gsa.set_defaults(func=cmd_gsa)
 
     replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
     replay.add_argument("bag", help="bag directory")

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -95,6 +96,36 @@ def plot_fdi_evaluation(summary: dict, out: str | Path) -> Path:
         ax.axvspan(0.17, 0.40, color="grey", alpha=0.2, label="P-II external leaks detected")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def plot_gsa(results: dict, out: str | Path) -> Path:
+    """Total-order Sobol' indices against time per output (P-I Table 4 / Table 8 as curves), 95 % bands."""
+    out = Path(out)
+    analyses = [name for name in ("parameters", "leakages") if name in results]
+    outputs = ("p_a", "p_b", "velocity")
+    fig, axes = plt.subplots(len(analyses), 3, figsize=(14, 3.6 * len(analyses)), squeeze=False, sharex=True)
+    for row, name in enumerate(analyses):
+        result = results[name]
+        for col, output in enumerate(outputs):
+            ax = axes[row, col]
+            instants = sorted(result["indices"][output], key=float)
+            times = [float(t) for t in instants]
+            for parameter in result["parameters"]:
+                st = np.array([result["indices"][output][t][parameter]["ST"] for t in instants])
+                conf = np.array([result["indices"][output][t][parameter]["ST_conf"] for t in instants])
+                ax.plot(times, st, marker="o", ms=3, label=parameter)
+                ax.fill_between(times, st - conf, st + conf, alpha=0.15)
+            ax.set_xscale("log")
+            ax.set_title(f"{name}: {output}")
+            ax.set_ylabel("total-order index")
+            ax.grid(alpha=0.3)
+        axes[row, 0].legend(fontsize=7)
+    for ax in axes[-1]:
+        ax.set_xlabel("time after the 25 % step [s]")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
