@@ -237,6 +237,18 @@ def fdi_evaluation(config: dict, out_dir: Path, name: str = "fdi_eval") -> dict:
             "smallest_detectable": summary["smallest_detectable"], "table": f"bench/{name}.md"}
 
 
+def gsa(config_path: Path, out_dir: Path, samples: int = 1024) -> dict:
+    """P-I GSA at N = 1024 (runs N (k + 2) over two processes); indices in bench/gsa.json."""
+    start = time.perf_counter()
+    status = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "gsa", "--config", str(config_path), "--samples", str(samples),
+                             "--json", str(out_dir / "gsa.json"), "--quiet"], check=False).returncode
+    wall = time.perf_counter() - start
+    report = json.loads((out_dir / "gsa.json").read_text())
+    runs = report["parameters"]["runs"] + report["leakages"]["runs"]
+    return {"status": status, "samples": samples, "runs": runs, "wall_s": wall, "runs_per_s": runs / wall,
+            "ranking_4s": {name: report[name]["ranking_4s"] for name in ("parameters", "leakages")}}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", default="bench/results.json")
@@ -246,6 +258,7 @@ def main() -> int:
     results = {"sam_model_1khz": model_speed(config), "bag_read": bag_read(config), "ukf": ukf_speed(config),
                "fdi_offline": fdi_offline(config), "fdi_node_live": fdi_node_live(default_config_path("sam")),
                "can_decode": can_decode(config), "can_bridge_live": can_bridge_live(default_config_path("sam")),
+               "gsa": gsa(default_config_path("sam"), out.parent),
                "fdi_evaluation": fdi_evaluation(config, out.parent),
                "fdi_parity_evaluation": fdi_evaluation(load_machine_config(default_config_path("sam_mobile")), out.parent,
                                                        "fdi_parity_eval")}
