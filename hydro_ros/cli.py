@@ -179,6 +179,27 @@ def cmd_gsa(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_discrepancy(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hydro_ros.bags.reader import BagError, read_bag
+    from hydro_ros.discrepancy import EFFECT_RANGES, run
+
+    config = load_machine_config(args.config)
+    try:
+        data = read_bag(args.bag)
+    except BagError as exc:
+        raise CliError(str(exc)) from None
+    out = Path(args.out)
+    with tqdm(total=1 + 2 * len(EFFECT_RANGES), unit="fit", desc="discrepancy", disable=args.quiet) as bar:
+        report = run(data, config, out, progress=bar.update)
+        bar.update(bar.total - bar.n)
+    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    names = ", ".join(e["name"] for e in report["effects"]) or "none"
+    print(f"named effect(s): {names}; validation gap {report['validation_gap']['before']:.2f} -> {report['validation_gap']['after']:.2f}")
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bag_player import replay
 
@@ -255,6 +276,13 @@ def build_parser() -> argparse.ArgumentParser:
     gsa.add_argument("--json", required=True, help="output JSON; the plot goes beside it as .png")
     gsa.add_argument("--quiet", action="store_true", help="no progress bar")
     gsa.set_defaults(func=cmd_gsa)
+
+    disc = sub.add_parser("discrepancy", help="find, name and add what the model is missing against a measured bag")
+    disc.add_argument("--bag", required=True, help="measured contract bag")
+    disc.add_argument("--config", required=True, help="the model's machine config")
+    disc.add_argument("--out", required=True, help="directory for report.json, model.yaml and plots")
+    disc.add_argument("--quiet", action="store_true", help="no progress bar")
+    disc.set_defaults(func=cmd_discrepancy)
 
     replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
     replay.add_argument("bag", help="bag directory")

@@ -130,3 +130,37 @@ def plot_gsa(results: dict, out: str | Path) -> Path:
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def plot_discrepancy(rec, config: dict, before, after, effects: dict, out: str | Path) -> Path:
+    """Validation data: measured vs simulated p_A, p_B and position, before and after the named effects."""
+    from hydro_ros.discrepancy import SCALES
+
+    out = Path(out)
+    t = rec.times
+    labels = ("p_A [MPa]", "p_B [MPa]", "piston [mm]")
+    units = (1e6, 1e6, 1e-3)
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(11, 7.5))
+    named = ", ".join(f"{k}={v:.3g}" for k, v in effects.items()) or "no effect named"
+    for i, ax in enumerate(axes):
+        # errors are normalised: measured - simulated = error * scale
+        measured_scaled = None
+        if i < 2:
+            measured = (rec.pressure_a, rec.pressure_b)[i]
+            measured_scaled = measured / units[i]
+        else:
+            from hydro_ros.models.sam import SamModel
+
+            model = SamModel(config)
+            measured_scaled = np.array([model.piston_from_joint(j) for j in rec.joint]) / units[i]
+        ax.plot(t, measured_scaled, color="k", lw=0.6, label="measured")
+        ax.plot(t, measured_scaled - before[:, i] * SCALES[i] / units[i], lw=0.6, label="model before")
+        ax.plot(t, measured_scaled - after[:, i] * SCALES[i] / units[i], lw=0.6, label=f"model after ({named})")
+        ax.set_ylabel(labels[i])
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc="upper right")
+    axes[-1].set_xlabel("time from first sample [s] (validation part, 2 s segments from the measured state)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

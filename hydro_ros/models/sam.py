@@ -277,6 +277,7 @@ class SamModel:
     poly: np.ndarray = field(init=False)
     centre_leakage: np.ndarray = field(init=False)
     sample_rate: float = field(init=False)
+    effects: dict[str, float] = field(init=False)
     substeps: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -332,10 +333,17 @@ class SamModel:
             p[COMP_DROP] = valve["compensator_pressure_drop"]
             p[PILOT_MAX] = valve["pilot_pressure_max"]
             p[DEADZONE] = valve.get("deadzone", 0.0)
+        self.sample_rate = float(cfg["sample_rate_hz"])
+        # `effects:` of a config (written by hydro-ros discrepancy) are part of the model from t = 0;
+        # sensor biases among them belong to the sensors, not to the plant
+        self.effects = {str(name): float(value) for name, value in (cfg.get("effects") or {}).items()}
+        for name, value in self.effects.items():
+            Injection(name, value)  # validates the name
+            if name not in SENSOR_INJECTIONS:
+                _apply(p.reshape(1, -1), name, np.array([value]), self.sample_rate)
         self.base = p
         self.poly = np.array([valve["kv_poly"][notch] for notch in NOTCHES], dtype=float)
         self.centre_leakage = np.array([valve["centre_leakage"][notch] for notch in NOTCHES], dtype=float)
-        self.sample_rate = float(cfg["sample_rate_hz"])
         self.substeps = int(sim.get("substeps", 10))
 
     @property

@@ -47,7 +47,7 @@ class SensorModel:
             self.complementary = ComplementaryFilter(self.mems["k_p"], self.mems["k_i"], model.sample_rate)
 
     def _bias(self, name: str, times: np.ndarray) -> np.ndarray | float:
-        total: np.ndarray | float = 0.0
+        total: np.ndarray | float = self.model.effects.get(name, 0.0)
         for injection in self.injections:
             if injection.name == name:
                 total = total + injection_levels(injection, times)

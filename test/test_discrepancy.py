@@ -1,0 +1,51 @@
+"""Model-discrepancy workflow on data with a hidden effect (and without), plant mismatch and noise."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from hydro_ros.bags.writer import ContractBagWriter
+from hydro_ros.config import load_machine_config, with_overrides
+from hydro_ros.fdi.evaluation import mismatched_config
+from hydro_ros.models.sam import SamModel
+from hydro_ros.sim.scenario import Scenario, run_blocks
+from test.conftest import SAM_CONFIG
+
+
+def hidden_effect_bag(config, path, effect=None, value=0.0, seed=3, duration=40.0):
+    """The plant carries 40 % of fdi-eval's mismatch, sensor noise and (maybe) one effect the model lacks."""
+    plant = with_overrides(mismatched_config(config, seed, 0.4), {"effects": {effect: value}} if effect else {})
+    with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
+        for _, _, block in run_blocks(plant, Scenario(duration, [], seed=seed)):
+            writer.write("boom", block)
+    return path
+
+
+@pytest.mark.parametrize(("effect", "value"), [(None, 0.0), ("internal_leakage", 1.5), ("payload_mass", 150.0)])
+def test_discrepancy_names_the_hidden_effect_or_none(sam_config, tmp_path, effect, value):
+    bag = hidden_effect_bag(sam_config, tmp_path / "bag", effect, value)
+    out = tmp_path / "out"
+    result = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "discrepancy", "--bag", str(bag), "--config", str(SAM_CONFIG),
+                             "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    report = json.loads((out / "report.json").read_text())
+    named = [e["name"] for e in report["effects"]]
+    if effect is None:
+        assert named == []
+        return
+    assert named[0] == effect
+    assert report["effects"][0]["parameters"]["value"] == pytest.approx(value, rel=0.15)
+    assert report["validation_gap"]["after"] <= 0.5 * report["validation_gap"]["before"]
+    model = load_machine_config(out / "model.yaml")
+    assert SamModel(model).effects[effect] == pytest.approx(report["effects"][0]["parameters"]["value"])
+    assert (out / "validation.png").stat().st_size > 10000
+
+
+def test_discrepancy_refuses_a_bag_without_the_actuator(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "discrepancy", "--bag", str(tmp_path / "none"), "--config",
+                             str(SAM_CONFIG), "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1 and "no such file" in result.stderr
