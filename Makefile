@@ -24,6 +24,7 @@ demo: setup
 
 bench: setup
 	$(PY) bench/run.py --out bench/results.json
+	$(PY) bench/discrepancy_suite.py
 
 bags: setup
 	$(PY) scripts/make_sample_bags.py --out bags
