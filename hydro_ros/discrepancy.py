@@ -29,12 +29,36 @@ from typing import Any, Callable
 
 import numpy as np
 import yaml
+from numba import njit
 from scipy.optimize import minimize, minimize_scalar
 
 from hydro_ros.bags.reader import BagData
 from hydro_ros.config import with_overrides
 from hydro_ros.models.kinematics import piston_position, torque_arm
-from hydro_ros.models.sam import MOUNT_L1, MOUNT_L2, MOUNT_L3, SENSOR_INJECTIONS, THETA_OFFSET, SamModel, SamPlant
+from hydro_ros.models.chamber import effective_bulk_modulus
+from hydro_ros.models.sam import (
+    AREA_A,
+    AREA_B,
+    DEADZONE,
+    HOSE_MODULUS,
+    HOSE_VOLUME,
+    LAMINAR_BAND,
+    MOUNT_L1,
+    MOUNT_L2,
+    MOUNT_L3,
+    OIL_MODULUS,
+    SPOOL_DAMPING,
+    SPOOL_OMEGA,
+    STROKE,
+    SUPPLY,
+    TANK,
+    THETA_OFFSET,
+    V0_A,
+    V0_B,
+    SamModel,
+    SamPlant,
+)
+from hydro_ros.models.valve import chamber_valve_flows, spool_acceleration, spool_opening
 from hydro_ros.names import Effect
 
 SEGMENT_S = 2.0
@@ -108,6 +132,7 @@ def simulate(config: dict[str, Any], rec: Recording) -> np.ndarray:
         plant = SamPlant(model, initial_joint=float(rec.joint[start]))
         plant.state[:] = [rec.pressure_a[start] - bias[0], rec.pressure_b[start] - bias[1], rec.command[start], 0.0,
                           piston[start], velocity[start], 0.0]
+        plant.prime_command_history(rec.command[:start])
         try:
             _, states, _ = plant.advance(end - start, commands=rec.command[start:end])
         except FloatingPointError:
@@ -165,6 +190,45 @@ def _bic(error: np.ndarray, parameters: int, sample_rate: float) -> float:
     return n_eff * math.log(gap(error) ** 2) + parameters * math.log(n_eff)
 
 
+@njit(cache=True)
+def _equation_error(piston, velocity, p_a, p_b, command, supply, params, poly, centre, dt, out):
+    """Per sample (Q_A model - A_A x' - V_A/B p_A', same for B) [L/min], spool driven by the command."""
+    spool = command[0]
+    rate = 0.0
+    h = dt / 10.0
+    for k in range(piston.shape[0]):
+        for _ in range(10):  # eq. (15) sub-stepped: the spool is the only state integrated here
+            acceleration = spool_acceleration(spool, rate, command[k], params[SPOOL_OMEGA], params[SPOOL_DAMPING])
+            spool += h * rate
+            rate += h * acceleration
+        s = spool_opening(spool, 0.0, params[DEADZONE], 1.0, False)
+        q_a, q_b = chamber_valve_flows(s, p_a[k], p_b[k], supply[k], params[TANK], poly, centre, params[LAMINAR_BAND], 1.0)
+        volume_a = params[V0_A] + params[AREA_A] * piston[k]
+        volume_b = params[V0_B] + params[AREA_B] * (params[STROKE] - piston[k])
+        bulk_a = effective_bulk_modulus(p_a[k], volume_a, params[OIL_MODULUS], params[HOSE_MODULUS], params[HOSE_VOLUME], 0.0)
+        bulk_b = effective_bulk_modulus(p_b[k], volume_b, params[OIL_MODULUS], params[HOSE_MODULUS], params[HOSE_VOLUME], 0.0)
+        dpa = (p_a[k] - p_a[k - 1]) / dt if k > 0 else 0.0
+        dpb = (p_b[k] - p_b[k - 1]) / dt if k > 0 else 0.0
+        out[k, 0] = (q_a - params[AREA_A] * velocity[k] - volume_a / bulk_a * dpa) * 60000.0
+        out[k, 1] = (q_b + params[AREA_B] * velocity[k] - volume_b / bulk_b * dpb) * 60000.0
+
+
+def load_independent_error(config: dict[str, Any], rec: Recording) -> np.ndarray:
+    """Flow errors [L/min] of the load-independent model (P-II's reduced model as equation error):
+    measured motion and pressures in, no load, friction or mass involved - so what remains here is
+    a valve, leak or bulk-modulus matter, and what appears only in the forward simulation is load-side."""
+    model = SamModel(config)
+    p = model.base
+    theta = rec.joint + p[THETA_OFFSET]
+    piston = piston_position(theta, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
+    velocity = torque_arm(theta, p[MOUNT_L1], p[MOUNT_L2]) * rec.joint_rate
+    out = np.empty((len(rec.times), 2))
+    supply = np.full(len(rec.times), p[SUPPLY])
+    _equation_error(piston, velocity, rec.pressure_a, rec.pressure_b, rec.command, supply, p, model.poly, model.centre_leakage,
+                    1.0 / model.sample_rate, out)
+    return out
+
+
 REGIMES = ("extending", "retracting", "at_rest", "low_pressure", "high_pressure", "lower_stroke", "upper_stroke")
 
 
@@ -176,9 +240,8 @@ def regimes(rec: Recording) -> dict[str, np.ndarray]:
             "lower_stroke": rec.joint < np.median(rec.joint), "upper_stroke": rec.joint >= np.median(rec.joint)}
 
 
-def localise(rec: Recording, error: np.ndarray) -> dict[str, Any]:
-    """Where the error concentrates: RMS per channel, per regime and per 5 s window."""
-    channels = ("p_a", "p_b", "position")
+def localise(rec: Recording, error: np.ndarray, channels: tuple[str, ...] = ("p_a", "p_b", "position")) -> dict[str, Any]:
+    """Where the error concentrates: RMS of its 0.1 s mean per channel, per regime and per 5 s window."""
     error = smooth(error)
     rec = rec.part(slice(SMOOTH_SAMPLES - 1, None))
     out: dict[str, Any] = {"by_channel": {c: float(np.sqrt(np.mean(error[:, i] ** 2))) for i, c in enumerate(channels)}}
@@ -282,7 +345,9 @@ def run(data: BagData, config: dict[str, Any], out: Path, progress: Callable[[in
         "uncalibrated_validation_gap": gap(raw_validation),
         "calibration": calibration,
         "candidates": rounds,
-        "localisation": {"forward": localise(fit, before_fit)},
+        "localisation": {"forward": localise(fit, before_fit),
+                         "load_independent_l_min": localise(fit, load_independent_error(_with(config, {}, calibration), fit),
+                                                            ("q_a", "q_b"))},
         "fit_s": float(fit.times[-1] - fit.times[0]), "validation_s": float(validation.times[-1] - validation.times[0]),
         "plots": [str(plot)],
     }

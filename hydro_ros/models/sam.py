@@ -452,6 +452,12 @@ class SamPlant:
         self._delay_buffer = np.zeros(DELAY_BUFFER)
         self._delay_position = 0
 
+    def prime_command_history(self, commands: np.ndarray) -> None:
+        """Commands applied before now, oldest first: what a valve delay replays at the start."""
+        history = np.asarray(commands, dtype=float)[-DELAY_BUFFER:]
+        slots = (self._delay_position - len(history) + np.arange(len(history))) % DELAY_BUFFER
+        self._delay_buffer[slots] = history
+
     @property
     def sample_time(self) -> float:
         return 1.0 / self.model.sample_rate
