@@ -121,42 +121,47 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def fdi_node_live(config_path: Path, measure_s: float = 20.0) -> dict:
-    """plant_sim at 1 kHz -> fdi_node, both real processes on a private localhost domain."""
+def _live_graph(domain: int, commands: list[list[str]], status: str, progress_key: str, measure_s: float) -> tuple[float, float, dict, dict]:
+    """Start node processes (module, ROS args), wait until ``status`` reports progress, then measure
+    the last process's CPU time over ``measure_s``: (CPU share of one core, wall s, first and last values)."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
 
-    env = dict(os.environ, ROS_DOMAIN_ID="151", ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    os.environ.update(ROS_DOMAIN_ID="151", ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    procs = [subprocess.Popen([sys.executable, "-m", f"hydro_ros.nodes.{name}", "--ros-args", "-p", f"config:={config_path}"],
-                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for name in ("plant_sim", "fdi_node")]
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    procs = [subprocess.Popen([sys.executable, "-m", c[0], "--ros-args", *c[1:]], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL) for c in commands]
     rclpy.init()
     node = rclpy.create_node("bench_probe")
     statuses: list = []
-    node.create_subscription(DiagnosticArray, "/diagnostics",
-                             lambda m: statuses.extend(s for s in m.status if s.name == "hydro_ros/fdi/boom"), 10)
+    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: statuses.extend(s for s in m.status if s.name == status), 10)
     try:
         end = time.monotonic() + 30.0
-        while time.monotonic() < end and not any(int({v.key: v.value for v in s.values}["samples"]) > 2000 for s in statuses):
+        while time.monotonic() < end and not any(int({v.key: v.value for v in s.values}[progress_key]) > 2000 for s in statuses):
             rclpy.spin_once(node, timeout_sec=0.1)
-        cpu0, wall0, first = _cpu_seconds(procs[1].pid), time.monotonic(), statuses[-1]
-        end = wall0 + measure_s
-        while time.monotonic() < end:
+        cpu0, wall0, first = _cpu_seconds(procs[-1].pid), time.monotonic(), statuses[-1]
+        while time.monotonic() < wall0 + measure_s:
             rclpy.spin_once(node, timeout_sec=0.1)
-        cpu1, wall1, last = _cpu_seconds(procs[1].pid), time.monotonic(), statuses[-1]
+        cpu1, wall1, last = _cpu_seconds(procs[-1].pid), time.monotonic(), statuses[-1]
     finally:
         node.destroy_node()
         rclpy.shutdown()
         for proc in procs:
             proc.terminate()
             proc.wait(timeout=10)
-    v0 = {v.key: v.value for v in first.values}
-    v1 = {v.key: v.value for v in last.values}
+    values = [{v.key: v.value for v in s.values} for s in (first, last)]
+    return (cpu1 - cpu0) / (wall1 - wall0), wall1 - wall0, values[0], values[1]
+
+
+def fdi_node_live(config_path: Path, measure_s: float = 20.0) -> dict:
+    """plant_sim at 1 kHz -> fdi_node, both real processes on a private localhost domain."""
+    commands = [[f"hydro_ros.nodes.{name}", "-p", f"config:={config_path}"] for name in ("plant_sim", "fdi_node")]
+    cpu, wall, v0, v1 = _live_graph(151, commands, "hydro_ros/fdi/boom", "samples", measure_s)
     processed = int(v1["samples"]) - int(v0["samples"])
-    return {"cpu_share_of_one_core": (cpu1 - cpu0) / (wall1 - wall0), "samples_processed_per_s": processed / (wall1 - wall0),
+    return {"cpu_share_of_one_core": cpu, "samples_processed_per_s": processed / wall,
             "gap_samples": int(v1["gap_samples"]), "incomplete_samples": int(v1["incomplete_samples"]),
             "out_of_order_dropped": int(v1["out_of_order_dropped"]), "sample_rate_hz": 1000.0,
-            "messages_per_s": 5 * processed / (wall1 - wall0)}
+            "messages_per_s": 5 * processed / wall}
 
 
 def can_decode(config: dict, cycles: int = 5000) -> dict:
@@ -184,41 +189,15 @@ def can_decode(config: dict, cycles: int = 5000) -> dict:
 
 def can_bridge_live(config_path: Path, measure_s: float = 15.0) -> dict:
     """plant_sim emitting its sensors on a udp_multicast CAN bus at 1 kHz -> can_bridge: CPU share and rate."""
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-
-    env = dict(os.environ, ROS_DOMAIN_ID="152", ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    os.environ.update(ROS_DOMAIN_ID="152", ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     group = "239.74.152.1"
     aside = [a for t in ("/joint_states", "/hydraulics/boom/pressure_a", "/hydraulics/boom/pressure_b", "/hydraulics/supply_pressure",
                          "/hydraulics/valve_commands") for a in ("-r", f"{t}:=/sim{t}")]
     commands = [["hydro_ros.nodes.plant_sim", "-p", f"config:={config_path}", "-p", "can_interface:=udp_multicast", "-p", f"can_channel:={group}", *aside],
                 ["hydro_ros.nodes.can_bridge", "-p", f"config:={config_path}", "-p", "interface:=udp_multicast", "-p", f"channel:={group}"]]
-    procs = [subprocess.Popen([sys.executable, "-m", c[0], "--ros-args", *c[1:]], env=env, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL) for c in commands]
-    rclpy.init()
-    node = rclpy.create_node("bench_can_probe")
-    statuses: list = []
-    node.create_subscription(DiagnosticArray, "/diagnostics",
-                             lambda m: statuses.extend(s for s in m.status if s.name == "hydro_ros/can_bridge/bus"), 10)
-    try:
-        end = time.monotonic() + 30.0
-        while time.monotonic() < end and not any(int({v.key: v.value for v in s.values}["published_cycles"]) > 2000 for s in statuses):
-            rclpy.spin_once(node, timeout_sec=0.1)
-        cpu0, wall0, first = _cpu_seconds(procs[1].pid), time.monotonic(), statuses[-1]
-        while time.monotonic() < wall0 + measure_s:
-            rclpy.spin_once(node, timeout_sec=0.1)
-        cpu1, wall1, last = _cpu_seconds(procs[1].pid), time.monotonic(), statuses[-1]
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
-        for proc in procs:
-            proc.terminate()
-            proc.wait(timeout=10)
-    v0, v1 = ({v.key: v.value for v in s.values} for s in (first, last))
-    return {"cpu_share_of_one_core": (cpu1 - cpu0) / (wall1 - wall0),
-            "cycles_published_per_s": (int(v1["published_cycles"]) - int(v0["published_cycles"])) / (wall1 - wall0),
-            "frames_per_s": (int(v1["frames_received"]) - int(v0["frames_received"])) / (wall1 - wall0),
+    cpu, wall, v0, v1 = _live_graph(152, commands, "hydro_ros/can_bridge/bus", "published_cycles", measure_s)
+    return {"cpu_share_of_one_core": cpu,
+            "cycles_published_per_s": (int(v1["published_cycles"]) - int(v0["published_cycles"])) / wall,
+            "frames_per_s": (int(v1["frames_received"]) - int(v0["frames_received"])) / wall,
             "incomplete_cycles": int(v1["incomplete_cycles"]), "sample_rate_hz": 1000.0}
 
 

@@ -35,30 +35,20 @@ from scipy.optimize import minimize, minimize_scalar
 from hydro_ros.bags.reader import BagData
 from hydro_ros.config import with_overrides
 from hydro_ros.models.kinematics import piston_position, torque_arm
-from hydro_ros.models.chamber import effective_bulk_modulus
+from hydro_ros.fdi.parity import flow_balance
 from hydro_ros.models.sam import (
-    AREA_A,
-    AREA_B,
     DEADZONE,
-    HOSE_MODULUS,
-    HOSE_VOLUME,
-    LAMINAR_BAND,
     MOUNT_L1,
     MOUNT_L2,
     MOUNT_L3,
-    OIL_MODULUS,
     SPOOL_DAMPING,
     SPOOL_OMEGA,
-    STROKE,
     SUPPLY,
-    TANK,
     THETA_OFFSET,
-    V0_A,
-    V0_B,
     SamModel,
     SamPlant,
 )
-from hydro_ros.models.valve import chamber_valve_flows, spool_acceleration, spool_opening
+from hydro_ros.models.valve import spool_acceleration, spool_opening
 from hydro_ros.names import Effect
 
 SEGMENT_S = 2.0
@@ -202,15 +192,9 @@ def _equation_error(piston, velocity, p_a, p_b, command, supply, params, poly, c
             spool += h * rate
             rate += h * acceleration
         s = spool_opening(spool, 0.0, params[DEADZONE], 1.0, False)
-        q_a, q_b = chamber_valve_flows(s, p_a[k], p_b[k], supply[k], params[TANK], poly, centre, params[LAMINAR_BAND], 1.0)
-        volume_a = params[V0_A] + params[AREA_A] * piston[k]
-        volume_b = params[V0_B] + params[AREA_B] * (params[STROKE] - piston[k])
-        bulk_a = effective_bulk_modulus(p_a[k], volume_a, params[OIL_MODULUS], params[HOSE_MODULUS], params[HOSE_VOLUME], 0.0)
-        bulk_b = effective_bulk_modulus(p_b[k], volume_b, params[OIL_MODULUS], params[HOSE_MODULUS], params[HOSE_VOLUME], 0.0)
         dpa = (p_a[k] - p_a[k - 1]) / dt if k > 0 else 0.0
         dpb = (p_b[k] - p_b[k - 1]) / dt if k > 0 else 0.0
-        out[k, 0] = (q_a - params[AREA_A] * velocity[k] - volume_a / bulk_a * dpa) * 60000.0
-        out[k, 1] = (q_b + params[AREA_B] * velocity[k] - volume_b / bulk_b * dpb) * 60000.0
+        out[k, 0], out[k, 1] = flow_balance(s, piston[k], velocity[k], p_a[k], p_b[k], dpa, dpb, supply[k], params, poly, centre)
 
 
 def load_independent_error(config: dict[str, Any], rec: Recording) -> np.ndarray:

@@ -46,6 +46,18 @@ FLOW_UNIT = 1.0 / 60000.0  # [m^3/s] per L/min: residuals are reported in L/min
 
 
 @njit(cache=True)
+def flow_balance(s, piston, velocity, p_a, p_b, rate_a, rate_b, metering_supply, p, poly, centre) -> tuple[float, float]:
+    """Equation error per chamber [L/min]: valve flow at opening s minus what motion and compression take."""
+    q_a, q_b = chamber_valve_flows(s, p_a, p_b, metering_supply, p[TANK], poly, centre, p[LAMINAR_BAND], 1.0)
+    volume_a = p[V0_A] + p[AREA_A] * piston
+    volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - piston)
+    bulk_a = effective_bulk_modulus(p_a, volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
+    bulk_b = effective_bulk_modulus(p_b, volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
+    return ((q_a - p[AREA_A] * velocity - volume_a / bulk_a * rate_a) / FLOW_UNIT,
+            (q_b + p[AREA_B] * velocity - volume_b / bulk_b * rate_b) / FLOW_UNIT)
+
+
+@njit(cache=True)
 def parity_residuals(piston, velocity, p_a, p_b, pilot_1, pilot_2, compensator, valid, previous, params, poly, centre, dt,
                      residual_out, opening_out):
     """Per sample and actuator: (r_QA, r_QB) [L/min] and the pilot-measured opening; arrays (n, A)."""
@@ -58,19 +70,13 @@ def parity_residuals(piston, velocity, p_a, p_b, pilot_1, pilot_2, compensator, 
                 opening_out[k, a] = 0.0
                 continue
             s = spool_opening((pilot_1[k, a] - pilot_2[k, a]) / p[PILOT_MAX], 0.0, p[DEADZONE], 1.0, False)
-            q_a, q_b = chamber_valve_flows(s, p_a[k, a], p_b[k, a], compensator[k, a], p[TANK], poly[a], centre[a],
-                                           p[LAMINAR_BAND], 1.0)
-            volume_a = p[V0_A] + p[AREA_A] * piston[k, a]
-            volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - piston[k, a])
-            bulk_a = effective_bulk_modulus(p_a[k, a], volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
-            bulk_b = effective_bulk_modulus(p_b[k, a], volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
             rate_a = (p_a[k, a] - previous[a, 0]) / dt if previous[a, 2] > 0.5 else 0.0
             rate_b = (p_b[k, a] - previous[a, 1]) / dt if previous[a, 2] > 0.5 else 0.0
             previous[a, 0] = p_a[k, a]
             previous[a, 1] = p_b[k, a]
             previous[a, 2] = 1.0
-            residual_out[k, a, 0] = (q_a - p[AREA_A] * velocity[k, a] - volume_a / bulk_a * rate_a) / FLOW_UNIT
-            residual_out[k, a, 1] = (q_b + p[AREA_B] * velocity[k, a] - volume_b / bulk_b * rate_b) / FLOW_UNIT
+            residual_out[k, a, 0], residual_out[k, a, 1] = flow_balance(
+                s, piston[k, a], velocity[k, a], p_a[k, a], p_b[k, a], rate_a, rate_b, compensator[k, a], p, poly[a], centre[a])
             opening_out[k, a] = abs(s)
 
 
