@@ -37,8 +37,24 @@ def _coerce_numbers(node: Any) -> Any:
 
 
 def load_machine_config(path: str | Path) -> dict[str, Any]:
-    """Read ``config/<machine>.yaml``; raise ConfigError with a one-line reason on bad input."""
+    """Read a SAM-type ``config/<machine>.yaml``; raise ConfigError with a one-line reason on bad input."""
+    return read_config(path, required=_REQUIRED_SAM_KEYS, nonempty="actuators")
+
+
+def read_config(path: str | Path, *, required: tuple[str, ...], nonempty: str) -> dict[str, Any]:
+    """Read any machine config (extends / fitted merged, numbers coerced) and check its required keys."""
     path = Path(path)
+    config = _coerce_numbers(_read_merged(path))
+    missing = [key for key in required if key not in config]
+    if missing:
+        raise ConfigError(f"config {path}: missing key(s) {', '.join(missing)}")
+    if not config[nonempty]:
+        raise ConfigError(f"config {path}: no {nonempty}")
+    config["_path"] = str(path.resolve())
+    return config
+
+
+def _read_merged(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise ConfigError(f"config {path}: no such file")
     try:
@@ -53,21 +69,12 @@ def load_machine_config(path: str | Path) -> dict[str, Any]:
         base_path = path.parent / str(raw.pop("extends"))
         if base_path.resolve() == path.resolve():
             raise ConfigError(f"config {path}: extends itself")
-        base = load_machine_config(base_path)
-        base.pop("_path", None)
-        raw = with_overrides(base, raw)
+        raw = with_overrides(_read_merged(base_path), raw)
     if "fitted" in raw:
         # values a tool fitted (hydro-ros fdi-fit) live in their own block at the end of the file
         fitted = raw.pop("fitted")
         raw = with_overrides(raw, fitted if isinstance(fitted, dict) else {})
-    config = _coerce_numbers(raw)
-    missing = [key for key in _REQUIRED_SAM_KEYS if key not in config]
-    if missing:
-        raise ConfigError(f"config {path}: missing key(s) {', '.join(missing)}")
-    if not config["actuators"]:
-        raise ConfigError(f"config {path}: no actuators")
-    config["_path"] = str(path.resolve())
-    return config
+    return raw
 
 
 def with_overrides(config: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:

@@ -1,0 +1,403 @@
+"""Kinematics and cylinder forces of a crane redundant in its telescope (P-V section 2, P-VI section 2).
+
+One model serves both cranes of the papers: a planar lift-tilt-extension chain (P-V eqs. 1-8,
+P-VI eqs. 2-7 with the tilt offset L2), optionally turned about the vertical axis by a base joint
+(P-VI q1). The extension is the redundant joint: given the tip path and the extension cylinder's
+position, velocity and acceleration, the other joints follow from the closed-form inverse
+kinematics (P-V eq. 22-26, P-VI eqs. 33-35; the closed form of h2, h3 is INFERRED, dp.md 4.2).
+
+Every function works elementwise, so the same code evaluates one state, a grid of states
+(NumPy broadcasting) or symbolic nodes of a direct-collocation problem (CasADi): the math
+functions come from a namespace, ``NUMPY`` by default.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from hydro_ros.config import ConfigError, read_config
+
+NUMPY = SimpleNamespace(
+    cos=np.cos,
+    sin=np.sin,
+    atan2=np.arctan2,
+    acos=np.arccos,
+    sqrt=np.sqrt,
+    tanh=np.tanh,
+    # an unreachable point reads as the nearest reachable one; ``Motion.reachable`` says which
+    clip_unit=lambda value: np.clip(value, -1.0, 1.0),
+)
+
+_REQUIRED_KEYS = ("machine", "links", "joints", "hydraulics", "dp", "paths")
+_LOWER_FACTOR = 1.0 + 1e-9  # limit checks forgive rounding, nothing more
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """How one joint drives its cylinder (stroke c measured from the retracted end) and its limits."""
+
+    name: str
+    q_min: float
+    q_max: float
+    mapping: str
+    ratio: float
+    la: float
+    lb: float
+    theta_at_min: float
+    sign: float
+    area_a: float
+    area_b: float
+    pump_area_extend: float
+    pump_area_retract: float
+    differential: bool
+    velocity_max: float
+    acceleration_max: float
+    constant_force: float | None
+    stroke_offset: float  # |s| at the retracted end of a triangle mapping
+
+    def length(self, q: Any, xp: SimpleNamespace = NUMPY) -> Any:
+        theta = self.theta_at_min + self.sign * (q - self.q_min)
+        return xp.sqrt(self.la**2 + self.lb**2 - 2.0 * self.la * self.lb * xp.cos(theta))
+
+    def stroke(self, q: Any, xp: SimpleNamespace = NUMPY) -> Any:
+        if self.mapping == "linear":
+            return self.ratio * (q - self.q_min)
+        return self.length(q, xp) - self.stroke_offset
+
+    def arm(self, q: Any, xp: SimpleNamespace = NUMPY) -> tuple[Any, Any]:
+        """dc/dq (signed torque arm, eq. 30 / P-VI eqs. 10-15) and its derivative d^2c/dq^2."""
+        if self.mapping == "linear":
+            return self.ratio + 0.0 * q, 0.0 * q
+        theta = self.theta_at_min + self.sign * (q - self.q_min)
+        length = self.length(q, xp)
+        arm = self.sign * self.la * self.lb * xp.sin(theta) / length
+        return arm, (self.la * self.lb * xp.cos(theta) - arm * arm) / length
+
+    def joint(self, c: Any) -> Any:
+        """Inverse of ``stroke`` (NumPy)."""
+        if self.mapping == "linear":
+            return self.q_min + c / self.ratio
+        length = c + self.stroke_offset
+        cos_theta = (self.la**2 + self.lb**2 - length**2) / (2.0 * self.la * self.lb)
+        theta = np.arccos(np.clip(cos_theta, -1.0, 1.0))
+        return self.q_min + (theta - self.theta_at_min) / self.sign
+
+    @property
+    def stroke_max(self) -> float:
+        return float(abs(self.stroke(self.q_max) - self.stroke(self.q_min)))
+
+
+@dataclass
+class Motion:
+    """Joint and cylinder motion of a crane state; lists hold one entry per joint."""
+
+    q: list[Any]
+    qd: list[Any]
+    qdd: list[Any]
+    c: list[Any]
+    v: list[Any]
+    a: list[Any]
+    force: list[Any] | None
+    reachable: Any  # IK solvable (NumPy evaluation only; None for symbolic)
+
+
+class Crane:
+    """A crane of ``config/crane3dof.yaml`` or ``config/k70m.yaml``."""
+
+    def __init__(self, config: dict[str, Any]) -> None:
+        try:
+            links = config["links"]
+            self.name = str(config["machine"])
+            self.base_rotation = bool(config.get("base_rotation", False))
+            self.gravity = float(config.get("gravity", 9.81))
+            self.lift_length = float(links["lift_length"])
+            self.tilt_offset = float(links.get("tilt_offset", 0.0))
+            self.extension_base = float(links["extension_base"])
+            self.lift_joint = (float(links["lift_joint_x"]), float(links["lift_joint_y"]))
+            self.cylinders = [_cylinder(entry) for entry in config["joints"]]
+            self.masses = [_mass(entry) for entry in config.get("masses", [])]
+            friction = config.get("extension_friction") or {}
+            self.friction_coulomb = float(friction.get("coulomb", 0.0))
+            self.friction_gain = float(friction.get("tanh_gain", 2000.0))
+            self.friction_steps = [(float(lo), float(hi)) for lo, hi in friction.get("steps", [])]
+            self.hydraulics = {key: float(value) for key, value in config["hydraulics"].items()}
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ConfigError(f"config {config.get('_path', '?')}: crane entry {exc} missing or not a number") from None
+        expected = 4 if self.base_rotation else 3
+        if len(self.cylinders) != expected:
+            raise ConfigError(f"config {config.get('_path', '?')}: {expected} joints expected, found {len(self.cylinders)}")
+        if self.cylinders[-1].mapping != "linear":
+            raise ConfigError(f"config {config.get('_path', '?')}: the extension (last joint) needs a linear cylinder mapping")
+        self.names = [cylinder.name for cylinder in self.cylinders]
+        self.extension = self.cylinders[-1]
+        self.task_dim = 3 if self.base_rotation else 2
+
+    # -- kinematics ------------------------------------------------------------------------
+    def forward(self, q: np.ndarray) -> np.ndarray:
+        """Tip [x, y, z] of joint vectors q (..., n) (P-V eqs. 5-6, P-VI eqs. 4-6)."""
+        q = np.asarray(q, dtype=float)
+        lift, tilt, ext = q[..., -3], q[..., -2], q[..., -1]
+        rho, height = self._planar_tip(lift, tilt, ext)
+        if self.base_rotation:
+            return np.stack([np.cos(q[..., 0]) * rho, height, np.sin(q[..., 0]) * rho], axis=-1)
+        return np.stack([rho, height, np.zeros_like(rho)], axis=-1)
+
+    def _planar_tip(self, lift: Any, tilt: Any, ext: Any, xp: SimpleNamespace = NUMPY) -> tuple[Any, Any]:
+        reach = self.extension_base + ext
+        phi = lift + tilt
+        rho = self.lift_length * xp.cos(lift) - self.tilt_offset * xp.sin(phi) + reach * xp.cos(phi) + self.lift_joint[0]
+        height = self.lift_length * xp.sin(lift) + self.tilt_offset * xp.cos(phi) + reach * xp.sin(phi) + self.lift_joint[1]
+        return rho, height
+
+    def jacobian(self, q: np.ndarray) -> np.ndarray:
+        """d tip / d q, shape (..., task_dim, n) (P-V eq. 8, P-VI eq. 7)."""
+        q = np.asarray(q, dtype=float)
+        lift, tilt, ext = q[..., -3], q[..., -2], q[..., -1]
+        columns = self._planar_columns(lift, tilt, ext)
+        rho, _ = self._planar_tip(lift, tilt, ext)
+        if not self.base_rotation:
+            return np.stack([np.stack(column, axis=-1) for column in columns], axis=-1)
+        c1, s1 = np.cos(q[..., 0]), np.sin(q[..., 0])
+        base = np.stack([-s1 * rho, np.zeros_like(rho), c1 * rho], axis=-1)
+        planar = [np.stack([c1 * d_rho, d_h, s1 * d_rho], axis=-1) for d_rho, d_h in columns]
+        return np.stack([base, *planar], axis=-1)
+
+    def _planar_columns(self, lift: Any, tilt: Any, ext: Any, xp: SimpleNamespace = NUMPY) -> list[tuple[Any, Any]]:
+        phi = lift + tilt
+        reach = self.extension_base + ext
+        # w = d tip / d tilt = -d e(phi) + reach e_perp(phi)
+        w_rho = -self.tilt_offset * xp.cos(phi) - reach * xp.sin(phi)
+        w_h = -self.tilt_offset * xp.sin(phi) + reach * xp.cos(phi)
+        return [
+            (-self.lift_length * xp.sin(lift) + w_rho, self.lift_length * xp.cos(lift) + w_h),
+            (w_rho, w_h),
+            (xp.cos(phi), xp.sin(phi)),
+        ]
+
+    def motion(
+        self,
+        tip: tuple[Any, Any, Any],
+        tip_vel: tuple[Any, Any, Any],
+        tip_acc: tuple[Any, Any, Any],
+        c_ext: Any,
+        v_ext: Any,
+        a_ext: Any,
+        *,
+        xp: SimpleNamespace = NUMPY,
+        forces: bool = True,
+    ) -> Motion:
+        """All joints and cylinders from the tip path sample and the extension cylinder's state.
+
+        Position: P-V eq. 22 / P-VI eq. 33; velocity: eqs. 23-25 / 34; acceleration: eq. 26 / 35.
+        Unreachable states come out singular (NaN rates) with ``reachable`` False.
+        """
+        if xp is NUMPY:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                return self._motion(tip, tip_vel, tip_acc, c_ext, v_ext, a_ext, xp=xp, forces=forces)
+        return self._motion(tip, tip_vel, tip_acc, c_ext, v_ext, a_ext, xp=xp, forces=forces)
+
+    def _motion(
+        self,
+        tip: tuple[Any, Any, Any],
+        tip_vel: tuple[Any, Any, Any],
+        tip_acc: tuple[Any, Any, Any],
+        c_ext: Any,
+        v_ext: Any,
+        a_ext: Any,
+        *,
+        xp: SimpleNamespace,
+        forces: bool,
+    ) -> Motion:
+        ext = self.extension
+        q_e, qd_e, qdd_e = ext.q_min + c_ext / ext.ratio, v_ext / ext.ratio, a_ext / ext.ratio
+        x, y, z = tip
+        xd, yd, zd = tip_vel
+        xdd, ydd, zdd = tip_acc
+        if self.base_rotation:
+            # polar decomposition of the horizontal plane: base angle and horizontal radius
+            q1 = xp.atan2(z, x)
+            rho = xp.sqrt(x * x + z * z)
+            c1, s1 = xp.cos(q1), xp.sin(q1)
+            rho_d = c1 * xd + s1 * zd
+            q1_d = (-s1 * xd + c1 * zd) / rho
+            rho_dd = c1 * xdd + s1 * zdd + rho * q1_d * q1_d
+            q1_dd = (-s1 * xdd + c1 * zdd - 2.0 * rho_d * q1_d) / rho
+        else:
+            rho, rho_d, rho_dd = x, xd, xdd
+
+        # position: triangle lift joint - tilt joint - tip with the extension's reach
+        reach = self.extension_base + q_e
+        rel_rho, rel_h = rho - self.lift_joint[0], y - self.lift_joint[1]
+        arm_length = xp.sqrt(reach * reach + self.tilt_offset**2)
+        offset_angle = xp.atan2(self.tilt_offset + 0.0 * reach, reach)
+        cos_elbow = (rel_rho * rel_rho + rel_h * rel_h - self.lift_length**2 - arm_length * arm_length) / (
+            2.0 * self.lift_length * arm_length
+        )
+        tilt = -xp.acos(xp.clip_unit(cos_elbow)) - offset_angle  # the elbow-down branch of both papers
+        lift = xp.atan2(rel_h, rel_rho) - xp.atan2(
+            arm_length * xp.sin(tilt + offset_angle), self.lift_length + arm_length * xp.cos(tilt + offset_angle)
+        )
+
+        # velocity: [J_lift J_tilt]^-1 (tip rate - J_ext ext rate)
+        (ja_r, ja_h), (jb_r, jb_h), (je_r, je_h) = self._planar_columns(lift, tilt, q_e, xp)
+        det = ja_r * jb_h - jb_r * ja_h
+        rhs_r, rhs_h = rho_d - je_r * qd_e, yd - je_h * qd_e
+        lift_d = (jb_h * rhs_r - jb_r * rhs_h) / det
+        tilt_d = (-ja_h * rhs_r + ja_r * rhs_h) / det
+
+        # acceleration: the same matrix; the velocity-product terms are J-dot q-dot (P-VI eq. 9)
+        phi_d = lift_d + tilt_d
+        phi = lift + tilt
+        cp, sp = xp.cos(phi), xp.sin(phi)
+        cl, sl = xp.cos(lift), xp.sin(lift)
+        centripetal = reach * phi_d * phi_d
+        coriolis = 2.0 * qd_e * phi_d
+        offset_term = self.tilt_offset * phi_d * phi_d
+        bias_r = -self.lift_length * lift_d * lift_d * cl - centripetal * cp - coriolis * sp + offset_term * sp
+        bias_h = -self.lift_length * lift_d * lift_d * sl - centripetal * sp + coriolis * cp - offset_term * cp
+        rhs_r, rhs_h = rho_dd - je_r * qdd_e - bias_r, ydd - je_h * qdd_e - bias_h
+        lift_dd = (jb_h * rhs_r - jb_r * rhs_h) / det
+        tilt_dd = (-ja_h * rhs_r + ja_r * rhs_h) / det
+
+        if self.base_rotation:
+            spread = 0.0 * c_ext  # the base follows the tip alone: give it the states' shape
+            q = [q1 + spread, lift, tilt, q_e]
+            qd, qdd = [q1_d + spread, lift_d, tilt_d, qd_e], [q1_dd + spread, lift_dd, tilt_dd, qdd_e]
+        else:
+            q, qd, qdd = [lift, tilt, q_e], [lift_d, tilt_d, qd_e], [lift_dd, tilt_dd, qdd_e]
+        c, v, a = [], [], []
+        for cylinder, qi, qdi, qddi in zip(self.cylinders, q, qd, qdd):
+            arm, arm_rate = cylinder.arm(qi, xp)
+            c.append(cylinder.stroke(qi, xp))
+            v.append(arm * qdi)
+            a.append(arm_rate * qdi * qdi + arm * qddi)
+        reachable = np.abs(cos_elbow) <= 1.0 if xp is NUMPY else None
+        motion = Motion(q=q, qd=qd, qdd=qdd, c=c, v=v, a=a, force=None, reachable=reachable)
+        if forces:
+            motion.force = self._forces(motion, (ja_r, ja_h), (jb_r, jb_h), (je_r, je_h))
+        return motion
+
+    # -- dynamics --------------------------------------------------------------------------
+    def _forces(self, motion: Motion, col_lift: tuple, col_tilt: tuple, col_ext: tuple) -> list[Any]:
+        """Cylinder forces F = R^-1 (M(q) q'' + G(q) + F_f) of point masses (P-VI eq. 16; Coriolis omitted)."""
+        lift, tilt, q_e = motion.q[-3], motion.q[-2], motion.q[-1]
+        lift_dd, tilt_dd, ext_dd = motion.qdd[-3], motion.qdd[-2], motion.qdd[-1]
+        phi = lift + tilt
+        cp, sp = np.cos(phi), np.sin(phi)
+        torque = [0.0, 0.0, 0.0]
+        for mass in self.masses:
+            if mass.link == "lift":
+                columns = [(-mass.s * np.sin(lift), mass.s * np.cos(lift)), (0.0, 0.0), (0.0, 0.0)]
+            else:
+                s = mass.s + (q_e if mass.moves_with_extension else 0.0)
+                w_r = -self.tilt_offset * cp - s * sp
+                w_h = -self.tilt_offset * sp + s * cp
+                columns = [
+                    (-self.lift_length * np.sin(lift) + w_r, self.lift_length * np.cos(lift) + w_h),
+                    (w_r, w_h),
+                    (cp, sp) if mass.moves_with_extension else (0.0, 0.0),
+                ]
+            acc_r = columns[0][0] * lift_dd + columns[1][0] * tilt_dd + columns[2][0] * ext_dd
+            acc_h = columns[0][1] * lift_dd + columns[1][1] * tilt_dd + columns[2][1] * ext_dd + self.gravity
+            for j, (d_r, d_h) in enumerate(columns):
+                torque[j] = torque[j] + mass.mass * (d_r * acc_r + d_h * acc_h)
+        torque[2] = torque[2] + self.extension_friction(q_e, motion.qd[-1])
+        forces = []
+        planar = self.cylinders[-3:]
+        for cylinder, qi, tau in zip(planar, motion.q[-3:], torque):
+            arm, _ = cylinder.arm(qi)
+            forces.append(tau / arm)  # F v = tau qdot for either sign of the arm
+        if self.base_rotation:
+            base = self.cylinders[0]
+            forces.insert(0, np.zeros_like(np.asarray(lift_dd)) + (base.constant_force or 0.0))
+        return forces
+
+    def extension_friction(self, q_e: Any, qd_e: Any) -> Any:
+        """P-VI eqs. A3-A4: tanh(K qdot4) times a level that ramps by one coulomb per metre over each step."""
+        level = self.friction_coulomb + 0.0 * q_e
+        for low, high in self.friction_steps:
+            level = level + self.friction_coulomb * np.clip(q_e - low, 0.0, high - low)
+        return np.tanh(self.friction_gain * qd_e) * level
+
+    # -- limits ----------------------------------------------------------------------------
+    def limit_checks(self, motion: Motion, *, tolerance: float = 0.0) -> dict[str, np.ndarray]:
+        """Boolean arrays per limit kind: positions (and IK), cylinder velocities, cylinder accelerations."""
+        position = np.asarray(motion.reachable, dtype=bool)
+        velocity = np.ones_like(position)
+        acceleration = np.ones_like(position)
+        for cylinder, qi, vi, ai in zip(self.cylinders, motion.q, motion.v, motion.a):
+            span = (cylinder.q_max - cylinder.q_min) * (tolerance + 1e-9)
+            position = position & (qi >= cylinder.q_min - span) & (qi <= cylinder.q_max + span)
+            velocity = velocity & (np.abs(vi) <= cylinder.velocity_max * (_LOWER_FACTOR + tolerance))
+            acceleration = acceleration & (np.abs(ai) <= cylinder.acceleration_max * (_LOWER_FACTOR + tolerance))
+        return {"position": position, "velocity": velocity, "acceleration": acceleration}
+
+
+@dataclass(frozen=True)
+class PointMass:
+    name: str
+    link: str
+    s: float
+    moves_with_extension: bool
+    mass: float
+
+
+def _mass(entry: dict[str, Any]) -> PointMass:
+    link = str(entry["link"])
+    if link not in ("lift", "boom"):
+        raise ValueError(f"mass link {link!r} (lift or boom)")
+    return PointMass(
+        name=str(entry.get("name", link)),
+        link=link,
+        s=float(entry["s"]),
+        moves_with_extension=bool(entry.get("moves_with_extension", False)),
+        mass=float(entry["mass"]),
+    )
+
+
+def _cylinder(entry: dict[str, Any]) -> Cylinder:
+    spec = entry["cylinder"]
+    mapping = str(spec["mapping"])
+    if mapping not in ("linear", "triangle"):
+        raise ValueError(f"cylinder mapping {mapping!r} (linear or triangle)")
+    spool = str(spec.get("spool", "non_differential"))
+    if spool not in ("non_differential", "differential"):
+        raise ValueError(f"spool {spool!r} (non_differential or differential)")
+    q_min, q_max = float(entry["min"]), float(entry["max"])
+    cylinder = Cylinder(
+        name=str(entry["name"]),
+        q_min=q_min,
+        q_max=q_max,
+        mapping=mapping,
+        ratio=float(spec.get("ratio", 1.0)),
+        la=float(spec.get("la", 0.0)),
+        lb=float(spec.get("lb", 0.0)),
+        theta_at_min=float(spec.get("theta_at_min", 0.0)),
+        sign=float(spec.get("sign", 1.0)),
+        area_a=float(spec["area_a"]),
+        area_b=float(spec["area_b"]),
+        pump_area_extend=float(spec["pump_area_extend"]),
+        pump_area_retract=float(spec["pump_area_retract"]),
+        differential=spool == "differential",
+        velocity_max=float(spec["velocity_max"]),
+        acceleration_max=float(spec["acceleration_max"]),
+        constant_force=float(spec["constant_force"]) if "constant_force" in spec else None,
+        stroke_offset=0.0,
+    )
+    if mapping == "triangle":
+        ends = cylinder.length(np.array([q_min, q_max]))
+        cylinder = replace(cylinder, stroke_offset=float(ends.min()))
+    return cylinder
+
+
+def load_crane(path: str | Path) -> tuple[Crane, dict[str, Any]]:
+    """The crane of a machine config and the config itself (one-line ConfigError on bad input)."""
+    config = read_config(path, required=_REQUIRED_KEYS, nonempty="joints")
+    if config.get("kind") != "crane":
+        raise ConfigError(f"config {path}: not a crane config (kind: crane); DP needs crane3dof.yaml or k70m.yaml")
+    return Crane(config), config

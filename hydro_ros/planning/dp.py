@@ -1,0 +1,427 @@
+"""Dynamic programming over the extension cylinder's state (P-VI Algorithm 1, thesis Alg. 3.3.1).
+
+State x = (extension cylinder position c, velocity v), control u = its acceleration, Euler steps
+c' = c + T_s v, v' = v + T_s u (P-VI eqs. 30-31). Backward: J_k(x) = min_u L_k(x, u) + J_{k+1}(x')
+with bilinear interpolation of J_{k+1}; every joint position, cylinder velocity and cylinder
+acceleration limit is a hard constraint (the papers' large penalty, here an infinite cost capped
+at ``INFEASIBLE``). Forward: the stored policy is interpolated from any start state.
+
+Why it is fast (dp.md 6.2, "implementation notes"):
+- the IK, the cylinder velocities and the u-independent stage costs are evaluated once per state
+  (N_c x N_v), not per state and control;
+- every cylinder acceleration and force is affine in u (q'' is affine in the extension
+  acceleration; the dynamics are linear in q''), so two IK evaluations (u = 0, 1) give them for
+  all controls, and the admissible controls of a state form one interval of the control grid;
+- c' does not depend on u, so the position interpolation is shared by all controls, and the
+  next velocities v + T_s u fall in a window of a few velocity cells.
+The numba kernel loops over states in parallel and over the admissible controls only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba import njit, prange
+from tqdm import tqdm
+
+from hydro_ros.planning.costs import Cost, cylinder_table, driven_pressure, stage_power, total_pump_flow
+from hydro_ros.planning.crane import Crane
+from hydro_ros.planning.paths import PathSamples
+from hydro_ros.planning.trajectory import ExtensionTrajectory
+
+INFEASIBLE = 1.0e15  # cost-to-go of states with no admissible continuation
+_FEASIBLE_BELOW = 1.0e12  # any interpolation weight on an infeasible node shows above this
+SNAP = 1e-9  # interpolation weights closer than this to 0 or 1 are rounding noise
+
+
+class InfeasibleStart(ValueError):
+    """No admissible trajectory from the requested start state."""
+
+
+@dataclass(frozen=True)
+class DpGrid:
+    """Extension cylinder position x velocity x acceleration grid (P-VI: 356 x 101 x 151)."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    controls: np.ndarray
+
+    @classmethod
+    def for_crane(cls, crane: Crane, sizes: tuple[int, int, int]) -> DpGrid:
+        n_c, n_v, n_u = (int(size) for size in sizes)
+        if min(n_c, n_v, n_u) < 3:
+            raise ValueError(f"DP grid {sizes}: at least 3 points per axis")
+        ext = crane.extension
+        return cls(
+            positions=np.linspace(0.0, ext.stroke_max, n_c),
+            velocities=np.linspace(-ext.velocity_max, ext.velocity_max, n_v),
+            controls=np.linspace(-ext.acceleration_max, ext.acceleration_max, n_u),
+        )
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return len(self.positions), len(self.velocities), len(self.controls)
+
+
+@dataclass
+class StageTerms:
+    """What the Bellman step needs of one path sample, on a set of states."""
+
+    admissible: np.ndarray  # joint positions, IK and cylinder velocities within limits
+    base_cost: np.ndarray  # u-independent stage power (W or m^2/s^2)
+    flow: np.ndarray  # pump flow Q_p (m^3/s)
+    acc_offset: np.ndarray  # cylinder accelerations a_i = acc_offset + acc_slope u, (n_cyl, ...)
+    acc_slope: np.ndarray
+    force_offset: np.ndarray  # cylinder forces F_i = force_offset + force_slope u
+    force_slope: np.ndarray
+    velocity: np.ndarray  # cylinder velocities (n_cyl, ...)
+
+
+def stage_terms(crane: Crane, samples: PathSamples, k: int, c: np.ndarray, v: np.ndarray, cost: Cost) -> StageTerms:
+    with np.errstate(invalid="ignore"):  # unreachable states carry NaN until masked out
+        return _stage_terms(crane, samples, k, c, v, cost)
+
+
+def _stage_terms(crane: Crane, samples: PathSamples, k: int, c: np.ndarray, v: np.ndarray, cost: Cost) -> StageTerms:
+    tip, tip_vel, tip_acc = samples.at(k)
+    c, v = np.asarray(c, dtype=float), np.asarray(v, dtype=float)
+    shape = np.broadcast_shapes(c.shape, v.shape)
+    # u = 0 and u = 1 side by side on a leading axis; the position-level IK runs once per position
+    # when c varies along its own axis (a column) and v along another (a row)
+    control = np.array([0.0, 1.0]).reshape((2,) + (1,) * len(shape))
+    motion = crane.motion(tip, tip_vel, tip_acc, c, v, control, forces=cost.depends_on_control)
+
+    def per_cylinder(values: list[np.ndarray]) -> np.ndarray:
+        return np.stack([np.broadcast_to(value, (2, *shape)) for value in values])
+
+    checks = crane.limit_checks(motion)
+    acc = per_cylinder(motion.a)
+    velocity = per_cylinder(motion.v)[:, 0]
+    admissible = np.broadcast_to(checks["position"] & checks["velocity"], (2, *shape))[0] & np.isfinite(acc).all(axis=(0, 1))
+    flow = np.broadcast_to(total_pump_flow(crane, motion), (2, *shape))[0]
+    if cost.depends_on_control:
+        force = per_cylinder(motion.force)
+        force_offset, force_slope = force[:, 0], force[:, 1] - force[:, 0]
+        base_cost = np.zeros(shape)
+    else:
+        force_offset = force_slope = np.zeros((1, *shape))
+        base_cost = np.broadcast_to(stage_power(cost, crane, motion), (2, *shape))[0]
+    return StageTerms(
+        admissible=admissible,
+        base_cost=np.where(admissible, base_cost, 0.0),
+        flow=np.where(admissible, flow, 0.0),
+        acc_offset=np.nan_to_num(acc[:, 0]),
+        acc_slope=np.nan_to_num(acc[:, 1] - acc[:, 0]),
+        force_offset=np.nan_to_num(force_offset),
+        force_slope=np.nan_to_num(force_slope),
+        velocity=np.nan_to_num(velocity),
+    )
+
+
+_MODES = {Cost.LS: 1, Cost.ACTUATOR: 2}
+
+
+@njit(cache=True)
+def _control_window(
+    acc_offset: np.ndarray,
+    acc_slope: np.ndarray,
+    acc_max: np.ndarray,
+    v: float,
+    v_low: float,
+    v_high: float,
+    controls: np.ndarray,
+    ts: float,
+    accel_limits: bool,
+) -> tuple[float, float]:
+    """The interval of admissible accelerations u of one state (empty when low > high)."""
+    low = max(controls[0], (v_low - v) / ts)
+    high = min(controls[-1], (v_high - v) / ts)
+    if accel_limits:
+        for n in range(acc_offset.shape[0]):
+            a0 = acc_offset[n]
+            slope = acc_slope[n]
+            limit = acc_max[n] * (1.0 + 1e-9)
+            if abs(slope) < 1e-12:
+                if abs(a0) > limit:
+                    return 1.0, -1.0
+                continue
+            u1 = (-limit - a0) / slope
+            u2 = (limit - a0) / slope
+            low = max(low, min(u1, u2))
+            high = min(high, max(u1, u2))
+    return low, high
+
+
+@njit(cache=True)
+def _stage_power_at(
+    mode: int,
+    base_cost: float,
+    flow: float,
+    force_offset: np.ndarray,
+    force_slope: np.ndarray,
+    velocity: np.ndarray,
+    table: np.ndarray,
+    hydraulics: np.ndarray,
+    u: float,
+) -> float:
+    if mode == 0:
+        return base_cost
+    if mode == 1:
+        highest = 0.0
+        for n in range(velocity.shape[0]):
+            pressure = driven_pressure(
+                force_offset[n] + force_slope[n] * u,
+                velocity[n],
+                table[n, 0],
+                table[n, 1],
+                table[n, 2],
+                hydraulics[0],
+                hydraulics[1],
+                hydraulics[2],
+            )
+            highest = max(highest, pressure)
+        return (highest + hydraulics[3]) * flow / hydraulics[4]
+    total = 0.0
+    for n in range(velocity.shape[0]):
+        total += max((force_offset[n] + force_slope[n] * u) * velocity[n], 0.0)
+    return total
+
+
+@njit(cache=True)
+def _snap(weight: float) -> float:
+    """An interpolation weight in [0, 1], rounding noise removed: 1e-15 of an INFEASIBLE node is 1 J."""
+    if weight < SNAP:
+        return 0.0
+    if weight > 1.0 - SNAP:
+        return 1.0
+    return weight
+
+
+@njit(cache=True)
+def _cost_to_go_at(cost_next: np.ndarray, ic: int, wc: float, y: float) -> float:
+    """Bilinear interpolation of J_{k+1} at grid coordinates (ic + wc, y)."""
+    n_v = cost_next.shape[1]
+    jv = min(max(int(math.floor(y)), 0), n_v - 2)
+    wv = _snap(y - jv)
+    return (1.0 - wc) * ((1.0 - wv) * cost_next[ic, jv] + wv * cost_next[ic, jv + 1]) + wc * (
+        (1.0 - wv) * cost_next[ic + 1, jv] + wv * cost_next[ic + 1, jv + 1]
+    )
+
+
+@njit(parallel=True, cache=True)
+def _bellman_step(
+    cost_next: np.ndarray,
+    positions: np.ndarray,
+    velocities: np.ndarray,
+    controls: np.ndarray,
+    ts: float,
+    mode: int,
+    admissible: np.ndarray,
+    base_cost: np.ndarray,
+    flow: np.ndarray,
+    acc_offset: np.ndarray,
+    acc_slope: np.ndarray,
+    acc_max: np.ndarray,
+    force_offset: np.ndarray,
+    force_slope: np.ndarray,
+    velocity: np.ndarray,
+    table: np.ndarray,
+    hydraulics: np.ndarray,
+    accel_limits: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    n_c, n_v = admissible.shape
+    c_step = positions[1] - positions[0]
+    v_step = velocities[1] - velocities[0]
+    u_step = controls[1] - controls[0]
+    y_per_control = ts * u_step / v_step  # next-velocity grid cells per control step
+    cost = np.full((n_c, n_v), INFEASIBLE)
+    policy = np.full((n_c, n_v), np.nan, dtype=np.float32)
+    for i in prange(n_c):
+        for j in range(n_v):
+            if not admissible[i, j]:
+                continue
+            v = velocities[j]
+            x = (positions[i] + ts * v - positions[0]) / c_step
+            if x < -1e-9 or x > n_c - 1 + 1e-9:
+                continue
+            ic = min(max(int(math.floor(x)), 0), n_c - 2)
+            wc = _snap(x - ic)
+            low, high = _control_window(
+                acc_offset[:, i, j], acc_slope[:, i, j], acc_max, v, velocities[0], velocities[-1], controls, ts, accel_limits
+            )
+            if low > high:
+                continue
+            first = max(int(math.ceil((low - controls[0]) / u_step - 1e-9)), 0)
+            last = min(int(math.floor((high - controls[0]) / u_step + 1e-9)), controls.shape[0] - 1)
+            if first > last:
+                continue
+            y_first = (v + ts * controls[first] - velocities[0]) / v_step
+            best = INFEASIBLE
+            best_m = -1
+            if mode == 0:
+                # the stage cost is the same for every control and J_{k+1} is piecewise linear in v':
+                # its minimum over the control samples lies next to a velocity node or at a window end
+                m = first
+                while m <= last:
+                    to_go = _cost_to_go_at(cost_next, ic, wc, y_first + (m - first) * y_per_control)
+                    if to_go < best:
+                        best = to_go
+                        best_m = m
+                    if m == last:
+                        break
+                    y = y_first + (m - first) * y_per_control
+                    node = math.floor(y + 1e-12) + 1.0  # next velocity node above this sample
+                    jump = int(math.floor((node - y_first) / y_per_control + 1e-9)) + first
+                    m = min(max(jump, m + 1), last) if jump > m else m + 1
+                if best_m >= 0:
+                    best += ts * base_cost[i, j]
+            else:
+                f_offset = force_offset[:, i, j].copy()
+                f_slope = force_slope[:, i, j].copy()
+                cyl_velocity = velocity[:, i, j].copy()
+                for m in range(first, last + 1):
+                    u = controls[m]
+                    stage = _stage_power_at(
+                        mode, 0.0, flow[i, j], f_offset, f_slope, cyl_velocity, table, hydraulics, u
+                    )
+                    total = ts * stage + _cost_to_go_at(cost_next, ic, wc, y_first + (m - first) * y_per_control)
+                    if total < best:
+                        best = total
+                        best_m = m
+            if best_m >= 0:
+                cost[i, j] = min(best, INFEASIBLE)
+                policy[i, j] = controls[best_m]
+    return cost, policy
+
+
+def terminal_cost(crane: Crane, samples: PathSamples, grid: DpGrid) -> np.ndarray:
+    """Zero at rest at a feasible final position, infeasible otherwise (dp.md 6.5, INFERRED)."""
+    terms = stage_terms(crane, samples, samples.stages, grid.positions[:, None], grid.velocities[None, :], Cost.CP)
+    at_rest = np.isclose(grid.velocities, 0.0, atol=1e-12)[None, :]
+    return np.where(terms.admissible & at_rest, 0.0, INFEASIBLE)
+
+
+@dataclass
+class DpSolution:
+    """Cost-to-go and policy tables of one path and cost; ``forward`` starts from any state."""
+
+    crane: Crane
+    samples: PathSamples
+    grid: DpGrid
+    cost: Cost
+    acceleration_limits: bool
+    cost_to_go: np.ndarray  # (N+1, N_c, N_v), J in J (or the velocity costs' units times s)
+    policy: np.ndarray  # (N, N_c, N_v) float32 acceleration, NaN where infeasible
+
+    def feasible_starts(self) -> np.ndarray:
+        """Grid positions from which the path can be run from rest."""
+        j0 = int(np.argmin(np.abs(self.grid.velocities)))
+        return self.grid.positions[self.cost_to_go[0, :, j0] < _FEASIBLE_BELOW]
+
+    def forward(self, start_position: float, start_velocity: float = 0.0) -> ExtensionTrajectory:
+        """Forward simulation with the interpolated policy (Algorithm 1, forward phase).
+
+        The interpolation uses the admissible neighbours only (renormalised weights) and the
+        control is clipped into the state's exact admissible interval, so no limit is crossed
+        between grid nodes. Raises InfeasibleStart when a state has no admissible control.
+        """
+        grid, ts = self.grid, self.samples.time[1] - self.samples.time[0]
+        n = self.samples.stages
+        c = np.empty(n + 1)
+        v = np.empty(n + 1)
+        a = np.zeros(n + 1)
+        c[0], v[0] = float(start_position), float(start_velocity)
+        table = cylinder_table(self.crane)
+        for k in range(n):
+            terms = stage_terms(self.crane, self.samples, k, np.array(c[k]), np.array(v[k]), self.cost)
+            where = f"start c = {c[0]:.4f} m, v = {v[0]:.4f} m/s: stage {k} (t = {self.samples.time[k]:.2f} s)"
+            if not terms.admissible:
+                raise InfeasibleStart(f"{where}: state violates a position or velocity limit")
+            low, high = _control_window(
+                terms.acc_offset, terms.acc_slope, table[:, 5], v[k], grid.velocities[0], grid.velocities[-1],
+                grid.controls, ts, self.acceleration_limits,
+            )
+            u = _interpolate_policy(self.policy[k], self.cost_to_go[k], grid, c[k], v[k])
+            if u is None or low > high + 1e-12:
+                raise InfeasibleStart(f"{where}: no admissible acceleration")
+            a[k] = min(max(u, low), high)
+            c[k + 1] = c[k] + ts * v[k]
+            v[k + 1] = v[k] + ts * a[k]
+        return ExtensionTrajectory(c, v, a, ts)
+
+
+def _interpolate_policy(policy: np.ndarray, cost: np.ndarray, grid: DpGrid, c: float, v: float) -> float | None:
+    x = np.interp(c, grid.positions, np.arange(len(grid.positions)))
+    y = np.interp(v, grid.velocities, np.arange(len(grid.velocities)))
+    i = min(int(x), len(grid.positions) - 2)
+    j = min(int(y), len(grid.velocities) - 2)
+    wc, wv = x - i, y - j
+    total = weight_sum = 0.0
+    for di, dj, weight in ((0, 0, (1 - wc) * (1 - wv)), (0, 1, (1 - wc) * wv), (1, 0, wc * (1 - wv)), (1, 1, wc * wv)):
+        if weight > 0.0 and cost[i + di, j + dj] < _FEASIBLE_BELOW:
+            total += weight * float(policy[i + di, j + dj])
+            weight_sum += weight
+    return total / weight_sum if weight_sum > 0.0 else None
+
+
+def solve(
+    crane: Crane,
+    samples: PathSamples,
+    cost: Cost,
+    grid: DpGrid,
+    *,
+    acceleration_limits: bool = True,
+    progress: bool = False,
+) -> DpSolution:
+    """Backward phase of Algorithm 1 on the grid; returns the tables."""
+    c, v = grid.positions[:, None], grid.velocities[None, :]
+    n = samples.stages
+    ts = float(samples.time[1] - samples.time[0])
+    cost_to_go = np.empty((n + 1, len(grid.positions), len(grid.velocities)))
+    policy = np.empty((n, len(grid.positions), len(grid.velocities)), dtype=np.float32)
+    cost_to_go[n] = terminal_cost(crane, samples, grid)
+    table = cylinder_table(crane)
+    h = crane.hydraulics
+    hydraulics = np.array(
+        [h["compensator_drop"], h["tank_pressure"], h["drive_threshold"], h["ls_margin"], h["efficiency"]]
+    )
+    mode = _MODES.get(cost, 0)
+    for k in tqdm(range(n - 1, -1, -1), desc=f"DP {cost.value} backward", unit="stage", disable=not progress):
+        terms = stage_terms(crane, samples, k, c, v, cost)
+        cost_to_go[k], policy[k] = _bellman_step(
+            cost_to_go[k + 1], grid.positions, grid.velocities, grid.controls, ts, mode,
+            terms.admissible, terms.base_cost, terms.flow, terms.acc_offset, terms.acc_slope, table[:, 5],
+            terms.force_offset, terms.force_slope, terms.velocity, table, hydraulics, acceleration_limits,
+        )
+    return DpSolution(crane, samples, grid, cost, acceleration_limits, cost_to_go, policy)
+
+
+def start_position(crane: Crane, samples: PathSamples, grid: DpGrid, which: str = "smallest") -> float:
+    """Initial extension of P-V / P-VI: the smallest feasible grid position at the path start at rest,
+    or the grid position midway between the smallest and largest (P-VI's second configuration)."""
+    zero = np.zeros_like(grid.positions)
+    terms = stage_terms(crane, samples, 0, grid.positions, zero, Cost.CP)
+    feasible = grid.positions[terms.admissible]
+    if feasible.size == 0:
+        raise InfeasibleStart(f"path start {samples.position[0].tolist()}: no extension reaches it within the joint limits")
+    if which == "smallest":
+        return float(feasible[0])
+    if which == "middle":
+        middle = 0.5 * (feasible[0] + feasible[-1])
+        return float(grid.positions[np.argmin(np.abs(grid.positions - middle))])
+    raise ValueError(f"start {which!r} (smallest or middle)")
+
+
+def solution_summary(solution: DpSolution, start: float) -> dict[str, Any]:
+    j0 = int(np.argmin(np.abs(solution.grid.velocities)))
+    i0 = int(np.argmin(np.abs(solution.grid.positions - start)))
+    return {
+        "cost": solution.cost.value,
+        "grid": list(solution.grid.shape),
+        "stages": int(solution.samples.stages),
+        "acceleration_limits": solution.acceleration_limits,
+        "predicted_cost": float(solution.cost_to_go[0, i0, j0]),
+    }

@@ -1,0 +1,110 @@
+"""Extension trajectories, their full crane motion and their evaluation (energies, limits, tip error).
+
+Every method of the comparison hands over the extension cylinder's position samples; velocity and
+acceleration follow by the forward differences of the DP's Euler model (c_{k+1} = c_k + T_s v_k,
+v_{k+1} = v_k + T_s a_k), and the other joints by inverse kinematics, so all methods are scored by
+one function on the same footing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.signal import butter, filtfilt
+
+from hydro_ros.planning.costs import Cost, ls_supply_pressure, stage_power, total_pump_flow
+from hydro_ros.planning.crane import Crane, Motion
+from hydro_ros.planning.paths import PathSamples
+
+# limits hold to 0.5 % after the 5 Hz filter and the differencing (claims are checked against this)
+LIMIT_TOLERANCE = 0.005
+
+
+@dataclass(frozen=True)
+class ExtensionTrajectory:
+    """Extension cylinder position, velocity and acceleration at t_k, k = 0..N."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    sample_time: float
+
+    @classmethod
+    def from_positions(cls, position: np.ndarray, sample_time: float, final_velocity: float = 0.0) -> ExtensionTrajectory:
+        position = np.asarray(position, dtype=float)
+        velocity = np.append(np.diff(position) / sample_time, final_velocity)
+        acceleration = np.append(np.diff(velocity) / sample_time, 0.0)
+        return cls(position, velocity, acceleration, sample_time)
+
+    def filtered(self, cutoff_hz: float) -> ExtensionTrajectory:
+        """Zero-phase 2nd-order Butterworth low-pass of the position (INFERRED filter; P-VI only says 5 Hz).
+
+        Padding with the end values keeps the rest-to-rest ends at rest; the other joints are
+        recomputed by IK afterwards, so the tip path stays exact.
+        """
+        nyquist = 0.5 / self.sample_time
+        if cutoff_hz >= nyquist:
+            return self
+        b, a = butter(2, cutoff_hz / nyquist)
+        pad = min(3 * max(len(a), len(b)), len(self.position) - 1)
+        smooth = filtfilt(b, a, self.position, padtype="constant", padlen=pad)
+        return ExtensionTrajectory.from_positions(smooth, self.sample_time, final_velocity=0.0)
+
+
+def crane_motion(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory) -> Motion:
+    """Joint and cylinder motion of every sample (vectorised over k)."""
+    return crane.motion(
+        tuple(samples.position.T),
+        tuple(samples.velocity.T),
+        tuple(samples.acceleration.T),
+        trajectory.position,
+        trajectory.velocity,
+        trajectory.acceleration,
+    )
+
+
+def evaluate(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory) -> dict[str, Any]:
+    """Energies (sum over stages k < N of T_s times the stage power), limit checks and tip error."""
+    motion = crane_motion(crane, samples, trajectory)
+    ts = trajectory.sample_time
+    stages = slice(0, samples.stages)
+    checks = crane.limit_checks(motion, tolerance=LIMIT_TOLERANCE)
+    checks["acceleration"][-1] = True  # a_N is not applied: the motion ends at t_N
+    q = np.stack(motion.q, axis=-1)
+    tip_error = np.linalg.norm(crane.forward(q) - samples.position, axis=-1)
+    flow = total_pump_flow(crane, motion)
+    supply = ls_supply_pressure(crane, motion)
+    result: dict[str, Any] = {
+        "cp_energy_J": float(ts * stage_power(Cost.CP, crane, motion)[stages].sum()),
+        "ls_energy_J": float(ts * stage_power(Cost.LS, crane, motion)[stages].sum()),
+        "actuator_energy_J": float(ts * stage_power(Cost.ACTUATOR, crane, motion)[stages].sum()),
+        "extension_velocity_cost": float(ts * stage_power(Cost.EXTENSION, crane, motion)[stages].sum()),
+        "pump_flow_peak_m3s": float(np.nanmax(flow)),
+        "ls_supply_pressure_peak_Pa": float(np.nanmax(supply[stages])),
+        "tip_error_max_m": float(np.nanmax(tip_error)) if np.isfinite(tip_error).all() else float("inf"),
+        "final_velocity": float(np.abs(np.stack(motion.qd, axis=-1)[-1]).max()),
+        "limits": {kind: bool(mask.all()) for kind, mask in checks.items()},
+    }
+    result["limit_margins"] = _margins(crane, motion)
+    return result
+
+
+def _margins(crane: Crane, motion: Motion) -> dict[str, float]:
+    """Largest use of each limit kind as a fraction of the limit (1.0 = at the limit)."""
+    velocity = max(float(np.nanmax(np.abs(v))) / c.velocity_max for c, v in zip(crane.cylinders, motion.v))
+    acceleration = max(float(np.nanmax(np.abs(a[:-1]))) / c.acceleration_max for c, a in zip(crane.cylinders, motion.a))
+    return {"velocity": velocity, "acceleration": acceleration}
+
+
+def joint_table(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory) -> dict[str, Any]:
+    """The joint trajectory as JSON-ready lists (positions, velocities, accelerations per joint)."""
+    motion = crane_motion(crane, samples, trajectory)
+    return {
+        "joint_names": crane.names,
+        "time_s": samples.time.tolist(),
+        "positions": np.stack(motion.q, axis=-1).tolist(),
+        "velocities": np.stack(motion.qd, axis=-1).tolist(),
+        "accelerations": np.stack(motion.qdd, axis=-1).tolist(),
+    }
