@@ -200,6 +200,66 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     return 0
 
 
+def _dp_problem(args: argparse.Namespace):  # noqa: ANN202 - planning types imported lazily
+    from hydro_ros.planning.compare import Problem
+    from hydro_ros.planning.crane import load_crane
+
+    out = Path(args.json)
+    if not out.parent.is_dir():
+        raise CliError(f"--json {out}: directory {out.parent} does not exist")
+    crane, config = load_crane(args.config)
+    return Problem.build(crane, config, args.path, grid=tuple(args.grid) if args.grid else None, start=args.start), out
+
+
+def cmd_dp_solve(args: argparse.Namespace) -> int:
+    from hydro_ros.planning.compare import method_record, plan_dp
+    from hydro_ros.planning.costs import Cost
+    from hydro_ros.planning.trajectory import joint_table
+
+    problem, out = _dp_problem(args)
+    plan = plan_dp(problem, Cost(args.cost), progress=not args.quiet)
+    record = method_record(plan)
+    result = {
+        "machine": problem.crane.name,
+        "path": problem.path.path_id,
+        "cost": args.cost,
+        "start_position_m": problem.start,
+        "grid": list(problem.grid.shape),
+        "stages": problem.samples.stages,
+        **record,
+        "trajectory": joint_table(problem.crane, problem.samples, plan.trajectory),
+    }
+    out.write_text(json.dumps(result, indent=1) + "\n")
+    print(
+        f"dp {args.cost} on {problem.path.path_id}: CP {record['cp_energy_J'] / 1e3:.1f} kJ, LS {record['ls_energy_J'] / 1e3:.1f} kJ, "
+        f"limits {'ok' if record['limits_ok'] else 'VIOLATED'}, {plan.seconds:.1f} s"
+    )
+    return 0
+
+
+def cmd_dp_compare(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hydro_ros.planning.compare import CONTRACT_METHODS, METHODS, compare, markdown_table
+    from hydro_ros.plots import plot_dp_compare
+
+    problem, out = _dp_problem(args)
+    methods = tuple(METHODS) if args.all_methods else CONTRACT_METHODS
+    with tqdm(total=len(methods), unit="method", desc="dp compare", disable=args.quiet) as bar:
+
+        def done(method: str) -> None:
+            bar.set_postfix_str(method)
+            bar.update(1)
+
+        result = compare(problem, methods, progress=done)
+    table = markdown_table(result)
+    result["plot"] = str(plot_dp_compare(result, out.with_suffix(".png")))
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    out.with_suffix(".md").write_text(table + "\n")
+    print(table)
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bag_player import replay
 
@@ -283,6 +343,25 @@ def build_parser() -> argparse.ArgumentParser:
     disc.add_argument("--out", required=True, help="directory for report.json, model.yaml and plots")
     disc.add_argument("--quiet", action="store_true", help="no progress bar")
     disc.set_defaults(func=cmd_discrepancy)
+
+    dp_cmd = sub.add_parser("dp", help="energy-optimal redundancy resolution of a crane path (P-V, P-VI)")
+    dp_sub = dp_cmd.add_subparsers(dest="dp_command", required=True)
+    for name, helptext in (
+        ("solve", "DP on one cost: joint trajectory, energies and limits (JSON)"),
+        ("compare", "DP on every cost, pseudo-inverses and direct collocation on one path (JSON, table, bar chart)"),
+    ):
+        cmd = dp_sub.add_parser(name, help=helptext)
+        cmd.add_argument("--config", required=True, help="crane config: config/k70m.yaml or config/crane3dof.yaml")
+        cmd.add_argument("--path", required=True, help="path id of the config (k70m: horizontal, vertical, half_cycle; crane3dof: triangle)")
+        if name == "solve":
+            cmd.add_argument("--cost", required=True, choices=["cp", "ls", "actuator", "extension", "velocity"], help="DP stage cost")
+        else:
+            cmd.add_argument("--all-methods", action="store_true", help="also P-V's DP (Act. velocity) and weighted pseudo-inverse")
+        cmd.add_argument("--json", required=True, help="output JSON (compare: the table .md and plot .png go beside it)")
+        cmd.add_argument("--grid", type=int, nargs=3, metavar=("N_C", "N_V", "N_U"), help="DP grid (default: the config's dp.grid)")
+        cmd.add_argument("--start", choices=["smallest", "middle"], default="smallest", help="initial extension (P-VI's two configurations)")
+        cmd.add_argument("--quiet", action="store_true", help="no progress bar")
+        cmd.set_defaults(func=cmd_dp_solve if name == "solve" else cmd_dp_compare)
 
     replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
     replay.add_argument("bag", help="bag directory")

@@ -164,3 +164,27 @@ def plot_discrepancy(rec, config: dict, before, after, effects: dict, out: str |
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def plot_dp_compare(result: dict, out: str | Path) -> Path:
+    """Bar chart of CP and LS energy per method, like P-VI Figs. 10-12 (a)."""
+    methods = sorted(result["methods"], key=lambda name: result["methods"][name]["cp_energy_J"])
+    cp = [result["methods"][name]["cp_energy_J"] / 1e3 for name in methods]
+    ls = [result["methods"][name]["ls_energy_J"] / 1e3 for name in methods]
+    x = np.arange(len(methods))
+    fig, ax = plt.subplots(figsize=(1.1 * len(methods) + 3, 4))
+    ax.bar(x - 0.2, cp, 0.4, label="CP system")
+    ax.bar(x + 0.2, ls, 0.4, label="LS system")
+    for xi, name in zip(x, methods):
+        if not result["methods"][name]["limits_ok"]:
+            ax.annotate("limits!", (xi, max(cp[xi], ls[xi])), ha="center", va="bottom", color="red")
+    ax.set_xticks(x, methods, rotation=30, ha="right")
+    ax.set_ylabel("hydraulic energy [kJ]")
+    ax.set_title(f"{result['machine']} / {result['path']}: energy per method")
+    ax.legend()
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

@@ -397,7 +397,10 @@ def _cylinder(entry: dict[str, Any]) -> Cylinder:
 
 def load_crane(path: str | Path) -> tuple[Crane, dict[str, Any]]:
     """The crane of a machine config and the config itself (one-line ConfigError on bad input)."""
-    config = read_config(path, required=_REQUIRED_KEYS, nonempty="joints")
+    config = read_config(path, required=("machine",), nonempty="machine")
     if config.get("kind") != "crane":
         raise ConfigError(f"config {path}: not a crane config (kind: crane); DP needs crane3dof.yaml or k70m.yaml")
+    missing = [key for key in _REQUIRED_KEYS if not config.get(key)]
+    if missing:
+        raise ConfigError(f"config {path}: missing key(s) {', '.join(missing)}")
     return Crane(config), config

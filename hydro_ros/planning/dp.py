@@ -322,19 +322,24 @@ class DpSolution:
         return self.grid.positions[self.cost_to_go[0, :, j0] < _FEASIBLE_BELOW]
 
     def forward(self, start_position: float, start_velocity: float = 0.0) -> ExtensionTrajectory:
-        """Forward simulation with the interpolated policy (Algorithm 1, forward phase).
+        """Forward simulation from any state (Algorithm 1, forward phase).
 
-        The interpolation uses the admissible neighbours only (renormalised weights) and the
-        control is clipped into the state's exact admissible interval, so no limit is crossed
-        between grid nodes. Raises InfeasibleStart when a state has no admissible control.
+        At the actual (off-grid) state the step takes the control that minimises stage cost plus
+        the interpolated cost-to-go over the admissible controls: the grid's controls inside the
+        state's exact admissible interval, that interval's ends and the interpolated policy. Pure
+        policy interpolation (the paper's forward pass) can drift off the feasible set between grid
+        nodes on a fast path (P-VI vertical); this cannot cross a limit and costs a few ms more.
+        Raises InfeasibleStart when a state has no admissible control.
         """
-        grid, ts = self.grid, self.samples.time[1] - self.samples.time[0]
+        grid, ts = self.grid, float(self.samples.time[1] - self.samples.time[0])
         n = self.samples.stages
         c = np.empty(n + 1)
         v = np.empty(n + 1)
         a = np.zeros(n + 1)
         c[0], v[0] = float(start_position), float(start_velocity)
         table = cylinder_table(self.crane)
+        hydraulics = _hydraulics(self.crane)
+        mode = _MODES.get(self.cost, 0)
         for k in range(n):
             terms = stage_terms(self.crane, self.samples, k, np.array(c[k]), np.array(v[k]), self.cost)
             where = f"start c = {c[0]:.4f} m, v = {v[0]:.4f} m/s: stage {k} (t = {self.samples.time[k]:.2f} s)"
@@ -344,13 +349,36 @@ class DpSolution:
                 terms.acc_offset, terms.acc_slope, table[:, 5], v[k], grid.velocities[0], grid.velocities[-1],
                 grid.controls, ts, self.acceleration_limits,
             )
-            u = _interpolate_policy(self.policy[k], self.cost_to_go[k], grid, c[k], v[k])
-            if u is None or low > high + 1e-12:
+            x = (c[k] + ts * v[k] - grid.positions[0]) / (grid.positions[1] - grid.positions[0])
+            if low > high + 1e-12 or not -1e-9 <= x <= len(grid.positions) - 1 + 1e-9:
                 raise InfeasibleStart(f"{where}: no admissible acceleration")
-            a[k] = min(max(u, low), high)
+            ic = min(max(int(np.floor(x)), 0), len(grid.positions) - 2)
+            wc = _snap(x - ic)
+            candidates = [u for u in grid.controls if low <= u <= high] + [low, high]
+            guided = _interpolate_policy(self.policy[k], self.cost_to_go[k], grid, c[k], v[k])
+            if guided is not None:
+                candidates.append(min(max(guided, low), high))
+            best, best_u = np.inf, None
+            for u in candidates:
+                y = (v[k] + ts * u - grid.velocities[0]) / (grid.velocities[1] - grid.velocities[0])
+                stage = _stage_power_at(
+                    mode, float(terms.base_cost), float(terms.flow), terms.force_offset, terms.force_slope, terms.velocity,
+                    table, hydraulics, u,
+                )
+                total = ts * stage + _cost_to_go_at(self.cost_to_go[k + 1], ic, wc, y)
+                if total < best:
+                    best, best_u = total, u
+            if best >= _FEASIBLE_BELOW:
+                raise InfeasibleStart(f"{where}: every admissible acceleration leads to an infeasible state")
+            a[k] = best_u
             c[k + 1] = c[k] + ts * v[k]
             v[k + 1] = v[k] + ts * a[k]
         return ExtensionTrajectory(c, v, a, ts)
+
+
+def _hydraulics(crane: Crane) -> np.ndarray:
+    h = crane.hydraulics
+    return np.array([h["compensator_drop"], h["tank_pressure"], h["drive_threshold"], h["ls_margin"], h["efficiency"]])
 
 
 def _interpolate_policy(policy: np.ndarray, cost: np.ndarray, grid: DpGrid, c: float, v: float) -> float | None:
@@ -384,10 +412,7 @@ def solve(
     policy = np.empty((n, len(grid.positions), len(grid.velocities)), dtype=np.float32)
     cost_to_go[n] = terminal_cost(crane, samples, grid)
     table = cylinder_table(crane)
-    h = crane.hydraulics
-    hydraulics = np.array(
-        [h["compensator_drop"], h["tank_pressure"], h["drive_threshold"], h["ls_margin"], h["efficiency"]]
-    )
+    hydraulics = _hydraulics(crane)
     mode = _MODES.get(cost, 0)
     for k in tqdm(range(n - 1, -1, -1), desc=f"DP {cost.value} backward", unit="stage", disable=not progress):
         terms = stage_terms(crane, samples, k, c, v, cost)

@@ -8,11 +8,12 @@ one function on the same footing.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.signal import butter, filtfilt
+from scipy.ndimage import gaussian_filter1d
 
 from hydro_ros.planning.costs import Cost, ls_supply_pressure, stage_power, total_pump_flow
 from hydro_ros.planning.crane import Crane, Motion
@@ -39,17 +40,16 @@ class ExtensionTrajectory:
         return cls(position, velocity, acceleration, sample_time)
 
     def filtered(self, cutoff_hz: float) -> ExtensionTrajectory:
-        """Zero-phase 2nd-order Butterworth low-pass of the position (INFERRED filter; P-VI only says 5 Hz).
+        """Zero-phase low-pass of the position with -3 dB at ``cutoff_hz`` (P-VI: 5 Hz, filter type NOT GIVEN).
 
-        Padding with the end values keeps the rest-to-rest ends at rest; the other joints are
-        recomputed by IK afterwards, so the tip path stays exact.
+        INFERRED choice: a Gaussian kernel. Its impulse response is non-negative, so the filtered
+        extension velocity and acceleration are averages of the DP's and stay within the limits
+        the DP enforced (a Butterworth's ringing pushed a bang-bang acceleration 3 % over its
+        limit). Edges are padded with the end values, which keeps the rest-to-rest ends at rest;
+        the other joints are recomputed by IK afterwards, so the tip path stays exact.
         """
-        nyquist = 0.5 / self.sample_time
-        if cutoff_hz >= nyquist:
-            return self
-        b, a = butter(2, cutoff_hz / nyquist)
-        pad = min(3 * max(len(a), len(b)), len(self.position) - 1)
-        smooth = filtfilt(b, a, self.position, padtype="constant", padlen=pad)
+        sigma_s = math.sqrt(math.log(2.0)) / (2.0 * math.pi * cutoff_hz)
+        smooth = gaussian_filter1d(self.position, sigma_s / self.sample_time, mode="nearest", truncate=6.0)
         return ExtensionTrajectory.from_positions(smooth, self.sample_time, final_velocity=0.0)
 
 

@@ -1,0 +1,175 @@
+"""The methods DP is compared with (dp.md section 8): SNS pseudo-inverses and direct collocation.
+
+- ``pseudo_inverse``: instantaneous minimum-norm velocities in actuator space (P-V "Act. p-inv.",
+  P-VI "P-inv. (a.)"; optionally weighted by the pump areas, P-V "weighted") or joint space
+  (P-VI "P-inv. (j.)"), with the joint-limit saturation of Flacco, De Luca & Khatib (SNS) moved to
+  actuator space: a component that would cross its velocity or stroke bound is saturated and the
+  rest re-solved, without task scaling, so the path holds (INFERRED: the papers cite SNS, not its
+  details). Only the extension is integrated; the other joints come from IK, so the tip path is
+  exact. Acceleration limits are not claimed.
+- ``direct_collocation``: the reduced problem (state: extension position and velocity, control:
+  its acceleration) transcribed by trapezoidal collocation and solved by IPOPT through CasADi, in
+  place of DIDO / fmincon. The node count is bootstrapped 20 -> 30 -> 60 -> 90 as P-V did with DIDO,
+  each solution seeding the next; the first is seeded with the joint-space pseudo-inverse. The
+  pump flow's Heaviside steps are written with a smooth |v| (sum (A_ext + A_ret)/2 |v| +
+  (A_ext - A_ret)/2 v, identical to eq. 27 away from v = 0).
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+from scipy.interpolate import CubicHermiteSpline
+
+from hydro_ros.planning.crane import Crane
+from hydro_ros.planning.paths import PathSamples, TipPath
+from hydro_ros.planning.trajectory import ExtensionTrajectory
+
+BOOTSTRAP_NODES = (20, 30, 60, 90)
+SMOOTH_ABS = 1e-4  # m/s: |v| ~ sqrt(v^2 + SMOOTH_ABS^2) in the direct method's pump flow
+
+
+def _sns(jacobian: np.ndarray, target: np.ndarray, low: np.ndarray, high: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
+    """min 1/2 x^T W x s.t. J x = target, saturating components at [low, high] one at a time."""
+    n = jacobian.shape[1]
+    fixed = np.zeros(n, dtype=bool)
+    x = np.zeros(n)
+    while True:
+        free = ~fixed
+        jf = jacobian[:, free]
+        w_inv = 1.0 / weights[free]
+        rhs = target - jacobian[:, fixed] @ x[fixed]
+        gram = (jf * w_inv) @ jf.T
+        if np.linalg.matrix_rank(gram) < jacobian.shape[0]:
+            return x, False
+        x[free] = w_inv * (jf.T @ np.linalg.solve(gram, rhs))
+        over = np.maximum(x - high, 0.0) + np.maximum(low - x, 0.0)
+        over[fixed] = 0.0
+        if not (over > 1e-12).any():
+            return x, True
+        # the most critical component: the largest violation relative to its admissible span
+        worst = int(np.argmax(over / np.maximum(high - low, 1e-12)))
+        x[worst] = min(max(x[worst], low[worst]), high[worst])
+        fixed[worst] = True
+        if fixed.all():
+            return x, False
+
+
+def pseudo_inverse(
+    crane: Crane, samples: PathSamples, start_position: float, *, space: str = "actuator", weighted: bool = False
+) -> tuple[ExtensionTrajectory, dict[str, Any]]:
+    """SNS pseudo-inverse run along the path from rest at ``start_position`` (extension stroke)."""
+    if space not in ("actuator", "joint"):
+        raise ValueError(f"pseudo-inverse space {space!r} (actuator or joint)")
+    ts = float(samples.time[1] - samples.time[0])
+    n = samples.stages
+    position = np.empty(n + 1)
+    position[0] = start_position
+    previous = np.zeros(len(crane.cylinders))
+    saturated_steps = failed_steps = 0
+    for k in range(n):
+        tip, tip_vel, tip_acc = samples.at(k)
+        motion = crane.motion(tip, tip_vel, tip_acc, position[k], 0.0, 0.0, forces=False)
+        q = np.array([float(value) for value in motion.q])
+        jac = crane.jacobian(q)
+        arms = np.array([float(cylinder.arm(qi)[0]) for cylinder, qi in zip(crane.cylinders, q)])
+        stroke = np.array([float(value) for value in motion.c])
+        target = np.asarray(samples.velocity[k][: crane.task_dim])
+        v_max = np.array([c.velocity_max for c in crane.cylinders])
+        s_max = np.array([c.stroke_max for c in crane.cylinders])
+        v_low = np.maximum(-v_max, -stroke / ts)
+        v_high = np.minimum(v_max, (s_max - stroke) / ts)
+        if space == "actuator":
+            jacobian = jac / arms  # J D^-1: task velocity per cylinder velocity
+            low, high = v_low, v_high
+            areas = np.array([c.pump_area_extend if p >= 0 else c.pump_area_retract for c, p in zip(crane.cylinders, previous)])
+            weights = np.maximum(areas, 1e-6) if weighted else np.ones_like(arms)
+        else:
+            jacobian = jac
+            bounds = np.stack([v_low / arms, v_high / arms])
+            low, high = bounds.min(axis=0), bounds.max(axis=0)
+            weights = np.ones_like(arms)
+        rates, ok = _sns(jacobian, target, low, high, weights)
+        cylinder_velocity = rates if space == "actuator" else rates * arms
+        saturated_steps += int(np.any(np.isclose(rates, low) | np.isclose(rates, high)) and ok)
+        failed_steps += int(not ok)
+        previous = cylinder_velocity
+        position[k + 1] = position[k] + ts * cylinder_velocity[-1]
+    trajectory = ExtensionTrajectory.from_positions(position, ts, final_velocity=0.0)
+    return trajectory, {"saturated_steps": saturated_steps, "unsatisfiable_steps": failed_steps}
+
+
+def _casadi_math() -> SimpleNamespace:
+    import casadi as ca
+
+    return SimpleNamespace(
+        cos=ca.cos, sin=ca.sin, atan2=ca.atan2, acos=ca.acos, sqrt=ca.sqrt, tanh=ca.tanh, clip_unit=lambda value: value
+    )
+
+
+def direct_collocation(
+    crane: Crane,
+    path: TipPath,
+    samples: PathSamples,
+    start_position: float,
+    initial_guess: ExtensionTrajectory,
+    *,
+    nodes: tuple[int, ...] = BOOTSTRAP_NODES,
+) -> tuple[ExtensionTrajectory, dict[str, Any]]:
+    """Minimum CP energy by trapezoidal direct collocation + IPOPT, bootstrapped over ``nodes``."""
+    import casadi as ca
+
+    xp = _casadi_math()
+    h = crane.hydraulics
+    guess_time, guess_c, guess_v = samples.time, initial_guess.position, initial_guess.velocity
+    stats: dict[str, Any] = {"nodes": list(nodes), "ipopt": []}
+    for count in nodes:
+        times = np.linspace(0.0, path.duration, count + 1)
+        step = path.duration / count
+        position, velocity, acceleration = path.evaluate(times)
+        opti = ca.Opti()
+        c = opti.variable(count + 1)
+        v = opti.variable(count + 1)
+        a = opti.variable(count + 1)
+        opti.subject_to(c[1:] == c[:-1] + 0.5 * step * (v[1:] + v[:-1]))
+        opti.subject_to(v[1:] == v[:-1] + 0.5 * step * (a[1:] + a[:-1]))
+        opti.subject_to(c[0] == start_position)
+        opti.subject_to(v[0] == 0.0)
+        opti.subject_to(v[-1] == 0.0)
+        columns = [[ca.DM(values[:, axis]) for axis in range(3)] for values in (position, velocity, acceleration)]
+        motion = crane.motion(*columns, c, v, a, xp=xp, forces=False)
+        flow = 0.0
+        decision = ca.vertcat(c, v, a)
+        for cylinder, qi, vi, ai in zip(crane.cylinders, motion.q, motion.v, motion.a):
+            for value, low, high in (
+                (qi, cylinder.q_min, cylinder.q_max),
+                (vi, -cylinder.velocity_max, cylinder.velocity_max),
+                (ai, -cylinder.acceleration_max, cylinder.acceleration_max),
+            ):
+                if ca.depends_on(value, decision):  # the base follows the path alone: nothing to decide
+                    opti.subject_to(opti.bounded(low, value, high))
+            mean = 0.5 * (cylinder.pump_area_extend + cylinder.pump_area_retract)
+            half = 0.5 * (cylinder.pump_area_extend - cylinder.pump_area_retract)
+            flow = flow + mean * ca.sqrt(vi * vi + SMOOTH_ABS**2) + half * vi
+        power = h["supply_pressure_cp"] * flow / h["efficiency"]
+        opti.minimize(0.5 * step * (ca.sum1(power[:-1]) + ca.sum1(power[1:])))
+        opti.set_initial(c, np.interp(times, guess_time, guess_c))
+        opti.set_initial(v, np.interp(times, guess_time, guess_v))
+        opti.set_initial(a, np.gradient(np.interp(times, guess_time, guess_v), times))
+        opti.solver("ipopt", {"print_time": False}, {"print_level": 0, "sb": "yes", "max_iter": 3000, "tol": 1e-8})
+        try:
+            solution = opti.solve()
+            guess_c, guess_v = np.asarray(solution.value(c)).ravel(), np.asarray(solution.value(v)).ravel()
+            status = solution.stats()["return_status"]
+        except RuntimeError:
+            guess_c, guess_v = np.asarray(opti.debug.value(c)).ravel(), np.asarray(opti.debug.value(v)).ravel()
+            status = opti.stats()["return_status"]
+        guess_time = times
+        stats["ipopt"].append({"nodes": count, "status": status})
+    # the collocation polynomial between nodes: cubic Hermite through (c, v), sampled at T_s
+    reconstruction = CubicHermiteSpline(guess_time, guess_c, guess_v)
+    trajectory = ExtensionTrajectory.from_positions(reconstruction(samples.time), float(samples.time[1]), final_velocity=0.0)
+    stats["converged"] = all(entry["status"] == "Solve_Succeeded" for entry in stats["ipopt"])
+    return trajectory, stats

@@ -1,0 +1,178 @@
+"""`hydro-ros dp solve` / `dp compare`: one path, one or all methods, scored by one evaluation.
+
+Every method starts from rest at the same extension (the smallest feasible one, P-V / P-VI's first
+initial configuration, or P-VI's midpoint), runs the same path samples, and is scored by
+``trajectory.evaluate`` (CP and LS energy, limits, tip error). DP references are low-pass filtered
+at 5 Hz before scoring, as P-V computed its costs after filtering.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from hydro_ros.planning.baselines import direct_collocation, pseudo_inverse
+from hydro_ros.planning.costs import Cost
+from hydro_ros.planning.crane import Crane
+from hydro_ros.planning.dp import DpGrid, DpSolution, solve, start_position
+from hydro_ros.planning.paths import PathSamples, TipPath, path_from_config
+from hydro_ros.planning.trajectory import ExtensionTrajectory, evaluate
+
+ALL_LIMITS = ("position", "velocity", "acceleration")
+
+# method -> (DP cost or None, limits the method claims to keep); contract section 5 names first
+METHODS: dict[str, tuple[Cost | None, tuple[str, ...]]] = {
+    "dp_cp": (Cost.CP, ALL_LIMITS),
+    "dp_ls": (Cost.LS, ALL_LIMITS),
+    "dp_actuator_energy": (Cost.ACTUATOR, ALL_LIMITS),
+    "dp_extension": (Cost.EXTENSION, ALL_LIMITS),
+    "pinv_actuator": (None, ("position", "velocity")),
+    "pinv_joint": (None, ("position", "velocity")),
+    "direct_cp": (None, ALL_LIMITS),
+    "dp_velocity": (Cost.VELOCITY, ALL_LIMITS),  # P-V "DP (Act. velocity)"
+    "pinv_actuator_weighted": (None, ("position", "velocity")),  # P-V "Act. p-inv. (Weighted)"
+}
+CONTRACT_METHODS = tuple(list(METHODS)[:7])
+
+
+@dataclass
+class Problem:
+    crane: Crane
+    config: dict[str, Any]
+    path: TipPath
+    samples: PathSamples
+    grid: DpGrid
+    start: float
+    filter_cutoff: float
+
+    @classmethod
+    def build(
+        cls, crane: Crane, config: dict[str, Any], path_id: str, *, grid: tuple[int, int, int] | None = None, start: str = "smallest"
+    ) -> Problem:
+        settings = config["dp"]
+        path = path_from_config(config, path_id)
+        samples = path.sample(float(settings["sample_time"]))
+        dp_grid = DpGrid.for_crane(crane, tuple(grid or settings["grid"]))
+        return cls(crane, config, path, samples, dp_grid, start_position(crane, samples, dp_grid, start), float(settings["filter_cutoff"]))
+
+
+@dataclass
+class Plan:
+    method: str
+    trajectory: ExtensionTrajectory
+    evaluation: dict[str, Any]
+    seconds: float
+    solution: DpSolution | None = None
+    info: dict[str, Any] | None = None
+
+
+def plan_dp(problem: Problem, cost: Cost, *, progress: bool = False, acceleration_limits: bool = True) -> Plan:
+    began = time.perf_counter()
+    solution = solve(problem.crane, problem.samples, cost, problem.grid, progress=progress, acceleration_limits=acceleration_limits)
+    raw = solution.forward(problem.start)
+    trajectory = raw.filtered(problem.filter_cutoff)
+    seconds = time.perf_counter() - began
+    evaluation = evaluate(problem.crane, problem.samples, trajectory)
+    j0 = int(np.argmin(np.abs(problem.grid.velocities)))
+    i0 = int(np.argmin(np.abs(problem.grid.positions - problem.start)))
+    info = {
+        "predicted_cost": float(solution.cost_to_go[0, i0, j0]),
+        "unfiltered": {key: evaluate(problem.crane, problem.samples, raw)[key] for key in ("cp_energy_J", "ls_energy_J", "limits")},
+    }
+    return Plan(f"dp_{cost.value}", trajectory, evaluation, seconds, solution, info)
+
+
+def _plan_other(problem: Problem, method: str, seed: ExtensionTrajectory | None) -> Plan:
+    began = time.perf_counter()
+    if method == "direct_cp":
+        if seed is None:
+            seed, _ = pseudo_inverse(problem.crane, problem.samples, problem.start, space="joint")
+        trajectory, info = direct_collocation(problem.crane, problem.path, problem.samples, problem.start, seed)
+    else:
+        space = "joint" if method == "pinv_joint" else "actuator"
+        trajectory, info = pseudo_inverse(
+            problem.crane, problem.samples, problem.start, space=space, weighted=method == "pinv_actuator_weighted"
+        )
+    seconds = time.perf_counter() - began
+    return Plan(method, trajectory, evaluate(problem.crane, problem.samples, trajectory), seconds, info=info)
+
+
+def run_method(problem: Problem, method: str, *, progress: bool = False, seed: ExtensionTrajectory | None = None) -> Plan:
+    if method not in METHODS:
+        raise ValueError(f"method {method!r}: unknown (known: {', '.join(METHODS)})")
+    cost, _ = METHODS[method]
+    if cost is not None:
+        plan = plan_dp(problem, cost, progress=progress)
+        plan.method = method
+        return plan
+    return _plan_other(problem, method, seed)
+
+
+def method_record(plan: Plan) -> dict[str, Any]:
+    claims = METHODS[plan.method][1]
+    evaluation = plan.evaluation
+    record = {
+        "cp_energy_J": evaluation["cp_energy_J"],
+        "ls_energy_J": evaluation["ls_energy_J"],
+        "limits_ok": all(evaluation["limits"][kind] for kind in claims) and evaluation["tip_error_max_m"] < 1e-6,
+        "limits_claimed": list(claims),
+        "limits": evaluation["limits"],
+        "limit_margins": evaluation["limit_margins"],
+        "actuator_energy_J": evaluation["actuator_energy_J"],
+        "tip_error_max_m": evaluation["tip_error_max_m"],
+        "ls_supply_pressure_peak_Pa": evaluation["ls_supply_pressure_peak_Pa"],
+        "pump_flow_peak_m3s": evaluation["pump_flow_peak_m3s"],
+        "seconds": round(plan.seconds, 3),
+    }
+    if plan.info:
+        record["info"] = plan.info
+    return record
+
+
+def compare(
+    problem: Problem,
+    methods: tuple[str, ...] = CONTRACT_METHODS,
+    *,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """All methods on one path; energies also relative to the best of each (P-V Tables 2-3 style)."""
+    plans: dict[str, Plan] = {}
+    for method in methods:
+        seed = plans["pinv_joint"].trajectory if method == "direct_cp" and "pinv_joint" in plans else None
+        plans[method] = run_method(problem, method, seed=seed)
+        if progress:
+            progress(method)
+    records = {method: method_record(plan) for method, plan in plans.items()}
+    for energy in ("cp_energy_J", "ls_energy_J"):
+        best = min(record[energy] for record in records.values())
+        for record in records.values():
+            record[f"relative_{energy[:2]}"] = record[energy] / best
+    return {
+        "machine": problem.crane.name,
+        "path": problem.path.path_id,
+        "start_position_m": problem.start,
+        "grid": list(problem.grid.shape),
+        "stages": problem.samples.stages,
+        "sample_time_s": float(problem.samples.time[1]),
+        "methods": records,
+    }
+
+
+def markdown_table(result: dict[str, Any]) -> str:
+    lines = [
+        f"{result['machine']} / {result['path']} (start c = {result['start_position_m']:.3f} m, grid {result['grid']})",
+        "",
+        "| method | CP energy kJ | rel. CP | LS energy kJ | rel. LS | peak LS pressure MPa | limits claimed | limits ok |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    ordered = sorted(result["methods"].items(), key=lambda item: item[1]["cp_energy_J"])
+    for method, record in ordered:
+        lines.append(
+            f"| {method} | {record['cp_energy_J'] / 1e3:.1f} | {record['relative_cp']:.3f} | {record['ls_energy_J'] / 1e3:.1f} | "
+            f"{record['relative_ls']:.3f} | {record['ls_supply_pressure_peak_Pa'] / 1e6:.1f} | "
+            f"{', '.join(record['limits_claimed'])} | {'yes' if record['limits_ok'] else 'NO'} |"
+        )
+    return "\n".join(lines)

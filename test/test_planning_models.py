@@ -1,0 +1,168 @@
+"""Crane kinematics, cylinder mappings, forces, paths and stage costs of the DP (P-V, P-VI)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hydro_ros.config import ConfigError, default_config_path, with_overrides
+from hydro_ros.planning.costs import Cost, driven_pressure, pump_flow, stage_power
+from hydro_ros.planning.crane import Crane, Motion, load_crane
+from hydro_ros.planning.paths import TipPath, path_from_config
+
+CRANES = ("k70m", "crane3dof")
+
+
+def _random_configurations(crane: Crane, count: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    low = np.array([c.q_min for c in crane.cylinders])
+    high = np.array([c.q_max for c in crane.cylinders])
+    q = low + (high - low) * rng.random((count, len(low)))
+    rho, _ = crane._planar_tip(q[:, -3], q[:, -2], q[:, -1])
+    return q[rho > 0.3]  # the base angle is defined for a tip off the slewing axis
+
+
+def _pad(task: np.ndarray) -> np.ndarray:
+    return np.concatenate([task, np.zeros((task.shape[0], 3 - task.shape[1]))], axis=1)
+
+
+@pytest.mark.parametrize("machine", CRANES)
+def test_inverse_kinematics_inverts_forward_kinematics_at_all_levels(machine: str) -> None:
+    crane, _ = load_crane(default_config_path(machine))
+    q = _random_configurations(crane, 20000)
+    rng = np.random.default_rng(1)
+    qd, qdd = 0.1 * rng.normal(size=q.shape), 0.1 * rng.normal(size=q.shape)
+    jac = crane.jacobian(q)
+    step = 1e-6
+    jac_rate = (crane.jacobian(q + step * qd) - crane.jacobian(q - step * qd)) / (2 * step)
+    tip_vel = _pad(np.einsum("kij,kj->ki", jac, qd))
+    tip_acc = _pad(np.einsum("kij,kj->ki", jac_rate, qd) + np.einsum("kij,kj->ki", jac, qdd))
+    ext = crane.extension
+    motion = crane.motion(
+        tuple(crane.forward(q).T), tuple(tip_vel.T), tuple(tip_acc.T), ext.stroke(q[:, -1]), ext.ratio * qd[:, -1], ext.ratio * qdd[:, -1]
+    )
+    assert motion.reachable.all()
+    assert np.abs(np.stack(motion.q, axis=-1) - q).max() < 1e-9
+    assert np.abs(np.stack(motion.qd, axis=-1) - qd).max() < 1e-9
+    assert np.abs(np.stack(motion.qdd, axis=-1) - qdd).max() < 1e-6  # J-dot by finite differences
+
+
+@pytest.mark.parametrize("machine", CRANES)
+def test_jacobian_matches_finite_differences(machine: str) -> None:
+    crane, _ = load_crane(default_config_path(machine))
+    q = _random_configurations(crane, 500)
+    step = 1e-6
+    eye = np.eye(q.shape[1])
+    numeric = np.stack(
+        [(crane.forward(q + step * eye[j]) - crane.forward(q - step * eye[j])) / (2 * step) for j in range(q.shape[1])], axis=-1
+    )[:, : crane.task_dim]
+    assert np.abs(crane.jacobian(q) - numeric).max() < 1e-7
+
+
+@pytest.mark.parametrize("machine", CRANES)
+def test_cylinder_mappings_invert_and_differentiate(machine: str) -> None:
+    crane, _ = load_crane(default_config_path(machine))
+    for cylinder in crane.cylinders:
+        q = np.linspace(cylinder.q_min, cylinder.q_max, 101)
+        stroke = cylinder.stroke(q)
+        assert stroke.min() == pytest.approx(0.0, abs=1e-12)  # the stroke starts at the retracted end
+        assert np.abs(cylinder.joint(stroke) - q).max() < 1e-9
+        step = 1e-6
+        arm, arm_rate = cylinder.arm(q)
+        assert np.allclose(arm, (cylinder.stroke(q + step) - cylinder.stroke(q - step)) / (2 * step), atol=1e-7)
+        assert np.allclose(arm_rate, (cylinder.arm(q + step)[0] - cylinder.arm(q - step)[0]) / (2 * step), atol=1e-6)
+    tilt = crane.cylinders[-2]
+    if machine == "k70m":
+        assert (tilt.arm(np.linspace(tilt.q_min, tilt.q_max, 11))[0] < 0).all()  # sigma3 = -1: extends as q3 falls
+        assert crane.extension.stroke_max == pytest.approx(1.85)
+
+
+def test_k70m_reach_is_the_papers_9_1_m() -> None:
+    crane, _ = load_crane(default_config_path("k70m"))
+    lift = np.linspace(-0.425, 1.097, 400)[:, None]
+    tilt = np.linspace(-2.75, -0.25, 400)[None, :]
+    rho, _ = crane._planar_tip(lift, tilt, 3.7)
+    assert rho.max() == pytest.approx(9.1, abs=0.01)
+
+
+def test_forces_do_the_work_of_lifting_a_tip_mass() -> None:
+    """Static tip mass only: sum F_i v_i = m g dy/dt for any motion (signs of arms, telescope ratio)."""
+    path = default_config_path("k70m")
+    crane, config = load_crane(path)
+    tip_only = with_overrides(config, {"masses": [], "extension_friction": {"coulomb": 0.0}})
+    tip_only["masses"] = [{"name": "load", "link": "boom", "s": 2.13, "moves_with_extension": True, "mass": 100.0}]
+    crane = Crane(tip_only)
+    q = _random_configurations(crane, 2000, seed=3)
+    rng = np.random.default_rng(4)
+    qd = 0.05 * rng.normal(size=q.shape)
+    tip_vel = np.einsum("kij,kj->ki", crane.jacobian(q), qd)
+    ext = crane.extension
+    zero = np.zeros(len(q))
+    # velocities enter the forces only through friction (zero here), so a static force field
+    static = crane.motion(tuple(crane.forward(q).T), (zero, zero, zero), (zero, zero, zero), ext.stroke(q[:, -1]), zero, zero)
+    power = sum(force * cylinder.arm(qi)[0] * qdi for force, cylinder, qi, qdi in zip(static.force, crane.cylinders, q.T, qd.T))
+    assert np.allclose(power, 100.0 * crane.gravity * tip_vel[:, 1], rtol=1e-9, atol=1e-6)
+
+
+def test_quintic_and_spline_paths_start_and_end_at_rest() -> None:
+    _, config = load_crane(default_config_path("k70m"))
+    horizontal = path_from_config(config, "horizontal").sample(0.05)
+    speed = np.linalg.norm(horizontal.velocity, axis=1)
+    assert speed.max() == pytest.approx(0.60, rel=1e-3)  # 1.875 * 3.2 m / 10 s
+    assert horizontal.stages == 200
+    half = path_from_config(config, "half_cycle")
+    samples = half.sample(0.05)
+    assert np.abs(samples.velocity[[0, -1]]).max() < 1e-12
+    assert np.linalg.norm(samples.velocity, axis=1).max() == pytest.approx(0.75, abs=0.02)
+    via = np.asarray(config["paths"]["half_cycle"]["segments"][0]["via"])
+    distances = np.linalg.norm(samples.position[:, None, :] - via[None], axis=2).min(axis=0)
+    assert distances.max() < 0.05  # the spline passes through its via points
+
+
+def test_bad_paths_and_configs_fail_with_one_line_errors(tmp_path) -> None:
+    _, config = load_crane(default_config_path("k70m"))
+    with pytest.raises(ConfigError, match="'diagonal': not in config k70m"):
+        path_from_config(config, "diagonal")
+    with pytest.raises(ConfigError, match="not a multiple"):
+        TipPath("odd", {"start": [3, 0.5, 0], "segments": [{"to": [4, 0.5, 0], "duration": 1.01}]}).sample(0.05)
+    with pytest.raises(ConfigError, match="not a crane config"):
+        load_crane(default_config_path("sam"))
+    broken = tmp_path / "crane.yaml"
+    broken.write_text(default_config_path("crane3dof").read_text().replace("      velocity_max: 0.2\n", "", 1))
+    with pytest.raises(ConfigError, match="velocity_max"):
+        load_crane(broken)
+
+
+def test_pump_flow_and_chamber_pressures_by_hand() -> None:
+    assert pump_flow(0.1, 0.01, 0.005) == pytest.approx(1e-3)
+    assert pump_flow(-0.1, 0.01, 0.005) == pytest.approx(5e-4)
+    assert pump_flow(-0.1, 0.01, 0.0) == 0.0  # single-acting lift lowering: no pump flow
+    args = (0.01, 0.005, 0.0, 1.0e6, 0.0, 0.002)  # A_A, A_B, non-differential, dp_c 1 MPa, p_T 0, eps
+    # extension: back-pressure (A_B/A_A)^2 dp_c = 0.25 MPa; p_A = F/A_A + A_B/A_A p_B = 1 + 0.125 MPa
+    assert driven_pressure(10e3, 0.1, *args) == pytest.approx(1.125e6)
+    # retraction: back-pressure (A_A/A_B)^2 dp_c = 4 MPa; p_B = -F/A_B + A_A/A_B p_A = 2 + 8 MPa
+    assert driven_pressure(-10e3, -0.1, *args) == pytest.approx(10.0e6)
+    assert driven_pressure(-10e3, 0.1, *args) == 0.0  # over-running
+    assert driven_pressure(10e3, 0.001, *args) == 0.0  # below the drive threshold
+    assert driven_pressure(-10e3, -0.1, 0.01, 0.0, 0.0, 1e6, 0.0, 0.002) == 0.0  # single-acting
+    # differential spool (eqs. 27-28): p_B = F/(A_A-A_B) + (A_B^2 A_A/(A_A-A_B)^3 + A_A/(A_A-A_B)) dp_c = 2 + 4 MPa
+    p_a = driven_pressure(10e3, 0.1, 0.01, 0.005, 1.0, 1.0e6, 0.0, 0.002)
+    assert p_a == pytest.approx(4.0e6)
+    assert p_a * 0.01 - 6.0e6 * 0.005 == pytest.approx(10e3)  # the piston is in force balance
+
+
+def test_stage_powers_by_hand() -> None:
+    crane, _ = load_crane(default_config_path("k70m"))
+    h = crane.hydraulics
+    # base still, lift up 0.05 m/s against 100 kN, tilt retracting (over-running), extension out 0.1 m/s against 5 kN
+    v = [np.array(0.0), np.array(0.05), np.array(-0.02), np.array(0.1)]
+    force = [np.array(0.0), np.array(100e3), np.array(20e3), np.array(5e3)]
+    motion = Motion(q=[], qd=[], qdd=[], c=[], v=v, a=[], force=force, reachable=None)
+    lift, tilt, ext = crane.cylinders[1], crane.cylinders[2], crane.cylinders[3]
+    flow = 0.05 * lift.area_a + 0.02 * tilt.area_b + 0.1 * (ext.area_a - ext.area_b)
+    assert stage_power(Cost.CP, crane, motion) == pytest.approx(h["supply_pressure_cp"] * flow)
+    lift_pressure = 100e3 / lift.area_a + lift.area_b / lift.area_a * (lift.area_b / lift.area_a) ** 2 * h["compensator_drop"]
+    assert stage_power(Cost.LS, crane, motion) == pytest.approx((lift_pressure + h["ls_margin"]) * flow)
+    assert stage_power(Cost.ACTUATOR, crane, motion) == pytest.approx(100e3 * 0.05 + 5e3 * 0.1)  # tilt over-runs: no credit
+    assert stage_power(Cost.EXTENSION, crane, motion) == pytest.approx(0.01)
+    assert stage_power(Cost.VELOCITY, crane, motion) == pytest.approx(0.05**2 + 0.02**2 + 0.1**2)
