@@ -34,6 +34,7 @@ from hydro_ros.planning.trajectory import ExtensionTrajectory
 
 INFEASIBLE = 1.0e15  # cost-to-go of states with no admissible continuation
 _FEASIBLE_BELOW = 1.0e12  # any interpolation weight on an infeasible node shows above this
+REST_PENALTY = 1.0e10  # J per m/s of final velocity: far above any path's energy, finite for interpolation
 SNAP = 1e-9  # interpolation weights closer than this to 0 or 1 are rounding noise
 
 
@@ -202,7 +203,9 @@ def _snap(weight: float) -> float:
 
 @njit(cache=True)
 def _cost_to_go_at(cost_next: np.ndarray, ic: int, wc: float, y: float) -> float:
-    """Bilinear interpolation of J_{k+1} at grid coordinates (ic + wc, y)."""
+    """Bilinear interpolation of J_{k+1} at grid coordinates (ic + wc, y); infeasible nodes count as
+    INFEASIBLE, so a state within one cell of a limit is conservatively expensive (never optimistic:
+    the forward pass cannot run into a dead end, at the price of DPM's boundary effect near limits)."""
     n_v = cost_next.shape[1]
     jv = min(max(int(math.floor(y)), 0), n_v - 2)
     wv = _snap(y - jv)
@@ -298,10 +301,10 @@ def _bellman_step(
 
 
 def terminal_cost(crane: Crane, samples: PathSamples, grid: DpGrid) -> np.ndarray:
-    """Zero at rest at a feasible final position, infeasible otherwise (dp.md 6.5, INFERRED)."""
+    """Rest-to-rest end (dp.md 6.5, INFERRED): infeasible positions are excluded and a final
+    velocity costs REST_PENALTY per m/s, a finite penalty that interpolates linearly to zero at rest."""
     terms = stage_terms(crane, samples, samples.stages, grid.positions[:, None], grid.velocities[None, :], Cost.CP)
-    at_rest = np.isclose(grid.velocities, 0.0, atol=1e-12)[None, :]
-    return np.where(terms.admissible & at_rest, 0.0, INFEASIBLE)
+    return np.where(terms.admissible, REST_PENALTY * np.abs(grid.velocities)[None, :], INFEASIBLE)
 
 
 @dataclass
@@ -315,11 +318,6 @@ class DpSolution:
     acceleration_limits: bool
     cost_to_go: np.ndarray  # (N+1, N_c, N_v), J in J (or the velocity costs' units times s)
     policy: np.ndarray  # (N, N_c, N_v) float32 acceleration, NaN where infeasible
-
-    def feasible_starts(self) -> np.ndarray:
-        """Grid positions from which the path can be run from rest."""
-        j0 = int(np.argmin(np.abs(self.grid.velocities)))
-        return self.grid.positions[self.cost_to_go[0, :, j0] < _FEASIBLE_BELOW]
 
     def forward(self, start_position: float, start_velocity: float = 0.0) -> ExtensionTrajectory:
         """Forward simulation from any state (Algorithm 1, forward phase).
@@ -354,10 +352,12 @@ class DpSolution:
                 raise InfeasibleStart(f"{where}: no admissible acceleration")
             ic = min(max(int(np.floor(x)), 0), len(grid.positions) - 2)
             wc = _snap(x - ic)
-            candidates = [u for u in grid.controls if low <= u <= high] + [low, high]
+            candidates = [u for u in grid.controls if low <= u <= high] + [low, high, min(max(-v[k] / ts, low), high)]
             guided = _interpolate_policy(self.policy[k], self.cost_to_go[k], grid, c[k], v[k])
             if guided is not None:
                 candidates.append(min(max(guided, low), high))
+            options = np.array(candidates)
+            candidates = list(options[self._leads_on(k, c[k] + ts * v[k], v[k] + ts * options)])
             best, best_u = np.inf, None
             for u in candidates:
                 y = (v[k] + ts * u - grid.velocities[0]) / (grid.velocities[1] - grid.velocities[0])
@@ -368,12 +368,22 @@ class DpSolution:
                 total = ts * stage + _cost_to_go_at(self.cost_to_go[k + 1], ic, wc, y)
                 if total < best:
                     best, best_u = total, u
-            if best >= _FEASIBLE_BELOW:
-                raise InfeasibleStart(f"{where}: every admissible acceleration leads to an infeasible state")
+            if best_u is None:
+                raise InfeasibleStart(f"{where}: every admissible acceleration leads to an inadmissible state")
             a[k] = best_u
             c[k + 1] = c[k] + ts * v[k]
             v[k + 1] = v[k] + ts * a[k]
         return ExtensionTrajectory(c, v, a, ts)
+
+
+    def _leads_on(self, k: int, c_next: float, v_next: np.ndarray) -> np.ndarray:
+        """Which next states are admissible at stage k+1 and move on to an admissible position at k+2
+        (c'' = c' + T_s v' does not depend on the control chosen at k+1: a dead end shows here first)."""
+        ts = float(self.samples.time[1] - self.samples.time[0])
+        ok = stage_terms(self.crane, self.samples, k + 1, np.full_like(v_next, c_next), v_next, Cost.CP).admissible
+        if k + 2 <= self.samples.stages:
+            ok &= stage_terms(self.crane, self.samples, k + 2, c_next + ts * v_next, v_next, Cost.CP).admissible
+        return ok
 
 
 def _hydraulics(crane: Crane) -> np.ndarray:
@@ -438,15 +448,3 @@ def start_position(crane: Crane, samples: PathSamples, grid: DpGrid, which: str 
         middle = 0.5 * (feasible[0] + feasible[-1])
         return float(grid.positions[np.argmin(np.abs(grid.positions - middle))])
     raise ValueError(f"start {which!r} (smallest or middle)")
-
-
-def solution_summary(solution: DpSolution, start: float) -> dict[str, Any]:
-    j0 = int(np.argmin(np.abs(solution.grid.velocities)))
-    i0 = int(np.argmin(np.abs(solution.grid.positions - start)))
-    return {
-        "cost": solution.cost.value,
-        "grid": list(solution.grid.shape),
-        "stages": int(solution.samples.stages),
-        "acceleration_limits": solution.acceleration_limits,
-        "predicted_cost": float(solution.cost_to_go[0, i0, j0]),
-    }

@@ -1,0 +1,147 @@
+"""The fast DP against the straightforward NumPy DP, its forward pass, and the papers' DP claims."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from hydro_ros.cli import main
+from hydro_ros.config import default_config_path, with_overrides
+from hydro_ros.planning.compare import Problem, run_method
+from hydro_ros.planning.costs import Cost
+from hydro_ros.planning.crane import Crane, load_crane
+from hydro_ros.planning.dp import DpGrid, InfeasibleStart, solve, start_position
+from hydro_ros.planning.paths import path_from_config
+from hydro_ros.planning.reference import solve_reference
+from hydro_ros.planning.trajectory import evaluate
+
+COARSE = (60, 21, 31)
+
+
+def _setup(machine: str, path_id: str, sizes: tuple[int, int, int] = COARSE):
+    crane, config = load_crane(default_config_path(machine))
+    samples = path_from_config(config, path_id).sample(config["dp"]["sample_time"])
+    return crane, config, samples, DpGrid.for_crane(crane, sizes)
+
+
+@pytest.mark.parametrize(
+    ("machine", "path_id", "cost"),
+    [("k70m", "horizontal", Cost.CP), ("k70m", "horizontal", Cost.LS), ("k70m", "half_cycle", Cost.ACTUATOR), ("crane3dof", "triangle", Cost.CP)],
+)
+def test_fast_dp_equals_the_reference(machine: str, path_id: str, cost: Cost) -> None:
+    crane, _, samples, grid = _setup(machine, path_id, (40, 21, 31))
+    if machine == "crane3dof":  # a third of the cycle keeps the reference quick
+        samples = type(samples)(*(field[:201] for field in (samples.time, samples.position, samples.velocity, samples.acceleration)))
+    fast = solve(crane, samples, cost, grid)
+    reference = solve_reference(crane, samples, cost, grid)
+    feasible = fast.cost_to_go < 1e12
+    assert feasible[0].any()
+    assert np.array_equal(feasible, reference.cost_to_go < 1e12)
+    assert np.allclose(fast.cost_to_go[feasible], reference.cost_to_go[feasible], rtol=1e-10, atol=1e-6)
+    both = feasible[:-1]
+    assert np.mean(fast.policy[both] == reference.policy[both]) > 0.99  # equal costs (ties) may pick another control
+
+
+def test_forward_pass_keeps_every_limit_and_the_path_and_matches_the_predicted_cost() -> None:
+    crane, _, samples, grid = _setup("k70m", "horizontal", (120, 41, 61))
+    solution = solve(crane, samples, Cost.CP, grid)
+    start = start_position(crane, samples, grid)
+    trajectory = solution.forward(start)
+    result = evaluate(crane, samples, trajectory)
+    assert all(result["limits"].values())
+    assert result["tip_error_max_m"] < 1e-9
+    assert abs(trajectory.velocity[-1]) < 1e-9 and trajectory.position[0] == start
+    predicted = solution.cost_to_go[0, np.argmin(np.abs(grid.positions - start)), np.argmin(np.abs(grid.velocities))]
+    assert result["cp_energy_J"] == pytest.approx(predicted, rel=0.01)
+    filtered = evaluate(crane, samples, trajectory.filtered(5.0))
+    assert all(filtered["limits"].values()) and filtered["tip_error_max_m"] < 1e-9
+    assert filtered["limit_margins"]["acceleration"] <= result["limit_margins"]["acceleration"] + 1e-9
+
+
+def test_policy_runs_forward_from_another_start_without_a_new_backward_pass() -> None:
+    crane, _, samples, grid = _setup("k70m", "horizontal", (120, 41, 61))
+    solution = solve(crane, samples, Cost.CP, grid)
+    middle = start_position(crane, samples, grid, "middle")
+    off_grid = middle + 0.37 * (grid.positions[1] - grid.positions[0])
+    trajectory = solution.forward(off_grid)
+    assert trajectory.position[0] == off_grid
+    result = evaluate(crane, samples, trajectory)
+    assert all(result["limits"].values()) and abs(trajectory.velocity[-1]) < 1e-9
+    smallest = evaluate(crane, samples, solution.forward(start_position(crane, samples, grid)))
+    assert result["cp_energy_J"] != pytest.approx(smallest["cp_energy_J"], rel=1e-3)  # P-VI: the start matters
+    with pytest.raises(InfeasibleStart, match="stage 0"):
+        solution.forward(grid.positions[-1])  # fully extended: the tip start is out of reach
+
+
+def test_cp_optimum_is_load_independent_and_ls_optimum_is_not() -> None:
+    crane, config, samples, grid = _setup("k70m", "horizontal")
+    heavy = Crane(with_overrides(config, {"masses": [dict(m, mass=3 * m["mass"]) for m in config["masses"]]}))
+    light_cp, heavy_cp = solve(crane, samples, Cost.CP, grid), solve(heavy, samples, Cost.CP, grid)
+    assert np.array_equal(light_cp.cost_to_go, heavy_cp.cost_to_go)
+    light_ls, heavy_ls = solve(crane, samples, Cost.LS, grid), solve(heavy, samples, Cost.LS, grid)
+    start = (np.argmin(np.abs(grid.positions - start_position(crane, samples, grid))), np.argmin(np.abs(grid.velocities)))
+    assert heavy_ls.cost_to_go[0][start] > 1.5 * light_ls.cost_to_go[0][start]
+
+
+def test_acceleration_limits_cost_energy() -> None:
+    crane, _, samples, grid = _setup("k70m", "horizontal")
+    start = start_position(crane, samples, grid)
+    limited = solve(crane, samples, Cost.CP, grid)
+    free = solve(crane, samples, Cost.CP, grid, acceleration_limits=False)
+    i0, j0 = np.argmin(np.abs(grid.positions - start)), np.argmin(np.abs(grid.velocities))
+    assert limited.cost_to_go[0, i0, j0] > free.cost_to_go[0, i0, j0]
+
+
+def test_pseudo_inverses_track_the_path_within_velocity_limits_and_spend_more() -> None:
+    crane, config, _, _ = _setup("k70m", "horizontal")
+    problem = Problem.build(crane, config, "horizontal", grid=(120, 41, 61))
+    dp = run_method(problem, "dp_cp")
+    for method in ("pinv_actuator", "pinv_joint"):
+        plan = run_method(problem, method)
+        assert plan.evaluation["tip_error_max_m"] < 1e-9
+        assert plan.evaluation["limits"]["position"] and plan.evaluation["limits"]["velocity"]
+        assert plan.evaluation["cp_energy_J"] > 1.1 * dp.evaluation["cp_energy_J"]
+
+
+def test_direct_collocation_converges_near_the_dp_optimum() -> None:
+    crane, config, _, _ = _setup("k70m", "horizontal")
+    problem = Problem.build(crane, config, "horizontal", grid=(120, 41, 61))
+    dp = run_method(problem, "dp_cp")
+    direct = run_method(problem, "direct_cp")
+    assert all(step["status"] == "Solve_Succeeded" for step in direct.info["ipopt"])
+    assert all(direct.evaluation["limits"].values()) and direct.evaluation["tip_error_max_m"] < 1e-9
+    assert direct.evaluation["cp_energy_J"] == pytest.approx(dp.evaluation["cp_energy_J"], rel=0.01)
+
+
+def test_dp_compare_cli_ranks_the_methods_like_the_papers(tmp_path) -> None:
+    out = tmp_path / "compare.json"
+    code = main(["dp", "compare", "--config", str(default_config_path("k70m")), "--path", "horizontal",
+                 "--json", str(out), "--quiet"])  # the P-VI grid
+    assert code == 0
+    result = json.loads(out.read_text())
+    methods = result["methods"]
+    assert set(methods) == {"dp_cp", "dp_ls", "dp_actuator_energy", "dp_extension", "pinv_actuator", "pinv_joint", "direct_cp"}
+    assert all(record["limits_ok"] for record in methods.values())
+    lowest_cp = min(record["cp_energy_J"] for record in methods.values())
+    assert methods["dp_cp"]["cp_energy_J"] <= 1.002 * lowest_cp  # the lowest, within the grid's resolution
+    dp_ls = min(methods[m]["ls_energy_J"] for m in ("dp_cp", "dp_ls", "dp_actuator_energy", "dp_extension"))
+    assert methods["dp_ls"]["ls_energy_J"] <= 1.005 * dp_ls
+    for method in ("pinv_actuator", "pinv_joint"):  # P-VI: conventional methods spend 15-30 % more
+        assert methods[method]["cp_energy_J"] > 1.15 * methods["dp_cp"]["cp_energy_J"]
+        assert methods[method]["ls_energy_J"] > 1.15 * methods["dp_ls"]["ls_energy_J"]
+    assert out.with_suffix(".png").stat().st_size > 10_000 and "| dp_cp |" in out.with_suffix(".md").read_text()
+
+
+def test_dp_solve_cli_writes_a_joint_trajectory_and_rejects_bad_input(tmp_path, capsys) -> None:
+    out = tmp_path / "solve.json"
+    config = str(default_config_path("crane3dof"))
+    assert main(["dp", "solve", "--config", config, "--path", "triangle", "--cost", "ls", "--grid", "40", "21", "41", "--json", str(out), "--quiet"]) == 0
+    result = json.loads(out.read_text())
+    assert result["limits_ok"] and result["trajectory"]["joint_names"] == ["lift", "tilt", "extension"]
+    assert len(result["trajectory"]["positions"]) == result["stages"] + 1 == 601
+    assert main(["dp", "solve", "--config", config, "--path", "square", "--cost", "cp", "--json", str(out)]) == 1
+    assert "path 'square': not in config crane3dof (known: triangle)" in capsys.readouterr().err
+    assert main(["dp", "solve", "--config", str(default_config_path("sam")), "--path", "triangle", "--cost", "cp", "--json", str(out)]) == 1
+    assert "not a crane config" in capsys.readouterr().err
