@@ -25,6 +25,7 @@ demo: setup
 bench: setup
 	$(PY) bench/run.py --out bench/results.json
 	$(PY) bench/discrepancy_suite.py
+	$(PY) bench/dp.py --out bench/dp.json
 
 bags: setup
 	$(PY) scripts/make_sample_bags.py --out bags

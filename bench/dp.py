@@ -1,0 +1,136 @@
+"""DP benchmarks (make bench): fast solver against the NumPy reference in the same run, grid convergence,
+and `dp compare` on every placeholder path. Writes bench/dp.json, bench/dp_convergence.png and
+bench/dp_compare_<machine>_<path>.{json,md,png}.
+
+Time and peak memory are measured in a fresh process per solver (ru_maxrss of that child), so one
+solver's allocations do not hide the other's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+_CHILD = """
+import json, resource, sys, time
+from hydro_ros.config import default_config_path
+from hydro_ros.planning.compare import Problem
+from hydro_ros.planning.costs import Cost
+from hydro_ros.planning.crane import load_crane
+from hydro_ros.planning.dp import solve
+from hydro_ros.planning.reference import solve_reference
+solver, cost = sys.argv[1], Cost(sys.argv[2])
+crane, config = load_crane(default_config_path("k70m"))
+problem = Problem.build(crane, config, "horizontal")
+began = time.perf_counter()
+run = solve if solver == "fast" else solve_reference
+solution = run(crane, problem.samples, cost, problem.grid, progress=True)
+seconds = time.perf_counter() - began
+print(json.dumps({"seconds": seconds, "peak_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "cost_to_go": float(solution.cost_to_go[0][solution.cost_to_go[0] < 1e12].sum())}))
+"""
+
+
+def _child(solver: str, cost: str) -> dict:
+    done = subprocess.run([sys.executable, "-c", _CHILD, solver, cost], capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def solver_speed() -> dict:
+    _child("fast", "cp")  # numba compiles into its cache once, outside the measurement
+    fast_cp, fast_ls, reference = _child("fast", "cp"), _child("fast", "ls"), _child("reference", "cp")
+    return {
+        "grid": [356, 101, 151],
+        "stages": 200,
+        "fast_cp": fast_cp,
+        "fast_ls": fast_ls,
+        "reference_cp": reference,
+        "speedup_cp": reference["seconds"] / fast_cp["seconds"],
+        "memory_ratio_cp": fast_cp["peak_rss_MB"] / reference["peak_rss_MB"],
+        "same_cost_to_go": abs(fast_cp["cost_to_go"] - reference["cost_to_go"]) <= 1e-9 * abs(reference["cost_to_go"]),
+    }
+
+
+def convergence(out_dir: Path) -> dict:
+    """P-V Figs. 8/10: energy of coarser grids against the full grid (CP and LS)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hydro_ros.config import default_config_path
+    from hydro_ros.planning.compare import Problem, plan_dp
+    from hydro_ros.planning.costs import Cost
+    from hydro_ros.planning.crane import load_crane
+
+    crane, config = load_crane(default_config_path("k70m"))
+    scales = (0.25, 0.35, 0.5, 0.7, 1.0)
+    rows = {}
+    for cost in (Cost.CP, Cost.LS):
+        rows[cost.value] = []
+        for scale in scales:
+            grid = (int(355 * scale) + 1, 2 * int(50 * scale) + 1, 2 * int(75 * scale) + 1)
+            problem = Problem.build(crane, config, "horizontal", grid=grid)
+            plan = plan_dp(problem, cost)
+            energy = plan.evaluation[f"{cost.value}_energy_J"]
+            rows[cost.value].append({"grid": list(grid), "energy_J": energy, "seconds": plan.seconds})
+            print(f"convergence {cost.value} {grid}: {energy / 1e3:.2f} kJ in {plan.seconds:.1f} s", flush=True)
+        full = rows[cost.value][-1]["energy_J"]
+        for row in rows[cost.value]:
+            row["relative"] = row["energy_J"] / full
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for cost, series in rows.items():
+        ax.plot([r["grid"][0] * r["grid"][1] * r["grid"][2] for r in series], [r["relative"] for r in series], "o-", label=cost.upper())
+    ax.set_xscale("log")
+    ax.set_xlabel("grid points N_c N_v N_u")
+    ax.set_ylabel("energy / full-grid energy")
+    ax.set_title("DP grid convergence, k70m horizontal")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out_dir / "dp_convergence.png", dpi=100)
+    plt.close(fig)
+    return rows
+
+
+def comparisons(out_dir: Path) -> dict:
+    cases = {"k70m": ("horizontal", "vertical", "half_cycle"), "crane3dof": ("triangle",)}
+    summary = {}
+    for machine, paths in cases.items():
+        for path in paths:
+            target = out_dir / f"dp_compare_{machine}_{path}.json"
+            began = time.perf_counter()
+            subprocess.run(
+                [sys.executable, "-m", "hydro_ros.cli", "dp", "compare", "--config", f"config/{machine}.yaml", "--path", path,
+                 "--json", str(target), "--all-methods", "--quiet"],
+                check=True,
+            )
+            result = json.loads(target.read_text())
+            summary[f"{machine}/{path}"] = {
+                "seconds": time.perf_counter() - began,
+                "relative_cp": {m: round(r["relative_cp"], 4) for m, r in result["methods"].items()},
+                "relative_ls": {m: round(r["relative_ls"], 4) for m, r in result["methods"].items()},
+                "limits_ok": {m: r["limits_ok"] for m, r in result["methods"].items()},
+            }
+    return summary
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--out", default="bench/dp.json")
+    args = parser.parse_args()
+    out = Path(args.out)
+    results = {"solver": solver_speed(), "convergence": convergence(out.parent), "compare": comparisons(out.parent)}
+    results["bench_process_peak_rss_MB"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    out.write_text(json.dumps(results, indent=2) + "\n")
+    print(json.dumps(results["solver"], indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
