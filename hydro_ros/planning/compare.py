@@ -78,9 +78,10 @@ def plan_dp(problem: Problem, cost: Cost, *, progress: bool = False, acceleratio
     evaluation = evaluate(problem.crane, problem.samples, trajectory)
     j0 = int(np.argmin(np.abs(problem.grid.velocities)))
     i0 = int(np.argmin(np.abs(problem.grid.positions - problem.start)))
+    unfiltered = evaluate(problem.crane, problem.samples, raw)
     info = {
         "predicted_cost": float(solution.cost_to_go[0, i0, j0]),
-        "unfiltered": {key: evaluate(problem.crane, problem.samples, raw)[key] for key in ("cp_energy_J", "ls_energy_J", "limits")},
+        "unfiltered": {key: unfiltered[key] for key in ("cp_energy_J", "ls_energy_J", "limits")},
     }
     return Plan(f"dp_{cost.value}", trajectory, evaluation, seconds, solution, info)
 

@@ -13,6 +13,7 @@ functions come from a namespace, ``NUMPY`` by default.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -196,23 +197,11 @@ class Crane:
         Position: P-V eq. 22 / P-VI eq. 33; velocity: eqs. 23-25 / 34; acceleration: eq. 26 / 35.
         Unreachable states come out singular (NaN rates) with ``reachable`` False.
         """
-        if xp is NUMPY:
-            with np.errstate(invalid="ignore", divide="ignore"):
-                return self._motion(tip, tip_vel, tip_acc, c_ext, v_ext, a_ext, xp=xp, forces=forces)
-        return self._motion(tip, tip_vel, tip_acc, c_ext, v_ext, a_ext, xp=xp, forces=forces)
+        # unreachable states carry NaN (masked by the callers), so NumPy need not warn about them
+        with np.errstate(invalid="ignore", divide="ignore") if xp is NUMPY else contextlib.nullcontext():
+            return self._motion(tip, tip_vel, tip_acc, c_ext, v_ext, a_ext, xp, forces)
 
-    def _motion(
-        self,
-        tip: tuple[Any, Any, Any],
-        tip_vel: tuple[Any, Any, Any],
-        tip_acc: tuple[Any, Any, Any],
-        c_ext: Any,
-        v_ext: Any,
-        a_ext: Any,
-        *,
-        xp: SimpleNamespace,
-        forces: bool,
-    ) -> Motion:
+    def _motion(self, tip: tuple, tip_vel: tuple, tip_acc: tuple, c_ext: Any, v_ext: Any, a_ext: Any, xp: SimpleNamespace, forces: bool) -> Motion:
         ext = self.extension
         q_e, qd_e, qdd_e = ext.q_min + c_ext / ext.ratio, v_ext / ext.ratio, a_ext / ext.ratio
         x, y, z = tip
@@ -279,11 +268,11 @@ class Crane:
         reachable = np.abs(cos_elbow) <= 1.0 if xp is NUMPY else None
         motion = Motion(q=q, qd=qd, qdd=qdd, c=c, v=v, a=a, force=None, reachable=reachable)
         if forces:
-            motion.force = self._forces(motion, (ja_r, ja_h), (jb_r, jb_h), (je_r, je_h))
+            motion.force = self._forces(motion)
         return motion
 
     # -- dynamics --------------------------------------------------------------------------
-    def _forces(self, motion: Motion, col_lift: tuple, col_tilt: tuple, col_ext: tuple) -> list[Any]:
+    def _forces(self, motion: Motion) -> list[Any]:
         """Cylinder forces F = R^-1 (M(q) q'' + G(q) + F_f) of point masses (P-VI eq. 16; Coriolis omitted)."""
         lift, tilt, q_e = motion.q[-3], motion.q[-2], motion.q[-1]
         lift_dd, tilt_dd, ext_dd = motion.qdd[-3], motion.qdd[-2], motion.qdd[-1]

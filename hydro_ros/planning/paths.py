@@ -113,10 +113,6 @@ class TipPath:
         return PathSamples(time, *self.evaluate(time))
 
 
-def load_paths(config: dict[str, Any]) -> dict[str, TipPath]:
-    return {str(path_id): TipPath(str(path_id), spec) for path_id, spec in config["paths"].items()}
-
-
 def path_from_config(config: dict[str, Any], path_id: str) -> TipPath:
     paths = config.get("paths") or {}
     if path_id not in paths:
