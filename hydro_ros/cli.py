@@ -8,11 +8,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Callable, Sequence
 
 from hydro_ros.config import ConfigError, load_machine_config
 from hydro_ros.names import INJECTION_UNITS, parse_injection
+from hydro_ros.planning.database import BuildError, DatabaseError
 
 
 class CliError(Exception):
@@ -260,6 +262,46 @@ def cmd_dp_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_db_build(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hydro_ros.planning.catalog import build, plan_units
+    from hydro_ros.planning.crane import load_crane
+    from hydro_ros.planning.database import TrajectoryDatabase
+
+    _, config = load_crane(args.config)
+    units = plan_units(
+        config, methods=tuple(args.methods) if args.methods else None, grid=tuple(args.grid) if args.grid else None,
+        paths=tuple(args.paths) if args.paths else None,
+    )
+    with TrajectoryDatabase(args.db, writable=True) as db, tqdm(total=len(units), unit="solution", desc="db build", disable=args.quiet) as bar:
+        bar.update(sum(1 for unit in units if db.committed().get(unit.key) == unit.inputs_hash))
+
+        def done(unit) -> None:  # noqa: ANN001
+            bar.set_postfix_str(f"{unit.path_id}/{unit.method}")
+            bar.update(1)
+
+        report = build(db, units, scheduler=args.scheduler, workers=args.workers, progress=done)
+    print(f"db build {args.db}: {report.summary()}")
+    return 0
+
+
+def cmd_db_list(args: argparse.Namespace) -> int:
+    from hydro_ros.planning.database import TrajectoryDatabase
+
+    with TrajectoryDatabase(args.db) as db:
+        if args.json:
+            print(json.dumps(db.catalog(), indent=2))
+            return 0
+        rows = list(db.rows())
+    print(f"{'machine':10} {'path':12} {'method':16} {'CP kJ':>8} {'LS kJ':>8} {'limits':>6} {'solve s':>8}  created")
+    for machine, path_id, method, _, cp, ls, ok, seconds, created in rows:
+        stamp = time.strftime("%Y-%m-%d %H:%M", time.localtime(created))
+        print(f"{machine:10} {path_id:12} {method:16} {cp / 1e3:8.1f} {ls / 1e3:8.1f} {'ok' if ok else 'NO':>6} {seconds:8.1f}  {stamp}")
+    print(f"{len(rows)} solution(s)")
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bag_player import replay
 
@@ -363,6 +405,25 @@ def build_parser() -> argparse.ArgumentParser:
         cmd.add_argument("--quiet", action="store_true", help="no progress bar")
         cmd.set_defaults(func=cmd_dp_solve if name == "solve" else cmd_dp_compare)
 
+    db_cmd = sub.add_parser("db", help="the trajectory database the trajectory_server serves")
+    db_sub = db_cmd.add_subparsers(dest="db_command", required=True)
+    db_build = db_sub.add_parser("build", help="precompute the config's paths x methods into the database (resumes)",
+                                 description="Solve every path of a crane config with every catalog method and store the "
+                                 "solutions; what is already stored with the same inputs is skipped, so a killed build resumes.")
+    db_build.add_argument("--config", required=True, help="crane config: config/k70m.yaml or config/crane3dof.yaml")
+    db_build.add_argument("--db", required=True, help="SQLite file (created if missing)")
+    db_build.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler, e.g. tcp://host:8786 (default: local processes)")
+    db_build.add_argument("--workers", type=int, default=None, help="local processes (default: one per core)")
+    db_build.add_argument("--methods", nargs="+", default=None, help="methods (default: the config's catalog.methods)")
+    db_build.add_argument("--paths", nargs="+", default=None, help="path ids (default: all of the config)")
+    db_build.add_argument("--grid", type=int, nargs=3, metavar=("N_C", "N_V", "N_U"), help="DP grid (default: catalog.grid, else dp.grid)")
+    db_build.add_argument("--quiet", action="store_true", help="no progress bar")
+    db_build.set_defaults(func=cmd_db_build)
+    db_list = db_sub.add_parser("list", help="show the stored catalog")
+    db_list.add_argument("--db", required=True, help="SQLite file")
+    db_list.add_argument("--json", action="store_true", help="the catalog as JSON (what trajectory_server latches)")
+    db_list.set_defaults(func=cmd_db_list)
+
     replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
     replay.add_argument("bag", help="bag directory")
     replay.add_argument("--rate", type=float, default=1.0, help="playback rate (1 = recorded speed)")
@@ -384,7 +445,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         return func(args)
-    except (CliError, ConfigError, ValueError, FileNotFoundError, FloatingPointError) as exc:
+    except (CliError, ConfigError, ValueError, FileNotFoundError, FloatingPointError, DatabaseError, BuildError, ConnectionError) as exc:
         print(f"hydro-ros {args.command}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -1,0 +1,170 @@
+"""`hydro-ros db build`: precompute every (path, method) of a crane config into the trajectory database.
+
+Work units are independent (one path, one method), so they run in parallel: local processes by
+default, or the workers of a Dask cluster when a scheduler address is given (``distributed``'s
+executor has the ``concurrent.futures`` interface, so one loop serves both). Workers only compute;
+this process alone writes, one transaction per finished unit, so a killed build keeps every
+committed unit and the next build skips what is stored with the same inputs.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from contextlib import ExitStack
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from hydro_ros.planning.compare import METHODS, Problem, method_record, run_method
+from hydro_ros.planning.crane import Crane
+from hydro_ros.planning.database import BuildError, TrajectoryDatabase, inputs_hash, pack_arrays
+from hydro_ros.planning.trajectory import crane_motion
+
+# what a catalog holds unless the config's `catalog.methods` says otherwise: the served optimum for
+# each supply, the two conventional baselines the operator compares against
+DEFAULT_METHODS = ("dp_cp", "dp_ls", "pinv_actuator", "pinv_joint")
+
+
+@dataclass(frozen=True)
+class WorkUnit:
+    config: dict[str, Any]
+    path_id: str
+    method: str
+    grid: tuple[int, int, int]
+
+    @property
+    def key(self) -> tuple[str, str, str]:
+        return (str(self.config["machine"]), self.path_id, self.method)
+
+    @property
+    def inputs_hash(self) -> str:
+        return inputs_hash(self.config, self.path_id, self.method, self.grid)
+
+
+def plan_units(config: dict[str, Any], *, methods: tuple[str, ...] | None = None, grid: tuple[int, int, int] | None = None,
+               paths: tuple[str, ...] | None = None) -> list[WorkUnit]:
+    """The catalog of a config: its paths (or ``paths``) times the methods, on the DP grid."""
+    settings = config.get("catalog") or {}
+    methods = tuple(methods or settings.get("methods") or DEFAULT_METHODS)
+    unknown = [method for method in methods if method not in METHODS]
+    if unknown:
+        raise ValueError(f"method(s) {', '.join(unknown)}: unknown (known: {', '.join(METHODS)})")
+    grid = tuple(int(n) for n in (grid or settings.get("grid") or config["dp"]["grid"]))
+    path_ids = tuple(paths or config["paths"])
+    missing = [path_id for path_id in path_ids if path_id not in config["paths"]]
+    if missing:
+        raise ValueError(f"path(s) {', '.join(missing)}: not in config {config.get('_path', config['machine'])}")
+    portable = {key: value for key, value in config.items() if not key.startswith("_")}
+    return [WorkUnit(portable, path_id, method, grid) for path_id in path_ids for method in methods]
+
+
+def compute_entry(unit: WorkUnit) -> dict[str, Any]:
+    """Solve one unit (runs in a worker): the row ``TrajectoryDatabase.put_solution`` writes."""
+    crane = Crane(unit.config)
+    problem = Problem.build(crane, unit.config, unit.path_id, grid=unit.grid)
+    plan = run_method(problem, unit.method)
+    motion = crane_motion(crane, problem.samples, plan.trajectory)
+    trajectory = pack_arrays(
+        time=problem.samples.time,
+        positions=np.stack(motion.q, axis=-1),
+        velocities=np.stack(motion.qd, axis=-1),
+        accelerations=np.stack(motion.qdd, axis=-1),
+        extension=plan.trajectory.position,
+    )
+    policy = None
+    if plan.solution is not None:
+        # float32 halves the blob; the cost-to-go's relative precision (6e-8) is far below the grid's
+        policy = pack_arrays(cost_to_go=plan.solution.cost_to_go.astype(np.float32), policy=plan.solution.policy)
+    cost = METHODS[unit.method][0]
+    return {
+        "machine": crane.name,
+        "path_id": unit.path_id,
+        "method": unit.method,
+        "cost": cost.value if cost else None,
+        "inputs_hash": unit.inputs_hash,
+        "grid": unit.grid,
+        "start_position": problem.start,
+        "record": method_record(plan),
+        "trajectory": trajectory,
+        "policy": policy,
+        "seconds": plan.seconds,
+    }
+
+
+@dataclass
+class BuildReport:
+    computed: list[tuple[str, str, str]]
+    skipped: list[tuple[str, str, str]]
+    seconds: float
+    scheduler: str
+
+    def summary(self) -> str:
+        rate = len(self.computed) / self.seconds if self.seconds > 0 else 0.0
+        return (
+            f"{len(self.computed)} solution(s) computed, {len(self.skipped)} already stored, "
+            f"{self.seconds:.1f} s ({rate:.2f} per s) on {self.scheduler}"
+        )
+
+
+def _single_threaded_worker() -> None:
+    # processes times numba's default thread pool each would oversubscribe the cores
+    import numba
+
+    numba.set_num_threads(1)
+
+
+def build(
+    db: TrajectoryDatabase,
+    units: list[WorkUnit],
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: Callable[[WorkUnit], None] | None = None,
+) -> BuildReport:
+    """Compute the units not yet stored with the same inputs; commit each as it finishes."""
+    began = time.perf_counter()
+    for config in {id(unit.config): unit.config for unit in units}.values():
+        db.add_machine(config)
+    stored = db.committed()
+    todo = [unit for unit in units if stored.get(unit.key) != unit.inputs_hash]
+    skipped = [unit.key for unit in units if stored.get(unit.key) == unit.inputs_hash]
+    computed: list[tuple[str, str, str]] = []
+    with ExitStack() as stack:
+        executor, name = _executor(stack, scheduler, workers, len(todo))
+        if executor is None:
+            for unit in todo:
+                db.put_solution(compute_entry(unit))
+                computed.append(unit.key)
+                if progress:
+                    progress(unit)
+        else:
+            futures: dict[Future, WorkUnit] = {executor.submit(compute_entry, unit): unit for unit in todo}
+            for future in as_completed(futures):
+                unit = futures[future]
+                try:
+                    entry = future.result()
+                except Exception as exc:  # noqa: BLE001 - one failed unit names itself; committed ones stay
+                    raise BuildError(f"{unit.path_id}/{unit.method}: {type(exc).__name__}: {exc}") from exc
+                db.put_solution(entry)
+                computed.append(unit.key)
+                if progress:
+                    progress(unit)
+    return BuildReport(computed, skipped, time.perf_counter() - began, name)
+
+
+def _executor(stack: ExitStack, scheduler: str | None, workers: int | None, n_units: int) -> tuple[Executor | None, str]:
+    if scheduler:
+        from distributed import Client
+
+        try:
+            client = stack.enter_context(Client(scheduler, timeout="10s"))
+        except (OSError, TimeoutError) as exc:
+            raise ConnectionError(f"--scheduler {scheduler}: no Dask scheduler answers ({exc})") from None
+        return stack.enter_context(client.get_executor()), f"Dask scheduler {scheduler}"
+    count = workers if workers is not None else (os.cpu_count() or 1)
+    if count <= 1 or n_units <= 1:
+        return None, "1 local process"
+    return stack.enter_context(ProcessPoolExecutor(max_workers=count, initializer=_single_threaded_worker)), f"{count} local processes"

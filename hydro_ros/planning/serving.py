@@ -1,0 +1,200 @@
+"""Serve stored trajectories, re-planned from the manipulator's actual state (no ROS here).
+
+The thesis solved every path offline from one initial configuration and left on-line use open
+(P-VI L11209-L11212: the backward pass can be reused, only a new forward simulation is needed).
+This closes it: when the current joint state differs from the stored start, a DP solution runs its
+stored policy forward from the actual extension (``DpSolution.forward``), a pseudo-inverse simply
+runs again from there; the result is filtered, completed by IK and checked against every limit
+before it is served. The redundant joint may be anywhere; the tip must be at the path's start.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from hydro_ros.planning.compare import METHODS, Problem, method_record, run_method
+from hydro_ros.planning.costs import Cost
+from hydro_ros.planning.crane import Crane
+from hydro_ros.planning.database import JointTrajectoryData, StoredSolution, TrajectoryDatabase
+from hydro_ros.planning.dp import DpGrid, DpSolution, InfeasibleStart
+from hydro_ros.planning.paths import path_from_config
+from hydro_ros.planning.trajectory import crane_motion, evaluate
+
+# a state this close to the stored start (rad or m, rad/s or m/s) is served as stored
+SAME_START_TOLERANCE = 1e-3
+
+
+class ServeError(ValueError):
+    """A request that cannot be served; the message is the one-line error result."""
+
+
+@dataclass(frozen=True)
+class JointStateSample:
+    """The manipulator's measured state, by joint name, and when it was measured (s, node clock)."""
+
+    names: list[str]
+    positions: list[float]
+    velocities: list[float]
+
+
+@dataclass
+class Served:
+    path_id: str
+    method: str
+    trajectory: JointTrajectoryData
+    record: dict[str, Any]
+    replanned: bool
+    seconds: float
+
+    def result(self) -> dict[str, Any]:
+        return {
+            "path": self.path_id,
+            "ok": True,
+            "error": None,
+            "method": self.method,
+            "replanned": self.replanned,
+            "cp_energy_J": self.record["cp_energy_J"],
+            "ls_energy_J": self.record["ls_energy_J"],
+            "limits": self.record["limits"],
+            "points": len(self.trajectory.time),
+            "duration_s": float(self.trajectory.time[-1]),
+            "seconds": round(self.seconds, 4),
+        }
+
+
+class _Context:
+    """What re-planning a path needs: crane, samples, grid, and the DP tables once loaded."""
+
+    def __init__(self, config: dict[str, Any], stored: StoredSolution) -> None:
+        self.crane = Crane(config)
+        self.config = config
+        self.problem = Problem.build(self.crane, config, stored.path_id, grid=stored.grid)
+        self.solution: DpSolution | None = None
+
+
+class TrajectoryService:
+    """Reads a trajectory database and answers path requests (what ``trajectory_server`` wires to ROS)."""
+
+    def __init__(self, database: TrajectoryDatabase, *, tip_tolerance: float = 0.05, cache_size: int = 8) -> None:
+        self.db = database
+        self.tip_tolerance = tip_tolerance
+        self._contexts: OrderedDict[tuple[str, str, str], _Context] = OrderedDict()
+        self._cache_size = cache_size
+
+    def catalog(self) -> list[dict[str, Any]]:
+        return self.db.catalog()
+
+    def serve(self, path_id: str, method: str, current: JointStateSample | None) -> Served:
+        began = time.perf_counter()
+        if method not in METHODS:
+            raise ServeError(f"method {method!r}: unknown (known: {', '.join(METHODS)})")
+        try:
+            stored = self.db.solution(path_id, method)
+        except KeyError as exc:
+            raise ServeError(str(exc.args[0])) from None
+        if current is None:
+            return Served(path_id, method, stored.trajectory, stored.record, False, time.perf_counter() - began)
+        q, qd = self._ordered(stored.trajectory.joint_names, current)
+        start = stored.trajectory.positions[0]
+        if np.max(np.abs(q - start)) <= SAME_START_TOLERANCE and np.max(np.abs(qd)) <= SAME_START_TOLERANCE:
+            return Served(path_id, method, stored.trajectory, stored.record, False, time.perf_counter() - began)
+        trajectory, record = self._replan(stored, q, qd)
+        return Served(path_id, method, trajectory, record, True, time.perf_counter() - began)
+
+    def _ordered(self, names: list[str], current: JointStateSample) -> tuple[np.ndarray, np.ndarray]:
+        index = {name: i for i, name in enumerate(current.names)}
+        missing = [name for name in names if name not in index]
+        if missing:
+            raise ServeError(f"joint state: joint(s) {', '.join(missing)} missing (has {', '.join(current.names) or 'none'})")
+        q = np.array([current.positions[index[name]] for name in names], dtype=float)
+        velocities = current.velocities if len(current.velocities) == len(current.names) else [0.0] * len(current.names)
+        qd = np.array([velocities[index[name]] for name in names], dtype=float)
+        if not (np.isfinite(q).all() and np.isfinite(qd).all()):
+            raise ServeError(f"joint state: non-finite position or velocity ({dict(zip(names, q.round(4).tolist()))})")
+        return q, qd
+
+    def _context(self, stored: StoredSolution) -> _Context:
+        key = (stored.machine, stored.path_id, stored.method)
+        context = self._contexts.get(key)
+        if context is None:
+            context = _Context(self.db.machine_config(stored.machine), stored)
+            self._contexts[key] = context
+            while len(self._contexts) > self._cache_size:
+                self._contexts.popitem(last=False)
+        self._contexts.move_to_end(key)
+        return context
+
+    def _replan(self, stored: StoredSolution, q: np.ndarray, qd: np.ndarray) -> tuple[JointTrajectoryData, dict[str, Any]]:
+        context = self._context(stored)
+        crane, problem = context.crane, context.problem
+        gap = float(np.linalg.norm(crane.forward(q) - problem.samples.position[0]))
+        if gap > self.tip_tolerance:
+            raise ServeError(
+                f"joint state: the tip is {gap:.3f} m from the start of path {stored.path_id!r} "
+                f"(tolerance {self.tip_tolerance} m); move it there first"
+            )
+        extension = crane.extension
+        c0 = float(extension.stroke(q[-1]))
+        v0 = float(extension.ratio * qd[-1])
+        try:
+            if stored.has_policy:
+                raw = self._dp_solution(context, stored).forward(c0, v0)
+                extension_trajectory = raw.filtered(problem.filter_cutoff)
+                plan_record = None
+            else:
+                plan = run_method(replace(problem, start=c0), stored.method)
+                extension_trajectory = plan.trajectory
+                plan_record = method_record(plan)
+        except InfeasibleStart as exc:
+            raise ServeError(f"from the current state (extension {c0:.3f} m): {exc}") from None
+        evaluation = evaluate(crane, problem.samples, extension_trajectory)
+        claims = METHODS[stored.method][1]
+        broken = [kind for kind in claims if not evaluation["limits"][kind]]
+        if broken or not math.isfinite(evaluation["tip_error_max_m"]):
+            raise ServeError(f"from the current state (extension {c0:.3f} m) path {stored.path_id!r} would break the {', '.join(broken) or 'reach'} limit")
+        motion = crane_motion(crane, problem.samples, extension_trajectory)
+        trajectory = JointTrajectoryData(
+            joint_names=crane.names,
+            time=problem.samples.time,
+            positions=np.stack(motion.q, axis=-1),
+            velocities=np.stack(motion.qd, axis=-1),
+            accelerations=np.stack(motion.qdd, axis=-1),
+            extension=extension_trajectory.position,
+        )
+        record = plan_record or {
+            "cp_energy_J": evaluation["cp_energy_J"],
+            "ls_energy_J": evaluation["ls_energy_J"],
+            "limits": evaluation["limits"],
+            "limits_ok": True,
+        }
+        return trajectory, record
+
+    def _dp_solution(self, context: _Context, stored: StoredSolution) -> DpSolution:
+        if context.solution is None:
+            tables = self.db.policy(stored.machine, stored.path_id, stored.method)
+            context.solution = DpSolution(
+                context.crane,
+                context.problem.samples,
+                DpGrid.for_crane(context.crane, stored.grid),
+                Cost(stored.cost),
+                True,
+                tables["cost_to_go"].astype(float),
+                tables["policy"],
+            )
+        return context.solution
+
+
+def path_start_state(config: dict[str, Any], path_id: str, extension_stroke: float) -> np.ndarray:
+    """Joint positions with the tip at the path's start and the extension cylinder at ``extension_stroke``."""
+    crane = Crane(config)
+    samples = path_from_config(config, path_id).sample(float(config["dp"]["sample_time"]))
+    motion = crane.motion(tuple(samples.position[0]), (0.0,) * crane.task_dim, (0.0,) * crane.task_dim, extension_stroke, 0.0, 0.0, forces=False)
+    if not bool(motion.reachable):
+        raise ServeError(f"path {path_id!r}: extension {extension_stroke:.3f} m cannot reach the path start")
+    return np.array([float(q) for q in motion.q])
