@@ -27,6 +27,7 @@ setup(
             "bag_player = hydro_ros.nodes.bag_player:main",
             "fdi_node = hydro_ros.nodes.fdi_node:main",
             "can_bridge = hydro_ros.nodes.can_bridge:main",
+            "trajectory_server = hydro_ros.nodes.trajectory_server:main",
             "hydro-ros = hydro_ros.cli:main",
         ],
     },

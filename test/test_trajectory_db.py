@@ -1,0 +1,169 @@
+"""Trajectory database, catalog build (resume after a kill, Dask), and serving from the actual state."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from hydro_ros.cli import main as cli_main
+from hydro_ros.planning.catalog import build, compute_entry, plan_units
+from hydro_ros.planning.crane import load_crane
+from hydro_ros.planning.database import DatabaseError, TrajectoryDatabase
+from hydro_ros.planning.serving import JointStateSample, ServeError, TrajectoryService, path_start_state
+from test.conftest import REPO
+
+K70M = REPO / "config" / "k70m.yaml"
+SMALL_GRID = (60, 21, 21)
+
+
+@pytest.fixture(scope="module")
+def k70m():
+    return load_crane(K70M)[1]
+
+
+@pytest.fixture(scope="module")
+def small_db(tmp_path_factory, k70m):
+    path = tmp_path_factory.mktemp("db") / "catalog.db"
+    units = plan_units(k70m, methods=("dp_cp", "pinv_joint"), grid=SMALL_GRID, paths=("horizontal", "vertical"))
+    with TrajectoryDatabase(path, writable=True) as db:
+        build(db, units, workers=1)
+    return path
+
+
+def test_stored_solution_equals_a_fresh_computation(small_db, k70m):
+    fresh = compute_entry(plan_units(k70m, methods=("dp_cp",), grid=SMALL_GRID, paths=("horizontal",))[0])
+    with TrajectoryDatabase(small_db) as db:
+        stored = db.solution("horizontal", "dp_cp")
+        catalog = db.catalog()
+    assert stored.record["cp_energy_J"] == pytest.approx(fresh["record"]["cp_energy_J"], rel=1e-12)
+    assert stored.has_policy and stored.trajectory.positions.shape == (len(stored.trajectory.time), 4)
+    assert stored.trajectory.joint_names == ["base", "lift", "tilt", "extension"]
+    assert {entry["path"] for entry in catalog} == {"horizontal", "vertical", "half_cycle"}
+    horizontal = next(entry for entry in catalog if entry["path"] == "horizontal")
+    assert set(horizontal["solutions"]) == {"dp_cp", "pinv_joint"}
+    assert horizontal["solutions"]["dp_cp"]["cp_energy_J"] < horizontal["solutions"]["pinv_joint"]["cp_energy_J"]
+
+
+def test_rebuild_skips_what_is_stored_and_recomputes_what_changed(small_db, k70m):
+    units = plan_units(k70m, methods=("dp_cp", "pinv_joint"), grid=SMALL_GRID, paths=("horizontal", "vertical"))
+    with TrajectoryDatabase(small_db, writable=True) as db:
+        report = build(db, units, workers=1)
+        assert report.computed == [] and len(report.skipped) == 4
+        changed = dict(k70m, dp=dict(k70m["dp"], filter_cutoff=4.0))
+        report = build(db, plan_units(changed, methods=("pinv_joint",), grid=SMALL_GRID, paths=("vertical",)), workers=1)
+        assert report.computed == [("k70m", "vertical", "pinv_joint")]
+
+
+def test_a_killed_build_resumes_without_recomputing_committed_entries(tmp_path, k70m):
+    db_path = tmp_path / "killed.db"
+    methods = ("pinv_joint", "dp_cp", "dp_ls")
+    grid = (120, 41, 41)
+    command = [sys.executable, "-m", "hydro_ros.cli", "db", "build", "--config", str(K70M), "--db", str(db_path),
+               "--workers", "1", "--quiet", "--grid", *map(str, grid), "--methods", *methods]
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    committed: dict = {}
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+        if db_path.exists():
+            try:
+                with sqlite3.connect(db_path, timeout=1) as raw:
+                    committed = {row[:3]: row[3] for row in raw.execute("SELECT machine, path_id, method, created FROM solutions")}
+            except sqlite3.Error:
+                continue
+            if len(committed) >= 2:
+                break
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    units = plan_units(k70m, methods=methods, grid=grid)
+    assert 2 <= len(committed) < len(units), f"kill landed outside the build ({len(committed)} of {len(units)} committed)"
+    with TrajectoryDatabase(db_path, writable=True) as db:  # opening runs the integrity check
+        report = build(db, units, workers=1)
+        after = {row[:3]: row[3] for row in db.connection.execute("SELECT machine, path_id, method, created FROM solutions")}
+    assert set(report.skipped) >= set(committed)
+    assert not set(report.computed) & set(committed)
+    assert len(after) == len(units)
+    assert all(after[key] == created for key, created in committed.items())  # committed rows untouched
+
+
+def test_dask_local_cluster_builds_the_same_catalog(tmp_path, small_db, k70m):
+    distributed = pytest.importorskip("distributed")
+    units = plan_units(k70m, methods=("dp_cp", "pinv_joint"), grid=SMALL_GRID, paths=("horizontal", "vertical"))
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            TrajectoryDatabase(tmp_path / "dask.db", writable=True) as db:
+        report = build(db, units, scheduler=cluster.scheduler_address)
+        assert "Dask" in report.scheduler and len(report.computed) == 4
+        on_dask = {(m, p, meth): cp for m, p, meth, _, cp, *_ in db.rows()}
+    with TrajectoryDatabase(small_db) as local:
+        on_local = {(m, p, meth): cp for m, p, meth, _, cp, *_ in local.rows()}
+    assert on_dask == pytest.approx(on_local)
+
+
+def test_bad_databases_are_refused_with_one_line(tmp_path, capsys):
+    garbage = tmp_path / "garbage.db"
+    garbage.write_bytes(b"this is not sqlite" * 100)
+    with pytest.raises(DatabaseError, match="corrupt or not an SQLite file"):
+        TrajectoryDatabase(garbage)
+    foreign = tmp_path / "foreign.db"
+    with sqlite3.connect(foreign) as raw:
+        raw.execute("CREATE TABLE meta (key TEXT, value TEXT)")
+        raw.execute("INSERT INTO meta VALUES ('schema_version', '99')")
+    with pytest.raises(DatabaseError, match="schema version 99"):
+        TrajectoryDatabase(foreign)
+    with pytest.raises(DatabaseError, match="no such file"):
+        TrajectoryDatabase(tmp_path / "missing.db")
+    assert cli_main(["db", "list", "--db", str(garbage)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("hydro-ros db: error: database") and "\n" not in err
+
+
+def test_cli_build_and_list(tmp_path, capsys):
+    db_path = tmp_path / "cli.db"
+    assert cli_main(["db", "build", "--config", str(K70M), "--db", str(db_path), "--paths", "vertical", "--methods", "pinv_joint",
+                     "--grid", *map(str, SMALL_GRID), "--quiet"]) == 0
+    assert "1 solution(s) computed" in capsys.readouterr().out
+    assert cli_main(["db", "list", "--db", str(db_path)]) == 0
+    listing = capsys.readouterr().out
+    assert "vertical" in listing and "pinv_joint" in listing and "1 solution(s)" in listing
+    assert cli_main(["db", "build", "--config", str(K70M), "--db", str(db_path), "--paths", "nowhere", "--quiet"]) == 1
+    assert "nowhere" in capsys.readouterr().err
+
+
+def _state(names, q):
+    return JointStateSample(list(names), list(map(float, q)), [0.0] * len(names))
+
+
+def test_serving_replans_from_the_actual_extension(small_db, k70m):
+    with TrajectoryDatabase(small_db) as db:
+        service = TrajectoryService(db)
+        stored = db.solution("horizontal", "dp_cp")
+        names = stored.trajectory.joint_names
+        same = service.serve("horizontal", "dp_cp", _state(names, stored.trajectory.positions[0]))
+        assert not same.replanned and same.record == stored.record
+        q0 = path_start_state(k70m, "horizontal", stored.start_position + 0.4)
+        for method in ("dp_cp", "pinv_joint"):
+            moved = service.serve("horizontal", method, _state(names, q0))
+            assert moved.replanned
+            np.testing.assert_allclose(moved.trajectory.positions[0], q0, atol=1e-3)
+            assert all(moved.record["limits"][kind] for kind in ("position", "velocity"))
+            if method == "dp_cp":
+                # from a telescope already 0.4 m out, the path needs less extension work than from the stored start
+                assert moved.record["cp_energy_J"] < stored.record["cp_energy_J"]
+        with pytest.raises(ServeError, match="not in the database"):
+            service.serve("nowhere", "dp_cp", None)
+        with pytest.raises(ServeError, match="no 'dp_ls' solution"):
+            service.serve("horizontal", "dp_ls", None)
+        away = path_start_state(k70m, "vertical", 0.5)
+        with pytest.raises(ServeError, match="from the start of path 'horizontal'"):
+            service.serve("horizontal", "dp_cp", _state(names, away))
+        with pytest.raises(ServeError, match="non-finite"):
+            service.serve("horizontal", "dp_cp", _state(names, [np.nan, 0.0, 0.0, 0.0]))
+        with pytest.raises(ServeError, match="extension missing"):
+            service.serve("horizontal", "dp_cp", _state(names[:3], q0[:3]))

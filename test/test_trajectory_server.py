@@ -1,0 +1,110 @@
+"""trajectory_server on a real DDS graph: a client at some joint state requests paths."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from trajectory_msgs.msg import JointTrajectory
+
+from hydro_ros.bags import topics
+from hydro_ros.nodes.common import LATCHED_QOS
+from hydro_ros.planning.catalog import build, plan_units
+from hydro_ros.planning.crane import Crane, load_crane
+from hydro_ros.planning.database import TrajectoryDatabase
+from hydro_ros.planning.serving import path_start_state
+from hydro_ros.planning.trajectory import LIMIT_TOLERANCE
+from test.conftest import REPO
+from test.ros_graph import node_process, probe_node, spin_until
+
+K70M = REPO / "config" / "k70m.yaml"
+
+
+@pytest.fixture(scope="module")
+def catalog_db(tmp_path_factory):
+    _, config = load_crane(K70M)
+    path = tmp_path_factory.mktemp("server") / "catalog.db"
+    with TrajectoryDatabase(path, writable=True) as db:
+        build(db, plan_units(config, methods=("dp_cp", "pinv_actuator"), grid=(80, 31, 31), paths=("horizontal",)), workers=1)
+    return path, config
+
+
+def _limits_hold(config: dict, msg: JointTrajectory) -> None:
+    crane = Crane(config)
+    q = np.array([p.positions for p in msg.points])
+    qd = np.array([p.velocities for p in msg.points])
+    for i, cylinder in enumerate(crane.cylinders):
+        span = (cylinder.q_max - cylinder.q_min) * LIMIT_TOLERANCE
+        assert cylinder.q_min - span <= q[:, i].min() and q[:, i].max() <= cylinder.q_max + span, cylinder.name
+        arm, _ = cylinder.arm(q[:, i])
+        assert np.abs(arm * qd[:, i]).max() <= cylinder.velocity_max * (1 + LIMIT_TOLERANCE), cylinder.name
+
+
+def test_server_serves_from_the_clients_joint_state_and_refuses_unknown_paths(ros_domain, catalog_db):
+    db_path, config = catalog_db
+    with TrajectoryDatabase(db_path) as db:
+        stored_start = db.solution("horizontal", "dp_cp").start_position
+    q0 = path_start_state(config, "horizontal", stored_start + 0.3)
+    received: dict[str, list] = {"catalog": [], "result": [], "trajectory": [], "output": []}
+    with node_process("hydro_ros.nodes.trajectory_server", "-p", f"database:={db_path}", "-p", f"config:={K70M}",
+                      "-p", "output_topic:=/crane/joint_trajectory") as proc, probe_node("client") as node:
+        node.create_subscription(String, "/trajectory_server/catalog", lambda m: received["catalog"].append(m), LATCHED_QOS)
+        node.create_subscription(String, "/trajectory_server/result", lambda m: received["result"].append(json.loads(m.data)), LATCHED_QOS)
+        node.create_subscription(JointTrajectory, "/trajectory_server/trajectory", lambda m: received["trajectory"].append(m), LATCHED_QOS)
+        node.create_subscription(JointTrajectory, "/crane/joint_trajectory", lambda m: received["output"].append(m), LATCHED_QOS)
+        requests = node.create_publisher(String, "/trajectory_server/request", 10)
+        joints = node.create_publisher(JointState, topics.JOINT_STATES, 10)
+        assert spin_until(node, lambda: received["catalog"], 30), proc.stdout.read() if proc.poll() is not None else "no catalog"
+        catalog = json.loads(received["catalog"][-1].data)
+        assert [entry["path"] for entry in catalog if entry["solutions"]] == ["horizontal"]
+
+        # no joint state yet: a clear error, no trajectory
+        assert spin_until(node, lambda: requests.get_subscription_count() > 0, 10)
+        requests.publish(String(data="horizontal"))
+        assert spin_until(node, lambda: received["result"], 10)
+        assert not received["result"][-1]["ok"] and "nothing received" in received["result"][-1]["error"]
+
+        def publish_state() -> None:
+            joints.publish(JointState(name=config_joint_names(config), position=q0.tolist(), velocity=[0.0] * 4))
+
+        node.create_timer(0.05, publish_state)
+        for method in ("dp_cp", "pinv_actuator"):
+            count = len(received["result"])
+            spin_until(node, lambda: False, 0.3)  # a fresh joint state has arrived
+            requests.publish(String(data=json.dumps({"path": "horizontal", "method": method})))
+            assert spin_until(node, lambda: len(received["result"]) > count and len(received["trajectory"]) >= 1, 20)
+            result = received["result"][-1]
+            assert result["ok"], result
+            assert result["replanned"] and result["method"] == method
+            msg = received["trajectory"][-1]
+            assert msg.joint_names == ["base", "lift", "tilt", "extension"]
+            np.testing.assert_allclose(msg.points[0].positions, q0, atol=1e-3)  # starts where the client is
+            _limits_hold(config, msg)
+            assert len(msg.points) == result["points"]
+        assert spin_until(node, lambda: received["output"], 5)
+
+        count = len(received["result"])
+        requests.publish(String(data="nowhere"))
+        assert spin_until(node, lambda: len(received["result"]) > count, 10)
+        assert received["result"][-1] == {"path": "nowhere", "ok": False, "error": received["result"][-1]["error"]}
+        assert "not in the database" in received["result"][-1]["error"]
+
+
+def config_joint_names(config: dict) -> list[str]:
+    return [joint["name"] for joint in config["joints"]]
+
+
+def test_server_answers_with_an_error_when_the_database_is_corrupt(ros_domain, tmp_path):
+    broken = tmp_path / "broken.db"
+    broken.write_bytes(b"\x00garbage" * 512)
+    results: list[dict] = []
+    with node_process("hydro_ros.nodes.trajectory_server", "-p", f"database:={broken}"), probe_node("client") as node:
+        node.create_subscription(String, "/trajectory_server/result", lambda m: results.append(json.loads(m.data)), LATCHED_QOS)
+        requests = node.create_publisher(String, "/trajectory_server/request", 10)
+        assert spin_until(node, lambda: requests.get_subscription_count() > 0, 20)
+        requests.publish(String(data="horizontal"))
+        assert spin_until(node, lambda: results, 10)
+    assert not results[-1]["ok"] and "corrupt or not an SQLite file" in results[-1]["error"]
