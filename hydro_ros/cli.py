@@ -14,7 +14,7 @@ from typing import Callable, Sequence
 
 from hydro_ros.config import ConfigError, load_machine_config
 from hydro_ros.names import INJECTION_UNITS, parse_injection
-from hydro_ros.planning.database import BuildError, DatabaseError
+from hydro_ros.planning.errors import BuildError, DatabaseError
 
 
 class CliError(Exception):
@@ -302,6 +302,36 @@ def cmd_db_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_dp_execute(args: argparse.Namespace) -> int:
+    from hydro_ros.bags.writer import BagExistsError
+    from hydro_ros.planning.crane import load_crane
+    from hydro_ros.planning.execution import execute, write_bag
+    from hydro_ros.planning.serving import executable_trajectory
+
+    out = Path(args.out)
+    if out.exists():
+        raise CliError(f"--out {out}: already exists, refusing to overwrite")
+    _, config = load_crane(args.config)
+    trajectory, planned = executable_trajectory(
+        config, args.path, args.method, database=args.db, grid=tuple(args.grid) if args.grid else None,
+        start_extension=args.start_extension,
+    )
+    execution = execute(config, trajectory, args.supply, seed=args.seed)
+    summary = {"machine": config["machine"], "path": args.path, "method": args.method, "planned": planned, **execution.summary}
+    try:
+        write_bag(execution, out, {"machine": config["machine"], "execution": summary})
+    except BagExistsError as exc:
+        raise CliError(str(exc)) from None
+    if args.json:
+        Path(args.json).write_text(json.dumps(summary, indent=2) + "\n")
+    energy_key = "cp_energy_J" if args.supply == "cp" else "ls_energy_J"
+    print(
+        f"dp execute {args.path}/{args.method} on the {args.supply.upper()} crane: {summary['energy_J'] / 1e3:.1f} kJ "
+        f"(planned {planned[energy_key] / 1e3:.1f} kJ), ISO 9283 path accuracy {summary['path_accuracy_iso9283_m']:.3f} m -> {out}"
+    )
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bag_player import replay
 
@@ -423,6 +453,23 @@ def build_parser() -> argparse.ArgumentParser:
     db_list.add_argument("--db", required=True, help="SQLite file")
     db_list.add_argument("--json", action="store_true", help="the catalog as JSON (what trajectory_server latches)")
     db_list.set_defaults(func=cmd_db_list)
+
+    execute = dp_sub.add_parser("execute", help="run a planned trajectory on the simulated crane (P-VI App. A controller) into a bag",
+                                description="Execute one method's trajectory in closed loop on the crane plant (valve dead zone "
+                                "and delay, payload, CP or LS pump) and write a contract bag with the measured energy and the "
+                                "ISO 9283 path accuracy in its truth metadata.")
+    execute.add_argument("--config", required=True, help="crane config: config/k70m.yaml or config/crane3dof.yaml")
+    execute.add_argument("--path", required=True, help="path id of the config")
+    execute.add_argument("--method", default="dp_cp", help="planning method of dp compare, e.g. dp_cp, dp_ls, pinv_joint (default dp_cp)")
+    execute.add_argument("--supply", choices=["cp", "ls"], default="cp", help="pump of the simulated crane (default cp)")
+    execute.add_argument("--db", default=None, help="take the solution from this trajectory database (default: plan it now)")
+    execute.add_argument("--grid", type=int, nargs=3, metavar=("N_C", "N_V", "N_U"), help="DP grid when planning now (default: dp.grid)")
+    execute.add_argument("--start-extension", type=float, default=None, metavar="M",
+                         help="start with the extension cylinder at this stroke (re-planned from there)")
+    execute.add_argument("--seed", type=int, default=0, help="seed of the plant's valve spread")
+    execute.add_argument("--out", required=True, help="bag directory to create (must not exist)")
+    execute.add_argument("--json", default=None, help="also write the summary here")
+    execute.set_defaults(func=cmd_dp_execute)
 
     replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
     replay.add_argument("bag", help="bag directory")

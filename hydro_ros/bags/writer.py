@@ -129,6 +129,32 @@ class ContractBagWriter:
         }
         (self.path / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False))
 
+    def write_machine_sample(
+        self,
+        stamp: int,
+        joints: tuple[list[float], list[float]],
+        pressures: tuple[list[float], list[float]],
+        supply_pressure: float,
+        commands: list[float],
+    ) -> None:
+        """One sample of a multi-joint machine: one JointState with every joint, per-actuator pressures."""
+        channels, add = self._channels, self._mcap.add_message
+        names = list(self.actuators)
+        payloads = [
+            (topics.JOINT_STATES, encode_joint_state(stamp, "", list(self.actuators.values()), joints[0], joints[1], [])),
+            (topics.SUPPLY_PRESSURE, encode_fluid_pressure(stamp, "supply", supply_pressure, self.variance)),
+            (topics.VALVE_COMMANDS, encode_joint_state(stamp, "", names, commands, [], [])),
+        ]
+        for actuator, p_a, p_b in zip(names, *pressures):
+            payloads.append((topics.pressure_a(actuator), encode_fluid_pressure(stamp, actuator, p_a, self.variance)))
+            payloads.append((topics.pressure_b(actuator), encode_fluid_pressure(stamp, actuator, p_b, self.variance)))
+        for topic, payload in payloads:
+            add(channels[topic], stamp, payload, stamp)
+            self._counts[topic] += 1
+        self.messages += len(payloads)
+        self._first = self._first if self._first is not None else stamp
+        self._last = stamp
+
     def write(self, actuator: str, block: Samples) -> None:
         """Write one actuator's block of samples; stamps (and bag log times) are sample times."""
         joint = self.actuators[actuator]

@@ -20,8 +20,9 @@ import numpy as np
 
 from hydro_ros.planning.compare import METHODS, Problem, method_record, run_method
 from hydro_ros.planning.crane import Crane
-from hydro_ros.planning.database import BuildError, TrajectoryDatabase, inputs_hash, pack_arrays
-from hydro_ros.planning.trajectory import crane_motion
+from hydro_ros.planning.database import TrajectoryDatabase, inputs_hash, pack_arrays
+from hydro_ros.planning.errors import BuildError
+from hydro_ros.planning.trajectory import joint_trajectory
 
 # what a catalog holds unless the config's `catalog.methods` says otherwise: the served optimum for
 # each supply, the two conventional baselines the operator compares against
@@ -66,13 +67,10 @@ def compute_entry(unit: WorkUnit) -> dict[str, Any]:
     crane = Crane(unit.config)
     problem = Problem.build(crane, unit.config, unit.path_id, grid=unit.grid)
     plan = run_method(problem, unit.method)
-    motion = crane_motion(crane, problem.samples, plan.trajectory)
+    joints = joint_trajectory(crane, problem.samples, plan.trajectory)
     trajectory = pack_arrays(
-        time=problem.samples.time,
-        positions=np.stack(motion.q, axis=-1),
-        velocities=np.stack(motion.qd, axis=-1),
-        accelerations=np.stack(motion.qdd, axis=-1),
-        extension=plan.trajectory.position,
+        time=joints.time, positions=joints.positions, velocities=joints.velocities, accelerations=joints.accelerations,
+        extension=joints.extension,
     )
     policy = None
     if plan.solution is not None:

@@ -268,11 +268,11 @@ class Crane:
         reachable = np.abs(cos_elbow) <= 1.0 if xp is NUMPY else None
         motion = Motion(q=q, qd=qd, qdd=qdd, c=c, v=v, a=a, force=None, reachable=reachable)
         if forces:
-            motion.force = self._forces(motion)
+            motion.force = self.cylinder_forces(motion)
         return motion
 
     # -- dynamics --------------------------------------------------------------------------
-    def _forces(self, motion: Motion) -> list[Any]:
+    def cylinder_forces(self, motion: Motion) -> list[Any]:
         """Cylinder forces F = R^-1 (M(q) q'' + G(q) + F_f) of point masses (P-VI eq. 16; Coriolis omitted)."""
         lift, tilt, q_e = motion.q[-3], motion.q[-2], motion.q[-1]
         lift_dd, tilt_dd, ext_dd = motion.qdd[-3], motion.qdd[-2], motion.qdd[-1]

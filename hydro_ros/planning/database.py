@@ -21,6 +21,9 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from hydro_ros.planning.errors import DatabaseError
+from hydro_ros.planning.trajectory import JointTrajectoryData
+
 SCHEMA_VERSION = 1
 _BUSY_TIMEOUT_S = 5.0
 
@@ -56,26 +59,6 @@ CREATE TABLE IF NOT EXISTS solutions (
     FOREIGN KEY (machine, path_id) REFERENCES paths(machine, path_id)
 );
 """
-
-
-class DatabaseError(RuntimeError):
-    """The trajectory database is missing, corrupt, of another schema, or locked."""
-
-
-class BuildError(RuntimeError):
-    """A unit of a catalog build failed; the units committed before it stay."""
-
-
-@dataclass(frozen=True)
-class JointTrajectoryData:
-    """A stored joint trajectory: t_k, joint positions / velocities / accelerations (k x joint)."""
-
-    joint_names: list[str]
-    time: np.ndarray
-    positions: np.ndarray
-    velocities: np.ndarray
-    accelerations: np.ndarray
-    extension: np.ndarray  # extension cylinder stroke at t_k (the DP state)
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,10 @@ import numpy as np
 from hydro_ros.planning.compare import METHODS, Problem, method_record, run_method
 from hydro_ros.planning.costs import Cost
 from hydro_ros.planning.crane import Crane
-from hydro_ros.planning.database import JointTrajectoryData, StoredSolution, TrajectoryDatabase
+from hydro_ros.planning.database import StoredSolution, TrajectoryDatabase
 from hydro_ros.planning.dp import DpGrid, DpSolution, InfeasibleStart
 from hydro_ros.planning.paths import path_from_config
-from hydro_ros.planning.trajectory import crane_motion, evaluate
+from hydro_ros.planning.trajectory import JointTrajectoryData, evaluate, joint_trajectory
 
 # a state this close to the stored start (rad or m, rad/s or m/s) is served as stored
 SAME_START_TOLERANCE = 1e-3
@@ -158,15 +158,7 @@ class TrajectoryService:
         broken = [kind for kind in claims if not evaluation["limits"][kind]]
         if broken or not math.isfinite(evaluation["tip_error_max_m"]):
             raise ServeError(f"from the current state (extension {c0:.3f} m) path {stored.path_id!r} would break the {', '.join(broken) or 'reach'} limit")
-        motion = crane_motion(crane, problem.samples, extension_trajectory)
-        trajectory = JointTrajectoryData(
-            joint_names=crane.names,
-            time=problem.samples.time,
-            positions=np.stack(motion.q, axis=-1),
-            velocities=np.stack(motion.qd, axis=-1),
-            accelerations=np.stack(motion.qdd, axis=-1),
-            extension=extension_trajectory.position,
-        )
+        trajectory = joint_trajectory(crane, problem.samples, extension_trajectory)
         record = plan_record or {
             "cp_energy_J": evaluation["cp_energy_J"],
             "ls_energy_J": evaluation["ls_energy_J"],
@@ -198,3 +190,29 @@ def path_start_state(config: dict[str, Any], path_id: str, extension_stroke: flo
     if not bool(motion.reachable):
         raise ServeError(f"path {path_id!r}: extension {extension_stroke:.3f} m cannot reach the path start")
     return np.array([float(q) for q in motion.q])
+
+
+def executable_trajectory(
+    config: dict[str, Any],
+    path_id: str,
+    method: str,
+    *,
+    database: str | None = None,
+    grid: tuple[int, int, int] | None = None,
+    start_extension: float | None = None,
+) -> tuple[JointTrajectoryData, dict[str, Any]]:
+    """A joint trajectory and its planned record: served from ``database``, else planned now."""
+    names = [joint["name"] for joint in config["joints"]]
+    if database is not None:
+        service = TrajectoryService(TrajectoryDatabase(database))
+        current = None
+        if start_extension is not None:
+            current = JointStateSample(names, path_start_state(config, path_id, start_extension).tolist(), [0.0] * len(names))
+        served = service.serve(path_id, method, current)
+        return served.trajectory, served.record
+    crane = Crane(config)
+    problem = Problem.build(crane, config, path_id, grid=grid)
+    if start_extension is not None:
+        problem = replace(problem, start=start_extension)
+    plan = run_method(problem, method)
+    return joint_trajectory(crane, problem.samples, plan.trajectory), method_record(plan)

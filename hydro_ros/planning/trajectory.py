@@ -98,13 +98,38 @@ def _margins(crane: Crane, motion: Motion) -> dict[str, float]:
     return {"velocity": velocity, "acceleration": acceleration}
 
 
+@dataclass(frozen=True)
+class JointTrajectoryData:
+    """A stored joint trajectory: t_k, joint positions / velocities / accelerations (k x joint)."""
+
+    joint_names: list[str]
+    time: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    accelerations: np.ndarray
+    extension: np.ndarray  # extension cylinder stroke at t_k (the DP state)
+
+
+def joint_trajectory(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory) -> JointTrajectoryData:
+    """Every joint along the path: the extension as planned, the others by inverse kinematics."""
+    motion = crane_motion(crane, samples, trajectory)
+    return JointTrajectoryData(
+        joint_names=list(crane.names),
+        time=samples.time,
+        positions=np.stack(motion.q, axis=-1),
+        velocities=np.stack(motion.qd, axis=-1),
+        accelerations=np.stack(motion.qdd, axis=-1),
+        extension=trajectory.position,
+    )
+
+
 def joint_table(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory) -> dict[str, Any]:
     """The joint trajectory as JSON-ready lists (positions, velocities, accelerations per joint)."""
-    motion = crane_motion(crane, samples, trajectory)
+    data = joint_trajectory(crane, samples, trajectory)
     return {
-        "joint_names": crane.names,
-        "time_s": samples.time.tolist(),
-        "positions": np.stack(motion.q, axis=-1).tolist(),
-        "velocities": np.stack(motion.qd, axis=-1).tolist(),
-        "accelerations": np.stack(motion.qdd, axis=-1).tolist(),
+        "joint_names": data.joint_names,
+        "time_s": data.time.tolist(),
+        "positions": data.positions.tolist(),
+        "velocities": data.velocities.tolist(),
+        "accelerations": data.accelerations.tolist(),
     }
