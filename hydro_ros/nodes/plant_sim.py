@@ -1,4 +1,7 @@
-"""plant_sim: the SAM plant model in (scaled) real time on the contract topics.
+"""plant_sim: the machine of a config in (scaled) real time on the contract topics.
+
+A crane config (``kind: crane``) runs the closed-loop crane of ``hydro_ros.nodes.crane_sim``:
+it executes the JointTrajectory it receives; the rest of this docstring is the SAM-type machine.
 
 Publishes the measured topics of contract section 1 (raw CDR, the same bytes a bag holds),
 optionally /clock. Valve commands come from the simulated operator (`excitation: operator`,
@@ -23,7 +26,7 @@ from sensor_msgs.msg import FluidPressure, JointState
 
 from hydro_ros.bags import topics
 from hydro_ros.bags.writer import sample_payloads, sample_topics
-from hydro_ros.config import default_config_path, load_machine_config
+from hydro_ros.config import default_config_path, load_machine_config, read_config
 from hydro_ros.names import INJECTABLE, Injection
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, run_node
 from hydro_ros.sim.scenario import Scenario, start
@@ -43,17 +46,22 @@ class PlantSim(Node):
         self.declare_parameter("tick_period", 0.01)
         self.declare_parameter("can_interface", "")  # e.g. socketcan / udp_multicast: also emit the sensors as CAN frames
         self.declare_parameter("can_channel", "")
+        self.can_bus = None
+        self.rtf = float(self.get_parameter("real_time_factor").value)
+        if not (self.rtf > 0.0 and math.isfinite(self.rtf)):
+            raise ValueError(f"parameter real_time_factor={self.rtf}: must be > 0")
+        config_path = str(self.get_parameter("config").value)
+        if read_config(config_path, required=("machine",), nonempty="machine").get("kind") == "crane":
+            self._start_crane(config_path)
+            return
         for name in sorted(INJECTABLE):
             self.declare_parameter(f"fault.{name}", 0.0)
-        self.config = load_machine_config(self.get_parameter("config").value)
+        self.config = load_machine_config(config_path)
         self.actuator = next(iter(self.config["actuators"]))
         self.joint = self.config["actuators"][self.actuator]["joint"]
         self.excitation = self.get_parameter("excitation").value
         if self.excitation not in ("operator", "topic"):
             raise ValueError(f"parameter excitation={self.excitation!r}: expected 'operator' or 'topic'")
-        self.rtf = float(self.get_parameter("real_time_factor").value)
-        if not (self.rtf > 0.0 and math.isfinite(self.rtf)):
-            raise ValueError(f"parameter real_time_factor={self.rtf}: must be > 0")
         self.publish_clock = bool(self.get_parameter("publish_clock").value)
         self.run = start(self.config, Scenario(float("inf"), (), seed=int(self.get_parameter("seed").value), actuator=self.actuator))
         self.variance = float(self.config["sensors"]["pressure_noise_std"]) ** 2
@@ -74,7 +82,6 @@ class PlantSim(Node):
         if self.excitation == "topic":
             self.create_subscription(JointState, topics.VALVE_COMMANDS, self._on_command, SENSOR_QOS)
         self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.publish_clock else None
-        self.can_bus = None
         interface = str(self.get_parameter("can_interface").value)
         if interface:
             import can
@@ -96,6 +103,16 @@ class PlantSim(Node):
         self.get_logger().info(
             f"simulating {self.config['machine']} ({self.actuator}) at {self.config['sample_rate_hz']:.0f} Hz, "
             f"x{self.rtf:g} real time, excitation={self.excitation}"
+        )
+
+    def _start_crane(self, config_path: str) -> None:
+        from hydro_ros.nodes.crane_sim import CraneRunner
+        from hydro_ros.planning.crane import load_crane
+
+        _, config = load_crane(config_path)
+        self.crane = CraneRunner(
+            self, config, real_time_factor=self.rtf, tick_period=float(self.get_parameter("tick_period").value),
+            seed=int(self.get_parameter("seed").value),
         )
 
     def _on_parameters(self, params: list) -> SetParametersResult:

@@ -95,37 +95,71 @@ def iso9283_path_accuracy(actual: np.ndarray, commanded: np.ndarray) -> float:
     return float(distance.max())
 
 
+class ClosedLoop:
+    """Plant and controller stepped together; ``follow`` sets the trajectory, ``advance`` runs it."""
+
+    def __init__(self, config: dict[str, Any], supply: str, start: np.ndarray, *, seed: int = 0) -> None:
+        self.settings = controller_settings(config)
+        self.plant = CranePlant(config, supply, start, seed=seed)
+        self.controller = MotionController(self.settings, self.plant.settings["valve_dead_zone"], self.plant.nominal_full_velocity)
+        self.control_every = max(int(round(1.0 / (self.settings["rate"] * self.plant.dt))), 1)
+        self.steps = 0
+        self.command = np.zeros(len(self.plant.crane.cylinders))
+        self.t_ref = np.array([0.0])
+        self.strokes_ref = self.plant.state.stroke[None, :].copy()
+        self.velocities_ref = np.zeros_like(self.strokes_ref)
+        self.started = 0.0
+
+    @property
+    def time(self) -> float:
+        return self.steps * self.plant.dt
+
+    def follow(self, trajectory: JointTrajectoryData) -> None:
+        """Track ``trajectory`` from now on (its t = 0 is the current time)."""
+        self.strokes_ref, self.velocities_ref = cylinder_reference(self.plant.crane, trajectory)
+        self.t_ref = trajectory.time
+        self.started = self.time
+
+    def advance(self) -> None:
+        if self.steps % self.control_every == 0:
+            t = self.time - self.started
+            columns = range(self.strokes_ref.shape[1])
+            reference = np.array([np.interp(t, self.t_ref, self.strokes_ref[:, i]) for i in columns])
+            velocity = np.array([np.interp(t, self.t_ref, self.velocities_ref[:, i], right=0.0) for i in columns])
+            self.command = self.controller.command(reference, velocity, self.plant.state.stroke)
+        self.plant.step(self.command)
+        self.steps += 1
+
+
 def execute(config: dict[str, Any], trajectory: JointTrajectoryData, supply: str, *, seed: int = 0) -> Execution:
     """Run the trajectory on a ``CranePlant`` from its first point; hold the end for ``settle_time``."""
-    settings = controller_settings(config)
-    plant = CranePlant(config, supply, trajectory.positions[0], seed=seed)
-    crane = plant.crane
-    controller = MotionController(settings, plant.settings["valve_dead_zone"], plant.nominal_full_velocity)
-    strokes_ref, velocities_ref = cylinder_reference(crane, trajectory)
-    t_ref = trajectory.time
-    dt = plant.dt
-    control_every = max(int(round(1.0 / (settings["rate"] * dt))), 1)
-    log_every = max(int(round(1.0 / (settings["log_rate"] * dt))), 1)
-    steps = int(round((t_ref[-1] + settings["settle_time"]) / dt))
+    loop = ClosedLoop(config, supply, trajectory.positions[0], seed=seed)
+    loop.follow(trajectory)
+    plant, crane = loop.plant, loop.plant.crane
+    log_every = max(int(round(1.0 / (loop.settings["log_rate"] * plant.dt))), 1)
+    steps = int(round((trajectory.time[-1] + loop.settings["settle_time"]) / plant.dt))
     rows: list[tuple] = []
-    command = np.zeros(len(crane.cylinders))
     for k in range(steps + 1):
-        t = k * dt
-        if k % control_every == 0:
-            reference = np.array([np.interp(t, t_ref, strokes_ref[:, i]) for i in range(strokes_ref.shape[1])])
-            velocity = np.array([np.interp(t, t_ref, velocities_ref[:, i], right=0.0) for i in range(strokes_ref.shape[1])])
-            command = controller.command(reference, velocity, plant.state.stroke)
         if k % log_every == 0:
-            motion = plant.joint_motion()
-            s = plant.state
-            rows.append((t, motion.q, motion.qd, command.copy(), s.pressure_a.copy(), s.pressure_b.copy(), s.supply_pressure, s.pump_flow, s.energy))
-        plant.step(command)
-    time_s = np.array([row[0] for row in rows])
+            rows.append(log_row(loop))
+        loop.advance()
+    execution = execution_from_rows(supply, trajectory.joint_names, rows, crane)
+    execution.summary = measures(crane, trajectory, execution, seed)
+    return execution
+
+
+def log_row(loop: ClosedLoop) -> tuple:
+    motion = loop.plant.joint_motion()
+    s = loop.plant.state
+    return (loop.time, motion.q, motion.qd, loop.command.copy(), s.pressure_a.copy(), s.pressure_b.copy(), s.supply_pressure, s.pump_flow, s.energy)
+
+
+def execution_from_rows(supply: str, joint_names: list[str], rows: list[tuple], crane: Crane) -> Execution:
     positions = np.array([row[1] for row in rows], dtype=float)
-    execution = Execution(
+    return Execution(
         supply=supply,
-        time=time_s,
-        joint_names=list(trajectory.joint_names),
+        time=np.array([row[0] for row in rows]),
+        joint_names=list(joint_names),
         positions=positions,
         velocities=np.array([row[2] for row in rows], dtype=float),
         commands=np.array([row[3] for row in rows]),
@@ -134,21 +168,27 @@ def execute(config: dict[str, Any], trajectory: JointTrajectoryData, supply: str
         supply_pressure=np.array([row[6] for row in rows]),
         pump_flow=np.array([row[7] for row in rows]),
         tip=crane.forward(positions),
+        summary={"energy_J": float(rows[-1][8] - rows[0][8])},
     )
+
+
+def measures(crane: Crane, trajectory: JointTrajectoryData, execution: Execution, seed: int) -> dict[str, Any]:
+    """P-VI's field-test measures of one run: pump energy, ISO 9283 path accuracy, tracking errors, peaks."""
     commanded_tip = crane.forward(trajectory.positions)
-    joint_error = positions[: len(time_s)] - np.stack([np.interp(time_s, t_ref, trajectory.positions[:, i]) for i in range(positions.shape[1])], axis=-1)
-    execution.summary = {
-        "supply": supply,
-        "energy_J": float(rows[-1][8]),
+    t = execution.time - execution.time[0]
+    reference = np.stack([np.interp(t, trajectory.time, trajectory.positions[:, i]) for i in range(trajectory.positions.shape[1])], axis=-1)
+    joint_error = np.abs(execution.positions - reference).max(axis=0)
+    return {
+        "supply": execution.supply,
+        "energy_J": execution.summary["energy_J"],
         "path_accuracy_iso9283_m": iso9283_path_accuracy(execution.tip, commanded_tip),
         "final_tip_error_m": float(np.linalg.norm(execution.tip[-1] - commanded_tip[-1])),
-        "joint_error_max": dict(zip(trajectory.joint_names, np.abs(joint_error).max(axis=0).round(5).tolist())),
+        "joint_error_max": dict(zip(trajectory.joint_names, joint_error.round(5).tolist())),
         "supply_pressure_peak_Pa": float(execution.supply_pressure.max()),
         "pump_flow_peak_m3s": float(execution.pump_flow.max()),
-        "duration_s": float(time_s[-1]),
+        "duration_s": float(t[-1]),
         "seed": seed,
     }
-    return execution
 
 
 def write_bag(execution: Execution, path: Path, truth: dict[str, Any], pressure_variance: float = 1e10) -> Path:

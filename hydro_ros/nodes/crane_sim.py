@@ -1,0 +1,153 @@
+"""plant_sim's crane mode: a crane config (``kind: crane``) runs the closed-loop crane of
+``hydro_ros.planning.execution`` (plant + P-VI Appendix A controller) in scaled real time.
+
+The crane starts at rest with its tip at the start of ``initial_path`` (extension
+``initial_extension``, or the smallest feasible one when negative). A JointTrajectory on
+``trajectory_topic`` (what trajectory_server sends to its ``output_topic``) is executed when it
+starts within ``start_tolerance`` of the current joints; otherwise it is refused, since a jump
+would be a crash on a real machine. Publishes the contract topics (every joint in one
+JointState, pressures per cylinder, supply pressure, valve commands) at ``publish_rate`` and, when
+a trajectory is done (after the controller's settle time), its measures as JSON on the latched
+``~/execution``: pump energy, ISO 9283 path accuracy, tracking errors.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from typing import Any
+
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import FluidPressure, JointState
+from std_msgs.msg import String
+from trajectory_msgs.msg import JointTrajectory
+
+from hydro_ros.bags import topics
+from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS
+from hydro_ros.planning.crane import Crane
+from hydro_ros.planning.dp import DpGrid, start_position
+from hydro_ros.planning.execution import ClosedLoop, execution_from_rows, log_row, measures
+from hydro_ros.planning.paths import path_from_config
+from hydro_ros.planning.serving import path_start_state
+from hydro_ros.planning.trajectory import JointTrajectoryData
+
+MAX_CATCH_UP_S = 0.25
+
+
+class CraneRunner:
+    """The crane half of plant_sim: owns the closed loop, its publishers and its trajectory input."""
+
+    def __init__(self, node: Node, config: dict[str, Any], *, real_time_factor: float, tick_period: float, seed: int) -> None:
+        self.node = node
+        self.config = config
+        self.crane = Crane(config)
+        supply = str(node.declare_parameter("supply", "cp").value)
+        initial_path = str(node.declare_parameter("initial_path", next(iter(config["paths"]))).value)
+        initial_extension = float(node.declare_parameter("initial_extension", -1.0).value)
+        trajectory_topic = str(node.declare_parameter("trajectory_topic", "/crane/joint_trajectory").value)
+        self.start_tolerance = float(node.declare_parameter("start_tolerance", 0.02).value)
+        publish_rate = float(node.declare_parameter("publish_rate", 50.0).value)
+        if initial_path not in config["paths"]:
+            raise ValueError(f"parameter initial_path={initial_path!r}: not a path of {config['machine']} ({', '.join(config['paths'])})")
+        if initial_extension < 0.0:
+            samples = path_from_config(config, initial_path).sample(float(config["dp"]["sample_time"]))
+            initial_extension = start_position(self.crane, samples, DpGrid.for_crane(self.crane, tuple(config["dp"]["grid"])))
+        self.loop = ClosedLoop(config, supply, path_start_state(config, initial_path, initial_extension), seed=seed)
+        self.rtf = real_time_factor
+        self.names = list(self.crane.names)
+        self.pub_joints = node.create_publisher(JointState, topics.JOINT_STATES, SENSOR_QOS)
+        self.pub_commands = node.create_publisher(JointState, topics.VALVE_COMMANDS, SENSOR_QOS)
+        self.pub_supply = node.create_publisher(FluidPressure, topics.SUPPLY_PRESSURE, SENSOR_QOS)
+        self.pub_pressures = [
+            (node.create_publisher(FluidPressure, topics.pressure_a(name), SENSOR_QOS),
+             node.create_publisher(FluidPressure, topics.pressure_b(name), SENSOR_QOS))
+            for name in self.names
+        ]
+        self.pub_execution = node.create_publisher(String, "~/execution", LATCHED_QOS)
+        node.create_subscription(JointTrajectory, trajectory_topic, self._on_trajectory, 10)
+        self.publish_every = max(int(round(1.0 / (publish_rate * self.loop.plant.dt))), 1)
+        self.trajectory: JointTrajectoryData | None = None
+        self.rows: list[tuple] = []
+        self.end_time = math.inf
+        self.start_wall = time.monotonic()
+        self.stamp_origin_ns = node.get_clock().now().nanoseconds
+        node.create_timer(tick_period, self._tick)
+        node.get_logger().info(
+            f"crane {config['machine']} ({supply.upper()} pump) at the start of {initial_path!r}, "
+            f"extension {initial_extension:.3f} m; trajectories on {trajectory_topic}"
+        )
+
+    def _on_trajectory(self, msg: JointTrajectory) -> None:
+        try:
+            trajectory = self._trajectory_data(msg)
+        except ValueError as exc:
+            self._report({"ok": False, "error": str(exc)})
+            return
+        self.loop.follow(trajectory)
+        self.trajectory = trajectory
+        self.rows = [log_row(self.loop)]
+        self.end_time = self.loop.time + float(trajectory.time[-1]) + self.loop.settings["settle_time"]
+        self.node.get_logger().info(f"executing a {trajectory.time[-1]:.1f} s trajectory of {len(trajectory.time)} points")
+
+    def _trajectory_data(self, msg: JointTrajectory) -> JointTrajectoryData:
+        missing = [name for name in self.names if name not in msg.joint_names]
+        if missing or not msg.points:
+            raise ValueError(f"trajectory: joint(s) {', '.join(missing) or '-'} missing or no points")
+        order = [list(msg.joint_names).index(name) for name in self.names]
+        time_s = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points])
+        positions = np.array([[p.positions[i] for i in order] for p in msg.points], dtype=float)
+        velocities = np.array([[p.velocities[i] if p.velocities else 0.0 for i in order] for p in msg.points], dtype=float)
+        if not (np.isfinite(positions).all() and np.isfinite(velocities).all()) or np.any(np.diff(time_s) <= 0):
+            raise ValueError("trajectory: non-finite values or times not increasing")
+        current = np.array(self.loop.plant.joint_motion().q)
+        gap = float(np.abs(positions[0] - current).max())
+        if gap > self.start_tolerance:
+            raise ValueError(f"trajectory: starts {gap:.3f} rad/m from the current joints (tolerance {self.start_tolerance}); refused")
+        return JointTrajectoryData(self.names, time_s, positions, velocities, np.zeros_like(positions), np.zeros(len(time_s)))
+
+    def _report(self, result: dict[str, Any]) -> None:
+        if not result.get("ok", True):
+            self.node.get_logger().warning(result["error"])
+        self.pub_execution.publish(String(data=json.dumps(result)))
+
+    def _tick(self) -> None:
+        loop = self.loop
+        target = (time.monotonic() - self.start_wall) * self.rtf
+        steps = min(int((target - loop.time) / loop.plant.dt), int(MAX_CATCH_UP_S / loop.plant.dt))
+        for _ in range(max(steps, 0)):
+            loop.advance()
+            if loop.steps % self.publish_every == 0:
+                self._publish()
+                if self.trajectory is not None:
+                    self.rows.append(log_row(loop))
+        if self.trajectory is not None and loop.time >= self.end_time:
+            execution = execution_from_rows(loop.plant.supply, self.names, self.rows, self.crane)
+            self._report({"ok": True, **measures(self.crane, self.trajectory, execution, seed=0)})
+            self.trajectory = None
+
+    def _publish(self) -> None:
+        loop = self.loop
+        motion = loop.plant.joint_motion()
+        s = loop.plant.state
+        stamp_ns = self.stamp_origin_ns + int(round(loop.time * 1e9))
+        stamp = JointState().header.stamp
+        stamp.sec, stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        joints = JointState(name=self.names, position=[float(q) for q in motion.q], velocity=[float(v) for v in motion.qd])
+        joints.header.stamp = stamp
+        self.pub_joints.publish(joints)
+        commands = JointState(name=self.names, position=loop.command.tolist())
+        commands.header.stamp = stamp
+        self.pub_commands.publish(commands)
+        self.pub_supply.publish(_pressure(stamp, "supply", s.supply_pressure))
+        for (pub_a, pub_b), name, p_a, p_b in zip(self.pub_pressures, self.names, s.pressure_a, s.pressure_b):
+            pub_a.publish(_pressure(stamp, name, p_a))
+            pub_b.publish(_pressure(stamp, name, p_b))
+
+
+def _pressure(stamp: Any, frame: str, value: float) -> FluidPressure:
+    msg = FluidPressure(fluid_pressure=float(value))
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame
+    return msg
