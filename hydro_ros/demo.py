@@ -1,6 +1,8 @@
 """`make demo`: simulate the SAM with a developing leak, analyse it offline, then play it through
 bag_player -> fdi_node on a DDS graph and show what the operator's HMI would: the actuator's
-health turning from ok to the isolated fault name on /diagnostics.
+health turning from ok to the isolated fault name on /diagnostics. Beside it, the K70M crane
+(plant_sim's crane mode) asks trajectory_server for the energy-optimal horizontal path from where it
+stands and executes it; the operator sees its pump energy against the joint-space pseudo-inverse's.
 """
 
 from __future__ import annotations
@@ -14,10 +16,19 @@ from pathlib import Path
 from hydro_ros.config import default_config_path
 
 
-def _operator_view(duration_s: float, rate: float) -> list[str]:
+CRANE_PATH = "horizontal"
+CRANE_GRID = ("120", "41", "41")  # a catalog in seconds; make bench runs the full P-VI grid
+
+
+def _operator_view(duration_s: float, rate: float) -> tuple[list[str], dict | None]:
+    import json
+
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import FluidPressure, JointState
+    from std_msgs.msg import String
+
+    from hydro_ros.nodes.common import LATCHED_QOS
 
     from hydro_ros.nodes.common import SENSOR_QOS
 
@@ -33,6 +44,12 @@ def _operator_view(duration_s: float, rate: float) -> list[str]:
         DiagnosticArray, "/diagnostics",
         lambda m: health.update({s.name.removeprefix("hydro_ros/"): f"{levels.get(s.level[0], s.level)} {s.message}"
                                  for s in m.status if s.name.startswith("hydro_ros/fdi/")}), 10)
+    crane: dict = {}
+    node.create_subscription(JointState, "/crane/joint_states", lambda m: crane.update(q=list(m.position)), SENSOR_QOS)
+    node.create_subscription(FluidPressure, "/crane/hydraulics/supply_pressure", lambda m: crane.update(p_s=m.fluid_pressure), SENSOR_QOS)
+    node.create_subscription(String, "/crane/trajectory_server/result", lambda m: crane.update(result=json.loads(m.data)), LATCHED_QOS)
+    node.create_subscription(String, "/crane/plant_sim/execution", lambda m: crane.update(execution=json.loads(m.data)), LATCHED_QOS)
+    requests = node.create_publisher(String, "/crane/trajectory_server/request", 10)
     lines = []
     end = time.monotonic() + duration_s / rate + 5.0
     next_print = time.monotonic() + 1.0
@@ -44,11 +61,31 @@ def _operator_view(duration_s: float, rate: float) -> list[str]:
                     f"  p_B {latest.get('p_b', float('nan')) / 1e6:5.2f} MPa  health: {health or 'waiting for /diagnostics'}")
             print(line, flush=True)
             lines.append(line)
-            if latest["t"] >= duration_s - 0.5:
+            if "result" not in crane and "q" in crane and requests.get_subscription_count() > 0:
+                requests.publish(String(data=CRANE_PATH))
+                crane["result"] = {}
+            print(f"          crane: {_crane_status(crane)}", flush=True)
+            if latest["t"] >= duration_s - 0.5 and "execution" in crane:
                 break
     node.destroy_node()
     rclpy.shutdown()
-    return lines
+    return lines, crane.get("execution")
+
+
+def _crane_status(crane: dict) -> str:
+    if "execution" in crane:
+        run = crane["execution"]
+        return f"done: {run['energy_J'] / 1e3:.1f} kJ pump energy, ISO 9283 path accuracy {run['path_accuracy_iso9283_m']:.3f} m" if run["ok"] else run["error"]
+    result = crane.get("result")
+    if result is None:
+        return "waiting for plant_sim and trajectory_server"
+    if not result:
+        return f"requested {CRANE_PATH!r}"
+    if not result["ok"]:
+        return f"refused: {result['error']}"
+    joints = ", ".join(f"{q:+.2f}" for q in crane.get("q", []))
+    return (f"executing {result['method']} ({'re-planned from here' if result['replanned'] else 'as stored'}), joints [{joints}], "
+            f"supply {crane.get('p_s', float('nan')) / 1e6:.1f} MPa")
 
 
 def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.0, rate: float = 2.0) -> int:
@@ -62,26 +99,56 @@ def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.
 
         shutil.rmtree(bag)
     onset = duration / 3
-    print(f"1/3 simulating {duration:.0f} s of the SAM, external leak A developing from {onset:.0f} s to 1.5 L/min")
+    print(f"1/4 simulating {duration:.0f} s of the SAM, external leak A developing from {onset:.0f} s to 1.5 L/min")
     status = cli(["sim", "--config", config, "--duration", str(duration), "--seed", "7",
                   "--fault", f"external_leakage_a=1.5@{onset:g}:{onset:g}", "--out", str(bag), "--quiet"])
     if status:
         return status
-    print("2/3 offline FDI over the bag (hydro-ros fdi):")
+    print("2/4 offline FDI over the bag (hydro-ros fdi):")
     status = cli(["fdi", "--bag", str(bag), "--config", config, "--json", str(out / "fdi.json"), "--quiet"])
     if status:
         return status
-    print(f"3/3 replaying it x{rate:g}: bag_player -> fdi_node on a DDS graph "
-          f"(ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}), operator view:")
-    fdi = subprocess.Popen([sys.executable, "-m", "hydro_ros.nodes.fdi_node", "--ros-args", "-p", f"config:={config}",
-                            "-p", "use_sim_time:=true"], stderr=subprocess.DEVNULL)
-    player = subprocess.Popen([sys.executable, "-m", "hydro_ros.nodes.bag_player", "--ros-args",
-                               "-p", f"bag:={bag}", "-p", f"rate:={rate}", "-p", "start_delay:=3.0"], stderr=subprocess.DEVNULL)
+    crane_config = str(default_config_path("k70m"))
+    database = out / "trajectories.db"
+    print(f"3/4 trajectory catalog of the K70M crane ({CRANE_PATH}: DP-CP and the joint pseudo-inverse) -> {database}")
+    status = cli(["db", "build", "--config", crane_config, "--db", str(database), "--paths", CRANE_PATH,
+                  "--methods", "dp_cp", "pinv_joint", "--grid", *CRANE_GRID, "--quiet"])
+    if status:
+        return status
+    print(f"4/4 replaying the SAM x{rate:g}: bag_player -> fdi_node; beside it plant_sim (K70M crane, CP pump) <- "
+          f"trajectory_server on a DDS graph (ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}), operator view:")
+    nodes = [
+        ("fdi_node", "-p", f"config:={config}", "-p", "use_sim_time:=true"),
+        ("bag_player", "-p", f"bag:={bag}", "-p", f"rate:={rate}", "-p", "start_delay:=3.0"),
+        # the crane is a second machine on the graph: its contract topics live in the namespace /crane
+        ("plant_sim", "-r", "__ns:=/crane", "-p", f"config:={crane_config}", "-p", f"initial_path:={CRANE_PATH}",
+         "-p", "initial_extension:=0.3"),
+        ("trajectory_server", "-r", "__ns:=/crane", "-p", f"database:={database}", "-p", "output_topic:=joint_trajectory"),
+    ]
+    processes = [subprocess.Popen([sys.executable, "-m", f"hydro_ros.nodes.{name}", "--ros-args", *args], stderr=subprocess.DEVNULL)
+                 for name, *args in nodes]
     try:
-        _operator_view(duration, rate)
+        _, executed = _operator_view(duration, rate)
     finally:
-        for process in (player, fdi):
+        for process in processes:
             process.terminate()
             process.wait(timeout=10)
-    print(f"bag:  {bag}\nplot: {bag}.png\nFDI:  {out / 'fdi.json'} and {out / 'fdi.png'}")
+    if executed and executed.get("ok"):
+        _energy_against_pseudo_inverse(crane_config, database, executed)
+    print(f"bag:  {bag}\nplot: {bag}.png\nFDI:  {out / 'fdi.json'} and {out / 'fdi.png'}\ncatalog: hydro-ros db list --db {database}")
     return 0
+
+
+def _energy_against_pseudo_inverse(crane_config: str, database: Path, executed: dict) -> None:
+    """The pseudo-inverse from the same start on the same simulated crane (offline: the live crane has moved on)."""
+    from hydro_ros.planning.crane import load_crane
+    from hydro_ros.planning.execution import execute
+    from hydro_ros.planning.serving import executable_trajectory
+
+    _, config = load_crane(crane_config)
+    trajectory, _ = executable_trajectory(config, CRANE_PATH, "pinv_joint", database=str(database), start_extension=0.3)
+    baseline = execute(config, trajectory, "cp").summary
+    saving = 1.0 - executed["energy_J"] / baseline["energy_J"]
+    print(f"crane {CRANE_PATH}: energy-optimal (DP-CP) {executed['energy_J'] / 1e3:.1f} kJ, joint pseudo-inverse "
+          f"{baseline['energy_J'] / 1e3:.1f} kJ on the same crane: {100 * saving:.0f} % saved; "
+          f"path accuracy {executed['path_accuracy_iso9283_m']:.3f} m vs {baseline['path_accuracy_iso9283_m']:.3f} m")

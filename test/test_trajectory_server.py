@@ -111,19 +111,20 @@ def test_server_answers_with_an_error_when_the_database_is_corrupt(ros_domain, t
 
 
 def test_served_trajectory_runs_on_the_simulated_crane(ros_domain, catalog_db):
-    """Server -> output_topic -> plant_sim's crane: the executed run reports its energy and path accuracy."""
+    """Server -> output_topic -> plant_sim's crane, both in a namespace: the run reports its energy and path accuracy."""
     db_path, _ = catalog_db
     executions: list[dict] = []
     results: list[dict] = []
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={K70M}", "-p", "real_time_factor:=4.0",
+    with node_process("hydro_ros.nodes.plant_sim", "-r", "__ns:=/crane", "-p", f"config:={K70M}", "-p", "real_time_factor:=4.0",
                       "-p", "initial_path:=horizontal", "-p", "initial_extension:=0.3"), \
-            node_process("hydro_ros.nodes.trajectory_server", "-p", f"database:={db_path}", "-p", "output_topic:=/crane/joint_trajectory"), \
+            node_process("hydro_ros.nodes.trajectory_server", "-r", "__ns:=/crane", "-p", f"database:={db_path}",
+                         "-p", "output_topic:=joint_trajectory"), \
             probe_node("client") as node:
-        node.create_subscription(String, "/plant_sim/execution", lambda m: executions.append(json.loads(m.data)), LATCHED_QOS)
-        node.create_subscription(String, "/trajectory_server/result", lambda m: results.append(json.loads(m.data)), LATCHED_QOS)
+        node.create_subscription(String, "/crane/plant_sim/execution", lambda m: executions.append(json.loads(m.data)), LATCHED_QOS)
+        node.create_subscription(String, "/crane/trajectory_server/result", lambda m: results.append(json.loads(m.data)), LATCHED_QOS)
         states: list[JointState] = []
-        node.create_subscription(JointState, topics.JOINT_STATES, states.append, 10)
-        requests = node.create_publisher(String, "/trajectory_server/request", 10)
+        node.create_subscription(JointState, "/crane" + topics.JOINT_STATES, states.append, 10)
+        requests = node.create_publisher(String, "/crane/trajectory_server/request", 10)
         assert spin_until(node, lambda: states and requests.get_subscription_count() > 0, 30)
         requests.publish(String(data="horizontal"))
         assert spin_until(node, lambda: results, 20)

@@ -20,6 +20,11 @@ LATCHED_QOS = QoSProfile(
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
+def relative(topic: str) -> str:
+    """A contract topic as a name the node's namespace applies to (/joint_states -> joint_states)."""
+    return topic.lstrip("/")
+
+
 def message_class(type_name: str) -> Any:
     """'sensor_msgs/msg/FluidPressure' -> the Python class."""
     package, kind, name = type_name.split("/")

@@ -8,7 +8,9 @@ starts within ``start_tolerance`` of the current joints; otherwise it is refused
 would be a crash on a real machine. Publishes the contract topics (every joint in one
 JointState, pressures per cylinder, supply pressure, valve commands) at ``publish_rate`` and, when
 a trajectory is done (after the controller's settle time), its measures as JSON on the latched
-``~/execution``: pump energy, ISO 9283 path accuracy, tracking errors.
+``~/execution``: pump energy, ISO 9283 path accuracy, tracking errors. Topic names are relative,
+so ``-r __ns:=/crane`` puts a crane beside another machine on one graph (the contract's names
+without a namespace).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
 from hydro_ros.bags import topics
-from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS
+from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative
 from hydro_ros.planning.crane import Crane
 from hydro_ros.planning.dp import DpGrid, start_position
 from hydro_ros.planning.execution import ClosedLoop, execution_from_rows, log_row, measures
@@ -46,7 +48,7 @@ class CraneRunner:
         supply = str(node.declare_parameter("supply", "cp").value)
         initial_path = str(node.declare_parameter("initial_path", next(iter(config["paths"]))).value)
         initial_extension = float(node.declare_parameter("initial_extension", -1.0).value)
-        trajectory_topic = str(node.declare_parameter("trajectory_topic", "/crane/joint_trajectory").value)
+        trajectory_topic = str(node.declare_parameter("trajectory_topic", "joint_trajectory").value)
         self.start_tolerance = float(node.declare_parameter("start_tolerance", 0.02).value)
         publish_rate = float(node.declare_parameter("publish_rate", 50.0).value)
         if initial_path not in config["paths"]:
@@ -57,12 +59,13 @@ class CraneRunner:
         self.loop = ClosedLoop(config, supply, path_start_state(config, initial_path, initial_extension), seed=seed)
         self.rtf = real_time_factor
         self.names = list(self.crane.names)
-        self.pub_joints = node.create_publisher(JointState, topics.JOINT_STATES, SENSOR_QOS)
-        self.pub_commands = node.create_publisher(JointState, topics.VALVE_COMMANDS, SENSOR_QOS)
-        self.pub_supply = node.create_publisher(FluidPressure, topics.SUPPLY_PRESSURE, SENSOR_QOS)
+        # relative names: /joint_states etc. by default, /<ns>/joint_states for a machine in a namespace
+        self.pub_joints = node.create_publisher(JointState, relative(topics.JOINT_STATES), SENSOR_QOS)
+        self.pub_commands = node.create_publisher(JointState, relative(topics.VALVE_COMMANDS), SENSOR_QOS)
+        self.pub_supply = node.create_publisher(FluidPressure, relative(topics.SUPPLY_PRESSURE), SENSOR_QOS)
         self.pub_pressures = [
-            (node.create_publisher(FluidPressure, topics.pressure_a(name), SENSOR_QOS),
-             node.create_publisher(FluidPressure, topics.pressure_b(name), SENSOR_QOS))
+            (node.create_publisher(FluidPressure, relative(topics.pressure_a(name)), SENSOR_QOS),
+             node.create_publisher(FluidPressure, relative(topics.pressure_b(name)), SENSOR_QOS))
             for name in self.names
         ]
         self.pub_execution = node.create_publisher(String, "~/execution", LATCHED_QOS)

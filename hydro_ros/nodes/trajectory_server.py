@@ -29,7 +29,7 @@ from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from hydro_ros.bags import topics
-from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, run_node
+from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
 from hydro_ros.planning.compare import METHODS
 from hydro_ros.planning.database import DatabaseError, JointTrajectoryData, TrajectoryDatabase
 from hydro_ros.planning.serving import JointStateSample, Served, ServeError, TrajectoryService
@@ -58,7 +58,7 @@ class TrajectoryServer(Node):
         self.trajectory_pub = self.create_publisher(JointTrajectory, "~/trajectory", LATCHED_QOS)
         self.output_pub = self.create_publisher(JointTrajectory, self.output_topic, LATCHED_QOS) if self.output_topic else None
         self.create_subscription(String, "~/request", self._on_request, 10)
-        self.create_subscription(JointState, topics.JOINT_STATES, self._on_joint_state, SENSOR_QOS)
+        self.create_subscription(JointState, relative(topics.JOINT_STATES), self._on_joint_state, SENSOR_QOS)
 
         self.service: TrajectoryService | None = None
         self.database_error = "not opened yet"
