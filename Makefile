@@ -26,6 +26,7 @@ bench: setup
 	$(PY) bench/run.py --out bench/results.json
 	$(PY) bench/discrepancy_suite.py
 	$(PY) bench/dp.py --out bench/dp.json
+	$(PY) bench/trajectories.py --out bench/trajectories.json
 
 bags: setup
 	$(PY) scripts/make_sample_bags.py --out bags

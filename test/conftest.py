@@ -9,11 +9,19 @@ from hydro_ros.config import load_machine_config
 
 REPO = Path(__file__).resolve().parent.parent
 SAM_CONFIG = REPO / "config" / "sam.yaml"
+K70M = REPO / "config" / "k70m.yaml"
 
 
 @pytest.fixture(scope="session")
 def sam_config() -> dict:
     return load_machine_config(SAM_CONFIG)
+
+
+@pytest.fixture(scope="session")
+def k70m() -> dict:
+    from hydro_ros.planning.crane import load_crane
+
+    return load_crane(K70M)[1]
 
 
 @pytest.fixture

@@ -14,18 +14,11 @@ import pytest
 
 from hydro_ros.cli import main as cli_main
 from hydro_ros.planning.catalog import build, compute_entry, plan_units
-from hydro_ros.planning.crane import load_crane
 from hydro_ros.planning.database import DatabaseError, TrajectoryDatabase
 from hydro_ros.planning.serving import JointStateSample, ServeError, TrajectoryService, path_start_state
-from test.conftest import REPO
+from test.conftest import K70M
 
-K70M = REPO / "config" / "k70m.yaml"
 SMALL_GRID = (60, 21, 21)
-
-
-@pytest.fixture(scope="module")
-def k70m():
-    return load_crane(K70M)[1]
 
 
 @pytest.fixture(scope="module")
@@ -49,6 +42,15 @@ def test_stored_solution_equals_a_fresh_computation(small_db, k70m):
     horizontal = next(entry for entry in catalog if entry["path"] == "horizontal")
     assert set(horizontal["solutions"]) == {"dp_cp", "pinv_joint"}
     assert horizontal["solutions"]["dp_cp"]["cp_energy_J"] < horizontal["solutions"]["pinv_joint"]["cp_energy_J"]
+
+
+def test_local_process_pool_builds_after_a_dp_ran_in_this_process(tmp_path, k70m):
+    """A DP in the parent starts numba's OpenMP pool, which a forked worker would abort on: workers are spawned."""
+    units = plan_units(k70m, methods=("dp_cp",), grid=SMALL_GRID, paths=("horizontal", "vertical"))
+    compute_entry(units[0])
+    with TrajectoryDatabase(tmp_path / "pool.db", writable=True) as db:
+        report = build(db, units, workers=2)
+    assert report.scheduler == "2 local processes" and len(report.computed) == 2
 
 
 def test_rebuild_skips_what_is_stored_and_recomputes_what_changed(small_db, k70m):

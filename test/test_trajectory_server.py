@@ -13,19 +13,18 @@ from trajectory_msgs.msg import JointTrajectory
 from hydro_ros.bags import topics
 from hydro_ros.nodes.common import LATCHED_QOS
 from hydro_ros.planning.catalog import build, plan_units
-from hydro_ros.planning.crane import Crane, load_crane
+from hydro_ros.planning.crane import Crane
 from hydro_ros.planning.database import TrajectoryDatabase
 from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE
-from test.conftest import REPO
+from test.conftest import K70M
 from test.ros_graph import node_process, probe_node, spin_until
 
-K70M = REPO / "config" / "k70m.yaml"
 
 
 @pytest.fixture(scope="module")
-def catalog_db(tmp_path_factory):
-    _, config = load_crane(K70M)
+def catalog_db(tmp_path_factory, k70m):
+    config = k70m
     path = tmp_path_factory.mktemp("server") / "catalog.db"
     with TrajectoryDatabase(path, writable=True) as db:
         build(db, plan_units(config, methods=("dp_cp", "pinv_actuator"), grid=(80, 31, 31), paths=("horizontal",)), workers=1)

@@ -9,6 +9,7 @@ committed unit and the next build skips what is stored with the same inputs.
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
@@ -165,4 +166,6 @@ def _executor(stack: ExitStack, scheduler: str | None, workers: int | None, n_un
     count = workers if workers is not None else (os.cpu_count() or 1)
     if count <= 1 or n_units <= 1:
         return None, "1 local process"
-    return stack.enter_context(ProcessPoolExecutor(max_workers=count, initializer=_single_threaded_worker)), f"{count} local processes"
+    # spawn, not fork: a parent that has run a DP holds numba's OpenMP pool, which must not be forked
+    pool = ProcessPoolExecutor(max_workers=count, mp_context=multiprocessing.get_context("spawn"), initializer=_single_threaded_worker)
+    return stack.enter_context(pool), f"{count} local processes"
