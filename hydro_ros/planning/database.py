@@ -237,8 +237,9 @@ class TrajectoryDatabase:
         return [row[0] for row in self.connection.execute(query, (machine,) if machine else ())]
 
     def solution(self, path_id: str, method: str, machine: str | None = None) -> StoredSolution:
+        # length(), not IS NOT NULL: SQLite answers it from the row header instead of reading the whole blob
         query = (
-            "SELECT machine, path_id, method, cost, grid, start_position, record, trajectory, policy IS NOT NULL "
+            "SELECT machine, path_id, method, cost, grid, start_position, record, trajectory, coalesce(length(policy), 0) > 0 "
             "FROM solutions WHERE path_id = ? AND method = ?" + (" AND machine = ?" if machine else "")
         )
         rows = self.connection.execute(query, (path_id, method, machine) if machine else (path_id, method)).fetchall()
