@@ -61,6 +61,9 @@ def _operator_view(duration_s: float, rate: float) -> tuple[list[str], dict | No
                     f"  p_B {latest.get('p_b', float('nan')) / 1e6:5.2f} MPa  health: {health or 'waiting for /diagnostics'}")
             print(line, flush=True)
             lines.append(line)
+            result = crane.get("result")
+            if result and not result["ok"] and "nothing received" in result["error"]:
+                del crane["result"]  # the server has not yet discovered the crane's joint states: ask again
             if "result" not in crane and "q" in crane and requests.get_subscription_count() > 0:
                 requests.publish(String(data=CRANE_PATH))
                 crane["result"] = {}

@@ -70,6 +70,7 @@ def test_server_serves_from_the_clients_joint_state_and_refuses_unknown_paths(ro
             joints.publish(JointState(name=config_joint_names(config), position=q0.tolist(), velocity=[0.0] * 4))
 
         node.create_timer(0.05, publish_state)
+        assert spin_until(node, lambda: joints.get_subscription_count() > 0, 10)
         for method in ("dp_cp", "pinv_actuator"):
             count = len(received["result"])
             spin_until(node, lambda: False, 0.3)  # a fresh joint state has arrived
@@ -125,8 +126,13 @@ def test_served_trajectory_runs_on_the_simulated_crane(ros_domain, catalog_db):
         node.create_subscription(JointState, "/crane" + topics.JOINT_STATES, states.append, 10)
         requests = node.create_publisher(String, "/crane/trajectory_server/request", 10)
         assert spin_until(node, lambda: states and requests.get_subscription_count() > 0, 30)
-        requests.publish(String(data="horizontal"))
-        assert spin_until(node, lambda: results, 20)
+        for _ in range(20):  # until discovery has connected the crane's joint states to the server
+            count = len(results)
+            requests.publish(String(data="horizontal"))
+            assert spin_until(node, lambda: len(results) > count, 20)
+            if results[-1]["ok"] or "nothing received" not in results[-1]["error"]:
+                break
+            spin_until(node, lambda: False, 0.5)
         assert results[-1]["ok"] and results[-1]["replanned"], results[-1]
         assert spin_until(node, lambda: executions, 30)
     run = executions[-1]
