@@ -275,7 +275,8 @@ def cmd_db_build(args: argparse.Namespace) -> int:
         paths=tuple(args.paths) if args.paths else None,
     )
     with TrajectoryDatabase(args.db, writable=True) as db, tqdm(total=len(units), unit="solution", desc="db build", disable=args.quiet) as bar:
-        bar.update(sum(1 for unit in units if db.committed().get(unit.key) == unit.inputs_hash))
+        stored = db.committed()
+        bar.update(sum(1 for unit in units if stored.get(unit.key) == unit.inputs_hash))
 
         def done(unit) -> None:  # noqa: ANN001
             bar.set_postfix_str(f"{unit.path_id}/{unit.method}")

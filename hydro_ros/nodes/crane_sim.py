@@ -21,6 +21,7 @@ import time
 from typing import Any
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from rclpy.node import Node
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import String
@@ -56,6 +57,7 @@ class CraneRunner:
         if initial_extension < 0.0:
             samples = path_from_config(config, initial_path).sample(float(config["dp"]["sample_time"]))
             initial_extension = start_position(self.crane, samples, DpGrid.for_crane(self.crane, tuple(config["dp"]["grid"])))
+        self.seed = seed
         self.loop = ClosedLoop(config, supply, path_start_state(config, initial_path, initial_extension), seed=seed)
         self.rtf = real_time_factor
         self.names = list(self.crane.names)
@@ -127,7 +129,7 @@ class CraneRunner:
                     self.rows.append(log_row(loop))
         if self.trajectory is not None and loop.time >= self.end_time:
             execution = execution_from_rows(loop.plant.supply, self.names, self.rows, self.crane)
-            self._report({"ok": True, **measures(self.crane, self.trajectory, execution, seed=0)})
+            self._report({"ok": True, **measures(self.crane, self.trajectory, execution, seed=self.seed)})
             self.trajectory = None
 
     def _publish(self) -> None:
@@ -135,8 +137,8 @@ class CraneRunner:
         motion = loop.plant.joint_motion()
         s = loop.plant.state
         stamp_ns = self.stamp_origin_ns + int(round(loop.time * 1e9))
-        stamp = JointState().header.stamp
-        stamp.sec, stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        seconds, nanoseconds = divmod(stamp_ns, 1_000_000_000)
+        stamp = Time(sec=seconds, nanosec=nanoseconds)
         joints = JointState(name=self.names, position=[float(q) for q in motion.q], velocity=[float(v) for v in motion.qd])
         joints.header.stamp = stamp
         self.pub_joints.publish(joints)

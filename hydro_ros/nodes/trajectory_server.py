@@ -152,9 +152,10 @@ class TrajectoryServer(Node):
         except ServeError as exc:
             self._answer({"path": path_id, "ok": False, "error": str(exc)})
             return
-        except DatabaseError as exc:
-            self._drop_database(str(exc))
-            self._answer({"path": path_id, "ok": False, "error": str(exc)})
+        except (DatabaseError, sqlite3.Error) as exc:  # damaged, replaced or locked under us: answer, reopen later
+            reason = str(exc) if isinstance(exc, DatabaseError) else f"database {self.database_path}: {exc}"
+            self._drop_database(reason)
+            self._answer({"path": path_id, "ok": False, "error": reason})
             return
         self._publish_trajectory(served)
         self._answer(served.result())

@@ -77,6 +77,7 @@ class Execution:
     supply_pressure: np.ndarray
     pump_flow: np.ndarray
     tip: np.ndarray  # (k, 3 or 2)
+    energy_J: float  # pump output energy over the logged span
     summary: dict[str, Any] = field(default_factory=dict)
 
 
@@ -168,7 +169,7 @@ def execution_from_rows(supply: str, joint_names: list[str], rows: list[tuple], 
         supply_pressure=np.array([row[6] for row in rows]),
         pump_flow=np.array([row[7] for row in rows]),
         tip=crane.forward(positions),
-        summary={"energy_J": float(rows[-1][8] - rows[0][8])},
+        energy_J=float(rows[-1][8] - rows[0][8]),
     )
 
 
@@ -180,7 +181,7 @@ def measures(crane: Crane, trajectory: JointTrajectoryData, execution: Execution
     joint_error = np.abs(execution.positions - reference).max(axis=0)
     return {
         "supply": execution.supply,
-        "energy_J": execution.summary["energy_J"],
+        "energy_J": execution.energy_J,
         "path_accuracy_iso9283_m": iso9283_path_accuracy(execution.tip, commanded_tip),
         "final_tip_error_m": float(np.linalg.norm(execution.tip[-1] - commanded_tip[-1])),
         "joint_error_max": dict(zip(trajectory.joint_names, joint_error.round(5).tolist())),

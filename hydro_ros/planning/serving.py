@@ -204,11 +204,11 @@ def executable_trajectory(
     """A joint trajectory and its planned record: served from ``database``, else planned now."""
     names = [joint["name"] for joint in config["joints"]]
     if database is not None:
-        service = TrajectoryService(TrajectoryDatabase(database))
         current = None
         if start_extension is not None:
             current = JointStateSample(names, path_start_state(config, path_id, start_extension).tolist(), [0.0] * len(names))
-        served = service.serve(path_id, method, current)
+        with TrajectoryDatabase(database) as db:
+            served = TrajectoryService(db).serve(path_id, method, current)
         return served.trajectory, served.record
     crane = Crane(config)
     problem = Problem.build(crane, config, path_id, grid=grid)
