@@ -7,6 +7,9 @@ SUPPLY_PRESSURE = "/hydraulics/supply_pressure"
 VALVE_COMMANDS = "/hydraulics/valve_commands"
 DIAGNOSTICS = "/diagnostics"
 CLOCK = "/clock"
+FDI_HALT = "/fdi/halt"
+FDI_RESIDUALS = "/fdi/residuals"
+FDI_STATUS_PREFIX = "hydro_ros/fdi/"  # + actuator: one DiagnosticStatus per monitored actuator
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 FLUID_PRESSURE_TYPE = "sensor_msgs/msg/FluidPressure"
@@ -42,3 +45,13 @@ def sensor_topics(actuators: list[str], mobile: bool = False) -> dict[str, str]:
     if mobile:
         topics[LS_PRESSURE] = FLUID_PRESSURE_TYPE
     return topics
+
+
+def fdi_residual_channels(actuators: list[str], mobile: bool = False) -> list[str]:
+    """The `name` layout of /fdi/residuals: per actuator and chamber, the filtered residual then its threshold.
+
+    UKF residuals are chamber pressures (``p``, MPa); parity residuals on mobile valves are chamber
+    flows (``Q``, L/min). The Foxglove layout and the HMI index the message by this layout.
+    """
+    quantity = "Q" if mobile else "p"
+    return [f"{actuator}/{kind}_{quantity}{chamber}" for actuator in actuators for chamber in "AB" for kind in ("mean_r", "threshold")]

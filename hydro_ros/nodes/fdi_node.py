@@ -146,8 +146,9 @@ class FdiNode(Node):
                                         lambda d, c=width * i + field: self.assembler.put_pressure(d, c))
 
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.pub_halt = self.create_publisher(Bool, "/fdi/halt", LATCHED_QOS)
-        self.pub_residuals = self.create_publisher(JointState, "/fdi/residuals", 10)
+        self.pub_halt = self.create_publisher(Bool, topics.FDI_HALT, LATCHED_QOS)
+        self.pub_residuals = self.create_publisher(JointState, topics.FDI_RESIDUALS, 10)
+        self._residual_channels = topics.fdi_residual_channels(actuators, self.mobile)
         self.create_service(Trigger, "~/acknowledge", self._on_acknowledge)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SelfTest, "~/self_test", self._on_self_test)
@@ -203,14 +204,9 @@ class FdiNode(Node):
         self._last_residual_ns = int(stamps[-1])
         msg = JointState()
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamps[-1]), 1_000_000_000)
-        names, values = [], []
-        quantity = "Q" if self.mobile else "p"
-        for i, actuator in enumerate(self.monitor.actuators):
-            for c, chamber in enumerate("AB"):
-                names += [f"{actuator}/mean_r_{quantity}{chamber}", f"{actuator}/threshold_{quantity}{chamber}"]
-                values += [float(result.mean_residual[-1, i, c]), float(result.threshold[-1, i, c])]
-        msg.name = names
-        msg.position = values
+        # layout of topics.fdi_residual_channels: actuator-major, chamber, then residual before threshold
+        msg.name = self._residual_channels
+        msg.position = np.stack([result.mean_residual[-1], result.threshold[-1]], axis=-1).ravel().tolist()
         self.pub_residuals.publish(msg)
 
     def _stale_topics(self, index: int) -> list[str]:
@@ -240,7 +236,7 @@ class FdiNode(Node):
             self.halt = halt
             self.pub_halt.publish(Bool(data=halt))
             if halt:
-                self.get_logger().error("severe fault: requesting halt on /fdi/halt")
+                self.get_logger().error(f"severe fault: requesting halt on {topics.FDI_HALT}")
 
     def statuses(self) -> list[DiagnosticStatus]:
         out = []
@@ -267,7 +263,7 @@ class FdiNode(Node):
                 "undecodable_messages": str(a.undecodable),
                 "stale_topics": ",".join(stale),
             }
-            out.append(DiagnosticStatus(level=bytes([level]), name=f"hydro_ros/fdi/{actuator}", message=message,
+            out.append(DiagnosticStatus(level=bytes([level]), name=f"{topics.FDI_STATUS_PREFIX}{actuator}", message=message,
                                         hardware_id=self.machine,
                                         values=[KeyValue(key=k, value=v) for k, v in values.items()]))
         return out

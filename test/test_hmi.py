@@ -1,0 +1,206 @@
+"""The HMI's state model and web server without ROS: alarms, staleness, decimation, and the security rules."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+from typing import Any
+
+import pytest
+from aiohttp.test_utils import TestClient, TestServer
+
+from hydro_ros.hmi.server import MAX_BODY_BYTES, create_app
+from hydro_ros.hmi.state import HmiState, StatusReport
+
+TOKEN = "s3cret-operator-token"
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def _status(level: int, message: str, actuator: str = "boom", detected: str = "") -> StatusReport:
+    return StatusReport(f"hydro_ros/fdi/{actuator}", level, message, "sam",
+                        {"pattern": "0100", "method": "ukf", "first_detection_stamp_s": detected, "samples": "5"})
+
+
+def test_an_alarm_is_raised_refined_acknowledged_and_cleared_once():
+    clock = FakeClock()
+    state = HmiState(clock=clock)
+    state.on_diagnostics(1.0, [_status(0, "ok"), StatusReport("hydro_ros/plant_sim", 0, "ok", "sam", {}),
+                               StatusReport("hydro_ros/fdi/self_test/weights", 2, "failed", "sam", {})])
+    view, _ = state.snapshot()
+    assert [t["actuator"] for t in view["tiles"]] == ["boom"] and view["alarms"] == []
+    clock.now += 5
+    state.on_diagnostics(6.0, [_status(1, "unisolated", detected="5.5")])
+    clock.now += 2
+    state.on_diagnostics(8.0, [_status(1, "external_leakage_a", detected="5.5")])
+    view, _ = state.snapshot()
+    tile = view["tiles"][0]
+    assert (tile["level"], tile["fault"], tile["since_wall"], tile["detected_stamp_s"]) == ("WARN", "external_leakage_a", 1007.0, 5.5)
+    assert tile["values"] == {"pattern": "0100", "method": "ukf", "first_detection_stamp_s": "5.5"}  # counters stay off the tile
+    [alarm] = view["alarms"]  # isolation refined the alarm raised at the first detection, it did not add one
+    assert (alarm["fault"], alarm["raised_wall"], alarm["active"]) == ("external_leakage_a", 1005.0, True)
+    clock.now += 1
+    assert state.mark_acknowledged() == 1 and state.mark_acknowledged() == 0
+    state.on_diagnostics(10.0, [_status(0, "ok")])
+    state.on_diagnostics(11.0, [_status(1, "external_leakage_b")])  # a new fault is a new alarm
+    view, _ = state.snapshot()
+    newest, old = view["alarms"]
+    assert (old["acknowledged_wall"], old["cleared_wall"], old["active"]) == (1008.0, 1008.0, False)
+    assert newest["fault"] == "external_leakage_b" and newest["id"] == old["id"] + 1 and newest["acknowledged_wall"] is None
+
+
+def test_a_silent_fdi_node_turns_its_tiles_stale():
+    clock = FakeClock()
+    state = HmiState(stale_timeout_s=3.0, clock=clock)
+    state.on_diagnostics(1.0, [_status(1, "external_leakage_a")])
+    clock.now += 2.5
+    assert state.snapshot()[0]["tiles"][0]["level"] == "WARN"
+    clock.now += 1.0
+    tile = state.snapshot()[0]["tiles"][0]
+    assert tile["level"] == "STALE" and tile["fault"] == "no /diagnostics for 4 s"
+
+
+def test_residuals_are_decimated_windowed_and_sent_once():
+    state = HmiState(plot_window_s=60.0, plot_period_s=0.1)
+    names = ["boom/mean_r_pA", "boom/threshold_pA", "boom/mean_r_pB", "boom/threshold_pB"]
+    for k in range(5000):  # 100 s at the fdi_node's 50 Hz
+        state.on_residuals(k * 0.02, names, [0.001 * k, 0.05, math.nan if k == 4999 else -0.001, 0.05])
+    view, cursor = state.snapshot()
+    rows = view["residuals"]["rows"]
+    stamps = [row[0] for row in rows]
+    assert min(b - a for a, b in zip(stamps, stamps[1:])) >= 0.1 - 1e-9
+    assert stamps[-1] - stamps[0] <= 60.0 and len(rows) in range(500, 602)
+    assert rows[-1][3] is None  # NaN travels as a gap, JSON has no NaN
+    json.dumps(view, allow_nan=False)
+    view, cursor2 = state.update(cursor)
+    assert view["residuals"]["rows"] == [] and not view["residuals"]["reset"] and cursor2 == cursor
+    state.on_residuals(100.1, names, [1.0, 0.05, 0.0, 0.05])
+    view, cursor3 = state.update(cursor2)
+    assert [row[0] for row in view["residuals"]["rows"]] == [100.1] and not view["residuals"]["reset"]
+    state.on_residuals(3.0, names, [1.0, 0.05, 0.0, 0.05])  # time ran backwards: a replay restarted
+    view, _ = state.update(cursor3)
+    assert view["residuals"]["reset"] and [row[0] for row in view["residuals"]["rows"]] == [3.0]
+
+
+def test_catalog_errors_keep_the_last_good_catalog():
+    state = HmiState()
+    state.on_catalog(json.dumps([{"path": "horizontal", "solutions": {"dp_cp": {}, "pinv_joint": {}}}]))
+    state.on_catalog("{not json")
+    view, _ = state.snapshot()
+    assert view["catalog"][0]["path"] == "horizontal" and view["catalog_error"].startswith("catalog: malformed")
+    assert state.catalog_methods("horizontal") == ["dp_cp", "pinv_joint"] and state.catalog_methods("vertical") is None
+    state.on_result("[1, 2]")
+    assert state.snapshot()[0]["result"]["ok"] is False
+
+
+class FakeActions:
+    def __init__(self) -> None:
+        self.calls: list[tuple[Any, ...]] = []
+
+    async def acknowledge(self) -> tuple[bool, str]:
+        self.calls.append(("acknowledge",))
+        return True, "acknowledged: boom: external_leakage_a"
+
+    async def request_path(self, path: str, method: str) -> tuple[bool, str]:
+        self.calls.append(("request_path", path, method))
+        return True, f"requested {path}"
+
+
+def _serve(token: str, check) -> tuple[FakeActions, list[str], HmiState]:
+    state = HmiState()
+    state.on_diagnostics(1.0, [_status(1, "external_leakage_a")])
+    state.on_catalog(json.dumps([{"path": "horizontal", "solutions": {"dp_cp": {"cp_energy_J": 7e4}}}]))
+    actions, log = FakeActions(), []
+
+    async def run() -> None:
+        app = create_app(state, actions, token=token, update_period_s=0.05, log=log.append)
+        async with TestClient(TestServer(app)) as client:
+            await check(client, state)
+
+    asyncio.run(run())
+    return actions, log, state
+
+
+def _bearer(token: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
+
+
+def test_without_a_configured_token_the_hmi_is_read_only():
+    async def check(client, _state):
+        page = await client.get("/")
+        assert page.status == 200 and "hmi.js" in await page.text()
+        assert "script-src 'self'" in page.headers["Content-Security-Policy"]
+        assert "Access-Control-Allow-Origin" not in page.headers
+        view = await (await client.get("/api/state")).json()
+        assert view["actions_enabled"] is False and view["tiles"][0]["fault"] == "external_leakage_a"
+        refused = await client.post("/api/acknowledge", json={}, headers=_bearer("anything"))
+        assert refused.status == 403 and "read-only" in (await refused.json())["error"]
+
+    actions, log, state = _serve("", check)
+    assert actions.calls == [] and "refused: read-only" in log[0]
+    assert state.snapshot()[0]["alarms"][0]["acknowledged_wall"] is None
+
+
+def test_actions_need_the_token_the_origin_and_valid_input():
+    async def check(client, _state):
+        assert (await client.post("/api/acknowledge", json={})).status == 401
+        assert (await client.post("/api/acknowledge", json={}, headers=_bearer("wrong"))).status == 401
+        cross = await client.post("/api/acknowledge", json={}, headers={**_bearer(TOKEN), "Origin": "http://evil.example"})
+        assert cross.status == 403 and "cross-origin" in (await cross.json())["error"]
+        assert (await client.post("/api/acknowledge", data="{}", headers=_bearer(TOKEN))).status == 415
+        huge = await client.post("/api/request", data=json.dumps({"path": "x" * 2 * MAX_BODY_BYTES}),
+                                 headers={**_bearer(TOKEN), "Content-Type": "application/json"})
+        assert huge.status == 413
+        for body, needle in (({"path": "../etc", "method": "dp_cp"}, "identifier"),
+                             ({"path": "vertical", "method": "dp_cp"}, "not in the trajectory catalog"),
+                             ({"path": "horizontal", "method": "dp_ls"}, "not stored for path"),
+                             ({"path": "horizontal"}, "method 'None'")):
+            answer = await client.post("/api/request", json=body, headers=_bearer(TOKEN))
+            assert answer.status == 400 and needle in (await answer.json())["error"], body
+        own_origin = f"http://{client.server.host}:{client.server.port}"
+        done = await client.post("/api/acknowledge", json={}, headers={**_bearer(TOKEN), "Origin": own_origin})
+        assert done.status == 200 and "external_leakage_a" in (await done.json())["detail"]
+        served = await client.post("/api/request", json={"path": "horizontal", "method": "dp_cp"}, headers=_bearer(TOKEN))
+        assert served.status == 200
+
+    actions, log, state = _serve(TOKEN, check)
+    assert actions.calls == [("acknowledge",), ("request_path", "horizontal", "dp_cp")]
+    assert sum("refused" in line for line in log) == 9 and all("127.0.0.1" in line for line in log)
+    assert state.snapshot()[0]["alarms"][0]["acknowledged_wall"] is not None
+    assert [a["ok"] for a in state.snapshot()[0]["actions"]][:2] == [True, True]
+
+
+def test_the_websocket_refuses_other_origins_and_streams_snapshot_then_updates():
+    names = ["boom/mean_r_pA", "boom/threshold_pA"]
+
+    async def check(client, state):
+        state.on_residuals(1.0, names, [0.01, 0.05])
+        foreign = await client.get("/ws", headers={"Origin": "http://evil.example", "Connection": "Upgrade", "Upgrade": "websocket",
+                                                   "Sec-WebSocket-Version": "13", "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ=="})
+        assert foreign.status == 403
+        async with client.ws_connect("/ws") as ws:
+            snapshot = await ws.receive_json(timeout=5)
+            assert snapshot["type"] == "snapshot" and snapshot["residuals"]["rows"] == [[1.0, 0.01, 0.05]]
+            state.on_residuals(2.0, names, [0.02, 0.05])
+            update = await ws.receive_json(timeout=5)
+            assert update["type"] == "update" and update["residuals"]["rows"] == [[2.0, 0.02, 0.05]]
+            update = await ws.receive_json(timeout=5)
+            assert update["residuals"]["rows"] == []  # nothing new: nothing resent
+
+    _serve(TOKEN, check)
+
+
+@pytest.mark.parametrize("path", ["/static/../server.py", "/static/%2e%2e/server.py", "/static/nothing.js"])
+def test_only_the_page_assets_are_served(path):
+    async def check(client, _state):
+        response = await client.get(path)
+        assert response.status in (403, 404)
+
+    _serve("", check)
