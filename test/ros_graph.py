@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import os
+import socket
 import subprocess
 import sys
+import threading
 import time
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
 import rclpy
+from rclpy.executors import SingleThreadedExecutor
 
 
 @contextmanager
@@ -44,3 +47,32 @@ def spin_until(node: rclpy.node.Node, done: Callable[[], bool], timeout: float) 
         if done():
             return True
     return False
+
+
+@contextmanager
+def spinning(node: rclpy.node.Node) -> Iterator[rclpy.node.Node]:
+    """Spin a node on a background thread, for tests whose main thread waits on something else (a browser)."""
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        yield node
+    finally:
+        executor.shutdown()
+        thread.join(timeout=5)
+
+
+def wait_for(done: Callable[[], bool], timeout: float, period: float = 0.05) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if done():
+            return True
+        time.sleep(period)
+    return False
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]

@@ -47,8 +47,9 @@ def test_an_alarm_is_raised_refined_acknowledged_and_cleared_once():
     [alarm] = view["alarms"]  # isolation refined the alarm raised at the first detection, it did not add one
     assert (alarm["fault"], alarm["raised_wall"], alarm["active"]) == ("external_leakage_a", 1005.0, True)
     clock.now += 1
-    assert state.mark_acknowledged() == 1 and state.mark_acknowledged() == 0
-    state.on_diagnostics(10.0, [_status(0, "ok")])
+    shown = state.unacknowledged()
+    state.on_diagnostics(10.0, [_status(0, "ok")])  # the FDI node clears the latch before its service answers
+    assert state.mark_acknowledged(shown) == 1 and state.mark_acknowledged(shown) == 0 and state.unacknowledged() == []
     state.on_diagnostics(11.0, [_status(1, "external_leakage_b")])  # a new fault is a new alarm
     view, _ = state.snapshot()
     newest, old = view["alarms"]
@@ -149,7 +150,7 @@ def test_without_a_configured_token_the_hmi_is_read_only():
 
 
 def test_actions_need_the_token_the_origin_and_valid_input():
-    async def check(client, _state):
+    async def check(client, state):
         assert (await client.post("/api/acknowledge", json={})).status == 401
         assert (await client.post("/api/acknowledge", json={}, headers=_bearer("wrong"))).status == 401
         cross = await client.post("/api/acknowledge", json={}, headers={**_bearer(TOKEN), "Origin": "http://evil.example"})
@@ -169,10 +170,13 @@ def test_actions_need_the_token_the_origin_and_valid_input():
         assert done.status == 200 and "external_leakage_a" in (await done.json())["detail"]
         served = await client.post("/api/request", json={"path": "horizontal", "method": "dp_cp"}, headers=_bearer(TOKEN))
         assert served.status == 200
+        state.on_halt(True)
+        halted = await client.post("/api/request", json={"path": "horizontal", "method": "dp_cp"}, headers=_bearer(TOKEN))
+        assert halted.status == 409 and "halt" in (await halted.json())["error"]
 
     actions, log, state = _serve(TOKEN, check)
     assert actions.calls == [("acknowledge",), ("request_path", "horizontal", "dp_cp")]
-    assert sum("refused" in line for line in log) == 9 and all("127.0.0.1" in line for line in log)
+    assert sum("refused" in line for line in log) == 10 and all("127.0.0.1" in line for line in log)
     assert state.snapshot()[0]["alarms"][0]["acknowledged_wall"] is not None
     assert [a["ok"] for a in state.snapshot()[0]["actions"]][:2] == [True, True]
 

@@ -181,7 +181,10 @@ async def _authorised_body(request: web.Request, refuse: Refuse) -> dict[str, An
 
 async def _acknowledge(request: web.Request) -> web.Response:
     await _authorised_body(request, _refuser(request, "acknowledge"))
-    return await _perform(request, "acknowledge", request.app[SETTINGS_KEY]["actions"].acknowledge())
+    state: HmiState = request.app[STATE_KEY]
+    shown = state.unacknowledged()
+    return await _perform(request, "acknowledge", request.app[SETTINGS_KEY]["actions"].acknowledge(),
+                          on_success=lambda: state.mark_acknowledged(shown))
 
 
 async def _request_path(request: web.Request) -> web.Response:
@@ -191,7 +194,10 @@ async def _request_path(request: web.Request) -> web.Response:
     for name, value in (("path", path), ("method", method)):
         if not isinstance(value, str) or not IDENTIFIER.fullmatch(value):
             raise refuse(web.HTTPBadRequest, f"{name} {str(value)[:40]!r}: expected an identifier ([A-Za-z0-9_-], at most 64)")
-    methods = request.app[STATE_KEY].catalog_methods(path)
+    state: HmiState = request.app[STATE_KEY]
+    if state.halt:
+        raise refuse(web.HTTPConflict, "the FDI node requests a halt (severe fault): no motion is requested while it stands")
+    methods = state.catalog_methods(path)
     if methods is None:
         raise refuse(web.HTTPBadRequest, f"path {path!r}: not in the trajectory catalog")
     if method not in methods:
@@ -199,12 +205,12 @@ async def _request_path(request: web.Request) -> web.Response:
     return await _perform(request, f"request_path {path} {method}", request.app[SETTINGS_KEY]["actions"].request_path(path, method))
 
 
-async def _perform(request: web.Request, action: str, outcome: Any) -> web.Response:
+async def _perform(request: web.Request, action: str, outcome: Any, on_success: Callable[[], Any] = lambda: None) -> web.Response:
     settings = request.app[SETTINGS_KEY]
     client = request.remote or "unknown"
     ok, detail = await outcome
     settings["log"](f"operator action {action} from {client}: {'done' if ok else 'failed'}: {detail}")
-    if ok and action == "acknowledge":
-        request.app[STATE_KEY].mark_acknowledged()
+    if ok:
+        on_success()
     request.app[STATE_KEY].record_action(action, ok, detail, client)
     return web.json_response({"ok": ok, "detail" if ok else "error": detail}, status=200 if ok else 502)

@@ -188,13 +188,19 @@ class HmiState:
         with self.lock:
             self.actions.appendleft({"wall": self.clock(), "action": action, "ok": ok, "detail": detail, "client": client})
 
-    def mark_acknowledged(self) -> int:
+    def unacknowledged(self) -> list[int]:
+        """Ids of the active alarms nobody acknowledged yet (an acknowledgement applies to what was shown)."""
+        with self.lock:
+            return [a.id for a in self.alarms if a.active and a.acknowledged_wall is None]
+
+    def mark_acknowledged(self, ids: list[int]) -> int:
+        """Stamp these alarms acknowledged, active or not: the FDI node may clear them before its answer arrives."""
         now = self.clock()
         with self.lock:
-            active = [a for a in self.alarms if a.active and a.acknowledged_wall is None]
-            for alarm in active:
+            marked = [a for a in self.alarms if a.id in ids and a.acknowledged_wall is None]
+            for alarm in marked:
                 alarm.acknowledged_wall = now
-            return len(active)
+            return len(marked)
 
     def catalog_methods(self, path: str) -> list[str] | None:
         """The methods stored for a path, or None when the path is not in the catalog."""
