@@ -178,7 +178,7 @@ def test_actions_need_the_token_the_origin_and_valid_input():
     assert actions.calls == [("acknowledge",), ("request_path", "horizontal", "dp_cp")]
     assert sum("refused" in line for line in log) == 10 and all("127.0.0.1" in line for line in log)
     assert state.snapshot()[0]["alarms"][0]["acknowledged_wall"] is not None
-    assert [a["ok"] for a in state.snapshot()[0]["actions"]][:2] == [True, True]
+    assert [a["ok"] for a in state.snapshot()[0]["actions"]][:3] == [False, True, True]  # newest first: the halt refusal
 
 
 def test_the_websocket_refuses_other_origins_and_streams_snapshot_then_updates():
