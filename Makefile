@@ -5,6 +5,8 @@ PY := $(VENV)/bin/python
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 
+CHROMIUM := /usr/bin/chromium
+
 .PHONY: setup test demo bench bags clean
 
 $(VENV)/.installed: requirements.txt setup.py
@@ -16,13 +18,19 @@ $(VENV)/.installed: requirements.txt setup.py
 
 setup: $(VENV)/.installed
 
-test: setup
+# Debian's chromium for the HMI's browser test and screenshot (Playwright downloads no browser here)
+$(CHROMIUM):
+	@if [ "$$(id -u)" = 0 ]; then \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium fonts-dejavu-core >/dev/null; \
+	else echo "make: the HMI browser test needs Debian's chromium: sudo apt-get install chromium fonts-dejavu-core" >&2; fi
+
+test: setup $(CHROMIUM)
 	$(PY) -m pytest -q test
 
 demo: setup
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-42} $(VENV)/bin/hydro-ros demo --out out/demo
 
-bench: setup
+bench: setup $(CHROMIUM)
 	$(PY) bench/run.py --out bench/results.json
 	$(PY) bench/discrepancy_suite.py
 	$(PY) bench/dp.py --out bench/dp.json

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from test.conftest import REPO
 
-EXECUTABLES = ("plant_sim", "bag_player", "fdi_node", "can_bridge", "trajectory_server")
+EXECUTABLES = ("plant_sim", "bag_player", "fdi_node", "can_bridge", "trajectory_server", "hmi")
 
 
 def test_colcon_build_installs_executables_in_the_ament_index(tmp_path):
@@ -29,5 +29,8 @@ def test_colcon_build_installs_executables_in_the_ament_index(tmp_path):
     for name in EXECUTABLES:
         exe = prefix / "lib" / "hydro_ros" / name
         assert exe.is_file() and os.access(exe, os.X_OK), f"{exe} missing"
-    assert (prefix / "share" / "hydro_ros" / "config" / "sam.yaml").is_file()
+    for name in ("sam.yaml", "foxglove_layout.json", "diagnostic_aggregator.yaml"):
+        assert (prefix / "share" / "hydro_ros" / "config" / name).is_file(), name
+    pages = list(prefix.glob("lib/python3*/site-packages/hydro_ros/hmi/static/index.html"))
+    assert pages and (pages[0].parent / "hmi.js").is_file()  # the HMI's page travels with the package
     assert (prefix / "share" / "hydro_ros" / "package.xml").is_file()

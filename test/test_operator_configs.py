@@ -1,0 +1,69 @@
+"""The operator tool configs match what the nodes publish: the aggregator groups every status once,
+and the Foxglove layout's plots index /fdi/residuals the way fdi_node lays it out."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import yaml
+
+from hydro_ros.bags import topics
+from hydro_ros.can.codec import MachineBus
+from hydro_ros.config import load_machine_config
+from test.conftest import REPO, SAM_CONFIG
+
+AGGREGATOR = REPO / "config" / "diagnostic_aggregator.yaml"
+LAYOUT = REPO / "config" / "foxglove_layout.json"
+
+
+def _published_status_names() -> list[str]:
+    names = ["hydro_ros/plant_sim", "hydro_ros/can_bridge/bus"]
+    for machine in ("sam", "sam_mobile", "sam_mems"):
+        config = load_machine_config(REPO / "config" / f"{machine}.yaml")
+        names += [f"{topics.FDI_STATUS_PREFIX}{actuator}" for actuator in config["actuators"]]
+    names += [f"hydro_ros/can_bridge/{message}" for message in MachineBus(load_machine_config(SAM_CONFIG)).expected]
+    return names
+
+
+def _matches(analyzer: dict, name: str) -> bool:
+    """diagnostic_aggregator's GenericAnalyzer: any of name / startswith / contains / regex."""
+    return (name in analyzer.get("name", []) or any(name.startswith(p) for p in analyzer.get("startswith", []))
+            or any(c in name for c in analyzer.get("contains", [])) or any(re.search(r, name) for r in analyzer.get("regex", [])))
+
+
+def test_the_aggregator_groups_every_published_status_exactly_once():
+    parameters = yaml.safe_load(AGGREGATOR.read_text())["analyzers"]["ros__parameters"]
+    analyzers = {key: value for key, value in parameters.items() if isinstance(value, dict)}
+    assert all(a["type"] == "diagnostic_aggregator/GenericAnalyzer" and a["timeout"] > 1.0 for a in analyzers.values())
+    for name in _published_status_names():
+        groups = [key for key, analyzer in analyzers.items() if _matches(analyzer, name)]
+        assert len(groups) == 1, f"{name}: grouped under {groups}"
+    fdi = next(a for a in analyzers.values() if _matches(a, f"{topics.FDI_STATUS_PREFIX}boom"))
+    assert fdi["remove_prefix"] == [topics.FDI_STATUS_PREFIX]
+
+
+def _leaves(node) -> set[str]:
+    return {node} if isinstance(node, str) else _leaves(node["first"]) | _leaves(node["second"])
+
+
+def test_the_foxglove_layout_plots_the_residual_channels_it_names():
+    layout = json.loads(LAYOUT.read_text())
+    panels = layout["configById"]
+    assert _leaves(layout["layout"]) == set(panels)  # every panel is placed, every placed panel configured
+    channels = topics.fdi_residual_channels(list(load_machine_config(SAM_CONFIG)["actuators"]))
+    plotted = set()
+    for panel_id, panel in panels.items():
+        if panel_id.startswith("Plot!"):
+            for series in panel["paths"]:
+                match = re.fullmatch(re.escape(topics.FDI_RESIDUALS) + r"\.position\[(\d+)\](\.@negative)?", series["value"])
+                assert match, series["value"]
+                assert series["label"].split(" ")[0] == channels[int(match.group(1))], series
+                plotted.add(channels[int(match.group(1))])
+        elif panel_id.startswith(("DiagnosticSummary!", "DiagnosticStatusPanel!")):
+            assert panel["topicToRender"] == topics.DIAGNOSTICS
+    assert plotted == set(channels)  # both chambers' residuals and thresholds
+    halt = next(p for k, p in panels.items() if k.startswith("Indicator!"))
+    assert halt["path"] == f"{topics.FDI_HALT}.data" and halt["rules"][0]["rawValue"] == "true"
+    transitions = next(p for k, p in panels.items() if k.startswith("StateTransitions!"))
+    assert f'name=="{topics.FDI_STATUS_PREFIX}boom"' in transitions["paths"][0]["value"]
