@@ -6,6 +6,8 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 
 CHROMIUM := /usr/bin/chromium
+# make demo HMI_LINGER=600 keeps the graph and its HMI page up 10 min after the replay
+HMI_LINGER ?= 0
 
 .PHONY: setup test demo bench bags clean
 
@@ -28,7 +30,7 @@ test: setup $(CHROMIUM)
 	$(PY) -m pytest -q test
 
 demo: setup
-	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-42} $(VENV)/bin/hydro-ros demo --out out/demo
+	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-42} $(VENV)/bin/hydro-ros demo --out out/demo --linger $(HMI_LINGER)
 
 bench: setup $(CHROMIUM)
 	$(PY) bench/run.py --out bench/results.json

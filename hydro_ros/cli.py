@@ -342,7 +342,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from hydro_ros.demo import run_demo
 
-    return run_demo(Path(args.out), config_path=args.config, duration=args.duration)
+    return run_demo(Path(args.out), config_path=args.config, duration=args.duration, hmi_port=args.hmi_port, linger=args.linger)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -483,6 +483,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", default="out/demo", help="directory for the bag and plots")
     demo.add_argument("--config", default=None, help="machine config (default: the installed sam.yaml)")
     demo.add_argument("--duration", type=float, default=60.0, help="simulated seconds")
+    demo.add_argument("--hmi-port", type=int, default=8080, help="port of the operator HMI on localhost (0: any free port)")
+    demo.add_argument("--linger", type=float, default=0.0, help="seconds to keep the graph and the HMI up after the replay")
     demo.set_defaults(func=cmd_demo)
     return parser
 

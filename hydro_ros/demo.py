@@ -1,6 +1,6 @@
 """`make demo`: simulate the SAM with a developing leak, analyse it offline, then play it through
-bag_player -> fdi_node on a DDS graph and show what the operator's HMI would: the actuator's
-health turning from ok to the isolated fault name on /diagnostics. Beside it, the K70M crane
+bag_player -> fdi_node on a DDS graph, with the operator HMI (hydro_ros.nodes.hmi) serving the page whose
+URL it prints: the actuator's health turning from ok to the isolated fault name. Beside it, the K70M crane
 (plant_sim's crane mode) asks trajectory_server for the energy-optimal horizontal path from where it
 stands and executes it; the operator sees its pump energy against the joint-space pseudo-inverse's.
 """
@@ -91,7 +91,31 @@ def _crane_status(crane: dict) -> str:
             f"supply {crane.get('p_s', float('nan')) / 1e6:.1f} MPa")
 
 
-def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.0, rate: float = 2.0) -> int:
+def _start_hmi(out: Path, port: int) -> tuple[subprocess.Popen, str, str]:
+    """The operator HMI for this graph, with a fresh token so acknowledge and request can be tried."""
+    import secrets
+
+    from hydro_ros.nodes.hmi import TOKEN_ENV
+
+    token = secrets.token_urlsafe(12)
+    log = out / "hmi.log"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "hydro_ros.nodes.hmi", "--ros-args", "-p", f"port:={port}", "-p", "trajectory_server:=/crane/trajectory_server"],
+        env=dict(os.environ, **{TOKEN_ENV: token}), stdout=log.open("w"), stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 15.0
+    while time.monotonic() < deadline:
+        text = log.read_text()
+        if "HMI on " in text:
+            return process, text.split("HMI on ", 1)[1].split()[0], token
+        if process.poll() is not None:
+            break
+        time.sleep(0.2)
+    reason = (log.read_text().strip().splitlines() or ["no output"])[-1]
+    return process, "", f"the HMI did not start ({reason}); the rest of the demo goes on without it"
+
+
+def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.0, rate: float = 2.0, hmi_port: int = 8080,
+             linger: float = 0.0) -> int:
     from hydro_ros.cli import main as cli
 
     out.mkdir(parents=True, exist_ok=True)
@@ -128,17 +152,23 @@ def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.
          "-p", "initial_extension:=0.3"),
         ("trajectory_server", "-r", "__ns:=/crane", "-p", f"database:={database}", "-p", "output_topic:=joint_trajectory"),
     ]
+    hmi, url, token = _start_hmi(out, hmi_port)
+    print(f"    operator HMI: {url}  (operator token for acknowledge / request: {token})" if url else f"    {token}", flush=True)
     processes = [subprocess.Popen([sys.executable, "-m", f"hydro_ros.nodes.{name}", "--ros-args", *args], stderr=subprocess.DEVNULL)
-                 for name, *args in nodes]
+                 for name, *args in nodes] + [hmi]
     try:
         _, executed = _operator_view(duration, rate)
+        if linger > 0 and url:
+            print(f"    the graph stays up {linger:g} s more: {url}", flush=True)
+            time.sleep(linger)
     finally:
         for process in processes:
             process.terminate()
             process.wait(timeout=10)
     if executed and executed.get("ok"):
         _energy_against_pseudo_inverse(crane_config, database, executed)
-    print(f"bag:  {bag}\nplot: {bag}.png\nFDI:  {out / 'fdi.json'} and {out / 'fdi.png'}\ncatalog: hydro-ros db list --db {database}")
+    print(f"bag:  {bag}\nplot: {bag}.png\nFDI:  {out / 'fdi.json'} and {out / 'fdi.png'}\ncatalog: hydro-ros db list --db {database}\n"
+          f"HMI log (operator actions): {out / 'hmi.log'}")
     return 0
 
 

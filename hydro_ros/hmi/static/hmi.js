@@ -2,8 +2,19 @@
 "use strict";
 
 const view = { actionsEnabled: false, residuals: { names: [], rows: [] }, windowS: 60, diagStamps: {} };
-// seconds from a /diagnostics stamp to the tile in the DOM, one per new stamp (the benchmark reads them)
+// what make bench reads: seconds from a /diagnostics stamp to the tile in the DOM (one per new stamp),
+// bytes received, and milliseconds spent updating the DOM and drawing the plots
 window.hmiLatencies = [];
+window.hmiBytes = 0;
+window.hmiRenderMs = [];
+window.hmiDrawMs = [];
+
+function timed(samples, work) {
+  const start = performance.now();
+  work();
+  samples.push(performance.now() - start);
+  if (samples.length > 2000) samples.splice(0, 1000);
+}
 
 function el(tag, attrs = {}, ...children) {
   const node = document.createElement(tag);
@@ -29,7 +40,10 @@ function connect() {
     badge.textContent = "disconnected: retrying"; badge.className = "badge ERROR";
     setTimeout(connect, 1000);
   };
-  ws.onmessage = (event) => render(JSON.parse(event.data));
+  ws.onmessage = (event) => {
+    window.hmiBytes += event.data.length;
+    timed(window.hmiRenderMs, () => render(JSON.parse(event.data)));
+  };
 }
 
 function render(message) {
@@ -44,7 +58,7 @@ function render(message) {
   renderJoints(message);
   renderActions(message.actions);
   mergeResiduals(message.residuals);
-  requestAnimationFrame(drawPlots);
+  requestAnimationFrame(() => timed(window.hmiDrawMs, drawPlots));
 }
 
 function renderHalt(message) {
