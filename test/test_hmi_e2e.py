@@ -80,6 +80,7 @@ def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_doma
         _tile_is(page, "OK", "ok", timeout_s=45)
         page.wait_for_selector("#plots canvas", timeout=10_000)
         assert page.text_content("#halt") == "no halt request"
+        page.wait_for_function("() => /^boom_joint -?[0-9.]+ rad$/.test(document.getElementById('joints').textContent)", timeout=10_000)
         page.wait_for_timeout(5_000)  # the FDI's 5 s residual window fills on the healthy plant
         _set_fault(plant, "external_leakage_a", 3.0)
         _tile_is(page, "WARN", "external_leakage_a")

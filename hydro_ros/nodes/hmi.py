@@ -8,7 +8,7 @@ Operator actions call ``<fdi_node>/acknowledge`` (std_srvs/Trigger) and publish 
 environment variable ``HYDRO_ROS_HMI_TOKEN``; without one the page is read-only).
 
 The web server runs on its own asyncio thread; rclpy spins in the main thread as every node here does.
-/joint_states arrives at 1 kHz: it is taken raw and only the newest message is decoded, once per update.
+/joint_states arrives at 1 kHz: only its newest sample is taken, raw, once per update (no callback per message).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import os
 import threading
 from typing import Any
 
+import rclpy
 from aiohttp import web
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
@@ -93,16 +94,20 @@ class HmiNode(Node):
         self.create_subscription(Bool, topics.FDI_HALT, lambda m: self.state.on_halt(bool(m.data)), LATCHED_QOS)
         self.create_subscription(String, f"{server}/catalog", lambda m: self.state.on_catalog(m.data), LATCHED_QOS)
         self.create_subscription(String, f"{server}/result", lambda m: self.state.on_result(m.data), LATCHED_QOS)
-        self._joint_state_cdr: bytes | None = None
-        self.create_subscription(JointState, topics.JOINT_STATES, self._keep_joint_state, LATEST_ONLY_QOS, raw=True)
-        self.create_timer(1.0 / update_rate, self._decode_joint_state)
+        # /joint_states comes at 1 kHz and the page shows its newest sample: a node that is never spun holds a
+        # depth-1 subscription, and the timer takes from it (as rclpy's wait_for_message does), so no callback
+        # runs per message
+        self._sampler = rclpy.create_node("hmi_joint_state_sampler", context=self.context)
+        self._joint_states = self._sampler.create_subscription(JointState, topics.JOINT_STATES, lambda _: None, LATEST_ONLY_QOS,
+                                                               raw=True)
+        self.create_timer(1.0 / update_rate, self._sample_joint_state)
         self.acknowledge_client = self.create_client(Trigger, f"{fdi_node}/acknowledge")
         self.request_publisher = self.create_publisher(String, f"{server}/request", 10)
 
         app = create_app(self.state, self, token=token, update_period_s=1.0 / update_rate, log=self._log_action)
         self.web = WebServerThread(app, host, port)
         self.url = f"http://{host if ':' not in host else f'[{host}]'}:{self.web.port}/"
-        access = "operator actions need the token" if token else f"read-only (no operator token: set {TOKEN_ENV})"
+        access = "operator actions need the token" if token else f"read-only: no operator token, set {TOKEN_ENV}"
         self.get_logger().info(f"HMI on {self.url} ({access})")
         if not _is_loopback(host):
             self.get_logger().warning(f"HMI listens on {host}, beyond this machine: use a token and a trusted network")
@@ -118,15 +123,13 @@ class HmiNode(Node):
     def _on_residuals(self, msg: JointState) -> None:
         self.state.on_residuals(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, list(msg.name), list(msg.position))
 
-    def _keep_joint_state(self, data: bytes) -> None:
-        self._joint_state_cdr = data
-
-    def _decode_joint_state(self) -> None:
-        data, self._joint_state_cdr = self._joint_state_cdr, None
-        if data is None:
+    def _sample_joint_state(self) -> None:
+        with self._joint_states.handle:
+            taken = self._joint_states.handle.take_message(JointState, True)
+        if taken is None:
             return
         try:
-            stamp, names, position, _ = decode_joint_state(data)
+            stamp, names, position, _ = decode_joint_state(taken[0])
         except CdrError as exc:
             self.get_logger().warning(f"{topics.JOINT_STATES}: undecodable message ({exc})", throttle_duration_sec=10.0)
             return
@@ -160,6 +163,7 @@ class HmiNode(Node):
 
     def destroy_node(self) -> None:
         self.web.close()
+        self._sampler.destroy_node()
         super().destroy_node()
 
 
