@@ -37,6 +37,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/discrepancy_suite.py
 	$(PY) bench/dp.py --out bench/dp.json
 	$(PY) bench/trajectories.py --out bench/trajectories.json
+	$(PY) bench/hmi.py --out bench/hmi.json
 
 bags: setup
 	$(PY) scripts/make_sample_bags.py --out bags

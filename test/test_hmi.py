@@ -99,6 +99,12 @@ def test_catalog_errors_keep_the_last_good_catalog():
     assert state.catalog_methods("horizontal") == ["dp_cp", "pinv_joint"] and state.catalog_methods("vertical") is None
     state.on_result("[1, 2]")
     assert state.snapshot()[0]["result"]["ok"] is False
+    # a peer's NaN (JSON NaN, a NaN joint reading) must not reach the browser, whose JSON.parse rejects it
+    state.on_catalog('[{"path": "horizontal", "solutions": {"dp_cp": {"cp_energy_J": NaN}}}]')
+    state.on_joint_state(1.0, ["boom_joint"], [math.nan])
+    view, _ = state.snapshot()
+    assert view["catalog"][0]["solutions"]["dp_cp"]["cp_energy_J"] is None and view["joints"] == {"boom_joint": None}
+    json.dumps(view, allow_nan=False)
 
 
 class FakeActions:

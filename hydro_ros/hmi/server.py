@@ -125,12 +125,15 @@ async def _websocket(request: web.Request) -> web.WebSocketResponse:
 async def _push_updates(ws: web.WebSocketResponse, state: HmiState, app: web.Application) -> None:
     """A snapshot, then at most one update per period: the browser draws at the rate it is sent."""
     view, cursor = state.snapshot()
-    await ws.send_str(json.dumps(dict(_with_settings(app, view), type="snapshot")))
     period = app[SETTINGS_KEY]["period"]
-    while not ws.closed:
-        await asyncio.sleep(period)
-        view, cursor = state.update(cursor)
-        await ws.send_str(json.dumps(dict(_with_settings(app, view), type="update")))
+    try:
+        await ws.send_str(json.dumps(dict(_with_settings(app, view), type="snapshot")))
+        while not ws.closed:
+            await asyncio.sleep(period)
+            view, cursor = state.update(cursor)
+            await ws.send_str(json.dumps(dict(_with_settings(app, view), type="update")))
+    except ConnectionError:  # the page went away between two updates
+        return
 
 
 class _TooLarge(web.HTTPClientError):

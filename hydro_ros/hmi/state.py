@@ -159,12 +159,12 @@ class HmiState:
 
     def on_joint_state(self, stamp_s: float, names: list[str], positions: list[float]) -> None:
         with self.lock:
-            self.joints = {n: p for n, p in zip(names, positions)}
+            self.joints = {n: _finite_or_none(p) for n, p in zip(names, positions)}
             self.joint_stamp_s = stamp_s
 
     def on_catalog(self, text: str) -> None:
         try:
-            catalog = json.loads(text)
+            catalog = json.loads(text, parse_constant=_no_constant)
             if not isinstance(catalog, list) or not all(isinstance(e, dict) and "path" in e for e in catalog):
                 raise ValueError("expected a JSON list of {path, solutions}")
         except ValueError as exc:
@@ -176,7 +176,7 @@ class HmiState:
 
     def on_result(self, text: str) -> None:
         try:
-            result = json.loads(text)
+            result = json.loads(text, parse_constant=_no_constant)
         except ValueError:
             result = {"ok": False, "error": f"result: malformed JSON {text[:60]!r}"}
         with self.lock:
@@ -256,6 +256,11 @@ def _float_or_none(text: str) -> float | None:
     except ValueError:
         return None
     return value if math.isfinite(value) else None
+
+
+def _no_constant(_name: str) -> None:
+    """NaN / Infinity in a peer's JSON become null: the browser's JSON.parse rejects them."""
+    return None
 
 
 def _finite_or_none(value: float) -> float | None:

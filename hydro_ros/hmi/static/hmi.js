@@ -140,7 +140,7 @@ function renderCatalog(message) {
 function renderJoints(message) {
   const entries = Object.entries(message.joints || {});
   if (entries.length) {
-    document.getElementById("joints").textContent = entries.map(([name, q]) => `${name} ${q.toFixed(3)} rad`).join(", ");
+    document.getElementById("joints").textContent = entries.map(([name, q]) => `${name} ${q === null ? "n/a" : q.toFixed(3)} rad`).join(", ");
   }
 }
 
