@@ -1,4 +1,6 @@
-"""Simulated SAM: plant_sim with its operator (for machines that have ros2 launch)."""
+"""Simulated SAM monitored live: plant_sim with its operator, fdi_node and the operator HMI
+(for machines that have ros2 launch). The HMI's operator token comes from HYDRO_ROS_HMI_TOKEN in
+the environment of `ros2 launch`; without it the page is read-only."""
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
@@ -7,15 +9,16 @@ from launch_ros.actions import Node
 
 
 def generate_launch_description() -> LaunchDescription:
+    use_sim_time = LaunchConfiguration("use_sim_time")
     return LaunchDescription([
         DeclareLaunchArgument("use_sim_time", default_value="false"),
         DeclareLaunchArgument("real_time_factor", default_value="1.0"),
+        DeclareLaunchArgument("hmi_port", default_value="8080", description="the HMI page on http://127.0.0.1:<port>/"),
         Node(
             package="hydro_ros",
             executable="plant_sim",
-            parameters=[{
-                "use_sim_time": LaunchConfiguration("use_sim_time"),
-                "real_time_factor": LaunchConfiguration("real_time_factor"),
-            }],
+            parameters=[{"use_sim_time": use_sim_time, "real_time_factor": LaunchConfiguration("real_time_factor")}],
         ),
+        Node(package="hydro_ros", executable="fdi_node", parameters=[{"use_sim_time": use_sim_time}]),
+        Node(package="hydro_ros", executable="hmi", parameters=[{"port": LaunchConfiguration("hmi_port")}]),
     ])
