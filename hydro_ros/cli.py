@@ -193,7 +193,7 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     except BagError as exc:
         raise CliError(str(exc)) from None
     out = Path(args.out)
-    with tqdm(total=1 + 2 * len(EFFECT_RANGES), unit="fit", desc="discrepancy", disable=args.quiet) as bar:
+    with tqdm(total=2 + 2 * len(EFFECT_RANGES), unit="fit", desc="discrepancy", disable=args.quiet) as bar:
         report = run(data, config, out, progress=bar.update)
         bar.update(bar.total - bar.n)
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")

@@ -16,7 +16,9 @@ position per 1 mm) and its RMS is the gap.
    (one independent sample per 0.1 s, INFERRED); an effect is significant if it lowers BIC by
    more than 10 and the squared error by at least 30 %; the most significant is named, and a
    second one only if it is significant on top of the first;
-4. add and verify: the config with the effects is written as model.yaml and the gap is measured
+4. refine: the named effects and the calibration are fitted jointly (each effect was fitted with
+   the calibration held, and calibration can absorb part of an effect: air lowers the bulk modulus);
+5. add and verify: the config with the effects is written as model.yaml and the gap is measured
    before and after on the last 40 % of the data, which no fit has seen.
 """
 
@@ -162,17 +164,58 @@ def _with(config: dict[str, Any], effects: dict[str, float], calibration: dict[s
     return merged
 
 
+CALIBRATION_TOLERANCE = {"flow_gain": 0.05, "bulk_factor": 0.3}  # an identified valve's flow and the oil's bulk modulus
+
+
+def _calibration(z: np.ndarray) -> dict[str, float]:
+    """Unconstrained coordinates -> factors within their tolerance (tanh keeps the search inside)."""
+    return {name: 1.0 + tolerance * math.tanh(zi) for (name, tolerance), zi in zip(CALIBRATION_TOLERANCE.items(), z)}
+
+
+def _calibration_coordinates(calibration: dict[str, float]) -> list[float]:
+    return [math.atanh(float(np.clip((calibration[name] - 1.0) / tolerance, -0.999999, 0.999999)))
+            for name, tolerance in CALIBRATION_TOLERANCE.items()]
+
+
 def calibrate(config: dict[str, Any], rec: Recording) -> dict[str, float]:
     """Flow gain within +-5 % and bulk-modulus factor within +-30 % (ordinary calibration error)."""
 
     def cost(z: np.ndarray) -> float:
-        gain, bulk = 1.0 + 0.05 * math.tanh(z[0]), 1.0 + 0.3 * math.tanh(z[1])
-        return gap(simulate(_with(config, {}, {"flow_gain": gain, "bulk_factor": bulk}), rec))
+        return gap(simulate(_with(config, {}, _calibration(z)), rec))
 
     simplex = np.array([[0.0, 0.0], [0.6, 0.0], [0.0, 0.6]])  # steps of ~3 % flow and ~17 % bulk modulus
     result = minimize(cost, np.zeros(2), method="Nelder-Mead",
                       options={"maxfev": 30, "xatol": 0.05, "fatol": 1e-3, "initial_simplex": simplex})
-    return {"flow_gain": 1.0 + 0.05 * math.tanh(result.x[0]), "bulk_factor": 1.0 + 0.3 * math.tanh(result.x[1])}
+    return _calibration(result.x)
+
+
+def refine(config: dict[str, Any], calibration: dict[str, float], named: dict[str, float], rec: Recording,
+           max_evaluations: int = 40) -> tuple[dict[str, float], dict[str, float]]:
+    """The named effects and the calibration fitted jointly, from the one-at-a-time values.
+
+    Each effect was fitted with the calibration held, and the calibration was fitted with no effect:
+    where the two overlap (entrained air lowers the effective bulk modulus, a valve delay and the flow
+    gain both shape the pressure transients) the first fit lets calibration absorb part of the effect.
+    """
+    if not named:
+        return calibration, named
+    names = list(named)
+    ranges = [EFFECT_RANGES[n] for n in names]
+
+    def unpack(z: np.ndarray) -> tuple[dict[str, float], dict[str, float]]:
+        effects = {n: float(np.clip(named[n] + zi * (high - low), low, high)) for n, zi, (low, high) in zip(names, z[2:], ranges)}
+        return _calibration(z[:2]), effects
+
+    def cost(z: np.ndarray) -> float:
+        calibrated, effects = unpack(z)
+        return gap(simulate(_with(config, effects, calibrated), rec))
+
+    start = np.concatenate([_calibration_coordinates(calibration), np.zeros(len(names))])
+    steps = np.concatenate([[0.3, 0.3], np.full(len(names), 0.05)])  # ~1.5 % flow, ~9 % bulk, 5 % of each effect's range
+    simplex = np.vstack([start] + [start + np.eye(len(start))[i] * steps[i] for i in range(len(start))])
+    result = minimize(cost, start, method="Nelder-Mead",
+                      options={"maxfev": max_evaluations, "xatol": 1e-3, "fatol": 1e-4, "initial_simplex": simplex})
+    return unpack(result.x) if result.fun < cost(start) else (calibration, named)
 
 
 def _bic(error: np.ndarray, parameters: int, sample_rate: float) -> float:
@@ -308,12 +351,16 @@ def run(data: BagData, config: dict[str, Any], out: Path, progress: Callable[[in
         if best is None:
             break
         named[best.name] = best.value
+    separate = dict(named)
+    joint_calibration, named = refine(config, calibration, named, fit)
+    if progress:
+        progress(1)
     before_fit = simulate(_with(config, {}, calibration), fit)
-    after_fit = simulate(_with(config, named, calibration), fit)
+    after_fit = simulate(_with(config, named, joint_calibration), fit)
     raw_validation = simulate(config, validation)
     before_validation = simulate(_with(config, {}, calibration), validation)
-    after_validation = simulate(_with(config, named, calibration), validation)
-    model = _with(config, named, calibration)
+    after_validation = simulate(_with(config, named, joint_calibration), validation)
+    model = _with(config, named, joint_calibration)
     model.pop("_path", None)
     out.mkdir(parents=True, exist_ok=True)
     (out / "model.yaml").write_text("# model of hydro-ros discrepancy: calibrated flow gain and bulk modulus, named effects\n"
@@ -328,6 +375,7 @@ def run(data: BagData, config: dict[str, Any], out: Path, progress: Callable[[in
         "validation_gap": {"before": gap(before_validation), "after": gap(after_validation)},
         "uncalibrated_validation_gap": gap(raw_validation),
         "calibration": calibration,
+        "joint_fit": {"calibration": joint_calibration, "effects": named, "separate_effects": separate},
         "candidates": rounds,
         "localisation": {"forward": localise(fit, before_fit),
                          "load_independent_l_min": localise(fit, load_independent_error(_with(config, {}, calibration), fit),

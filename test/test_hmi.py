@@ -60,12 +60,17 @@ def test_an_alarm_is_raised_refined_acknowledged_and_cleared_once():
 def test_a_silent_fdi_node_turns_its_tiles_stale():
     clock = FakeClock()
     state = HmiState(stale_timeout_s=3.0, clock=clock)
+    state.expect("sam", ["boom", "stick"])
+    assert [(t["actuator"], t["level"], t["fault"]) for t in state.snapshot()[0]["tiles"]] == [
+        ("boom", "STALE", "waiting for /diagnostics"), ("stick", "STALE", "waiting for /diagnostics")]
     state.on_diagnostics(1.0, [_status(1, "external_leakage_a")])
+    assert state.snapshot()[0]["alarms"][0]["actuator"] == "boom"
     clock.now += 2.5
     assert state.snapshot()[0]["tiles"][0]["level"] == "WARN"
     clock.now += 1.0
-    tile = state.snapshot()[0]["tiles"][0]
-    assert tile["level"] == "STALE" and tile["fault"] == "no /diagnostics for 4 s"
+    boom, stick = state.snapshot()[0]["tiles"]
+    assert boom["level"] == "STALE" and boom["fault"] == "no /diagnostics for 4 s"
+    assert stick["fault"] == "waiting for /diagnostics"
 
 
 def test_residuals_are_decimated_windowed_and_sent_once():

@@ -46,8 +46,8 @@ class Tile:
     fault: str
     since_wall: float  # when level or fault last changed
     detected_stamp_s: float | None
-    diag_stamp_s: float  # header stamp of the DiagnosticArray that carried the status
-    received_wall: float
+    diag_stamp_s: float | None  # header stamp of the DiagnosticArray that carried the status
+    received_wall: float | None  # None: a configured actuator not heard of yet
     values: dict[str, str]
 
 
@@ -100,6 +100,13 @@ class HmiState:
         self.catalog_error = ""
         self.result: dict[str, Any] | None = None
         self.actions: deque[dict[str, Any]] = deque(maxlen=MAX_ACTIONS)
+
+    def expect(self, machine: str, actuators: list[str]) -> None:
+        """Tiles for the configured actuators before their first status: a monitor that never starts shows."""
+        now = self.clock()
+        with self.lock:
+            for actuator in actuators:
+                self.tiles.setdefault(actuator, Tile(actuator, machine, "STALE", "waiting for /diagnostics", now, None, None, None, {}))
 
     # -- inputs (ROS executor thread) ------------------------------------------------------
     def on_diagnostics(self, stamp_s: float, reports: list[StatusReport]) -> None:
@@ -214,8 +221,8 @@ class HmiState:
         tiles = []
         for tile in sorted(self.tiles.values(), key=lambda t: t.actuator):
             view = asdict(tile)
-            age = now - tile.received_wall
-            if age > self.stale_timeout_s:  # fdi_node itself went silent
+            age = None if tile.received_wall is None else now - tile.received_wall
+            if age is not None and age > self.stale_timeout_s:  # fdi_node itself went silent
                 view.update(level="STALE", fault=f"no /diagnostics for {age:.0f} s")
             tiles.append(view)
         return {

@@ -31,6 +31,7 @@ from std_srvs.srv import Trigger
 
 from hydro_ros.bags import topics
 from hydro_ros.bags.cdr import CdrError, decode_joint_state
+from hydro_ros.config import default_config_path, read_config
 from hydro_ros.hmi.server import create_app
 from hydro_ros.hmi.state import HmiState, StatusReport
 from hydro_ros.nodes.common import LATCHED_QOS, run_node
@@ -72,6 +73,9 @@ class WebServerThread:
 class HmiNode(Node):
     def __init__(self) -> None:
         super().__init__("hmi")
+        # the monitored machine: its actuators get tiles before their first status (a crane config has none)
+        config = read_config(str(self.declare_parameter("config", str(default_config_path("sam"))).value), required=("machine",),
+                             nonempty="machine")
         host = str(self.declare_parameter("host", "127.0.0.1").value)
         port = int(self.declare_parameter("port", 8080).value)
         token = str(self.declare_parameter("operator_token", "").value) or os.environ.get(TOKEN_ENV, "")
@@ -89,6 +93,7 @@ class HmiNode(Node):
             raise ValueError(f"parameter port={port}: not a TCP port")
 
         self.state = HmiState(plot_window_s=plot_window, plot_period_s=1.0 / plot_rate, stale_timeout_s=stale_timeout)
+        self.state.expect(str(config["machine"]), list(config.get("actuators") or {}))
         self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 50)
         self.create_subscription(JointState, topics.FDI_RESIDUALS, self._on_residuals, 50)
         self.create_subscription(Bool, topics.FDI_HALT, lambda m: self.state.on_halt(bool(m.data)), LATCHED_QOS)

@@ -86,7 +86,10 @@ function renderTiles(tiles) {
   const now = Date.now() / 1000;
   for (const tile of tiles) {
     if (view.diagStamps[tile.actuator] !== tile.diag_stamp_s) {
-      if (view.diagStamps[tile.actuator] !== undefined) window.hmiLatencies.push(now - tile.diag_stamp_s);
+      // the first stamp a page sees may be old; a placeholder tile has none
+      if (typeof view.diagStamps[tile.actuator] === "number" && tile.diag_stamp_s !== null) {
+        window.hmiLatencies.push(now - tile.diag_stamp_s);
+      }
       view.diagStamps[tile.actuator] = tile.diag_stamp_s;
     }
   }
