@@ -19,7 +19,7 @@ import json
 import re
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable, Protocol
+from typing import Any, Awaitable, Callable, Protocol
 
 from aiohttp import WSMsgType, web
 
@@ -208,7 +208,7 @@ async def _request_path(request: web.Request) -> web.Response:
     return await _perform(request, f"request_path {path} {method}", request.app[SETTINGS_KEY]["actions"].request_path(path, method))
 
 
-async def _perform(request: web.Request, action: str, outcome: Any, on_success: Callable[[], Any] = lambda: None) -> web.Response:
+async def _perform(request: web.Request, action: str, outcome: Awaitable[tuple[bool, str]], on_success: Callable[[], Any] = lambda: None) -> web.Response:
     settings = request.app[SETTINGS_KEY]
     client = request.remote or "unknown"
     ok, detail = await outcome

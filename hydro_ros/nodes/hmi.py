@@ -109,7 +109,7 @@ class HmiNode(Node):
         self.acknowledge_client = self.create_client(Trigger, f"{fdi_node}/acknowledge")
         self.request_publisher = self.create_publisher(String, f"{server}/request", 10)
 
-        app = create_app(self.state, self, token=token, update_period_s=1.0 / update_rate, log=self._log_action)
+        app = create_app(self.state, self, token=token, update_period_s=1.0 / update_rate, log=self.get_logger().info)
         self.web = WebServerThread(app, host, port)
         self.url = f"http://{host if ':' not in host else f'[{host}]'}:{self.web.port}/"
         access = "operator actions need the token" if token else f"read-only: no operator token, set {TOKEN_ENV}"
@@ -121,7 +121,7 @@ class HmiNode(Node):
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         self.state.on_diagnostics(stamp, [
-            StatusReport(s.name, s.level[0] if isinstance(s.level, bytes) else int(s.level), s.message, s.hardware_id,
+            StatusReport(s.name, s.level[0], s.message, s.hardware_id,  # `byte level` is bytes in rclpy
                          {v.key: v.value for v in s.values})
             for s in msg.status])
 
@@ -141,16 +141,13 @@ class HmiNode(Node):
         self.state.on_joint_state(stamp * 1e-9, names, list(position))
 
     # -- operator actions (called on the web server's loop) ---------------------------------
-    def _log_action(self, line: str) -> None:
-        self.get_logger().info(line)
-
     async def acknowledge(self) -> tuple[bool, str]:
         service = self.acknowledge_client.srv_name
         if not self.acknowledge_client.service_is_ready():
             return False, f"service {service} is not available (is fdi_node running?)"
         future = self.acknowledge_client.call_async(Trigger.Request())
-        answered: asyncio.Future = asyncio.get_running_loop().create_future()
         loop = asyncio.get_running_loop()
+        answered: asyncio.Future = loop.create_future()
         future.add_done_callback(lambda f: loop.call_soon_threadsafe(_settle, answered, f))
         try:
             response = await asyncio.wait_for(answered, self.action_timeout)
