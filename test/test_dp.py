@@ -23,7 +23,7 @@ COARSE = (60, 21, 31)
 def _setup(machine: str, path_id: str, sizes: tuple[int, int, int] = COARSE):
     crane, config = load_crane(default_config_path(machine))
     samples = path_from_config(config, path_id).sample(config["dp"]["sample_time"])
-    return crane, config, samples, DpGrid.for_crane(crane, sizes)
+    return crane, config, samples, DpGrid.for_path(crane, samples, sizes)
 
 
 @pytest.mark.parametrize(
@@ -34,6 +34,7 @@ def test_fast_dp_equals_the_reference(machine: str, path_id: str, cost: Cost) ->
     crane, _, samples, grid = _setup(machine, path_id, (40, 21, 31))
     if machine == "crane3dof":  # a third of the cycle keeps the reference quick
         samples = type(samples)(*(field[:201] for field in (samples.time, samples.position, samples.velocity, samples.acceleration)))
+        grid = DpGrid.for_path(crane, samples, grid.shape)
     fast = solve(crane, samples, cost, grid)
     reference = solve_reference(crane, samples, cost, grid)
     feasible = fast.cost_to_go < 1e12
@@ -53,7 +54,7 @@ def test_forward_pass_keeps_every_limit_and_the_path_and_matches_the_predicted_c
     assert all(result["limits"].values())
     assert result["tip_error_max_m"] < 1e-9
     assert abs(trajectory.velocity[-1]) < 1e-9 and trajectory.position[0] == start
-    predicted = solution.cost_to_go[0, np.argmin(np.abs(grid.positions - start)), np.argmin(np.abs(grid.velocities))]
+    predicted = solution.cost_to_go[0, np.argmin(np.abs(grid.positions[0] - start)), np.argmin(np.abs(grid.velocities))]
     assert result["cp_energy_J"] == pytest.approx(predicted, rel=0.01)
     filtered = evaluate(crane, samples, trajectory.filtered(5.0))
     assert all(filtered["limits"].values()) and filtered["tip_error_max_m"] < 1e-9
@@ -64,7 +65,7 @@ def test_policy_runs_forward_from_another_start_without_a_new_backward_pass() ->
     crane, _, samples, grid = _setup("k70m", "horizontal", (120, 41, 61))
     solution = solve(crane, samples, Cost.CP, grid)
     middle = start_position(crane, samples, grid, "middle")
-    off_grid = middle + 0.37 * (grid.positions[1] - grid.positions[0])
+    off_grid = middle + 0.37 * (grid.positions[0, 1] - grid.positions[0, 0])
     trajectory = solution.forward(off_grid)
     assert trajectory.position[0] == off_grid
     result = evaluate(crane, samples, trajectory)
@@ -72,7 +73,7 @@ def test_policy_runs_forward_from_another_start_without_a_new_backward_pass() ->
     smallest = evaluate(crane, samples, solution.forward(start_position(crane, samples, grid)))
     assert result["cp_energy_J"] != pytest.approx(smallest["cp_energy_J"], rel=1e-3)  # P-VI: the start matters
     with pytest.raises(InfeasibleStart, match="stage 0"):
-        solution.forward(grid.positions[-1])  # fully extended: the tip start is out of reach
+        solution.forward(crane.extension.stroke_max)  # fully extended: the tip start is out of reach
 
 
 def test_cp_optimum_is_load_independent_and_ls_optimum_is_not() -> None:
@@ -81,7 +82,7 @@ def test_cp_optimum_is_load_independent_and_ls_optimum_is_not() -> None:
     light_cp, heavy_cp = solve(crane, samples, Cost.CP, grid), solve(heavy, samples, Cost.CP, grid)
     assert np.array_equal(light_cp.cost_to_go, heavy_cp.cost_to_go)
     light_ls, heavy_ls = solve(crane, samples, Cost.LS, grid), solve(heavy, samples, Cost.LS, grid)
-    start = (np.argmin(np.abs(grid.positions - start_position(crane, samples, grid))), np.argmin(np.abs(grid.velocities)))
+    start = (np.argmin(np.abs(grid.positions[0] - start_position(crane, samples, grid))), np.argmin(np.abs(grid.velocities)))
     assert heavy_ls.cost_to_go[0][start] > 1.5 * light_ls.cost_to_go[0][start]
 
 
@@ -90,7 +91,7 @@ def test_acceleration_limits_cost_energy() -> None:
     start = start_position(crane, samples, grid)
     limited = solve(crane, samples, Cost.CP, grid)
     free = solve(crane, samples, Cost.CP, grid, acceleration_limits=False)
-    i0, j0 = np.argmin(np.abs(grid.positions - start)), np.argmin(np.abs(grid.velocities))
+    i0, j0 = np.argmin(np.abs(grid.positions[0] - start)), np.argmin(np.abs(grid.velocities))
     assert limited.cost_to_go[0, i0, j0] > free.cost_to_go[0, i0, j0]
 
 

@@ -56,7 +56,7 @@ class CraneRunner:
             raise ValueError(f"parameter initial_path={initial_path!r}: not a path of {config['machine']} ({', '.join(config['paths'])})")
         if initial_extension < 0.0:
             samples = path_from_config(config, initial_path).sample(float(config["dp"]["sample_time"]))
-            initial_extension = start_position(self.crane, samples, DpGrid.for_crane(self.crane, tuple(config["dp"]["grid"])))
+            initial_extension = start_position(self.crane, samples, DpGrid.for_path(self.crane, samples, tuple(config["dp"]["grid"])))
         self.seed = seed
         self.loop = ClosedLoop(config, supply, path_start_state(config, initial_path, initial_extension), seed=seed)
         self.rtf = real_time_factor

@@ -55,7 +55,7 @@ class Problem:
         settings = config["dp"]
         path = path_from_config(config, path_id)
         samples = path.sample(float(settings["sample_time"]))
-        dp_grid = DpGrid.for_crane(crane, tuple(grid or settings["grid"]))
+        dp_grid = DpGrid.for_path(crane, samples, tuple(grid or settings["grid"]))
         return cls(crane, config, path, samples, dp_grid, start_position(crane, samples, dp_grid, start), float(settings["filter_cutoff"]))
 
 
@@ -77,7 +77,7 @@ def plan_dp(problem: Problem, cost: Cost, *, progress: bool = False, acceleratio
     seconds = time.perf_counter() - began
     evaluation = evaluate(problem.crane, problem.samples, trajectory)
     j0 = int(np.argmin(np.abs(problem.grid.velocities)))
-    i0 = int(np.argmin(np.abs(problem.grid.positions - problem.start)))
+    i0 = int(np.argmin(np.abs(problem.grid.positions[0] - problem.start)))
     unfiltered = evaluate(problem.crane, problem.samples, raw)
     info = {
         "predicted_cost": float(solution.cost_to_go[0, i0, j0]),

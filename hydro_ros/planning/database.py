@@ -24,7 +24,7 @@ import numpy as np
 from hydro_ros.planning.errors import DatabaseError
 from hydro_ros.planning.trajectory import JointTrajectoryData
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: DP position nodes span each stage's feasible window (dp.DpGrid)
 _BUSY_TIMEOUT_S = 5.0
 
 _SCHEMA = """

@@ -6,6 +6,11 @@ with bilinear interpolation of J_{k+1}; every joint position, cylinder velocity 
 acceleration limit is a hard constraint (the papers' large penalty, here an infinite cost capped
 at ``INFEASIBLE``). Forward: the stored policy is interpolated from any start state.
 
+The position nodes of each stage span its feasible extension window, so joint-limit edges lie on
+nodes (``DpGrid``); a node whose next position falls less than one velocity cell's step past a
+window end counts as on it (``_bellman_step``). Both are ours, not P-VI's: P-VI's fixed grid and
+conservative interpolation kept the vertical path's optimum 4-5 cells off the edge it rides.
+
 Why it is fast (dp.md 6.2, "implementation notes"):
 - the IK, the cylinder velocities and the u-independent stage costs are evaluated once per state
   (N_c x N_v), not per state and control;
@@ -36,6 +41,7 @@ INFEASIBLE = 1.0e15  # cost-to-go of states with no admissible continuation
 _FEASIBLE_BELOW = 1.0e12  # any interpolation weight on an infeasible node shows above this
 REST_PENALTY = 1.0e10  # J per m/s of final velocity: far above any path's energy, finite for interpolation
 SNAP = 1e-9  # interpolation weights closer than this to 0 or 1 are rounding noise
+EDGE_SLACK = 0.999  # velocity cells' step a next position may fall past a window end (_bellman_step)
 
 
 class InfeasibleStart(ValueError):
@@ -44,27 +50,74 @@ class InfeasibleStart(ValueError):
 
 @dataclass(frozen=True)
 class DpGrid:
-    """Extension cylinder position x velocity x acceleration grid (P-VI: 356 x 101 x 151)."""
+    """Extension cylinder position x velocity x acceleration grid (P-VI: 356 x 101 x 151).
 
-    positions: np.ndarray
+    The position nodes of stage k span that stage's feasible extension window (``extension_windows``)
+    evenly instead of the whole stroke. Where a joint limit or the reach of the IK cuts the stroke,
+    a node sits on the cut: a trajectory may ride a limit (the P-VI vertical path's optimum does)
+    without the conservative interpolation seeing an infeasible node within a cell of it. This is
+    the purpose of DPM's boundary-line method (Sundstroem, Ambuehl & Guzzella 2010) for a 1-D
+    position state; P-VI's fixed grid put the CP optimum 18 % above the direct method's on that path.
+    """
+
+    positions: np.ndarray  # (N+1, N_c): the position nodes of each stage
     velocities: np.ndarray
     controls: np.ndarray
 
     @classmethod
-    def for_crane(cls, crane: Crane, sizes: tuple[int, int, int]) -> DpGrid:
+    def for_path(cls, crane: Crane, samples: PathSamples, sizes: tuple[int, int, int]) -> DpGrid:
         n_c, n_v, n_u = (int(size) for size in sizes)
         if min(n_c, n_v, n_u) < 3:
             raise ValueError(f"DP grid {sizes}: at least 3 points per axis")
         ext = crane.extension
+        windows = extension_windows(crane, samples)
         return cls(
-            positions=np.linspace(0.0, ext.stroke_max, n_c),
+            positions=windows[:, :1] + (windows[:, 1:] - windows[:, :1]) * np.linspace(0.0, 1.0, n_c),
             velocities=np.linspace(-ext.velocity_max, ext.velocity_max, n_v),
             controls=np.linspace(-ext.acceleration_max, ext.acceleration_max, n_u),
         )
 
     @property
     def shape(self) -> tuple[int, int, int]:
-        return len(self.positions), len(self.velocities), len(self.controls)
+        return self.positions.shape[1], len(self.velocities), len(self.controls)
+
+
+EDGE_SCAN = 1025  # extensions scanned per stage for the window's ends (2 mm on the K70M), then bisected
+
+
+def extension_windows(crane: Crane, samples: PathSamples) -> np.ndarray:
+    """(N+1, 2): per path sample, the least and greatest extension at which the IK reaches the tip
+    with every joint position within its limits, each end to 1e-12 of the stroke and on its inside.
+
+    A stage where no scanned extension is feasible (or only one point is) keeps the whole stroke:
+    its nodes are all infeasible and the DP reports the path infeasible as before.
+    """
+    stroke = crane.extension.stroke_max
+    tips = tuple(samples.position[:, i, None] for i in range(samples.position.shape[1]))
+    rest = (0.0,) * len(tips)
+
+    def inside(c: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore"):
+            motion = crane.motion(tips, rest, rest, c, 0.0 * c, 0.0 * c, forces=False)
+        return np.broadcast_to(crane.limit_checks(motion)["position"], c.shape)
+
+    scan = np.broadcast_to(np.linspace(0.0, stroke, EDGE_SCAN), (samples.stages + 1, EDGE_SCAN))
+    ok = inside(scan)
+    first = np.argmax(ok, axis=1)
+    last = EDGE_SCAN - 1 - np.argmax(ok[:, ::-1], axis=1)
+    rows = np.arange(len(scan))
+    # bisect between the last point out and the first point in (no-ops where the stroke's end is in)
+    low_in, low_out = scan[rows, first], scan[rows, np.maximum(first - 1, 0)]
+    high_in, high_out = scan[rows, last], scan[rows, np.minimum(last + 1, EDGE_SCAN - 1)]
+    while max(np.max(low_in - low_out), np.max(high_out - high_in)) > 1e-12 * stroke:
+        middle = 0.5 * (low_in + low_out)
+        now_in = inside(middle[:, None])[:, 0]
+        low_in, low_out = np.where(now_in, middle, low_in), np.where(now_in, low_out, middle)
+        middle = 0.5 * (high_in + high_out)
+        now_in = inside(middle[:, None])[:, 0]
+        high_in, high_out = np.where(now_in, middle, high_in), np.where(now_in, high_out, middle)
+    degenerate = ~ok.any(axis=1) | (high_in - low_in <= 1e-9 * stroke)
+    return np.stack([np.where(degenerate, 0.0, low_in), np.where(degenerate, stroke, high_in)], axis=1)
 
 
 @dataclass
@@ -218,6 +271,7 @@ def _cost_to_go_at(cost_next: np.ndarray, ic: int, wc: float, y: float) -> float
 def _bellman_step(
     cost_next: np.ndarray,
     positions: np.ndarray,
+    next_positions: np.ndarray,
     velocities: np.ndarray,
     controls: np.ndarray,
     ts: float,
@@ -236,10 +290,16 @@ def _bellman_step(
     accel_limits: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     n_c, n_v = admissible.shape
-    c_step = positions[1] - positions[0]
+    c_step = next_positions[1] - next_positions[0]
     v_step = velocities[1] - velocities[0]
     u_step = controls[1] - controls[0]
     y_per_control = ts * u_step / v_step  # next-velocity grid cells per control step
+    # A node on a moving window end stands for the velocities up to the next velocity node, and those
+    # above the end's own velocity stay inside: a next position within the step of one velocity cell
+    # past the end counts as on it, so the boundary in velocity is found by interpolation instead of
+    # costing a velocity cell of every step (the forward pass checks the exact state, it never leaves).
+    # A hair under the cell: a node a whole velocity cell from staying on a fixed end stays outside.
+    slack = EDGE_SLACK * ts * v_step / c_step
     cost = np.full((n_c, n_v), INFEASIBLE)
     policy = np.full((n_c, n_v), np.nan, dtype=np.float32)
     for i in prange(n_c):
@@ -247,9 +307,10 @@ def _bellman_step(
             if not admissible[i, j]:
                 continue
             v = velocities[j]
-            x = (positions[i] + ts * v - positions[0]) / c_step
-            if x < -1e-9 or x > n_c - 1 + 1e-9:
+            x = (positions[i] + ts * v - next_positions[0]) / c_step
+            if x < -slack or x > n_c - 1 + slack:
                 continue
+            x = min(max(x, 0.0), n_c - 1.0)
             ic = min(max(int(math.floor(x)), 0), n_c - 2)
             wc = _snap(x - ic)
             low, high = _control_window(
@@ -303,7 +364,7 @@ def _bellman_step(
 def terminal_cost(crane: Crane, samples: PathSamples, grid: DpGrid) -> np.ndarray:
     """Rest-to-rest end (dp.md 6.5, INFERRED): infeasible positions are excluded and a final
     velocity costs REST_PENALTY per m/s, a finite penalty that interpolates linearly to zero at rest."""
-    terms = stage_terms(crane, samples, samples.stages, grid.positions[:, None], grid.velocities[None, :], Cost.CP)
+    terms = stage_terms(crane, samples, samples.stages, grid.positions[-1][:, None], grid.velocities[None, :], Cost.CP)
     return np.where(terms.admissible, REST_PENALTY * np.abs(grid.velocities)[None, :], INFEASIBLE)
 
 
@@ -347,13 +408,14 @@ class DpSolution:
                 terms.acc_offset, terms.acc_slope, table[:, 5], v[k], grid.velocities[0], grid.velocities[-1],
                 grid.controls, ts, self.acceleration_limits,
             )
-            x = (c[k] + ts * v[k] - grid.positions[0]) / (grid.positions[1] - grid.positions[0])
-            if low > high + 1e-12 or not -1e-9 <= x <= len(grid.positions) - 1 + 1e-9:
+            nodes = grid.positions[k + 1]
+            x = (c[k] + ts * v[k] - nodes[0]) / (nodes[1] - nodes[0])
+            if low > high + 1e-12 or not -1e-9 <= x <= len(nodes) - 1 + 1e-9:
                 raise InfeasibleStart(f"{where}: no admissible acceleration")
-            ic = min(max(int(np.floor(x)), 0), len(grid.positions) - 2)
+            ic = min(max(int(np.floor(x)), 0), len(nodes) - 2)
             wc = _snap(x - ic)
             candidates = [u for u in grid.controls if low <= u <= high] + [low, high, min(max(-v[k] / ts, low), high)]
-            guided = _interpolate_policy(self.policy[k], self.cost_to_go[k], grid, c[k], v[k])
+            guided = _interpolate_policy(self.policy[k], self.cost_to_go[k], grid.positions[k], grid.velocities, c[k], v[k])
             if guided is not None:
                 candidates.append(min(max(guided, low), high))
             options = np.array(candidates)
@@ -391,11 +453,13 @@ def _hydraulics(crane: Crane) -> np.ndarray:
     return np.array([h["compensator_drop"], h["tank_pressure"], h["drive_threshold"], h["ls_margin"], h["efficiency"]])
 
 
-def _interpolate_policy(policy: np.ndarray, cost: np.ndarray, grid: DpGrid, c: float, v: float) -> float | None:
-    x = np.interp(c, grid.positions, np.arange(len(grid.positions)))
-    y = np.interp(v, grid.velocities, np.arange(len(grid.velocities)))
-    i = min(int(x), len(grid.positions) - 2)
-    j = min(int(y), len(grid.velocities) - 2)
+def _interpolate_policy(
+    policy: np.ndarray, cost: np.ndarray, positions: np.ndarray, velocities: np.ndarray, c: float, v: float
+) -> float | None:
+    x = np.interp(c, positions, np.arange(len(positions)))
+    y = np.interp(v, velocities, np.arange(len(velocities)))
+    i = min(int(x), len(positions) - 2)
+    j = min(int(y), len(velocities) - 2)
     wc, wv = x - i, y - j
     total = weight_sum = 0.0
     for di, dj, weight in ((0, 0, (1 - wc) * (1 - wv)), (0, 1, (1 - wc) * wv), (1, 0, wc * (1 - wv)), (1, 1, wc * wv)):
@@ -415,19 +479,22 @@ def solve(
     progress: bool = False,
 ) -> DpSolution:
     """Backward phase of Algorithm 1 on the grid; returns the tables."""
-    c, v = grid.positions[:, None], grid.velocities[None, :]
+    if len(grid.positions) != samples.stages + 1:
+        raise ValueError(f"DP grid for {len(grid.positions) - 1} stages, path of {samples.stages}: build it with DpGrid.for_path")
+    v = grid.velocities[None, :]
     n = samples.stages
     ts = float(samples.time[1] - samples.time[0])
-    cost_to_go = np.empty((n + 1, len(grid.positions), len(grid.velocities)))
-    policy = np.empty((n, len(grid.positions), len(grid.velocities)), dtype=np.float32)
+    n_c, n_v, _ = grid.shape
+    cost_to_go = np.empty((n + 1, n_c, n_v))
+    policy = np.empty((n, n_c, n_v), dtype=np.float32)
     cost_to_go[n] = terminal_cost(crane, samples, grid)
     table = cylinder_table(crane)
     hydraulics = _hydraulics(crane)
     mode = _MODES.get(cost, 0)
     for k in tqdm(range(n - 1, -1, -1), desc=f"DP {cost.value} backward", unit="stage", disable=not progress):
-        terms = stage_terms(crane, samples, k, c, v, cost)
+        terms = stage_terms(crane, samples, k, grid.positions[k][:, None], v, cost)
         cost_to_go[k], policy[k] = _bellman_step(
-            cost_to_go[k + 1], grid.positions, grid.velocities, grid.controls, ts, mode,
+            cost_to_go[k + 1], grid.positions[k], grid.positions[k + 1], grid.velocities, grid.controls, ts, mode,
             terms.admissible, terms.base_cost, terms.flow, terms.acc_offset, terms.acc_slope, table[:, 5],
             terms.force_offset, terms.force_slope, terms.velocity, table, hydraulics, acceleration_limits,
         )
@@ -437,14 +504,14 @@ def solve(
 def start_position(crane: Crane, samples: PathSamples, grid: DpGrid, which: str = "smallest") -> float:
     """Initial extension of P-V / P-VI: the smallest feasible grid position at the path start at rest,
     or the grid position midway between the smallest and largest (P-VI's second configuration)."""
-    zero = np.zeros_like(grid.positions)
-    terms = stage_terms(crane, samples, 0, grid.positions, zero, Cost.CP)
-    feasible = grid.positions[terms.admissible]
+    nodes = grid.positions[0]
+    terms = stage_terms(crane, samples, 0, nodes, np.zeros_like(nodes), Cost.CP)
+    feasible = nodes[terms.admissible]
     if feasible.size == 0:
         raise InfeasibleStart(f"path start {samples.position[0].tolist()}: no extension reaches it within the joint limits")
     if which == "smallest":
         return float(feasible[0])
     if which == "middle":
         middle = 0.5 * (feasible[0] + feasible[-1])
-        return float(grid.positions[np.argmin(np.abs(grid.positions - middle))])
+        return float(nodes[np.argmin(np.abs(nodes - middle))])
     raise ValueError(f"start {which!r} (smallest or middle)")

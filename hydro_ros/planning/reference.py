@@ -13,14 +13,14 @@ from tqdm import tqdm
 
 from hydro_ros.planning.costs import Cost, stage_power
 from hydro_ros.planning.crane import Crane
-from hydro_ros.planning.dp import INFEASIBLE, SNAP, DpGrid, DpSolution, terminal_cost
+from hydro_ros.planning.dp import EDGE_SLACK, INFEASIBLE, SNAP, DpGrid, DpSolution, terminal_cost
 from hydro_ros.planning.paths import PathSamples
 
 
-def _interpolate(table: np.ndarray, grid: DpGrid, c: np.ndarray, v: np.ndarray) -> np.ndarray:
-    x = (c - grid.positions[0]) / (grid.positions[1] - grid.positions[0])
+def _interpolate(table: np.ndarray, positions: np.ndarray, grid: DpGrid, c: np.ndarray, v: np.ndarray) -> np.ndarray:
+    x = (c - positions[0]) / (positions[1] - positions[0])
     y = (v - grid.velocities[0]) / (grid.velocities[1] - grid.velocities[0])
-    i = np.clip(np.floor(x).astype(int), 0, len(grid.positions) - 2)
+    i = np.clip(np.floor(x).astype(int), 0, len(positions) - 2)
     j = np.clip(np.floor(y).astype(int), 0, len(grid.velocities) - 2)
     wc, wv = x - i, y - j
     wc = np.where(wc < SNAP, 0.0, np.where(wc > 1.0 - SNAP, 1.0, wc))
@@ -37,20 +37,25 @@ def solve_reference(
     acceleration_limits: bool = True,
     progress: bool = False,
 ) -> DpSolution:
-    c, v, u = np.meshgrid(grid.positions, grid.velocities, grid.controls, indexing="ij")
+    n_c, n_v, _ = grid.shape
+    _, v, u = np.meshgrid(np.zeros(n_c), grid.velocities, grid.controls, indexing="ij")
     n = samples.stages
     ts = float(samples.time[1] - samples.time[0])
-    cost_to_go = np.empty((n + 1, len(grid.positions), len(grid.velocities)))
-    policy = np.empty((n, len(grid.positions), len(grid.velocities)), dtype=np.float32)
+    cost_to_go = np.empty((n + 1, n_c, n_v))
+    policy = np.empty((n, n_c, n_v), dtype=np.float32)
     cost_to_go[n] = terminal_cost(crane, samples, grid)
-    c_next, v_next = c + ts * v, v + ts * u
-    inside = (
-        (c_next >= grid.positions[0] - 1e-9 * grid.positions[-1])
-        & (c_next <= grid.positions[-1] * (1 + 1e-9))
-        & (v_next >= grid.velocities[0] - 1e-9)
-        & (v_next <= grid.velocities[-1] + 1e-9)
-    )
+    v_next = v + ts * u
     for k in tqdm(range(n - 1, -1, -1), desc=f"reference DP {cost.value}", unit="stage", disable=not progress):
+        nodes, next_nodes = grid.positions[k], grid.positions[k + 1]
+        c = np.broadcast_to(nodes[:, None, None], v.shape)
+        c_next = c + ts * v
+        slack = EDGE_SLACK * ts * (grid.velocities[1] - grid.velocities[0])  # as dp._bellman_step
+        inside = (
+            (c_next >= next_nodes[0] - slack)
+            & (c_next <= next_nodes[-1] + slack)
+            & (v_next >= grid.velocities[0] - 1e-9)
+            & (v_next <= grid.velocities[-1] + 1e-9)
+        )
         tip, tip_vel, tip_acc = samples.at(k)
         with np.errstate(invalid="ignore"):
             motion = crane.motion(tip, tip_vel, tip_acc, c, v, u, forces=cost.depends_on_control)
@@ -58,7 +63,7 @@ def solve_reference(
             admissible = inside & checks["position"] & checks["velocity"]
             if acceleration_limits:
                 admissible &= checks["acceleration"]
-            total = ts * stage_power(cost, crane, motion) + _interpolate(cost_to_go[k + 1], grid, c_next, v_next)
+            total = ts * stage_power(cost, crane, motion) + _interpolate(cost_to_go[k + 1], next_nodes, grid, np.clip(c_next, next_nodes[0], next_nodes[-1]), v_next)
         total = np.where(admissible, total, np.inf)
         best = np.argmin(total, axis=-1)
         lowest = np.take_along_axis(total, best[..., None], axis=-1)[..., 0]

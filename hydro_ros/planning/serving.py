@@ -173,7 +173,7 @@ class TrajectoryService:
             context.solution = DpSolution(
                 context.crane,
                 context.problem.samples,
-                DpGrid.for_crane(context.crane, stored.grid),
+                DpGrid.for_path(context.crane, context.problem.samples, stored.grid),
                 Cost(stored.cost),
                 True,
                 tables["cost_to_go"].astype(float),
