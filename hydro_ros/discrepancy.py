@@ -165,6 +165,7 @@ def _with(config: dict[str, Any], effects: dict[str, float], calibration: dict[s
 
 
 CALIBRATION_TOLERANCE = {"flow_gain": 0.05, "bulk_factor": 0.3}  # an identified valve's flow and the oil's bulk modulus
+NO_CALIBRATION = {name: 1.0 for name in CALIBRATION_TOLERANCE}
 
 
 def _calibration(z: np.ndarray) -> dict[str, float]:
@@ -196,9 +197,13 @@ def refine(config: dict[str, Any], calibration: dict[str, float], named: dict[st
     Each effect was fitted with the calibration held, and the calibration was fitted with no effect:
     where the two overlap (entrained air lowers the effective bulk modulus, a valve delay and the flow
     gain both shape the pressure transients) the first fit lets calibration absorb part of the effect.
+    Where it absorbed it up to its tolerance (a spool offset pushed flow gain and bulk modulus to both
+    bounds), tanh is flat and the simplex cannot walk back: the joint fit starts from whichever of the
+    separate calibration and none fits better with the effects added.
     """
     if not named:
         return calibration, named
+    calibration = min((calibration, NO_CALIBRATION), key=lambda c: gap(simulate(_with(config, named, c), rec)))
     names = list(named)
     ranges = [EFFECT_RANGES[n] for n in names]
 
