@@ -16,16 +16,25 @@ from hydro_ros.sim.scenario import Scenario, run_blocks
 from test.conftest import SAM_CONFIG
 
 
-def hidden_effect_bag(config, path, effect=None, value=0.0, seed=3, duration=40.0):
-    """The plant carries 40 % of fdi-eval's mismatch, sensor noise and (maybe) one effect the model lacks."""
-    plant = with_overrides(mismatched_config(config, seed, 0.4), {"effects": {effect: value}} if effect else {})
+PLANT_MISMATCH = 0.4  # of fdi-eval's model mismatch
+SEED = 3
+
+
+def plant_config(config, effect=None, value=0.0, seed=SEED):
+    """The plant's config: 40 % of fdi-eval's mismatch drawn for ``seed`` and (maybe) one effect the model lacks."""
+    return with_overrides(mismatched_config(config, seed, PLANT_MISMATCH), {"effects": {effect: value}} if effect else {})
+
+
+def hidden_effect_bag(config, path, effect=None, value=0.0, seed=SEED, duration=40.0):
+    """The plant carries the mismatch, sensor noise and (maybe) one effect the model lacks."""
+    plant = plant_config(config, effect, value, seed)
     with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
         for _, _, block in run_blocks(plant, Scenario(duration, [], seed=seed)):
             writer.write("boom", block)
     return path
 
 
-@pytest.mark.parametrize(("effect", "value"), [(None, 0.0), ("internal_leakage", 1.5), ("payload_mass", 150.0)])
+@pytest.mark.parametrize(("effect", "value"), [(None, 0.0), ("internal_leakage", 1.5), ("spool_offset", 0.04), ("payload_mass", 150.0)])
 def test_discrepancy_names_the_hidden_effect_or_none(sam_config, tmp_path, effect, value):
     bag = hidden_effect_bag(sam_config, tmp_path / "bag", effect, value)
     out = tmp_path / "out"
