@@ -26,7 +26,7 @@ from test.test_discrepancy import hidden_effect_bag, plant_config  # noqa: E402
 
 SUITE = [(None, 0.0), ("internal_leakage", 1.5), ("external_leakage_a", 2.0), ("external_leakage_b", 2.0),
          ("valve_deadzone", 0.08), ("spool_offset", 0.04), ("valve_delay", 0.05), ("valve_delay", 0.1), ("valve_flow_gain", 0.25),
-         ("entrained_air", 0.03), ("entrained_air", 0.06), ("coulomb_friction", 3000.0), ("viscous_friction", 1.5e5),
+         ("entrained_air", 0.03), ("entrained_air", 0.045), ("coulomb_friction", 3000.0), ("viscous_friction", 1.5e5),
          ("payload_mass", 150.0), ("pressure_sensor_bias_a", 5e5), ("pressure_sensor_bias_b", 5e5)]
 
 
