@@ -137,6 +137,8 @@ def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.
         return status
     crane_config = str(default_config_path("k70m"))
     database = out / "trajectories.db"
+    for stale in (database, database.with_name(database.name + "-wal"), database.with_name(database.name + "-shm")):
+        stale.unlink(missing_ok=True)  # a catalog of an earlier run (or release) is rebuilt, as the bag is
     print(f"3/4 trajectory catalog of the K70M crane ({CRANE_PATH}: DP-CP and the joint pseudo-inverse) -> {database}")
     status = cli(["db", "build", "--config", crane_config, "--db", str(database), "--paths", CRANE_PATH,
                   "--methods", "dp_cp", "pinv_joint", "--grid", *CRANE_GRID, "--quiet"])

@@ -138,7 +138,8 @@ class TrajectoryDatabase:
         row = self.connection.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
         if row is None or row[0] != str(SCHEMA_VERSION):
             found = row[0] if row else "none"
-            raise DatabaseError(f"database {self.path}: schema version {found}, this hydro_ros reads {SCHEMA_VERSION}")
+            raise DatabaseError(f"database {self.path}: schema version {found}, this hydro_ros reads {SCHEMA_VERSION} "
+                                "(a catalog is derived data: remove the file and run `hydro-ros db build` again)")
         if check:
             result = self.connection.execute("PRAGMA quick_check").fetchone()[0]
             if result != "ok":
