@@ -126,6 +126,21 @@ def test_acceleration_limits_cost_energy() -> None:
     assert limited.cost_to_go[0, i0, j0] > free.cost_to_go[0, i0, j0]
 
 
+def test_least_norm_extension_velocity_is_clipped_to_what_every_bound_leaves() -> None:
+    from hydro_ros.planning.baselines import _least_norm_within
+
+    offset, slope, ones = np.array([0.0, 0.2, -0.1]), np.array([1.0, -1.0, 0.5]), np.ones(3)
+    # unbounded: minimise v^2 + (0.2 - v)^2 + (-0.1 + 0.5 v)^2 -> v = (0.2 + 0.05) / 2.25
+    v, ok = _least_norm_within(offset, slope, ones, ones, np.full(3, -1.0), np.full(3, 1.0))
+    assert ok and v == pytest.approx(0.25 / 2.25)
+    # cylinder 2 at most 0.05: 0.2 - v <= 0.05 -> v >= 0.15, which binds
+    v, ok = _least_norm_within(offset, slope, ones, ones, np.full(3, -1.0), np.array([1.0, 0.05, 1.0]))
+    assert ok and v == pytest.approx(0.15)
+    # cylinder 1 at most 0.05 as well: v <= 0.05 and v >= 0.15 conflict, v splits the gap
+    v, ok = _least_norm_within(offset, slope, ones, ones, np.full(3, -1.0), np.array([0.05, 0.05, 1.0]))
+    assert not ok and v == pytest.approx(0.1)
+
+
 def test_pseudo_inverses_track_the_path_within_velocity_limits_and_spend_more() -> None:
     crane, config, _, _ = _setup("k70m", "horizontal")
     problem = Problem.build(crane, config, "horizontal", grid=(120, 41, 61))

@@ -3,10 +3,12 @@
 - ``pseudo_inverse``: instantaneous minimum-norm velocities in actuator space (P-V "Act. p-inv.",
   P-VI "P-inv. (a.)"; optionally weighted by the pump areas, P-V "weighted") or joint space
   (P-VI "P-inv. (j.)"), with the joint-limit saturation of Flacco, De Luca & Khatib (SNS) moved to
-  actuator space: a component that would cross its velocity or stroke bound is saturated and the
-  rest re-solved, without task scaling, so the path holds (INFERRED: the papers cite SNS, not its
-  details). Only the extension is integrated; the other joints come from IK, so the tip path is
-  exact. Acceleration limits are not claimed.
+  actuator space: no cylinder may cross its velocity bound or, within the step, its stroke. With
+  one redundant joint SNS is exact as a clip of the extension velocity (``_least_norm_within``),
+  without task scaling, so the path holds (INFERRED: the papers cite SNS, not its details). Only
+  the extension is integrated; the other joints come from IK, so the tip path is exact.
+  Acceleration limits are not claimed. Being instantaneous, the method can steer into a state
+  from which no velocity keeps every bound; it then splits the conflict and reports the step.
 - ``direct_collocation``: the reduced problem (state: extension position and velocity, control:
   its acceleration) transcribed by trapezoidal collocation and solved by IPOPT through CasADi, in
   place of DIDO / fmincon. The node count is bootstrapped 20 -> 30 -> 60 -> 90 as P-V did with DIDO,
@@ -31,30 +33,28 @@ BOOTSTRAP_NODES = (20, 30, 60, 90)
 SMOOTH_ABS = 1e-4  # m/s: |v| ~ sqrt(v^2 + SMOOTH_ABS^2) in the direct method's pump flow
 
 
-def _sns(jacobian: np.ndarray, target: np.ndarray, low: np.ndarray, high: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, bool]:
-    """min 1/2 x^T W x s.t. J x = target, saturating components at [low, high] one at a time."""
-    n = jacobian.shape[1]
-    fixed = np.zeros(n, dtype=bool)
-    x = np.zeros(n)
-    while True:
-        free = ~fixed
-        jf = jacobian[:, free]
-        w_inv = 1.0 / weights[free]
-        rhs = target - jacobian[:, fixed] @ x[fixed]
-        gram = (jf * w_inv) @ jf.T
-        if np.linalg.matrix_rank(gram) < jacobian.shape[0]:
-            return x, False
-        x[free] = w_inv * (jf.T @ np.linalg.solve(gram, rhs))
-        over = np.maximum(x - high, 0.0) + np.maximum(low - x, 0.0)
-        over[fixed] = 0.0
-        if not (over > 1e-12).any():
-            return x, True
-        # the most critical component: the largest violation relative to its admissible span
-        worst = int(np.argmax(over / np.maximum(high - low, 1e-12)))
-        x[worst] = min(max(x[worst], low[worst]), high[worst])
-        fixed[worst] = True
-        if fixed.all():
-            return x, False
+def _least_norm_within(offset: np.ndarray, slope: np.ndarray, scale: np.ndarray, weights: np.ndarray,
+                       low: np.ndarray, high: np.ndarray) -> tuple[float, bool]:
+    """The extension velocity v minimising sum w_i ((offset_i + slope_i v) / scale_i)^2 with every
+    cylinder velocity offset_i + slope_i v within [low_i, high_i]; and whether the bounds met at all.
+
+    Every crane here has one redundant joint, so the cylinder velocities that track the tip are
+    affine in the extension velocity: SNS (saturate the most critical component, re-solve the rest)
+    then reduces to clipping the least-norm v to the interval all bounds leave. Saturating one
+    component at a time found that interval's end only when the most critical component was the
+    binding one; on the P-V triangle it was not, and the arm crossed a stroke limit.
+    Where the bounds leave no interval, v splits the gap between the two that conflict.
+    """
+    a, b = offset / scale, slope / scale
+    best = -float(np.sum(weights * a * b) / np.sum(weights * b * b))
+    moving = np.abs(slope) > 1e-12
+    ends = np.stack([(low - offset)[moving] / slope[moving], (high - offset)[moving] / slope[moving]])
+    lowest, highest = float(np.max(ends.min(axis=0), initial=-np.inf)), float(np.min(ends.max(axis=0), initial=np.inf))
+    still = ~moving
+    fixed_ok = bool(np.all((offset[still] >= low[still] - 1e-12) & (offset[still] <= high[still] + 1e-12)))
+    if lowest > highest:
+        return 0.5 * (lowest + highest), False
+    return min(max(best, lowest), highest), fixed_ok
 
 
 def pseudo_inverse(
@@ -69,34 +69,31 @@ def pseudo_inverse(
     position[0] = start_position
     previous = np.zeros(len(crane.cylinders))
     saturated_steps = failed_steps = 0
+    v_max = np.array([c.velocity_max for c in crane.cylinders])
+    s_max = np.array([c.stroke_max for c in crane.cylinders])
     for k in range(n):
         tip, tip_vel, tip_acc = samples.at(k)
-        motion = crane.motion(tip, tip_vel, tip_acc, position[k], 0.0, 0.0, forces=False)
-        q = np.array([float(value) for value in motion.q])
-        jac = crane.jacobian(q)
-        arms = np.array([float(cylinder.arm(qi)[0]) for cylinder, qi in zip(crane.cylinders, q)])
-        stroke = np.array([float(value) for value in motion.c])
-        target = np.asarray(samples.velocity[k][: crane.task_dim])
-        v_max = np.array([c.velocity_max for c in crane.cylinders])
-        s_max = np.array([c.stroke_max for c in crane.cylinders])
-        v_low = np.maximum(-v_max, -stroke / ts)
-        v_high = np.minimum(v_max, (s_max - stroke) / ts)
+        # cylinder velocities at extension velocity 0 and 1: tracking the tip makes them affine in it
+        motion = crane.motion(tip, tip_vel, tip_acc, position[k], np.array([0.0, 1.0]), 0.0, forces=False)
+        velocity = np.array([np.broadcast_to(value, (2,)) for value in motion.v], dtype=float)
+        offset, slope = velocity[:, 0], velocity[:, 1] - velocity[:, 0]
+        stroke = np.array([float(np.broadcast_to(value, (2,))[0]) for value in motion.c])
+        low = np.maximum(-v_max, -stroke / ts)
+        high = np.minimum(v_max, (s_max - stroke) / ts)
         if space == "actuator":
-            jacobian = jac / arms  # J D^-1: task velocity per cylinder velocity
-            low, high = v_low, v_high
+            scale = np.ones_like(offset)
             areas = np.array([c.pump_area_extend if p >= 0 else c.pump_area_retract for c, p in zip(crane.cylinders, previous)])
-            weights = np.maximum(areas, 1e-6) if weighted else np.ones_like(arms)
+            weights = np.maximum(areas, 1e-6) if weighted else np.ones_like(offset)
         else:
-            jacobian = jac
-            bounds = np.stack([v_low / arms, v_high / arms])
-            low, high = bounds.min(axis=0), bounds.max(axis=0)
-            weights = np.ones_like(arms)
-        rates, ok = _sns(jacobian, target, low, high, weights)
-        cylinder_velocity = rates if space == "actuator" else rates * arms
-        saturated_steps += int(np.any(np.isclose(rates, low) | np.isclose(rates, high)) and ok)
+            q = np.array([float(np.broadcast_to(value, (2,))[0]) for value in motion.q])
+            scale = np.array([float(cylinder.arm(qi)[0]) for cylinder, qi in zip(crane.cylinders, q)])  # joint rates
+            weights = np.ones_like(offset)
+        extension_velocity, ok = _least_norm_within(offset, slope, scale, weights, low, high)
+        cylinder_velocity = offset + slope * extension_velocity
+        saturated_steps += int(ok and bool(np.any(np.isclose(cylinder_velocity, low) | np.isclose(cylinder_velocity, high))))
         failed_steps += int(not ok)
         previous = cylinder_velocity
-        position[k + 1] = position[k] + ts * cylinder_velocity[-1]
+        position[k + 1] = position[k] + ts * extension_velocity
     trajectory = ExtensionTrajectory.from_positions(position, ts, final_velocity=0.0)
     return trajectory, {"saturated_steps": saturated_steps, "unsatisfiable_steps": failed_steps}
 
