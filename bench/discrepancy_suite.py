@@ -19,7 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from hydro_ros.bags.reader import read_bag  # noqa: E402
+from hydro_ros.bags.reader import BagData, read_bag  # noqa: E402
 from hydro_ros.config import default_config_path, load_machine_config  # noqa: E402
 from hydro_ros.discrepancy import FIT_SHARE, Recording, gap, run, simulate  # noqa: E402
 from test.test_discrepancy import hidden_effect_bag, plant_config  # noqa: E402
@@ -30,9 +30,9 @@ SUITE = [(None, 0.0), ("internal_leakage", 1.5), ("external_leakage_a", 2.0), ("
          ("payload_mass", 150.0), ("pressure_sensor_bias_a", 5e5), ("pressure_sensor_bias_b", 5e5)]
 
 
-def floor(config: dict, bag: Path, effect: str | None, value: float) -> float:
+def floor(config: dict, data: BagData, effect: str | None, value: float) -> float:
     """Validation gap of the plant's own model on the validation part run() uses."""
-    rec = Recording.from_bag(read_bag(bag), config)
+    rec = Recording.from_bag(data, config)
     validation = rec.part(slice(int(FIT_SHARE * len(rec.times)), None))
     return gap(simulate(plant_config(config, effect, value), validation))
 
@@ -42,11 +42,11 @@ def main() -> int:
     rows = []
     for effect, value in SUITE:
         with tempfile.TemporaryDirectory() as tmp:
-            bag = hidden_effect_bag(config, Path(tmp) / "bag", effect, value, duration=60.0)
+            data = read_bag(hidden_effect_bag(config, Path(tmp) / "bag", effect, value, duration=60.0))
             start = time.perf_counter()
-            report = run(read_bag(bag), config, Path(tmp) / "out")
+            report = run(data, config, Path(tmp) / "out")
             wall = time.perf_counter() - start
-            best = floor(config, bag, effect, value)
+            best = floor(config, data, effect, value)
         named = [e["name"] for e in report["effects"]]
         rows.append({"hidden": effect, "value": value, "named": named,
                      "named_value": report["effects"][0]["parameters"]["value"] if named else None,

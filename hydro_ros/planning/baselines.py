@@ -77,7 +77,7 @@ def pseudo_inverse(
         motion = crane.motion(tip, tip_vel, tip_acc, position[k], np.array([0.0, 1.0]), 0.0, forces=False)
         velocity = np.array([np.broadcast_to(value, (2,)) for value in motion.v], dtype=float)
         offset, slope = velocity[:, 0], velocity[:, 1] - velocity[:, 0]
-        stroke = np.array([float(np.broadcast_to(value, (2,))[0]) for value in motion.c])
+        stroke = np.array([np.ravel(value)[0] for value in motion.c], dtype=float)  # position level: one value
         low = np.maximum(-v_max, -stroke / ts)
         high = np.minimum(v_max, (s_max - stroke) / ts)
         if space == "actuator":
@@ -85,7 +85,7 @@ def pseudo_inverse(
             areas = np.array([c.pump_area_extend if p >= 0 else c.pump_area_retract for c, p in zip(crane.cylinders, previous)])
             weights = np.maximum(areas, 1e-6) if weighted else np.ones_like(offset)
         else:
-            q = np.array([float(np.broadcast_to(value, (2,))[0]) for value in motion.q])
+            q = np.array([np.ravel(value)[0] for value in motion.q], dtype=float)
             scale = np.array([float(cylinder.arm(qi)[0]) for cylinder, qi in zip(crane.cylinders, q)])  # joint rates
             weights = np.ones_like(offset)
         extension_velocity, ok = _least_norm_within(offset, slope, scale, weights, low, high)

@@ -37,19 +37,20 @@ def solve_reference(
     acceleration_limits: bool = True,
     progress: bool = False,
 ) -> DpSolution:
-    n_c, n_v, _ = grid.shape
-    _, v, u = np.meshgrid(np.zeros(n_c), grid.velocities, grid.controls, indexing="ij")
+    n_c, n_v, n_u = grid.shape
+    v = np.broadcast_to(grid.velocities[None, :, None], (n_c, n_v, n_u))
+    u = np.broadcast_to(grid.controls[None, None, :], (n_c, n_v, n_u))
     n = samples.stages
     ts = float(samples.time[1] - samples.time[0])
     cost_to_go = np.empty((n + 1, n_c, n_v))
     policy = np.empty((n, n_c, n_v), dtype=np.float32)
     cost_to_go[n] = terminal_cost(crane, samples, grid)
     v_next = v + ts * u
+    slack = EDGE_SLACK * ts * (grid.velocities[1] - grid.velocities[0])  # as dp._bellman_step
     for k in tqdm(range(n - 1, -1, -1), desc=f"reference DP {cost.value}", unit="stage", disable=not progress):
         nodes, next_nodes = grid.positions[k], grid.positions[k + 1]
         c = np.broadcast_to(nodes[:, None, None], v.shape)
         c_next = c + ts * v
-        slack = EDGE_SLACK * ts * (grid.velocities[1] - grid.velocities[0])  # as dp._bellman_step
         inside = (
             (c_next >= next_nodes[0] - slack)
             & (c_next <= next_nodes[-1] + slack)

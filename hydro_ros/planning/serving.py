@@ -22,7 +22,7 @@ from hydro_ros.planning.compare import METHODS, Problem, method_record, run_meth
 from hydro_ros.planning.costs import Cost
 from hydro_ros.planning.crane import Crane
 from hydro_ros.planning.database import StoredSolution, TrajectoryDatabase
-from hydro_ros.planning.dp import DpGrid, DpSolution, InfeasibleStart
+from hydro_ros.planning.dp import DpSolution, InfeasibleStart
 from hydro_ros.planning.paths import path_from_config
 from hydro_ros.planning.trajectory import JointTrajectoryData, evaluate, joint_trajectory
 
@@ -173,7 +173,7 @@ class TrajectoryService:
             context.solution = DpSolution(
                 context.crane,
                 context.problem.samples,
-                DpGrid.for_path(context.crane, context.problem.samples, stored.grid),
+                context.problem.grid,  # built for stored.grid
                 Cost(stored.cost),
                 True,
                 tables["cost_to_go"].astype(float),
