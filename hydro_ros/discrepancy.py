@@ -2,7 +2,9 @@
 
 The model is simulated with the bag's own inputs in 2 s segments, each started from the measured
 state (multiple shooting): drift of the open-loop position cannot swamp the comparison, yet
-every effect acts through the full dynamics. The error of a segment simulation against the
+every effect acts through the full dynamics. What no sensor gives is estimated: the friction's
+bristle state from the force balance at the start, the commands a valve delay still applies from
+the recording before the start (before the bag, its first command held). The error of a segment simulation against the
 measurement is normalised per channel (p_A, p_B per 0.1 MPa - the sensor noise -, piston
 position per 1 mm) and its RMS is the gap.
 
@@ -25,7 +27,7 @@ position per 1 mm) and its RMS is the gap.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Callable
 
@@ -40,6 +42,7 @@ from hydro_ros.models.kinematics import piston_position, torque_arm
 from hydro_ros.fdi.parity import flow_balance
 from hydro_ros.models.sam import (
     DEADZONE,
+    DELAY_BUFFER,
     MOUNT_L1,
     MOUNT_L2,
     MOUNT_L3,
@@ -54,6 +57,7 @@ from hydro_ros.models.valve import spool_acceleration, spool_opening
 from hydro_ros.names import Effect
 
 SEGMENT_S = 2.0
+FORCE_SAMPLES = 10  # each side of a segment start: the pressures that estimate the friction state
 SCALES = np.array([1e5, 1e5, 1e-3])  # p_A, p_B [Pa], piston position [m]: one unit of normalised error
 FIT_SHARE = 0.6
 DECORRELATION_S = 0.1
@@ -81,7 +85,11 @@ assert set(EFFECT_RANGES) == {e.value for e in Effect}
 
 @dataclass
 class Recording:
-    """The bag's single-actuator signals the workflow needs."""
+    """The bag's single-actuator signals the workflow needs.
+
+    ``earlier_commands`` are the valve commands recorded before ``times[0]``: a part cut from a
+    recording keeps them, because a valve delay still applies them after the cut.
+    """
 
     times: np.ndarray
     joint: np.ndarray
@@ -89,9 +97,18 @@ class Recording:
     pressure_a: np.ndarray
     pressure_b: np.ndarray
     command: np.ndarray
+    earlier_commands: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     def part(self, part: slice) -> "Recording":
-        return Recording(*(getattr(self, f)[part] for f in self.__dataclass_fields__))
+        first = range(len(self.times))[part].start
+        earlier = np.concatenate([self.earlier_commands, self.command[:first]])[-DELAY_BUFFER:]
+        return Recording(*(getattr(self, f.name)[part] for f in fields(self) if f.name != "earlier_commands"), earlier)
+
+    def commands_before(self, index: int) -> np.ndarray:
+        """The valve commands before sample ``index``, oldest first; before the recording the first is held."""
+        known = np.concatenate([self.earlier_commands, self.command[:index]])
+        held = np.full(max(DELAY_BUFFER - len(known), 0), known[0] if len(known) else self.command[0])
+        return np.concatenate([held, known])
 
     @classmethod
     def from_bag(cls, data: BagData, config: dict[str, Any]) -> "Recording":
@@ -101,12 +118,12 @@ class Recording:
                                    ("pressure_b", data.pressure_b, actuator), ("valve command", data.valve_command, actuator)):
             if key not in source:
                 raise ValueError(f"bag {data.path}: no {label} for {key!r}")
-        rec = cls(data.times, data.joint_position[joint], data.joint_velocity[joint], data.pressure_a[actuator],
-                  data.pressure_b[actuator], data.valve_command[actuator])
-        good = np.all(np.isfinite(np.stack([rec.joint, rec.joint_rate, rec.pressure_a, rec.pressure_b, rec.command])), axis=0)
+        signals = (data.joint_position[joint], data.joint_velocity[joint], data.pressure_a[actuator], data.pressure_b[actuator],
+                   data.valve_command[actuator])
+        good = np.all(np.isfinite(np.stack(signals)), axis=0)
         if good.sum() < 0.9 * len(good):
             raise ValueError(f"bag {data.path}: {np.count_nonzero(~good)} of {len(good)} samples incomplete")
-        return rec.part(np.flatnonzero(good))
+        return cls(data.times[good], *(signal[good] for signal in signals))
 
 
 def simulate(config: dict[str, Any], rec: Recording) -> np.ndarray:
@@ -122,9 +139,12 @@ def simulate(config: dict[str, Any], rec: Recording) -> np.ndarray:
     for start in range(0, len(rec.times), segment):
         end = min(start + segment, len(rec.times))
         plant = SamPlant(model, initial_joint=float(rec.joint[start]))
+        around = slice(max(start - FORCE_SAMPLES, 0), start + FORCE_SAMPLES + 1)  # the force needs less noise than one sample has
+        z = model.bristle_state(piston[start], velocity[start], np.mean(rec.pressure_a[around]) - bias[0],
+                                np.mean(rec.pressure_b[around]) - bias[1])
         plant.state[:] = [rec.pressure_a[start] - bias[0], rec.pressure_b[start] - bias[1], rec.command[start], 0.0,
-                          piston[start], velocity[start], 0.0]
-        plant.prime_command_history(rec.command[:start])
+                          piston[start], velocity[start], z]
+        plant.prime_command_history(rec.commands_before(start))
         try:
             _, states, _ = plant.advance(end - start, commands=rec.command[start:end])
         except FloatingPointError:

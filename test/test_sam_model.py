@@ -8,7 +8,7 @@ import pytest
 from hydro_ros.config import with_overrides
 from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient
 from hydro_ros.models.sam import (
-    AREA_A, AREA_B, HOSE_MODULUS, HOSE_VOLUME, OIL_MODULUS, STROKE, V0_A, V0_B,
+    AREA_A, AREA_B, BRISTLE, HOSE_MODULUS, HOSE_VOLUME, OIL_MODULUS, STROKE, V0_A, V0_B,
     SamModel, SamPlant, valve_and_leak_flows,
 )
 from hydro_ros.models.steady_state import extension_steady_pressures, hydraulic_natural_frequency
@@ -88,6 +88,30 @@ def test_closed_spool_without_leakage_holds_pressure(sam_config):
     force = states[-1, 0] * p[AREA_A] - states[-1, 1] * p[AREA_B]
     static = sam_config["actuators"]["boom"]["friction"]["static"]
     assert abs(force - model.load_force(states[-1, 4])) <= static
+
+
+@pytest.mark.parametrize("off_balance", [-2500.0, 2500.0])
+def test_bristle_state_carries_what_static_friction_holds(sam_config, off_balance):
+    """Pressures off the load balance by less than the static friction: started with the bristle state
+    that carries the difference the boom stays put; started with z = 0 it lurches (against the oil's stiffness)."""
+    model = SamModel(_no_centre_leakage(sam_config))
+    p = model.base
+    x = model.piston_from_joint(0.2)
+    p_b = 2.0e6
+    p_a = (model.load_force(x) + off_balance + p_b * p[AREA_B]) / p[AREA_A]
+    z = model.bristle_state(x, 0.0, p_a, p_b)
+    assert z * p[BRISTLE] == pytest.approx(off_balance)
+    travel = {}
+    for start in (z, 0.0):
+        plant = SamPlant(model, initial_joint=0.2)
+        plant.state[:] = [p_a, p_b, 0.0, 0.0, x, 0.0, start]
+        _, states, _ = plant.advance(500, commands=np.zeros(500))
+        travel[start] = np.ptp(states[:, 4])
+    assert travel[z] < 1e-7 and travel[0.0] > 1e-5
+    # beyond the static friction the bristles slip: the state saturates at F_S
+    static = sam_config["actuators"]["boom"]["friction"]["static"]
+    far = model.bristle_state(x, 0.0, p_a + np.sign(off_balance) * 1e7, p_b)
+    assert far * p[BRISTLE] == pytest.approx(np.sign(off_balance) * static)
 
 
 def test_chamber_mass_balance(sam_config):

@@ -398,6 +398,18 @@ class SamModel:
         )
         return torque / torque_arm(theta, p[MOUNT_L1], p[MOUNT_L2])
 
+    def bristle_state(self, x: float, v: float, p_a: float, p_b: float) -> float:
+        """LuGre bristle deflection z that carries the force the pressures leave over after the load and
+        viscous friction (no acceleration), within its range |sigma0 z| <= g(v).
+
+        z is never measured: a simulation started from measured data with z = 0 drops the friction
+        that holds a boom at rest and sends a pressure transient through every start.
+        """
+        p = self.base
+        force = p_a * p[AREA_A] - p_b * p[AREA_B] - self.load_force(x, p[PAYLOAD]) - p[VISCOUS] * v
+        g = stribeck_curve(v, p[COULOMB], p[STATIC], p[STRIBECK])
+        return min(max(force, -g), g) / p[BRISTLE]
+
     def resting_state(self, joint: float, p_b: float | None = None) -> np.ndarray:
         """State at rest at ``joint`` with chamber pressures balancing the load.
 
