@@ -8,8 +8,9 @@ the recording before the start (before the bag, its first command held). The err
 measurement is normalised per channel (p_A, p_B per 0.1 MPa - the sensor noise -, piston
 position per 1 mm) and its RMS is the gap.
 
-1. calibrate: flow coefficients (one gain) and oil bulk modulus, within the tolerance of an
-   identified valve (flow +-5 %, bulk modulus +-30 %), on the first 60 % of the data;
+1. calibrate: flow coefficients (one gain for the supply notches P-A, P-B, one for the return
+   notches A-T, B-T) and oil bulk modulus, within the tolerance of an identified valve
+   (flow +-5 %, bulk modulus +-30 %), on the first 60 % of the data;
 2. localise: the error by channel, by regime (extending, retracting, at rest; pressure level;
    position) and in 5 s windows, for the forward simulation and for the load-independent one
    (the reduced model of P-II driven by the measured motion);
@@ -174,9 +175,9 @@ def _with(config: dict[str, Any], effects: dict[str, float], calibration: dict[s
     actuator = next(iter(config["actuators"]))
     valve = config["actuators"][actuator]["valve"]
     fluid = config["actuators"][actuator]["fluid"]
-    gain = calibration.get("flow_gain", 1.0)
+    gain = {notch: calibration.get(f"{NOTCH_GROUP[notch]}_flow_gain", 1.0) for notch in valve["kv_poly"]}
     overrides = {"actuators": {actuator: {
-        "valve": {"kv_poly": {n: [c * gain for c in valve["kv_poly"][n]] for n in valve["kv_poly"]}},
+        "valve": {"kv_poly": {n: [c * gain[n] for c in valve["kv_poly"][n]] for n in valve["kv_poly"]}},
         "fluid": {"oil_bulk_modulus": fluid["oil_bulk_modulus"] * calibration.get("bulk_factor", 1.0)},
     }}}
     merged = with_overrides(config, overrides)
@@ -184,8 +185,11 @@ def _with(config: dict[str, Any], effects: dict[str, float], calibration: dict[s
     return merged
 
 
-CALIBRATION_TOLERANCE = {"flow_gain": 0.05, "bulk_factor": 0.3}  # an identified valve's flow and the oil's bulk modulus
+# an identified valve's flow, per notch group (P-I's GSA ranks the supply notches first, then the return
+# notches: one common gain left their difference to be taken for an effect), and the oil's bulk modulus
+CALIBRATION_TOLERANCE = {"supply_flow_gain": 0.05, "return_flow_gain": 0.05, "bulk_factor": 0.3}
 NO_CALIBRATION = {name: 1.0 for name in CALIBRATION_TOLERANCE}
+NOTCH_GROUP = {"PA": "supply", "PB": "supply", "AT": "return", "BT": "return"}
 
 
 def _calibration(z: np.ndarray) -> dict[str, float]:
@@ -199,19 +203,20 @@ def _calibration_coordinates(calibration: dict[str, float]) -> list[float]:
 
 
 def calibrate(config: dict[str, Any], rec: Recording) -> dict[str, float]:
-    """Flow gain within +-5 % and bulk-modulus factor within +-30 % (ordinary calibration error)."""
+    """Supply- and return-notch flow gains within +-5 % and bulk-modulus factor within +-30 % (ordinary calibration error)."""
 
     def cost(z: np.ndarray) -> float:
         return gap(simulate(_with(config, {}, _calibration(z)), rec))
 
-    simplex = np.array([[0.0, 0.0], [0.6, 0.0], [0.0, 0.6]])  # steps of ~3 % flow and ~17 % bulk modulus
-    result = minimize(cost, np.zeros(2), method="Nelder-Mead",
-                      options={"maxfev": 30, "xatol": 0.05, "fatol": 1e-3, "initial_simplex": simplex})
+    start = np.zeros(len(CALIBRATION_TOLERANCE))
+    simplex = np.vstack([start, 0.6 * np.eye(len(start))])  # steps of ~3 % flow and ~17 % bulk modulus
+    result = minimize(cost, start, method="Nelder-Mead",
+                      options={"maxfev": 45, "xatol": 0.05, "fatol": 1e-3, "initial_simplex": simplex})
     return _calibration(result.x)
 
 
 def refine(config: dict[str, Any], calibration: dict[str, float], named: dict[str, float], rec: Recording,
-           max_evaluations: int = 40) -> tuple[dict[str, float], dict[str, float]]:
+           max_evaluations: int = 50) -> tuple[dict[str, float], dict[str, float]]:
     """The named effects and the calibration fitted jointly, from the one-at-a-time values.
 
     Each effect was fitted with the calibration held, and the calibration was fitted with no effect:
@@ -228,15 +233,16 @@ def refine(config: dict[str, Any], calibration: dict[str, float], named: dict[st
     ranges = [EFFECT_RANGES[n] for n in names]
 
     def unpack(z: np.ndarray) -> tuple[dict[str, float], dict[str, float]]:
-        effects = {n: float(np.clip(named[n] + zi * (high - low), low, high)) for n, zi, (low, high) in zip(names, z[2:], ranges)}
-        return _calibration(z[:2]), effects
+        effects = {n: float(np.clip(named[n] + zi * (high - low), low, high))
+                   for n, zi, (low, high) in zip(names, z[len(CALIBRATION_TOLERANCE):], ranges)}
+        return _calibration(z[:len(CALIBRATION_TOLERANCE)]), effects
 
     def cost(z: np.ndarray) -> float:
         calibrated, effects = unpack(z)
         return gap(simulate(_with(config, effects, calibrated), rec))
 
     start = np.concatenate([_calibration_coordinates(calibration), np.zeros(len(names))])
-    steps = np.concatenate([[0.3, 0.3], np.full(len(names), 0.05)])  # ~1.5 % flow, ~9 % bulk, 5 % of each effect's range
+    steps = np.concatenate([np.full(len(CALIBRATION_TOLERANCE), 0.3), np.full(len(names), 0.05)])  # ~1.5 % flow, ~9 % bulk, 5 % of each effect's range
     simplex = np.vstack([start] + [start + np.eye(len(start))[i] * steps[i] for i in range(len(start))])
     result = minimize(cost, start, method="Nelder-Mead",
                       options={"maxfev": max_evaluations, "xatol": 1e-3, "fatol": 1e-4, "initial_simplex": simplex})
