@@ -4,9 +4,9 @@ The model is simulated with the bag's own inputs in 2 s segments, each started f
 state (multiple shooting): drift of the open-loop position cannot swamp the comparison, yet
 every effect acts through the full dynamics. What no sensor gives is estimated: the friction's
 bristle state from the force balance at the start, the commands a valve delay still applies from
-the recording before the start (before the bag, its first command held). The error of a segment simulation against the
-measurement is normalised per channel (p_A, p_B per 0.1 MPa - the sensor noise -, piston
-position per 1 mm) and its RMS is the gap.
+the recording before the start (before the bag, its first command held). The error of a segment
+simulation against the measurement is normalised per channel (p_A, p_B per 0.1 MPa - the sensor
+noise -, piston position per 1 mm) and its RMS is the gap.
 
 1. calibrate: flow coefficients (one gain for the supply notches P-A, P-B, one for the return
    notches A-T, B-T) and oil bulk modulus, within the tolerance of an identified valve
@@ -198,7 +198,8 @@ def _calibration(z: np.ndarray) -> dict[str, float]:
 
 
 def _calibration_coordinates(calibration: dict[str, float]) -> list[float]:
-    return [math.atanh(float(np.clip((calibration[name] - 1.0) / tolerance, -0.999999, 0.999999)))
+    """Inverse of _calibration, kept off the bounds where tanh is flat and a simplex step moves nothing."""
+    return [math.atanh(float(np.clip((calibration[name] - 1.0) / tolerance, -0.9, 0.9)))
             for name, tolerance in CALIBRATION_TOLERANCE.items()]
 
 
@@ -216,19 +217,21 @@ def calibrate(config: dict[str, Any], rec: Recording) -> dict[str, float]:
 
 
 def refine(config: dict[str, Any], calibration: dict[str, float], named: dict[str, float], rec: Recording,
-           max_evaluations: int = 50) -> tuple[dict[str, float], dict[str, float]]:
+           max_evaluations: int = 100) -> tuple[dict[str, float], dict[str, float]]:
     """The named effects and the calibration fitted jointly, from the one-at-a-time values.
 
     Each effect was fitted with the calibration held, and the calibration was fitted with no effect:
     where the two overlap (entrained air lowers the effective bulk modulus, a valve delay and the flow
     gain both shape the pressure transients) the first fit lets calibration absorb part of the effect.
     Where it absorbed it up to its tolerance (a spool offset pushed flow gain and bulk modulus to both
-    bounds), tanh is flat and the simplex cannot walk back: the joint fit starts from whichever of the
-    separate calibration and none fits better with the effects added.
+    bounds; a leak in A pushed all three), tanh is flat and the simplex cannot walk back: the joint fit
+    starts from whichever of the separate calibration and none fits better with the effects added,
+    with each factor at most 90 % of its tolerance away from 1.
     """
     if not named:
         return calibration, named
-    calibration = min((calibration, NO_CALIBRATION), key=lambda c: gap(simulate(_with(config, named, c), rec)))
+    start_gap, calibration = min(((gap(simulate(_with(config, named, c), rec)), c) for c in (calibration, NO_CALIBRATION)),
+                                 key=lambda scored: scored[0])
     names = list(named)
     ranges = [EFFECT_RANGES[n] for n in names]
 
@@ -242,11 +245,14 @@ def refine(config: dict[str, Any], calibration: dict[str, float], named: dict[st
         return gap(simulate(_with(config, effects, calibrated), rec))
 
     start = np.concatenate([_calibration_coordinates(calibration), np.zeros(len(names))])
-    steps = np.concatenate([np.full(len(CALIBRATION_TOLERANCE), 0.3), np.full(len(names), 0.05)])  # ~1.5 % flow, ~9 % bulk, 5 % of each effect's range
+    # ~1.5 % flow, ~9 % bulk modulus, 5 % of each effect's range
+    steps = np.concatenate([np.full(len(CALIBRATION_TOLERANCE), 0.3), np.full(len(names), 0.05)])
     simplex = np.vstack([start] + [start + np.eye(len(start))[i] * steps[i] for i in range(len(start))])
     result = minimize(cost, start, method="Nelder-Mead",
                       options={"maxfev": max_evaluations, "xatol": 1e-3, "fatol": 1e-4, "initial_simplex": simplex})
-    return unpack(result.x)  # the start is a vertex of the simplex: never worse than the separate fits
+    if result.fun > start_gap:  # the start kept off the bounds never got back to what the bound had
+        return calibration, named
+    return unpack(result.x)
 
 
 def _bic(error: np.ndarray, parameters: int, sample_rate: float) -> float:
