@@ -2,9 +2,9 @@
 realistic magnitude, and clean data, on plants with 40 % of fdi-eval's mismatch and sensor noise.
 
 Each row also gives the floor: the validation gap of the plant's own model (its mismatch drawn, the
-effect at its true value), the best any fitted model can do on that bag. Where the effect at its
-first size is not much larger than the mismatch (valve delay, entrained air), half the gap before
-lies below that floor, so those effects also run at a second, larger size.
+effect at its true value), the best any fitted model can do on that bag. The valve delay and the
+entrained air also run at a second, larger size: at the first, little more than the plant's
+mismatch, half the gap before lies near that floor.
 
 Writes bench/discrepancy_suite.json and prints a markdown table.
 """

@@ -34,7 +34,8 @@ def hidden_effect_bag(config, path, effect=None, value=0.0, seed=SEED, duration=
     return path
 
 
-@pytest.mark.parametrize(("effect", "value"), [(None, 0.0), ("internal_leakage", 1.5), ("spool_offset", 0.04), ("payload_mass", 150.0)])
+@pytest.mark.parametrize(("effect", "value"), [(None, 0.0), ("internal_leakage", 1.5), ("spool_offset", 0.04), ("valve_delay", 0.05),
+                                               ("payload_mass", 150.0)])
 def test_discrepancy_names_the_hidden_effect_or_none(sam_config, tmp_path, effect, value):
     bag = hidden_effect_bag(sam_config, tmp_path / "bag", effect, value)
     out = tmp_path / "out"
