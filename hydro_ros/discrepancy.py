@@ -106,8 +106,8 @@ class Recording:
         return Recording(*(getattr(self, f.name)[part] for f in fields(self) if f.name != "earlier_commands"), earlier)
 
     def commands_before(self, index: int) -> np.ndarray:
-        """The valve commands before sample ``index``, oldest first; before the recording the first is held."""
-        known = np.concatenate([self.earlier_commands, self.command[:index]])
+        """The DELAY_BUFFER valve commands before sample ``index``, oldest first; before the recording the first is held."""
+        known = np.concatenate([self.earlier_commands, self.command[max(index - DELAY_BUFFER, 0):index]])[-DELAY_BUFFER:]
         held = np.full(max(DELAY_BUFFER - len(known), 0), known[0] if len(known) else self.command[0])
         return np.concatenate([held, known])
 

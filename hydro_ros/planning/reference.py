@@ -64,7 +64,8 @@ def solve_reference(
             admissible = inside & checks["position"] & checks["velocity"]
             if acceleration_limits:
                 admissible &= checks["acceleration"]
-            total = ts * stage_power(cost, crane, motion) + _interpolate(cost_to_go[k + 1], next_nodes, grid, np.clip(c_next, next_nodes[0], next_nodes[-1]), v_next)
+            on_window = np.clip(c_next, next_nodes[0], next_nodes[-1])  # within the slack: on the end, as dp._bellman_step
+            total = ts * stage_power(cost, crane, motion) + _interpolate(cost_to_go[k + 1], next_nodes, grid, on_window, v_next)
         total = np.where(admissible, total, np.inf)
         best = np.argmin(total, axis=-1)
         lowest = np.take_along_axis(total, best[..., None], axis=-1)[..., 0]
