@@ -20,8 +20,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from hydro_ros.bags.reader import BagData, read_bag  # noqa: E402
-from hydro_ros.config import default_config_path, load_machine_config  # noqa: E402
-from hydro_ros.discrepancy import FIT_SHARE, Recording, gap, run, simulate  # noqa: E402
+from hydro_ros.contract.config import default_config_path, load_machine_config  # noqa: E402
+from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, run, simulate  # noqa: E402
 from test.test_discrepancy import hidden_effect_bag, plant_config  # noqa: E402
 
 SUITE = [(None, 0.0), ("internal_leakage", 1.5), ("external_leakage_a", 2.0), ("external_leakage_b", 2.0),

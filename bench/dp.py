@@ -18,10 +18,10 @@ from pathlib import Path
 
 _CHILD = """
 import json, resource, sys, time
-from hydro_ros.config import default_config_path
-from hydro_ros.planning.compare import Problem
+from hydro_ros.contract.config import default_config_path
+from hydro_ros.planning.problem import Problem
 from hydro_ros.planning.costs import Cost
-from hydro_ros.planning.crane import load_crane
+from hydro_ros.models.crane import load_crane
 from hydro_ros.planning.dp import solve
 from hydro_ros.planning.reference import solve_reference
 solver, cost = sys.argv[1], Cost(sys.argv[2])
@@ -63,10 +63,10 @@ def convergence(out_dir: Path) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hydro_ros.config import default_config_path
-    from hydro_ros.planning.compare import Problem, plan_dp
+    from hydro_ros.contract.config import default_config_path
+    from hydro_ros.planning.problem import Problem, plan_dp
     from hydro_ros.planning.costs import Cost
-    from hydro_ros.planning.crane import load_crane
+    from hydro_ros.models.crane import load_crane
 
     crane, config = load_crane(default_config_path("k70m"))
     scales = (0.25, 0.35, 0.5, 0.7, 1.0)

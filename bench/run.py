@@ -19,7 +19,7 @@ import numpy as np
 
 from hydro_ros.bags.reader import mcap_file, read_bag
 from hydro_ros.bags.writer import ContractBagWriter
-from hydro_ros.config import default_config_path, load_machine_config
+from hydro_ros.contract.config import default_config_path, load_machine_config
 from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
@@ -204,8 +204,8 @@ def can_bridge_live(config_path: Path, measure_s: float = 15.0) -> dict:
 def fdi_evaluation(config: dict, out_dir: Path, name: str = "fdi_eval") -> dict:
     from tqdm import tqdm
 
-    from hydro_ros.fdi.evaluation import evaluate, markdown_table
-    from hydro_ros.plots import plot_fdi_evaluation
+    from hydro_ros.studies.fdi_evaluation import evaluate, markdown_table
+    from hydro_ros.studies.plots import plot_fdi_evaluation
 
     with tqdm(unit="run", desc="fdi-eval") as bar:
         summary = evaluate(config, progress=bar.update)

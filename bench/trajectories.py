@@ -21,11 +21,11 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from hydro_ros.config import default_config_path  # noqa: E402
+from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.planning.catalog import build, plan_units  # noqa: E402
-from hydro_ros.planning.crane import load_crane  # noqa: E402
+from hydro_ros.models.crane import load_crane  # noqa: E402
 from hydro_ros.planning.database import TrajectoryDatabase  # noqa: E402
-from hydro_ros.planning.execution import execute  # noqa: E402
+from hydro_ros.studies.execution import execute  # noqa: E402
 from hydro_ros.planning.serving import path_start_state  # noqa: E402
 
 METHODS = ("dp_cp", "dp_ls", "pinv_actuator", "pinv_joint")

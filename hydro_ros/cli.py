@@ -12,24 +12,20 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-from hydro_ros.config import ConfigError, load_machine_config
-from hydro_ros.names import INJECTION_UNITS, parse_injection
-from hydro_ros.planning.errors import BuildError, DatabaseError
-
-
-class CliError(Exception):
-    """A user-facing failure: printed as one line, exit status 1."""
+from hydro_ros.contract.config import load_machine_config
+from hydro_ros.contract.names import INJECTION_UNITS, parse_injection
+from hydro_ros.contract.errors import InputError
 
 
 def _injections(texts: Sequence[str], kind: str, timed: bool) -> list:
     out = []
     for text in texts:
         if not timed and "@" in text:
-            raise CliError(f"--{kind} {text!r}: effects are present from t = 0; use --fault NAME=VALUE@T for timed faults")
+            raise InputError(f"--{kind} {text!r}: effects are present from t = 0; use --fault NAME=VALUE@T for timed faults")
         try:
             out.append(parse_injection(text))
-        except ValueError as exc:
-            raise CliError(f"--{kind} {exc}") from None
+        except InputError as exc:
+            raise InputError(f"--{kind} {exc}") from None
     return out
 
 
@@ -38,12 +34,12 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     from hydro_ros.bags.reader import read_bag
     from hydro_ros.bags.writer import BagExistsError, ContractBagWriter
-    from hydro_ros.plots import plot_bag
+    from hydro_ros.studies.plots import plot_bag
     from hydro_ros.sim.scenario import Scenario, run_blocks
 
     config = load_machine_config(args.config)
     if args.duration <= 0:
-        raise CliError(f"--duration {args.duration}: must be > 0 s")
+        raise InputError(f"--duration {args.duration}: must be > 0 s")
     injections = _injections(args.fault, "fault", True) + _injections(args.effect, "effect", False)
     actuator = next(iter(config["actuators"]))
     scenario = Scenario(args.duration, injections, seed=args.seed, actuator=actuator)
@@ -53,7 +49,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         mobile = config["actuators"][actuator]["valve"].get("type") == "mobile"
         writer = ContractBagWriter(args.out, actuators={actuator: joint}, pressure_variance=variance, mobile=mobile)
     except BagExistsError as exc:
-        raise CliError(str(exc)) from None
+        raise InputError(str(exc)) from None
     total = int(round(args.duration * float(config["sample_rate_hz"])))
     with writer, tqdm(total=total, unit="sample", desc="simulate", disable=args.quiet) as bar:
         writer.set_truth(scenario.truth(config))
@@ -69,16 +65,16 @@ def cmd_fdi(args: argparse.Namespace) -> int:
 
     from hydro_ros.bags.reader import BagError
     from hydro_ros.fdi.offline import prepare, run_monitor
-    from hydro_ros.plots import plot_fdi
+    from hydro_ros.studies.plots import plot_fdi
 
     config = load_machine_config(args.config)
     out = Path(args.json)
     if not out.parent.is_dir():
-        raise CliError(f"--json {out}: directory {out.parent} does not exist")
+        raise InputError(f"--json {out}: directory {out.parent} does not exist")
     try:
         data, monitor, samples = prepare(args.bag, config, args.method)
     except BagError as exc:
-        raise CliError(str(exc)) from None
+        raise InputError(str(exc)) from None
     with tqdm(total=len(samples), unit="sample", desc="fdi", disable=args.quiet) as bar:
         run = run_monitor(monitor, samples, progress=bar.update)
     run.data = data
@@ -96,13 +92,13 @@ def cmd_fdi(args: argparse.Namespace) -> int:
 def cmd_fdi_eval(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hydro_ros.fdi.evaluation import evaluate, markdown_table
-    from hydro_ros.plots import plot_fdi_evaluation
+    from hydro_ros.studies.fdi_evaluation import evaluate, markdown_table
+    from hydro_ros.studies.plots import plot_fdi_evaluation
 
     config = load_machine_config(args.config)
     for name in ("seeds", "calibration_seeds", "workers"):
         if getattr(args, name) < 1:
-            raise CliError(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 1")
+            raise InputError(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 1")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with tqdm(unit="run", desc="fdi-eval", disable=args.quiet) as bar:
@@ -117,11 +113,11 @@ def cmd_fdi_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_fdi_fit(args: argparse.Namespace) -> int:
-    from hydro_ros.fdi.evaluation import build_parity_signatures, fit_parity_thresholds, write_fitted_block
+    from hydro_ros.studies.fdi_evaluation import build_parity_signatures, fit_parity_thresholds, write_fitted_block
 
     config = load_machine_config(args.config)
     if args.train < 1 or args.held_out < 1:
-        raise CliError("--train and --held-out must be >= 1")
+        raise InputError("--train and --held-out must be >= 1")
     print(f"fitting parity thresholds on {args.train} fault-free mismatched plants, checking on {args.held_out} others ...")
     thresholds, report = fit_parity_thresholds(config, range(100, 100 + args.train), range(300, 300 + args.held_out))
     print(f"threshold factor {thresholds.factor:g} ({report['false_alarms_per_hour']:.2f} false alarms/h held out)"
@@ -142,11 +138,11 @@ def cmd_can_convert(args: argparse.Namespace) -> int:
 
     config = load_machine_config(args.config)
     if Path(args.out).exists():
-        raise CliError(f"--out {args.out}: already exists, refusing to overwrite")
+        raise InputError(f"--out {args.out}: already exists, refusing to overwrite")
     try:
         report = convert_log(args.logfile, config, args.out)
     except BagExistsError as exc:
-        raise CliError(str(exc)) from None
+        raise InputError(str(exc)) from None
     print(json.dumps({"bag": str(args.out), **report.to_json()}))
     return 0
 
@@ -154,17 +150,17 @@ def cmd_can_convert(args: argparse.Namespace) -> int:
 def cmd_gsa(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hydro_ros.gsa import LEAKS, PARAMETERS, interaction, ranking, sobol_indices
-    from hydro_ros.plots import plot_gsa
+    from hydro_ros.studies.gsa import LEAKS, PARAMETERS, interaction, ranking, sobol_indices
+    from hydro_ros.studies.plots import plot_gsa
 
     config = load_machine_config(args.config)
     if args.samples < 2 or args.samples & (args.samples - 1):
-        raise CliError(f"--samples {args.samples}: must be a power of two >= 2 (Sobol' sequence)")
+        raise InputError(f"--samples {args.samples}: must be a power of two >= 2 (Sobol' sequence)")
     if args.workers < 1:
-        raise CliError(f"--workers {args.workers}: must be >= 1")
+        raise InputError(f"--workers {args.workers}: must be >= 1")
     out = Path(args.json)
     if not out.parent.is_dir():
-        raise CliError(f"--json {out}: directory {out.parent} does not exist")
+        raise InputError(f"--json {out}: directory {out.parent} does not exist")
     results = {}
     for name, space in (("parameters", PARAMETERS), ("leakages", LEAKS)):
         runs = args.samples * (len(space) + 2)
@@ -185,13 +181,13 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.bags.reader import BagError, read_bag
-    from hydro_ros.discrepancy import EFFECT_RANGES, run
+    from hydro_ros.studies.discrepancy import EFFECT_RANGES, run
 
     config = load_machine_config(args.config)
     try:
         data = read_bag(args.bag)
     except BagError as exc:
-        raise CliError(str(exc)) from None
+        raise InputError(str(exc)) from None
     out = Path(args.out)
     with tqdm(total=2 + 2 * len(EFFECT_RANGES), unit="fit", desc="discrepancy", disable=args.quiet) as bar:
         report = run(data, config, out, progress=bar.update)
@@ -203,18 +199,18 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
 
 
 def _dp_problem(args: argparse.Namespace):  # noqa: ANN202 - planning types imported lazily
-    from hydro_ros.planning.compare import Problem
-    from hydro_ros.planning.crane import load_crane
+    from hydro_ros.planning.problem import Problem
+    from hydro_ros.models.crane import load_crane
 
     out = Path(args.json)
     if not out.parent.is_dir():
-        raise CliError(f"--json {out}: directory {out.parent} does not exist")
+        raise InputError(f"--json {out}: directory {out.parent} does not exist")
     crane, config = load_crane(args.config)
     return Problem.build(crane, config, args.path, grid=tuple(args.grid) if args.grid else None, start=args.start), out
 
 
 def cmd_dp_solve(args: argparse.Namespace) -> int:
-    from hydro_ros.planning.compare import method_record, plan_dp
+    from hydro_ros.planning.problem import method_record, plan_dp
     from hydro_ros.planning.costs import Cost
     from hydro_ros.planning.trajectory import joint_table
 
@@ -242,8 +238,9 @@ def cmd_dp_solve(args: argparse.Namespace) -> int:
 def cmd_dp_compare(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hydro_ros.planning.compare import CONTRACT_METHODS, METHODS, compare, markdown_table
-    from hydro_ros.plots import plot_dp_compare
+    from hydro_ros.planning.problem import CONTRACT_METHODS, METHODS
+    from hydro_ros.studies.dp_compare import compare, markdown_table
+    from hydro_ros.studies.plots import plot_dp_compare
 
     problem, out = _dp_problem(args)
     methods = tuple(METHODS) if args.all_methods else CONTRACT_METHODS
@@ -266,7 +263,7 @@ def cmd_db_build(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.planning.catalog import build, plan_units
-    from hydro_ros.planning.crane import load_crane
+    from hydro_ros.models.crane import load_crane
     from hydro_ros.planning.database import TrajectoryDatabase
 
     _, config = load_crane(args.config)
@@ -305,13 +302,13 @@ def cmd_db_list(args: argparse.Namespace) -> int:
 
 def cmd_dp_execute(args: argparse.Namespace) -> int:
     from hydro_ros.bags.writer import BagExistsError
-    from hydro_ros.planning.crane import load_crane
-    from hydro_ros.planning.execution import execute, write_bag
+    from hydro_ros.models.crane import load_crane
+    from hydro_ros.studies.execution import execute, write_bag
     from hydro_ros.planning.serving import executable_trajectory
 
     out = Path(args.out)
     if out.exists():
-        raise CliError(f"--out {out}: already exists, refusing to overwrite")
+        raise InputError(f"--out {out}: already exists, refusing to overwrite")
     _, config = load_crane(args.config)
     trajectory, planned = executable_trajectory(
         config, args.path, args.method, database=args.db, grid=tuple(args.grid) if args.grid else None,
@@ -322,7 +319,7 @@ def cmd_dp_execute(args: argparse.Namespace) -> int:
     try:
         write_bag(execution, out, {"machine": config["machine"], "execution": summary})
     except BagExistsError as exc:
-        raise CliError(str(exc)) from None
+        raise InputError(str(exc)) from None
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2) + "\n")
     energy_key = "cp_energy_J" if args.supply == "cp" else "ls_energy_J"
@@ -495,7 +492,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         return func(args)
-    except (CliError, ConfigError, ValueError, FileNotFoundError, FloatingPointError, DatabaseError, BuildError, ConnectionError) as exc:
+    except InputError as exc:  # bad input is one line; anything else is a bug and keeps its traceback
         print(f"hydro-ros {args.command}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

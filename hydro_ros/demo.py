@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from hydro_ros.config import default_config_path
+from hydro_ros.contract.config import default_config_path
 
 
 CRANE_PATH = "horizontal"
@@ -114,10 +114,13 @@ def _start_hmi(out: Path, port: int) -> tuple[subprocess.Popen, str, str]:
     return process, "", f"the HMI did not start ({reason}); the rest of the demo goes on without it"
 
 
+def cli(arguments: list[str]) -> int:
+    """Run one ``hydro-ros`` command as its own process, as an operator would type it."""
+    return subprocess.run([sys.executable, "-m", "hydro_ros.cli", *arguments], check=False).returncode
+
+
 def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.0, rate: float = 2.0, hmi_port: int = 8080,
              linger: float = 0.0) -> int:
-    from hydro_ros.cli import main as cli
-
     out.mkdir(parents=True, exist_ok=True)
     config = config_path or str(default_config_path("sam"))
     bag = out / "developing_leak"
@@ -176,8 +179,8 @@ def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.
 
 def _energy_against_pseudo_inverse(crane_config: str, database: Path, executed: dict) -> None:
     """The pseudo-inverse from the same start on the same simulated crane (offline: the live crane has moved on)."""
-    from hydro_ros.planning.crane import load_crane
-    from hydro_ros.planning.execution import execute
+    from hydro_ros.models.crane import load_crane
+    from hydro_ros.studies.execution import execute
     from hydro_ros.planning.serving import executable_trajectory
 
     _, config = load_crane(crane_config)

@@ -7,7 +7,7 @@ import shutil
 from pathlib import Path
 
 from hydro_ros.cli import main as cli
-from hydro_ros.config import default_config_path
+from hydro_ros.contract.config import default_config_path
 
 DURATION_S = 25.0  # keeps each compressed bag under 5 MB at 1 kHz
 # valve faults are told from an internal leak only after the valve command reverses (P-II 4.9):

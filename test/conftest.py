@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from hydro_ros.config import load_machine_config
+from hydro_ros.contract.config import load_machine_config
 
 REPO = Path(__file__).resolve().parent.parent
 SAM_CONFIG = REPO / "config" / "sam.yaml"
@@ -19,7 +19,7 @@ def sam_config() -> dict:
 
 @pytest.fixture(scope="session")
 def k70m() -> dict:
-    from hydro_ros.planning.crane import load_crane
+    from hydro_ros.models.crane import load_crane
 
     return load_crane(K70M)[1]
 

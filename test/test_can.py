@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 from hydro_ros.bags.reader import read_bag
 from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, crc8, cycle_values, sample_values
 from hydro_ros.can.convert import convert_log
-from hydro_ros.config import load_machine_config
-from hydro_ros.names import Injection
+from hydro_ros.contract.config import load_machine_config
+from hydro_ros.contract.names import Injection
 from hydro_ros.sim.scenario import Scenario, run_blocks
 from test.conftest import REPO
 

@@ -9,8 +9,8 @@ import sys
 import pytest
 
 from hydro_ros.bags.writer import ContractBagWriter
-from hydro_ros.config import load_machine_config, with_overrides
-from hydro_ros.fdi.evaluation import mismatched_config
+from hydro_ros.contract.config import load_machine_config, with_overrides
+from hydro_ros.studies.fdi_evaluation import mismatched_config
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, run_blocks
 from test.conftest import SAM_CONFIG
@@ -61,7 +61,7 @@ def test_the_plants_own_model_fits_its_own_validation_data(sam_config, tmp_path,
     needs what no sensor gives: the commands a valve delay still applies from before the validation part,
     and the friction's bristle state (with neither, these gaps were 1.4-2.2)."""
     from hydro_ros.bags.reader import read_bag
-    from hydro_ros.discrepancy import FIT_SHARE, Recording, gap, simulate
+    from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, simulate
 
     rec = Recording.from_bag(read_bag(hidden_effect_bag(sam_config, tmp_path / "bag", effect, value)), sam_config)
     validation = rec.part(slice(int(FIT_SHARE * len(rec.times)), None))
@@ -78,7 +78,7 @@ def test_discrepancy_refuses_a_bag_without_the_actuator(tmp_path):
 def test_load_independent_localisation_separates_hydraulic_from_load_side_effects(sam_config, effect, value, shows):
     import numpy as np
 
-    from hydro_ros.discrepancy import Recording, load_independent_error, localise
+    from hydro_ros.studies.discrepancy import Recording, load_independent_error, localise
 
     plant = with_overrides(mismatched_config(sam_config, 3, 0.4), {"effects": {effect: value}})
     blocks = [(m.times, m.joint_position, m.joint_velocity, m.pressure_a, m.pressure_b, m.valve_command)
@@ -94,7 +94,7 @@ def test_joint_refinement_recovers_what_calibration_absorbed(sam_config, tmp_pat
     """Entrained air lowers the effective bulk modulus, which calibration fits first: fitted alone the air
     fraction comes out at about half; refined jointly with the calibration it is recovered."""
     from hydro_ros.bags.reader import read_bag
-    from hydro_ros.discrepancy import run
+    from hydro_ros.studies.discrepancy import run
 
     bag = hidden_effect_bag(sam_config, tmp_path / "bag", "entrained_air", 0.03, duration=60.0)
     report = run(read_bag(bag), load_machine_config(SAM_CONFIG), tmp_path / "out")

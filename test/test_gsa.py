@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from hydro_ros.gsa import LEAKS, PARAMETERS, TIMES, run_once, sobol_indices
+from hydro_ros.studies.gsa import LEAKS, PARAMETERS, TIMES, run_once, sobol_indices
 from test.conftest import SAM_CONFIG
 
 NOTCH = ("q_n_pa", "dp_n_pa", "q_n_bt", "dp_n_bt")

@@ -16,7 +16,7 @@ from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from hydro_ros.bags import topics
+from hydro_ros.contract import topics
 from hydro_ros.nodes.common import LATCHED_QOS
 from hydro_ros.nodes.hmi import TOKEN_ENV
 from test.browser import chromium_page, require_chromium

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydro_ros.config import ConfigError, load_machine_config
-from hydro_ros.fdi.complementary import ComplementaryFilter
-from hydro_ros.fdi.evaluation import Case, run_case
+from hydro_ros.contract.config import ConfigError, load_machine_config
+from hydro_ros.models.complementary import ComplementaryFilter
+from hydro_ros.studies.fdi_evaluation import Case, run_case
 from test.conftest import REPO
 
 MEMS_CONFIG = REPO / "config" / "sam_mems.yaml"

@@ -8,9 +8,9 @@ import re
 
 import yaml
 
-from hydro_ros.bags import topics
+from hydro_ros.contract import topics
 from hydro_ros.can.codec import MachineBus
-from hydro_ros.config import load_machine_config
+from hydro_ros.contract.config import load_machine_config
 from test.conftest import REPO, SAM_CONFIG
 
 AGGREGATOR = REPO / "config" / "diagnostic_aggregator.yaml"

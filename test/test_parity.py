@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydro_ros.config import load_machine_config, with_overrides
-from hydro_ros.fdi.evaluation import Case, _blocks, run_case
+from hydro_ros.contract.config import load_machine_config, with_overrides
+from hydro_ros.studies.fdi_evaluation import Case, _blocks, run_case
 from hydro_ros.fdi.monitor import FdiMonitor
 from test.conftest import REPO
 

@@ -10,10 +10,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
-from hydro_ros.bags import topics
+from hydro_ros.contract import topics
 from hydro_ros.nodes.common import LATCHED_QOS
 from hydro_ros.planning.catalog import build, plan_units
-from hydro_ros.planning.crane import Crane
+from hydro_ros.models.crane import Crane
 from hydro_ros.planning.database import TrajectoryDatabase
 from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE

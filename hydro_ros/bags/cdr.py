@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import struct
 
+from hydro_ros.contract.errors import InputError
+
 _HEADER = b"\x00\x01\x00\x00"  # CDR_LE encapsulation
 _STAMP = struct.Struct("<iI")
 _U32 = struct.Struct("<I")
 _TWO_F64 = struct.Struct("<dd")
 
 
-class CdrError(ValueError):
+class CdrError(InputError):
     """A message's bytes do not match its declared type."""
 
 

@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from hydro_ros.bags import topics
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract import topics
 from hydro_ros.bags.cdr import CdrError, decode_joint_state
 from hydro_ros.bags.mcap_scan import (
     McapScanner,
@@ -26,7 +27,7 @@ from hydro_ros.bags.mcap_scan import (
 )
 
 
-class BagError(ValueError):
+class BagError(InputError):
     """The bag cannot be read at all (missing, not a bag, no contract topic)."""
 
 

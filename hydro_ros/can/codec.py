@@ -17,7 +17,8 @@ from typing import Any
 
 import cantools
 
-from hydro_ros.config import config_dir
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.config import config_dir
 
 DLC = 8
 COUNTER_MODULO = 16
@@ -44,7 +45,7 @@ def crc8(frame_id: int, payload: bytes) -> int:
     return crc ^ 0xFF
 
 
-class FrameError(ValueError):
+class FrameError(InputError):
     """A frame that must not reach ROS; ``kind`` names the counter it is reported under."""
 
     def __init__(self, kind: str, message: str) -> None:
@@ -81,7 +82,7 @@ class MachineBus:
         try:
             self.db = cantools.database.load_file(str(path))
         except (OSError, cantools.database.UnsupportedDatabaseFormatError) as exc:
-            raise ValueError(f"dbc {path}: cannot load ({exc})") from None
+            raise InputError(f"dbc {path}: cannot load ({exc})") from None
         self.dbc_path = path
         self.slots = []
         for index, (name, actuator) in enumerate(config["actuators"].items(), start=1):
@@ -96,7 +97,7 @@ class MachineBus:
             names += [f"JOINT{slot.number}_STATE", f"CYL{slot.number}_PRESSURE", f"VALVE{slot.number}_STATE"]
         missing = [n for n in names if n not in {m.name for m in self.db.messages}]
         if missing:
-            raise ValueError(f"dbc {path}: no message(s) {', '.join(missing)} for this machine's slots")
+            raise InputError(f"dbc {path}: no message(s) {', '.join(missing)} for this machine's slots")
         self.expected = frozenset(names)
         self.cycle_ms = {name: self.db.get_message_by_name(name).cycle_time or 0 for name in names}
 

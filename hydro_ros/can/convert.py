@@ -15,9 +15,10 @@ from typing import Any, Callable
 import can
 import numpy as np
 
+from hydro_ros.contract.errors import InputError
 from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_values
-from hydro_ros.samples import Samples
+from hydro_ros.contract.samples import Samples
 
 LOG_SUFFIXES = (".log", ".asc", ".blf")
 
@@ -39,12 +40,12 @@ class ConversionReport:
 def convert_log(log: str | Path, config: dict[str, Any], out: str | Path, progress: Callable[[int], None] | None = None) -> ConversionReport:
     log = Path(log)
     if not log.is_file():
-        raise ValueError(f"log {log}: no such file")
+        raise InputError(f"log {log}: no such file")
     if log.suffix.lower() not in LOG_SUFFIXES:
-        raise ValueError(f"log {log}: unsupported format {log.suffix!r}; expected candump .log, .asc or .blf")
+        raise InputError(f"log {log}: unsupported format {log.suffix!r}; expected candump .log, .asc or .blf")
     bus = MachineBus(config)
     if len(bus.slots) != 1:
-        raise ValueError("can convert: only single-actuator machines are written to bags so far")
+        raise InputError("can convert: only single-actuator machines are written to bags so far")
     slot = bus.slots[0]
     assembler = CycleAssembler(bus.expected)
     counters = CounterCheck()
@@ -76,14 +77,14 @@ def convert_log(log: str | Path, config: dict[str, Any], out: str | Path, progre
             keep(assembler.add(name, counter, values, int(round(message.timestamp * 1e9))))
     except (ValueError, OSError, EOFError) as exc:
         if report.frames == 0:
-            raise ValueError(f"log {log}: unreadable ({exc})") from None
+            raise InputError(f"log {log}: unreadable ({exc})") from None
         report.rejected["log_damaged_after"] = report.frames
     keep(assembler.flush())
     report.incomplete_cycles = assembler.incomplete
     report.counter_gaps = dict(counters.gaps)
     report.cycles = len(rows)
     if not rows:
-        raise ValueError(f"log {log}: no complete sensor cycle of machine {config.get('machine')!r} ({dict(report.rejected)})")
+        raise InputError(f"log {log}: no complete sensor cycle of machine {config.get('machine')!r} ({dict(report.rejected)})")
     order = np.argsort(stamps, kind="stable")
 
     def series(key: str, name: str) -> np.ndarray:

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from hydro_ros.names import Fault
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.names import Fault
 
 A_UP, A_DOWN, B_UP, B_DOWN = 8, 4, 2, 1
 
@@ -72,7 +73,7 @@ def signature_rows(entries: list[dict]) -> tuple[PatternRow, ...]:
             rows.append(PatternRow(Fault(entry["fault"]), int(text, 2), entry.get("pa_gt_pb"),
                                    entry.get("large"), entry.get("command_positive")))
         except (KeyError, ValueError) as exc:
-            raise ValueError(f"fdi.parity_signatures: bad entry {entry!r} ({exc})") from None
+            raise InputError(f"fdi.parity_signatures: bad entry {entry!r} ({exc})") from None
     return tuple(rows)
 
 

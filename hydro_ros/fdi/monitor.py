@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from hydro_ros.contract.errors import InputError
 from hydro_ros.fdi.isolation import (
     A_DOWN,
     A_UP,
@@ -30,8 +31,8 @@ from hydro_ros.fdi.parity import ParityGenerator, ParityThresholds
 from hydro_ros.fdi.ukf import PRESSURE_UNIT, UkfBank, UkfSettings
 from hydro_ros.models.kinematics import piston_position, torque_arm
 from hydro_ros.models.sam import MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET, SamModel
-from hydro_ros.names import Fault
-from hydro_ros.samples import Samples
+from hydro_ros.contract.names import Fault
+from hydro_ros.contract.samples import Samples
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3  # diagnostic_msgs/DiagnosticStatus levels
 
@@ -74,17 +75,17 @@ class FdiSettings:
         signatures = signature_rows(section.pop("parity_signatures", None) or [])
         unknown = [name for name in section if name not in cls.__dataclass_fields__]
         if unknown:
-            raise ValueError(f"fdi: unknown key(s) {', '.join(sorted(unknown))}")
+            raise InputError(f"fdi: unknown key(s) {', '.join(sorted(unknown))}")
         settings = cls(ukf=ukf, parity_thresholds=thresholds, parity_signatures=signatures, **section)
         if severe is not None:
             try:
                 settings.severe_faults = tuple(Fault(name) for name in severe)
             except ValueError as exc:
-                raise ValueError(f"fdi.severe_faults: {exc}") from None
+                raise InputError(f"fdi.severe_faults: {exc}") from None
         if settings.method not in ("ukf", "parity"):
-            raise ValueError(f"fdi.method {settings.method!r}: expected ukf or parity")
+            raise InputError(f"fdi.method {settings.method!r}: expected ukf or parity")
         if settings.residual not in ("posterior", "prior"):
-            raise ValueError(f"fdi.residual {settings.residual!r}: expected posterior or prior")
+            raise InputError(f"fdi.residual {settings.residual!r}: expected posterior or prior")
         return settings
 
 
@@ -141,7 +142,7 @@ class FdiMonitor:
         self.settings = FdiSettings.from_config(config)
         self.method = method or self.settings.method
         if self.method not in ("ukf", "parity"):
-            raise ValueError(f"fdi method {self.method!r}: expected ukf or parity")
+            raise InputError(f"fdi method {self.method!r}: expected ukf or parity")
         self.actuators = list(config["actuators"])
         self.joints = [str(config["actuators"][a]["joint"]) for a in self.actuators]
         self.models = [SamModel(config, a) for a in self.actuators]
@@ -150,7 +151,7 @@ class FdiMonitor:
         self.bank = UkfBank(self.models, self.settings.ukf) if self.method == "ukf" else None
         self.parity = ParityGenerator(self.models) if self.method == "parity" else None
         if self.parity is not None and self.settings.parity_thresholds is None:
-            raise ValueError("fdi method parity: the config has no fdi.parity_thresholds (fit them with hydro-ros fdi-fit --write)")
+            raise InputError("fdi method parity: the config has no fdi.parity_thresholds (fit them with hydro-ros fdi-fit --write)")
         table = UKF_TABLE if self.method == "ukf" else self.settings.parity_signatures
         n = len(self.actuators)
         self._residual_mean = MovingAverage(self.window, 2 * n)
@@ -205,7 +206,7 @@ class FdiMonitor:
         operating_point = None
         if self.parity is not None:
             if not block.mobile:
-                raise ValueError("fdi method parity: no pilot/compensator pressures in the samples")
+                raise InputError("fdi method parity: no pilot/compensator pressures in the samples")
             mobile = np.stack([np.broadcast_to(np.asarray(getattr(block, name), dtype=float).reshape(n, -1), (n, n_act))
                                for name in ("pilot_pressure_1", "pilot_pressure_2", "compensator_pressure")], axis=2)
         valid = np.all(np.isfinite(raw), axis=2) & (np.all(np.isfinite(mobile), axis=2) if mobile is not None else True)

@@ -8,11 +8,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hydro_ros.bags import topics
+from hydro_ros.contract import topics
 from hydro_ros.bags.reader import BagData, BagError, read_bag
 from hydro_ros.fdi.isolation import Alarm
 from hydro_ros.fdi.monitor import BlockResult, FdiMonitor
-from hydro_ros.samples import Samples
+from hydro_ros.contract.samples import Samples
 
 BLOCK = 5000  # samples per call of the monitor: long enough to amortise, short enough for progress
 

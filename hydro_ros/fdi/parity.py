@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from hydro_ros.contract.errors import InputError
 from hydro_ros.models.chamber import effective_bulk_modulus
 from hydro_ros.models.sam import (
     AREA_A,
@@ -86,7 +87,7 @@ class ParityGenerator:
     def __init__(self, models: list[SamModel]) -> None:
         missing = [m.actuator for m in models if not m.mobile_valve]
         if missing:
-            raise ValueError(
+            raise InputError(
                 f"fdi method parity: actuator(s) {', '.join(missing)} have proportional valves without pilot "
                 "pressures; the parity method needs a mobile-valve machine (valve.type: mobile) - use --method ukf"
             )
@@ -114,7 +115,7 @@ class ParityGenerator:
 class ParityThresholds:
     """Threshold per chamber as a function of the 5 s mean opening: |mu_bin| + c sigma_bin [L/min].
 
-    Fitted on fault-free data (:func:`hydro_ros.fdi.evaluation.fit_parity_thresholds`), ``c`` set
+    Fitted on fault-free data (:func:`hydro_ros.studies.fdi_evaluation.fit_parity_thresholds`), ``c`` set
     for a target false-alarm rate on held-out fault-free data.
     """
 
@@ -131,7 +132,7 @@ class ParityThresholds:
             return cls(tuple(float(v) for v in section["edges"]), tuple(tuple(map(float, m)) for m in section["mean"]),
                        tuple(tuple(map(float, s)) for s in section["std"]), float(section["factor"]))
         except (KeyError, TypeError, ValueError) as exc:
-            raise ValueError(f"fdi.parity_thresholds: malformed ({exc})") from None
+            raise InputError(f"fdi.parity_thresholds: malformed ({exc})") from None
 
     def to_config(self) -> dict[str, Any]:
         return {"edges": list(self.edges), "mean": [list(m) for m in self.mean], "std": [list(s) for s in self.std],

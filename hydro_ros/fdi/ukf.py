@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from hydro_ros.contract.errors import InputError
 from hydro_ros.models.chamber import effective_bulk_modulus
 from hydro_ros.models.sam import (
     AREA_A,
@@ -236,7 +237,7 @@ class UkfSettings:
         section = dict(section or {})
         known = {name: section.pop(name) for name in list(section) if name in cls.__dataclass_fields__}
         if section:
-            raise ValueError(f"fdi.ukf: unknown key(s) {', '.join(sorted(section))}")
+            raise InputError(f"fdi.ukf: unknown key(s) {', '.join(sorted(section))}")
         for name in ("initial_state", "initial_covariance", "process_noise", "measurement_noise"):
             if name in known:
                 known[name] = tuple(float(v) for v in known[name])

@@ -18,7 +18,7 @@ from collections import deque
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable
 
-from hydro_ros.bags.topics import FDI_STATUS_PREFIX
+from hydro_ros.contract.topics import FDI_STATUS_PREFIX
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 HEALTHY_MESSAGES = ("ok", "stale")  # fdi_node's messages that name no fault

@@ -27,6 +27,7 @@ from typing import Any, Sequence
 import numpy as np
 from numba import njit
 
+from hydro_ros.contract.errors import InputError
 from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient, leak_flow
 from hydro_ros.models.friction import bristle_rate, friction_force, stribeck_curve
 from hydro_ros.models.kinematics import (
@@ -42,7 +43,7 @@ from hydro_ros.models.valve import (
     spool_acceleration,
     spool_opening,
 )
-from hydro_ros.names import Injection
+from hydro_ros.contract.names import Injection
 
 STATE_NAMES = ("p_a", "p_b", "spool", "spool_rate", "piston", "piston_velocity", "bristle")
 N_STATES = len(STATE_NAMES)
@@ -285,7 +286,7 @@ class SamModel:
         try:
             act = cfg["actuators"][self.actuator]
         except KeyError:
-            raise ValueError(f"config has no actuator {self.actuator!r}") from None
+            raise InputError(f"config has no actuator {self.actuator!r}") from None
         cyl, mount, valve = act["cylinder"], act["mount"], act["valve"]
         fluid, fric, load = act["fluid"], act["friction"], act["load"]
         sim = cfg.get("simulation", {})
@@ -327,7 +328,7 @@ class SamModel:
         p[GRAVITY] = sim.get("gravity", 9.81)
         valve_type = valve.get("type", "proportional")
         if valve_type not in ("proportional", "mobile"):
-            raise ValueError(f"actuator {self.actuator!r}: valve.type {valve_type!r}, expected proportional or mobile")
+            raise InputError(f"actuator {self.actuator!r}: valve.type {valve_type!r}, expected proportional or mobile")
         if valve_type == "mobile":
             p[VALVE_MOBILE] = 1.0
             p[COMP_DROP] = valve["compensator_pressure_drop"]
@@ -363,9 +364,9 @@ class SamModel:
             level = injection_levels(injection, times)
             _apply(params, injection.name, level, self.sample_rate)
         if np.any(params[:, DELAY_SAMPLES] >= DELAY_BUFFER):
-            raise ValueError(f"valve_delay exceeds {DELAY_BUFFER / self.sample_rate:.2f} s")
+            raise InputError(f"valve_delay exceeds {DELAY_BUFFER / self.sample_rate:.2f} s")
         if np.any(params[:, DEADZONE] >= 1.0):
-            raise ValueError("valve_deadzone must be < 1 (fraction of spool travel)")
+            raise InputError("valve_deadzone must be < 1 (fraction of spool travel)")
         return params
 
     def joint_from_piston(self, x: np.ndarray | float) -> np.ndarray:
@@ -498,7 +499,7 @@ class SamPlant:
         if inputs.shape != (n,):
             raise ValueError(f"expected {n} inputs, got shape {inputs.shape}")
         if not np.all(np.isfinite(inputs)):
-            raise ValueError("valve commands or references contain NaN or inf")
+            raise InputError("valve commands or references contain NaN or inf")
         states = np.empty((n, N_STATES))
         applied = np.empty(n)
         self._delay_position = _integrate_samples(
@@ -519,6 +520,6 @@ class SamPlant:
             applied,
         )
         if not np.all(np.isfinite(self.state)):
-            raise FloatingPointError(f"SAM model diverged before t = {times[-1]:.3f} s (state {self.state})")
+            raise SimulationDiverged(f"SAM model diverged before t = {times[-1]:.3f} s (state {self.state})")
         self.sample_index += n
         return times, states, applied

@@ -18,7 +18,8 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 
-from hydro_ros.bags import topics
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract import topics
 from hydro_ros.bags.reader import mcap_file
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, message_class, run_node
 
@@ -36,7 +37,7 @@ class BagPlayer(Node):
         self.path = Path(self.get_parameter("bag").value)
         self.rate = float(self.get_parameter("rate").value)
         if not (self.rate > 0 and math.isfinite(self.rate)):
-            raise ValueError(f"parameter rate={self.rate}: must be > 0")
+            raise InputError(f"parameter rate={self.rate}: must be > 0")
         self.loop = bool(self.get_parameter("loop").value)
         self.file = mcap_file(self.path)
         self.publishers_by_topic: dict[str, object] = {}

@@ -11,6 +11,8 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from hydro_ros.contract.errors import InputError
+
 # 1 kHz sensor streams: reliable with a deep queue so a bag replay loses nothing.
 SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 # State that late joiners must see (halt, catalog, results).
@@ -38,7 +40,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None
     try:
         try:
             node = factory()
-        except ValueError as exc:  # bad parameter or config (ConfigError is one): one line, no traceback
+        except InputError as exc:  # bad parameter or config (ConfigError is one): one line, no traceback
             print(f"{getattr(factory, '__name__', 'node')}: error: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
         rclpy.spin(node)

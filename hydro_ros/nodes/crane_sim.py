@@ -1,5 +1,5 @@
 """plant_sim's crane mode: a crane config (``kind: crane``) runs the closed-loop crane of
-``hydro_ros.planning.execution`` (plant + P-VI Appendix A controller) in scaled real time.
+``hydro_ros.studies.execution`` (plant + P-VI Appendix A controller) in scaled real time.
 
 The crane starts at rest with its tip at the start of ``initial_path`` (extension
 ``initial_extension``, or the smallest feasible one when negative). A JointTrajectory on
@@ -27,11 +27,12 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
-from hydro_ros.bags import topics
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract import topics
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative
-from hydro_ros.planning.crane import Crane
+from hydro_ros.models.crane import Crane
 from hydro_ros.planning.dp import DpGrid, start_position
-from hydro_ros.planning.execution import ClosedLoop, execution_from_rows, log_row, measures
+from hydro_ros.studies.execution import ClosedLoop, execution_from_rows, log_row, measures
 from hydro_ros.planning.paths import path_from_config
 from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import JointTrajectoryData
@@ -53,7 +54,7 @@ class CraneRunner:
         self.start_tolerance = float(node.declare_parameter("start_tolerance", 0.02).value)
         publish_rate = float(node.declare_parameter("publish_rate", 50.0).value)
         if initial_path not in config["paths"]:
-            raise ValueError(f"parameter initial_path={initial_path!r}: not a path of {config['machine']} ({', '.join(config['paths'])})")
+            raise InputError(f"parameter initial_path={initial_path!r}: not a path of {config['machine']} ({', '.join(config['paths'])})")
         if initial_extension < 0.0:
             samples = path_from_config(config, initial_path).sample(float(config["dp"]["sample_time"]))
             initial_extension = start_position(self.crane, samples, DpGrid.for_path(self.crane, samples, tuple(config["dp"]["grid"])))
@@ -87,7 +88,7 @@ class CraneRunner:
     def _on_trajectory(self, msg: JointTrajectory) -> None:
         try:
             trajectory = self._trajectory_data(msg)
-        except ValueError as exc:
+        except InputError as exc:
             self._report({"ok": False, "error": str(exc)})
             return
         self.loop.follow(trajectory)
@@ -99,17 +100,17 @@ class CraneRunner:
     def _trajectory_data(self, msg: JointTrajectory) -> JointTrajectoryData:
         missing = [name for name in self.names if name not in msg.joint_names]
         if missing or not msg.points:
-            raise ValueError(f"trajectory: joint(s) {', '.join(missing) or '-'} missing or no points")
+            raise InputError(f"trajectory: joint(s) {', '.join(missing) or '-'} missing or no points")
         order = [list(msg.joint_names).index(name) for name in self.names]
         time_s = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points])
         positions = np.array([[p.positions[i] for i in order] for p in msg.points], dtype=float)
         velocities = np.array([[p.velocities[i] if p.velocities else 0.0 for i in order] for p in msg.points], dtype=float)
         if not (np.isfinite(positions).all() and np.isfinite(velocities).all()) or np.any(np.diff(time_s) <= 0):
-            raise ValueError("trajectory: non-finite values or times not increasing")
+            raise InputError("trajectory: non-finite values or times not increasing")
         current = np.array(self.loop.plant.joint_motion().q)
         gap = float(np.abs(positions[0] - current).max())
         if gap > self.start_tolerance:
-            raise ValueError(f"trajectory: starts {gap:.3f} rad/m from the current joints (tolerance {self.start_tolerance}); refused")
+            raise InputError(f"trajectory: starts {gap:.3f} rad/m from the current joints (tolerance {self.start_tolerance}); refused")
         return JointTrajectoryData(self.names, time_s, positions, velocities, np.zeros_like(positions), np.zeros(len(time_s)))
 
     def _report(self, result: dict[str, Any]) -> None:

@@ -29,11 +29,11 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from hydro_ros.bags import topics
+from hydro_ros.contract import topics
 from hydro_ros.bags.cdr import CdrError, decode_fluid_pressure, decode_joint_state
-from hydro_ros.config import default_config_path, load_machine_config
+from hydro_ros.contract.config import default_config_path, load_machine_config
 from hydro_ros.fdi.monitor import STALE, FdiMonitor
-from hydro_ros.samples import PER_ACTUATOR, Samples
+from hydro_ros.contract.samples import PER_ACTUATOR, Samples
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, run_node
 from hydro_ros.sim.scenario import Scenario, run_blocks
 

@@ -29,9 +29,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 
-from hydro_ros.bags import topics
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract import topics
 from hydro_ros.bags.cdr import CdrError, decode_joint_state
-from hydro_ros.config import default_config_path, read_config
+from hydro_ros.contract.config import default_config_path, read_config
 from hydro_ros.hmi.server import create_app
 from hydro_ros.hmi.state import HmiState, StatusReport
 from hydro_ros.nodes.common import LATCHED_QOS, run_node
@@ -54,7 +55,7 @@ class WebServerThread:
         except OSError as exc:
             self.loop.run_until_complete(self.runner.cleanup())
             self.loop.close()
-            raise ValueError(f"parameters host={host!r} port={port}: cannot listen ({exc.strerror or exc})") from None
+            raise InputError(f"parameters host={host!r} port={port}: cannot listen ({exc.strerror or exc})") from None
         self.port = int(self.runner.addresses[0][1])
         self.thread = threading.Thread(target=self.loop.run_forever, name="hmi-http", daemon=True)
         self.thread.start()
@@ -88,9 +89,9 @@ class HmiNode(Node):
         server = str(self.declare_parameter("trajectory_server", "/trajectory_server").value).rstrip("/")
         for name, value in (("update_rate", update_rate), ("plot_rate", plot_rate), ("action_timeout", self.action_timeout)):
             if not value > 0:
-                raise ValueError(f"parameter {name}={value}: must be > 0")
+                raise InputError(f"parameter {name}={value}: must be > 0")
         if not 0 <= port <= 65535:
-            raise ValueError(f"parameter port={port}: not a TCP port")
+            raise InputError(f"parameter port={port}: not a TCP port")
 
         self.state = HmiState(plot_window_s=plot_window, plot_period_s=1.0 / plot_rate, stale_timeout_s=stale_timeout)
         self.state.expect(str(config["machine"]), list(config.get("actuators") or {}))

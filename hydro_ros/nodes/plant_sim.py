@@ -24,10 +24,11 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import FluidPressure, JointState
 
-from hydro_ros.bags import topics
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract import topics
 from hydro_ros.bags.writer import sample_payloads, sample_topics
-from hydro_ros.config import default_config_path, load_machine_config, read_config
-from hydro_ros.names import INJECTABLE, Injection
+from hydro_ros.contract.config import default_config_path, load_machine_config, read_config
+from hydro_ros.contract.names import INJECTABLE, Injection
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, run_node
 from hydro_ros.sim.scenario import Scenario, start
 
@@ -49,7 +50,7 @@ class PlantSim(Node):
         self.can_bus = None
         self.rtf = float(self.get_parameter("real_time_factor").value)
         if not (self.rtf > 0.0 and math.isfinite(self.rtf)):
-            raise ValueError(f"parameter real_time_factor={self.rtf}: must be > 0")
+            raise InputError(f"parameter real_time_factor={self.rtf}: must be > 0")
         config_path = str(self.get_parameter("config").value)
         if read_config(config_path, required=("machine",), nonempty="machine").get("kind") == "crane":
             self._start_crane(config_path)
@@ -61,7 +62,7 @@ class PlantSim(Node):
         self.joint = self.config["actuators"][self.actuator]["joint"]
         self.excitation = self.get_parameter("excitation").value
         if self.excitation not in ("operator", "topic"):
-            raise ValueError(f"parameter excitation={self.excitation!r}: expected 'operator' or 'topic'")
+            raise InputError(f"parameter excitation={self.excitation!r}: expected 'operator' or 'topic'")
         self.publish_clock = bool(self.get_parameter("publish_clock").value)
         self.run = start(self.config, Scenario(float("inf"), (), seed=int(self.get_parameter("seed").value), actuator=self.actuator))
         self.variance = float(self.config["sensors"]["pressure_noise_std"]) ** 2
@@ -107,7 +108,7 @@ class PlantSim(Node):
 
     def _start_crane(self, config_path: str) -> None:
         from hydro_ros.nodes.crane_sim import CraneRunner
-        from hydro_ros.planning.crane import load_crane
+        from hydro_ros.models.crane import load_crane
 
         _, config = load_crane(config_path)
         self.crane = CraneRunner(

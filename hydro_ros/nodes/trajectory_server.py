@@ -28,9 +28,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from hydro_ros.bags import topics
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract import topics
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
-from hydro_ros.planning.compare import METHODS
+from hydro_ros.planning.problem import METHODS
 from hydro_ros.planning.database import DatabaseError, JointTrajectoryData, TrajectoryDatabase
 from hydro_ros.planning.serving import JointStateSample, Served, ServeError, TrajectoryService
 
@@ -48,9 +49,9 @@ class TrajectoryServer(Node):
         self.tip_tolerance = float(self.declare_parameter("tip_tolerance", 0.05).value)
         poll_period = float(self.declare_parameter("poll_period", 1.0).value)
         if not self.database_path:
-            raise ValueError("parameter database: not set (path of the SQLite file hydro-ros db build writes)")
+            raise InputError("parameter database: not set (path of the SQLite file hydro-ros db build writes)")
         if self.default_method not in METHODS:
-            raise ValueError(f"parameter method {self.default_method!r}: unknown (known: {', '.join(METHODS)})")
+            raise InputError(f"parameter method {self.default_method!r}: unknown (known: {', '.join(METHODS)})")
         self.machine = self._machine_of_config()
 
         self.catalog_pub = self.create_publisher(String, "~/catalog", LATCHED_QOS)
@@ -71,7 +72,7 @@ class TrajectoryServer(Node):
     def _machine_of_config(self) -> str | None:
         if not self.config_path:
             return None
-        from hydro_ros.planning.crane import load_crane
+        from hydro_ros.models.crane import load_crane
 
         _, config = load_crane(self.config_path)
         return str(config["machine"])

@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
-from hydro_ros.planning.crane import Crane
+from hydro_ros.contract.errors import InputError
+from hydro_ros.models.crane import Crane
 from hydro_ros.planning.paths import PathSamples, TipPath
 from hydro_ros.planning.trajectory import ExtensionTrajectory
 
@@ -62,7 +63,7 @@ def pseudo_inverse(
 ) -> tuple[ExtensionTrajectory, dict[str, Any]]:
     """SNS pseudo-inverse run along the path from rest at ``start_position`` (extension stroke)."""
     if space not in ("actuator", "joint"):
-        raise ValueError(f"pseudo-inverse space {space!r} (actuator or joint)")
+        raise InputError(f"pseudo-inverse space {space!r} (actuator or joint)")
     ts = float(samples.time[1] - samples.time[0])
     n = samples.stages
     position = np.empty(n + 1)

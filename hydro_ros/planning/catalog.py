@@ -19,10 +19,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hydro_ros.planning.compare import METHODS, Problem, method_record, run_method
-from hydro_ros.planning.crane import Crane
+from hydro_ros.contract.errors import InputError
+from hydro_ros.planning.problem import METHODS, Problem, method_record, run_method
+from hydro_ros.models.crane import Crane
 from hydro_ros.planning.database import TrajectoryDatabase, inputs_hash, pack_arrays
-from hydro_ros.planning.errors import BuildError
+from hydro_ros.contract.errors import BuildError
 from hydro_ros.planning.trajectory import joint_trajectory
 
 # what a catalog holds unless the config's `catalog.methods` says otherwise: the served optimum for
@@ -53,12 +54,12 @@ def plan_units(config: dict[str, Any], *, methods: tuple[str, ...] | None = None
     methods = tuple(methods or settings.get("methods") or DEFAULT_METHODS)
     unknown = [method for method in methods if method not in METHODS]
     if unknown:
-        raise ValueError(f"method(s) {', '.join(unknown)}: unknown (known: {', '.join(METHODS)})")
+        raise InputError(f"method(s) {', '.join(unknown)}: unknown (known: {', '.join(METHODS)})")
     grid = tuple(int(n) for n in (grid or settings.get("grid") or config["dp"]["grid"]))
     path_ids = tuple(paths or config["paths"])
     missing = [path_id for path_id in path_ids if path_id not in config["paths"]]
     if missing:
-        raise ValueError(f"path(s) {', '.join(missing)}: not in config {config.get('_path', config['machine'])}")
+        raise InputError(f"path(s) {', '.join(missing)}: not in config {config.get('_path', config['machine'])}")
     portable = {key: value for key, value in config.items() if not key.startswith("_")}
     return [WorkUnit(portable, path_id, method, grid) for path_id in path_ids for method in methods]
 
@@ -145,7 +146,7 @@ def build(
                 unit = futures[future]
                 try:
                     entry = future.result()
-                except Exception as exc:  # noqa: BLE001 - one failed unit names itself; committed ones stay
+                except InputError as exc:  # one unit refused by its input names itself; committed ones stay
                     raise BuildError(f"{unit.path_id}/{unit.method}: {type(exc).__name__}: {exc}") from exc
                 db.put_solution(entry)
                 computed.append(unit.key)
@@ -161,7 +162,7 @@ def _executor(stack: ExitStack, scheduler: str | None, workers: int | None, n_un
         try:
             client = stack.enter_context(Client(scheduler, timeout="10s"))
         except (OSError, TimeoutError) as exc:
-            raise ConnectionError(f"--scheduler {scheduler}: no Dask scheduler answers ({exc})") from None
+            raise InputError(f"--scheduler {scheduler}: no Dask scheduler answers ({exc})") from None
         return stack.enter_context(client.get_executor()), f"Dask scheduler {scheduler}"
     count = workers if workers is not None else (os.cpu_count() or 1)
     if count <= 1 or n_units <= 1:

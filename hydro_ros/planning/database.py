@@ -21,7 +21,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from hydro_ros.planning.errors import DatabaseError
+from hydro_ros.contract.errors import DatabaseError
 from hydro_ros.planning.trajectory import JointTrajectoryData
 
 SCHEMA_VERSION = 2  # 2: DP position nodes span each stage's feasible window (dp.DpGrid)

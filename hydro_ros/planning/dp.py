@@ -32,8 +32,10 @@ import numpy as np
 from numba import njit, prange
 from tqdm import tqdm
 
-from hydro_ros.planning.costs import Cost, cylinder_table, driven_pressure, stage_power, total_pump_flow
-from hydro_ros.planning.crane import Crane
+from hydro_ros.contract.errors import InputError
+from hydro_ros.models.crane_hydraulics import cylinder_table, driven_pressure, total_pump_flow
+from hydro_ros.planning.costs import Cost, stage_power
+from hydro_ros.models.crane import Crane
 from hydro_ros.planning.paths import PathSamples
 from hydro_ros.planning.trajectory import ExtensionTrajectory
 
@@ -44,7 +46,7 @@ SNAP = 1e-9  # interpolation weights closer than this to 0 or 1 are rounding noi
 EDGE_SLACK = 0.999  # velocity cells' step a next position may fall past a window end (_bellman_step)
 
 
-class InfeasibleStart(ValueError):
+class InfeasibleStart(InputError):
     """No admissible trajectory from the requested start state."""
 
 
@@ -68,7 +70,7 @@ class DpGrid:
     def for_path(cls, crane: Crane, samples: PathSamples, sizes: tuple[int, int, int]) -> DpGrid:
         n_c, n_v, n_u = (int(size) for size in sizes)
         if min(n_c, n_v, n_u) < 3:
-            raise ValueError(f"DP grid {sizes}: at least 3 points per axis")
+            raise InputError(f"DP grid {sizes}: at least 3 points per axis")
         ext = crane.extension
         windows = extension_windows(crane, samples)
         return cls(
@@ -514,4 +516,4 @@ def start_position(crane: Crane, samples: PathSamples, grid: DpGrid, which: str 
     if which == "middle":
         middle = 0.5 * (feasible[0] + feasible[-1])
         return float(nodes[np.argmin(np.abs(nodes - middle))])
-    raise ValueError(f"start {which!r} (smallest or middle)")
+    raise InputError(f"start {which!r} (smallest or middle)")

@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from hydro_ros.config import ConfigError
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.config import ConfigError
 
 
 @dataclass(frozen=True)
@@ -39,7 +40,7 @@ class _Segment:
         self.kind = str(spec.get("type", "quintic"))
         self.duration = float(spec["duration"])
         if self.duration <= 0.0:
-            raise ValueError("segment duration must be positive")
+            raise InputError("segment duration must be positive")
         self.start = start
         self.end = np.asarray(spec["to"], dtype=float)
         if self.kind == "quintic":
@@ -50,7 +51,7 @@ class _Segment:
             knots = np.concatenate([[0.0], np.cumsum(chords)]) / chords.sum() * self.duration
             self._spline = CubicSpline(knots, points, bc_type="clamped", axis=0)
         else:
-            raise ValueError(f"segment type {self.kind!r} (quintic or spline)")
+            raise InputError(f"segment type {self.kind!r} (quintic or spline)")
 
     def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         t = np.clip(t, 0.0, self.duration)
@@ -73,12 +74,12 @@ class TipPath:
         try:
             point = np.asarray(spec["start"], dtype=float)
             if point.shape != (3,):
-                raise ValueError("start must be [x, y, z]")
+                raise InputError("start must be [x, y, z]")
             self.segments: list[_Segment] = []
             for segment_spec in spec["segments"]:
                 segment = _Segment(point, segment_spec)
                 if segment.end.shape != (3,):
-                    raise ValueError("segment 'to' must be [x, y, z]")
+                    raise InputError("segment 'to' must be [x, y, z]")
                 self.segments.append(segment)
                 point = segment.end
         except (KeyError, TypeError, ValueError) as exc:

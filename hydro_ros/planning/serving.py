@@ -18,9 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from hydro_ros.planning.compare import METHODS, Problem, method_record, run_method
+from hydro_ros.contract.errors import InputError
+from hydro_ros.planning.problem import METHODS, Problem, method_record, run_method
 from hydro_ros.planning.costs import Cost
-from hydro_ros.planning.crane import Crane
+from hydro_ros.models.crane import Crane
 from hydro_ros.planning.database import StoredSolution, TrajectoryDatabase
 from hydro_ros.planning.dp import DpSolution, InfeasibleStart
 from hydro_ros.planning.paths import path_from_config
@@ -30,7 +31,7 @@ from hydro_ros.planning.trajectory import JointTrajectoryData, evaluate, joint_t
 SAME_START_TOLERANCE = 1e-3
 
 
-class ServeError(ValueError):
+class ServeError(InputError):
     """A request that cannot be served; the message is the one-line error result."""
 
 

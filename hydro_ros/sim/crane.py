@@ -24,8 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from hydro_ros.planning.costs import pump_flow
-from hydro_ros.planning.crane import Crane, Motion
+from hydro_ros.contract.errors import InputError
+from hydro_ros.models.crane_hydraulics import pump_flow
+from hydro_ros.models.crane import Crane, Motion
 
 PLANT_DEFAULTS = {
     "valve_dead_zone": 0.53,
@@ -74,7 +75,7 @@ class CranePlant:
 
     def __init__(self, config: dict[str, Any], supply: str, start: np.ndarray, *, seed: int = 0) -> None:
         if supply not in SUPPLIES:
-            raise ValueError(f"supply {supply!r}: cp or ls")
+            raise InputError(f"supply {supply!r}: cp or ls")
         self.settings = settings = plant_settings(config)
         self.supply = supply
         self.crane = Crane(_with_payload(config, settings["payload"]))

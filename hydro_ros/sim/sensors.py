@@ -16,10 +16,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from hydro_ros.fdi.complementary import ComplementaryFilter
+from hydro_ros.contract.errors import InputError
+from hydro_ros.models.complementary import ComplementaryFilter
 from hydro_ros.models.sam import COMP_DROP, PILOT_MAX, SamModel, compensator_pressures, injection_levels
-from hydro_ros.samples import Samples
-from hydro_ros.names import Injection
+from hydro_ros.contract.samples import Samples
+from hydro_ros.contract.names import Injection
 
 
 class SensorModel:
@@ -40,7 +41,7 @@ class SensorModel:
         self._velocity = 0.0
         self.motion_sensor = str(sensors.get("motion_sensor", "encoder"))
         if self.motion_sensor not in ("encoder", "mems"):
-            raise ValueError(f"sensors.motion_sensor {self.motion_sensor!r}: expected encoder or mems")
+            raise InputError(f"sensors.motion_sensor {self.motion_sensor!r}: expected encoder or mems")
         if self.motion_sensor == "mems":
             mems = sensors["mems"]
             self.mems = {key: float(value) for key, value in mems.items()}

@@ -16,11 +16,11 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from hydro_ros.config import with_overrides
+from hydro_ros.contract.config import with_overrides
 from hydro_ros.fdi.monitor import FdiMonitor
-from hydro_ros.samples import Samples
+from hydro_ros.contract.samples import Samples
 from hydro_ros.models.valve import NOTCHES
-from hydro_ros.names import Injection
+from hydro_ros.contract.names import Injection
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
 # Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order

@@ -8,6 +8,8 @@ from typing import Any
 
 import yaml
 
+from hydro_ros.contract.errors import InputError
+
 _REQUIRED_SAM_KEYS = (
     "machine",
     "sample_rate_hz",
@@ -18,7 +20,7 @@ _REQUIRED_SAM_KEYS = (
 )
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """A machine config is missing, unreadable or inconsistent."""
 
 

@@ -132,10 +132,11 @@ def plot_gsa(results: dict, out: str | Path) -> Path:
     return out
 
 
-def plot_discrepancy(rec, config: dict, before, after, effects: dict, out: str | Path) -> Path:
-    """Validation data: measured vs simulated p_A, p_B and position, before and after the named effects."""
-    from hydro_ros.discrepancy import SCALES
+def plot_discrepancy(rec, config: dict, before, after, effects: dict, out: str | Path, *, scales: np.ndarray) -> Path:
+    """Validation data: measured vs simulated p_A, p_B and position, before and after the named effects.
 
+    ``before`` and ``after`` are normalised errors: measured - simulated = error * scales.
+    """
     out = Path(out)
     t = rec.times
     labels = ("p_A [MPa]", "p_B [MPa]", "piston [mm]")
@@ -154,8 +155,8 @@ def plot_discrepancy(rec, config: dict, before, after, effects: dict, out: str |
             model = SamModel(config)
             measured_scaled = np.array([model.piston_from_joint(j) for j in rec.joint]) / units[i]
         ax.plot(t, measured_scaled, color="k", lw=0.6, label="measured")
-        ax.plot(t, measured_scaled - before[:, i] * SCALES[i] / units[i], lw=0.6, label="model before")
-        ax.plot(t, measured_scaled - after[:, i] * SCALES[i] / units[i], lw=0.6, label=f"model after ({named})")
+        ax.plot(t, measured_scaled - before[:, i] * scales[i] / units[i], lw=0.6, label="model before")
+        ax.plot(t, measured_scaled - after[:, i] * scales[i] / units[i], lw=0.6, label=f"model after ({named})")
         ax.set_ylabel(labels[i])
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7, loc="upper right")

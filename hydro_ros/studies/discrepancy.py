@@ -37,8 +37,10 @@ import yaml
 from numba import njit
 from scipy.optimize import minimize, minimize_scalar
 
+from hydro_ros.contract.errors import InputError
+from hydro_ros.studies.plots import plot_discrepancy
 from hydro_ros.bags.reader import BagData
-from hydro_ros.config import with_overrides
+from hydro_ros.contract.config import with_overrides
 from hydro_ros.models.kinematics import piston_position, torque_arm
 from hydro_ros.fdi.parity import flow_balance
 from hydro_ros.models.sam import (
@@ -55,7 +57,7 @@ from hydro_ros.models.sam import (
     SamPlant,
 )
 from hydro_ros.models.valve import spool_acceleration, spool_opening
-from hydro_ros.names import Effect
+from hydro_ros.contract.names import Effect
 
 SEGMENT_S = 2.0
 FORCE_SAMPLES = 10  # each side of a segment start: the pressures that estimate the friction state
@@ -118,12 +120,12 @@ class Recording:
         for label, source, key in (("joint", data.joint_position, joint), ("pressure_a", data.pressure_a, actuator),
                                    ("pressure_b", data.pressure_b, actuator), ("valve command", data.valve_command, actuator)):
             if key not in source:
-                raise ValueError(f"bag {data.path}: no {label} for {key!r}")
+                raise InputError(f"bag {data.path}: no {label} for {key!r}")
         signals = (data.joint_position[joint], data.joint_velocity[joint], data.pressure_a[actuator], data.pressure_b[actuator],
                    data.valve_command[actuator])
         good = np.all(np.isfinite(np.stack(signals)), axis=0)
         if good.sum() < 0.9 * len(good):
-            raise ValueError(f"bag {data.path}: {np.count_nonzero(~good)} of {len(good)} samples incomplete")
+            raise InputError(f"bag {data.path}: {np.count_nonzero(~good)} of {len(good)} samples incomplete")
         return cls(data.times[good], *(signal[good] for signal in signals))
 
 
@@ -402,9 +404,7 @@ def run(data: BagData, config: dict[str, Any], out: Path, progress: Callable[[in
     out.mkdir(parents=True, exist_ok=True)
     (out / "model.yaml").write_text("# model of hydro-ros discrepancy: calibrated flow gain and bulk modulus, named effects\n"
                                     + yaml.safe_dump(model, sort_keys=False))
-    from hydro_ros.plots import plot_discrepancy
-
-    plot = plot_discrepancy(validation, config, before_validation, after_validation, named, out / "validation.png")
+    plot = plot_discrepancy(validation, config, before_validation, after_validation, named, out / "validation.png", scales=SCALES)
     return {
         "effects": [{"name": name, "parameters": {"value": value}} for name, value in named.items()],
         "gap": {"metric": "rms of the 0.1 s mean error of 2 s segment simulations; p_A, p_B per 0.1 MPa, position per 1 mm",

@@ -1,22 +1,24 @@
-"""`hydro-ros dp solve` / `dp compare`: one path, one or all methods, scored by one evaluation.
+"""A planning problem (crane, path, DP grid, start) and the methods that solve it, by name.
 
 Every method starts from rest at the same extension (the smallest feasible one, P-V / P-VI's first
 initial configuration, or P-VI's midpoint), runs the same path samples, and is scored by
 ``trajectory.evaluate`` (CP and LS energy, limits, tip error). DP references are low-pass filtered
-at 5 Hz before scoring, as P-V computed its costs after filtering.
+at 5 Hz before scoring, as P-V computed its costs after filtering. Serving, the catalog build and
+``dp compare`` all plan through :func:`run_method`.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
+from hydro_ros.contract.errors import InputError
+from hydro_ros.models.crane import Crane
 from hydro_ros.planning.baselines import direct_collocation, pseudo_inverse
 from hydro_ros.planning.costs import Cost
-from hydro_ros.planning.crane import Crane
 from hydro_ros.planning.dp import DpGrid, DpSolution, solve, start_position
 from hydro_ros.planning.paths import PathSamples, TipPath, path_from_config
 from hydro_ros.planning.trajectory import ExtensionTrajectory, evaluate
@@ -35,7 +37,8 @@ METHODS: dict[str, tuple[Cost | None, tuple[str, ...]]] = {
     "dp_velocity": (Cost.VELOCITY, ALL_LIMITS),  # P-V "DP (Act. velocity)"
     "pinv_actuator_weighted": (None, ("position", "velocity")),  # P-V "Act. p-inv. (Weighted)"
 }
-CONTRACT_METHODS = tuple(list(METHODS)[:7])
+# the method names of contract section 5, named rather than read off the dict order
+CONTRACT_METHODS = ("dp_cp", "dp_ls", "dp_actuator_energy", "dp_extension", "pinv_actuator", "pinv_joint", "direct_cp")
 
 
 @dataclass
@@ -103,7 +106,7 @@ def _plan_other(problem: Problem, method: str, seed: ExtensionTrajectory | None)
 
 def run_method(problem: Problem, method: str, *, progress: bool = False, seed: ExtensionTrajectory | None = None) -> Plan:
     if method not in METHODS:
-        raise ValueError(f"method {method!r}: unknown (known: {', '.join(METHODS)})")
+        raise InputError(f"method {method!r}: unknown (known: {', '.join(METHODS)})")
     cost, _ = METHODS[method]
     if cost is not None:
         plan = plan_dp(problem, cost, progress=progress)
@@ -131,49 +134,3 @@ def method_record(plan: Plan) -> dict[str, Any]:
     if plan.info:
         record["info"] = plan.info
     return record
-
-
-def compare(
-    problem: Problem,
-    methods: tuple[str, ...] = CONTRACT_METHODS,
-    *,
-    progress: Callable[[str], None] | None = None,
-) -> dict[str, Any]:
-    """All methods on one path; energies also relative to the best of each (P-V Tables 2-3 style)."""
-    plans: dict[str, Plan] = {}
-    for method in methods:
-        seed = plans["pinv_joint"].trajectory if method == "direct_cp" and "pinv_joint" in plans else None
-        plans[method] = run_method(problem, method, seed=seed)
-        if progress:
-            progress(method)
-    records = {method: method_record(plan) for method, plan in plans.items()}
-    for energy in ("cp_energy_J", "ls_energy_J"):
-        best = min(record[energy] for record in records.values())
-        for record in records.values():
-            record[f"relative_{energy[:2]}"] = record[energy] / best
-    return {
-        "machine": problem.crane.name,
-        "path": problem.path.path_id,
-        "start_position_m": problem.start,
-        "grid": list(problem.grid.shape),
-        "stages": problem.samples.stages,
-        "sample_time_s": float(problem.samples.time[1]),
-        "methods": records,
-    }
-
-
-def markdown_table(result: dict[str, Any]) -> str:
-    lines = [
-        f"{result['machine']} / {result['path']} (start c = {result['start_position_m']:.3f} m, grid {result['grid']})",
-        "",
-        "| method | CP energy kJ | rel. CP | LS energy kJ | rel. LS | peak LS pressure MPa | limits claimed | limits ok |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    ordered = sorted(result["methods"].items(), key=lambda item: item[1]["cp_energy_J"])
-    for method, record in ordered:
-        lines.append(
-            f"| {method} | {record['cp_energy_J'] / 1e3:.1f} | {record['relative_cp']:.3f} | {record['ls_energy_J'] / 1e3:.1f} | "
-            f"{record['relative_ls']:.3f} | {record['ls_supply_pressure_peak_Pa'] / 1e6:.1f} | "
-            f"{', '.join(record['limits_claimed'])} | {'yes' if record['limits_ok'] else 'NO'} |"
-        )
-    return "\n".join(lines)

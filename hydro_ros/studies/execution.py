@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from hydro_ros.bags.writer import ContractBagWriter
-from hydro_ros.planning.crane import Crane
+from hydro_ros.models.crane import Crane
 from hydro_ros.planning.database import JointTrajectoryData
 from hydro_ros.sim.crane import CranePlant
 

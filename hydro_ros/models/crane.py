@@ -21,7 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from hydro_ros.config import ConfigError, read_config
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.config import ConfigError, read_config
 
 NUMPY = SimpleNamespace(
     cos=np.cos,
@@ -339,7 +340,7 @@ class PointMass:
 def _mass(entry: dict[str, Any]) -> PointMass:
     link = str(entry["link"])
     if link not in ("lift", "boom"):
-        raise ValueError(f"mass link {link!r} (lift or boom)")
+        raise InputError(f"mass link {link!r} (lift or boom)")
     return PointMass(
         name=str(entry.get("name", link)),
         link=link,
@@ -353,10 +354,10 @@ def _cylinder(entry: dict[str, Any]) -> Cylinder:
     spec = entry["cylinder"]
     mapping = str(spec["mapping"])
     if mapping not in ("linear", "triangle"):
-        raise ValueError(f"cylinder mapping {mapping!r} (linear or triangle)")
+        raise InputError(f"cylinder mapping {mapping!r} (linear or triangle)")
     spool = str(spec.get("spool", "non_differential"))
     if spool not in ("non_differential", "differential"):
-        raise ValueError(f"spool {spool!r} (non_differential or differential)")
+        raise InputError(f"spool {spool!r} (non_differential or differential)")
     q_min, q_max = float(entry["min"]), float(entry["max"])
     cylinder = Cylinder(
         name=str(entry["name"]),

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from hydro_ros.contract.errors import InputError
+
 
 @njit(cache=True)
 def _filter(inclination, gyro, dt, k_p, k_i, state, angle_out, rate_out):
@@ -32,7 +34,7 @@ def _filter(inclination, gyro, dt, k_p, k_i, state, angle_out, rate_out):
 class ComplementaryFilter:
     def __init__(self, k_p: float, k_i: float, sample_rate: float, initial_angle: float | None = None) -> None:
         if k_p <= 0.0 or k_i < 0.0:
-            raise ValueError(f"complementary filter gains k_p={k_p}, k_i={k_i}: need k_p > 0 and k_i >= 0")
+            raise InputError(f"complementary filter gains k_p={k_p}, k_i={k_i}: need k_p > 0 and k_i >= 0")
         self.k_p, self.k_i, self.dt = k_p, k_i, 1.0 / sample_rate
         self.state = np.array([np.nan if initial_angle is None else initial_angle, 0.0])
 

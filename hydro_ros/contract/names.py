@@ -10,6 +10,8 @@ import enum
 import re
 from dataclasses import dataclass
 
+from hydro_ros.contract.errors import InputError
+
 
 class Fault(str, enum.Enum):
     """FDI output names (contract section 4)."""
@@ -100,13 +102,13 @@ class Injection:
 
     def __post_init__(self) -> None:
         if self.name not in INJECTABLE:
-            raise ValueError(
+            raise InputError(
                 f"unknown fault or effect {self.name!r}; known: {', '.join(sorted(INJECTABLE))}"
             )
         if not (self.onset_s >= 0.0 and self.ramp_s >= 0.0):
-            raise ValueError(f"{self.name}: onset and ramp must be >= 0 s")
+            raise InputError(f"{self.name}: onset and ramp must be >= 0 s")
         if self.value != self.value:
-            raise ValueError(f"{self.name}: value is NaN")
+            raise InputError(f"{self.name}: value is NaN")
 
     def level(self, t: float) -> float:
         """Injected value at time ``t`` [s]."""
@@ -126,7 +128,7 @@ def parse_injection(text: str) -> Injection:
     """Parse ``NAME=VALUE[@T[:RAMP]]``; RAMP (s) makes the fault develop linearly from T."""
     match = _SPEC.match(text.strip())
     if match is None:
-        raise ValueError(f"cannot parse {text!r}: expected NAME=VALUE[@T[:RAMP]], e.g. internal_leakage=0.5@20")
+        raise InputError(f"cannot parse {text!r}: expected NAME=VALUE[@T[:RAMP]], e.g. internal_leakage=0.5@20")
     try:
         return Injection(
             name=match["name"],
@@ -135,4 +137,4 @@ def parse_injection(text: str) -> Injection:
             ramp_s=float(match["ramp"] or 0.0),
         )
     except ValueError as exc:
-        raise ValueError(f"{text!r}: {exc}") from None
+        raise InputError(f"{text!r}: {exc}") from None

@@ -1,0 +1,147 @@
+"""The package's layering holds: every import points down, no science imports ROS, no import cycle.
+
+Imports are read from the source (module level and inside functions alike), so a lazy import that
+would close a cycle or reach up a layer fails here too.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parent.parent / "hydro_ros"
+
+# each folder (or top-level module) and its layer; an import may reach its own folder or a lower layer
+LAYER = {
+    "contract": 0,
+    "bags": 1,
+    "can": 2,
+    "models": 3,
+    "sim": 4, "fdi": 4, "planning": 4,
+    "studies": 5, "hmi": 5,
+    "nodes": 6,
+    "demo": 7,
+    "cli": 8,
+}
+SCIENCE = {"contract", "bags", "can", "models", "sim", "fdi", "planning", "studies", "hmi"}
+ROS_MODULES = ("rclpy", "rosidl", "rmw", "std_msgs", "sensor_msgs", "diagnostic_msgs", "trajectory_msgs", "std_srvs",
+               "geometry_msgs", "rosgraph_msgs", "builtin_interfaces", "control_msgs")
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports(path: Path) -> set[str]:
+    """Every module the file imports, absolute, whether at module level or inside a function."""
+    name = module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module or ""
+            found.add(module)
+            found.update(f"{module}.{alias.name}" for alias in node.names)
+    return found
+
+
+def graph() -> dict[str, set[str]]:
+    modules = {module_name(p): p for p in PACKAGE.rglob("*.py")}
+    return {name: {m for m in imports(path) if m in modules and m != name} for name, path in modules.items()}
+
+
+def folder(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else None
+
+
+def test_every_module_belongs_to_a_layer() -> None:
+    unplaced = sorted({folder(m) for m in graph()} - set(LAYER) - {None})
+    assert not unplaced, f"folders or top-level modules without a layer: {unplaced}"
+
+
+def test_imports_point_down() -> None:
+    upward = []
+    for module, deps in graph().items():
+        here = folder(module)
+        for dep in deps:
+            there = folder(dep)
+            if here is None or there is None or here == there:
+                continue
+            if LAYER[there] >= LAYER[here]:
+                upward.append(f"{module} -> {dep}")
+    assert not upward, "imports that do not point to a lower layer:\n" + "\n".join(sorted(upward))
+
+
+def test_science_never_imports_ros() -> None:
+    offenders = []
+    for path in PACKAGE.rglob("*.py"):
+        if folder(module_name(path)) in SCIENCE:
+            ros = sorted(m for m in imports(path) if m.split(".")[0] in ROS_MODULES)
+            if ros:
+                offenders.append(f"{module_name(path)}: {', '.join(ros)}")
+    assert not offenders, "science modules importing ROS:\n" + "\n".join(offenders)
+
+
+def test_no_import_cycle() -> None:
+    edges = graph()
+    # a dependency on a package's __init__ is a dependency on that package only, not on its submodules
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles: list[list[str]] = []
+
+    def visit(node: str) -> None:  # Tarjan's strongly connected components
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for dep in edges[node]:
+            if dep not in index:
+                visit(dep)
+                low[node] = min(low[node], low[dep])
+            elif dep in on_stack:
+                low[node] = min(low[node], index[dep])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for node in sorted(edges):
+        if node not in index:
+            visit(node)
+    assert not cycles, f"import cycles: {cycles}"
+
+
+@pytest.mark.parametrize("rule", ["up", "ros"])
+def test_the_checks_catch_a_violation(tmp_path: Path, rule: str) -> None:
+    """The rule checker itself fails on a planted upward import and a planted rclpy import."""
+    source = "from hydro_ros.nodes.common import run_node\n" if rule == "up" else "import rclpy\n"
+    planted = tmp_path / "planted.py"
+    planted.write_text(source)
+    found = imports(planted.rename(PACKAGE / "fdi" / "_planted_for_test.py"))
+    try:
+        if rule == "up":
+            with pytest.raises(AssertionError, match="_planted_for_test -> hydro_ros.nodes.common"):
+                test_imports_point_down()
+        else:
+            assert "rclpy" in found
+            with pytest.raises(AssertionError, match="_planted_for_test: rclpy"):
+                test_science_never_imports_ros()
+    finally:
+        (PACKAGE / "fdi" / "_planted_for_test.py").unlink()
