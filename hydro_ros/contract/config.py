@@ -108,7 +108,7 @@ def config_dir() -> Path:
             pass
     except ImportError:
         pass
-    return Path(__file__).resolve().parent.parent / "config"
+    return Path(__file__).resolve().parents[2] / "config"
 
 
 def default_config_path(machine: str = "sam") -> Path:

@@ -23,6 +23,7 @@ from typing import Any, Awaitable, Callable, Protocol
 
 from aiohttp import WSMsgType, web
 
+from hydro_ros.contract.errors import InputError
 from hydro_ros.hmi.state import HmiState
 
 MAX_BODY_BYTES = 1024
@@ -52,7 +53,7 @@ class OperatorActions(Protocol):
 def create_app(state: HmiState, actions: OperatorActions, *, token: str, update_period_s: float,
                log: Callable[[str], None]) -> web.Application:
     if not update_period_s > 0:
-        raise ValueError(f"HMI update period {update_period_s}: must be > 0")
+        raise InputError(f"HMI update period {update_period_s}: must be > 0")
     app = web.Application(client_max_size=MAX_BODY_BYTES)
     app[STATE_KEY] = state
     app[SETTINGS_KEY] = {"token": token, "period": update_period_s, "log": log, "actions": actions, "sockets": set()}

@@ -18,6 +18,7 @@ from collections import deque
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable
 
+from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.topics import FDI_STATUS_PREFIX
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
@@ -81,7 +82,7 @@ class HmiState:
     def __init__(self, *, plot_window_s: float = 60.0, plot_period_s: float = 0.1, stale_timeout_s: float = 3.0,
                  clock: Callable[[], float] = time.time) -> None:
         if not (plot_window_s > 0 and plot_period_s >= 0 and stale_timeout_s > 0):
-            raise ValueError(f"HMI windows must be positive (plot_window {plot_window_s}, plot_period {plot_period_s}, "
+            raise InputError(f"HMI windows must be positive (plot_window {plot_window_s}, plot_period {plot_period_s}, "
                              f"stale_timeout {stale_timeout_s})")
         self.plot_window_s = plot_window_s
         self.plot_period_s = plot_period_s
