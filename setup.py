@@ -25,6 +25,7 @@ setup(
     entry_points={
         "console_scripts": [
             "plant_sim = hydro_ros.nodes.plant_sim:main",
+            "crane_sim = hydro_ros.nodes.crane_sim:main",
             "bag_player = hydro_ros.nodes.bag_player:main",
             "fdi_node = hydro_ros.nodes.fdi_node:main",
             "can_bridge = hydro_ros.nodes.can_bridge:main",

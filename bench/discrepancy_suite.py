@@ -20,7 +20,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from hydro_ros.bags.reader import BagData, read_bag  # noqa: E402
-from hydro_ros.contract.config import default_config_path, load_machine_config  # noqa: E402
+from hydro_ros.contract.config import default_config_path  # noqa: E402
+from hydro_ros.contract.machine import load_machine_config  # noqa: E402
 from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, run, simulate  # noqa: E402
 from test.test_discrepancy import hidden_effect_bag, plant_config  # noqa: E402
 

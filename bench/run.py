@@ -19,7 +19,8 @@ import numpy as np
 
 from hydro_ros.bags.reader import mcap_file, read_bag
 from hydro_ros.bags.writer import ContractBagWriter
-from hydro_ros.contract.config import default_config_path, load_machine_config
+from hydro_ros.contract.config import default_config_path
+from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.sim.scenario import Scenario, run_blocks
 

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-from hydro_ros.contract.config import load_machine_config
+from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import INJECTION_UNITS, parse_injection
 from hydro_ros.contract.errors import InputError
 
@@ -33,28 +33,23 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.bags.reader import read_bag
-    from hydro_ros.bags.writer import BagExistsError, ContractBagWriter
+    from hydro_ros.bags.writer import ContractBagWriter
     from hydro_ros.studies.plots import plot_bag
     from hydro_ros.sim.scenario import Scenario, run_blocks
 
-    config = load_machine_config(args.config)
+    machine = load_machine_config(args.config)
     if args.duration <= 0:
         raise InputError(f"--duration {args.duration}: must be > 0 s")
     injections = _injections(args.fault, "fault", True) + _injections(args.effect, "effect", False)
-    actuator = next(iter(config["actuators"]))
-    scenario = Scenario(args.duration, injections, seed=args.seed, actuator=actuator)
-    joint = config["actuators"][actuator]["joint"]
-    variance = float(config["sensors"]["pressure_noise_std"]) ** 2
-    try:
-        mobile = config["actuators"][actuator]["valve"].get("type") == "mobile"
-        writer = ContractBagWriter(args.out, actuators={actuator: joint}, pressure_variance=variance, mobile=mobile)
-    except BagExistsError as exc:
-        raise InputError(str(exc)) from None
-    total = int(round(args.duration * float(config["sample_rate_hz"])))
+    actuator = machine.first
+    scenario = Scenario(args.duration, injections, seed=args.seed, actuator=actuator.name)
+    writer = ContractBagWriter(args.out, actuators={actuator.name: actuator.joint},
+                               pressure_variance=machine.sensors.pressure_noise_std ** 2, mobile=actuator.valve.mobile)
+    total = int(round(args.duration * machine.sample_rate_hz))
     with writer, tqdm(total=total, unit="sample", desc="simulate", disable=args.quiet) as bar:
-        writer.set_truth(scenario.truth(config))
-        for _, _, block in run_blocks(config, scenario, progress=bar.update):
-            writer.write(actuator, block)
+        writer.set_truth(scenario.truth(machine))
+        for _, _, block in run_blocks(machine, scenario, progress=bar.update):
+            writer.write(actuator.name, block)
     plot = plot_bag(read_bag(args.out), Path(str(args.out).rstrip("/") + ".png"))
     print(json.dumps({"bag": str(args.out), "messages": writer.messages, "plot": str(plot)}))
     return 0
@@ -63,18 +58,14 @@ def cmd_sim(args: argparse.Namespace) -> int:
 def cmd_fdi(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hydro_ros.bags.reader import BagError
     from hydro_ros.fdi.offline import prepare, run_monitor
     from hydro_ros.studies.plots import plot_fdi
 
-    config = load_machine_config(args.config)
+    machine = load_machine_config(args.config)
     out = Path(args.json)
     if not out.parent.is_dir():
         raise InputError(f"--json {out}: directory {out.parent} does not exist")
-    try:
-        data, monitor, samples = prepare(args.bag, config, args.method)
-    except BagError as exc:
-        raise InputError(str(exc)) from None
+    data, monitor, samples = prepare(args.bag, machine, args.method)
     with tqdm(total=len(samples), unit="sample", desc="fdi", disable=args.quiet) as bar:
         run = run_monitor(monitor, samples, progress=bar.update)
     run.data = data
@@ -95,14 +86,14 @@ def cmd_fdi_eval(args: argparse.Namespace) -> int:
     from hydro_ros.studies.fdi_evaluation import evaluate, markdown_table
     from hydro_ros.studies.plots import plot_fdi_evaluation
 
-    config = load_machine_config(args.config)
+    machine = load_machine_config(args.config)
     for name in ("seeds", "calibration_seeds", "workers"):
         if getattr(args, name) < 1:
             raise InputError(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 1")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with tqdm(unit="run", desc="fdi-eval", disable=args.quiet) as bar:
-        summary = evaluate(config, seeds=args.seeds, calibration_seeds=args.calibration_seeds, duration_s=args.duration,
+        summary = evaluate(machine, seeds=args.seeds, calibration_seeds=args.calibration_seeds, duration_s=args.duration,
                            fault_free_minutes=args.fault_free_minutes, workers=args.workers, progress=bar.update)
     (out / "fdi_eval.json").write_text(json.dumps(summary, indent=2) + "\n")
     table = markdown_table(summary)
@@ -115,15 +106,15 @@ def cmd_fdi_eval(args: argparse.Namespace) -> int:
 def cmd_fdi_fit(args: argparse.Namespace) -> int:
     from hydro_ros.studies.fdi_evaluation import build_parity_signatures, fit_parity_thresholds, write_fitted_block
 
-    config = load_machine_config(args.config)
+    machine = load_machine_config(args.config)
     if args.train < 1 or args.held_out < 1:
         raise InputError("--train and --held-out must be >= 1")
     print(f"fitting parity thresholds on {args.train} fault-free mismatched plants, checking on {args.held_out} others ...")
-    thresholds, report = fit_parity_thresholds(config, range(100, 100 + args.train), range(300, 300 + args.held_out))
+    thresholds, report = fit_parity_thresholds(machine, range(100, 100 + args.train), range(300, 300 + args.held_out))
     print(f"threshold factor {thresholds.factor:g} ({report['false_alarms_per_hour']:.2f} false alarms/h held out)"
           if "false_alarms_per_hour" in report else f"no factor met the target: {report['tried']}")
     print("building the signature table by simulating the P-IV fault list ...")
-    rows = build_parity_signatures(config, thresholds, range(100, 100 + args.signature_seeds))
+    rows = build_parity_signatures(machine, thresholds, range(100, 100 + args.signature_seeds))
     for row in rows:
         print(f"  {row['fault']:34s} {row['code']}  command {'any' if row['command_positive'] is None else ('+' if row['command_positive'] else '-')}")
     if args.write:
@@ -133,16 +124,12 @@ def cmd_fdi_fit(args: argparse.Namespace) -> int:
 
 
 def cmd_can_convert(args: argparse.Namespace) -> int:
-    from hydro_ros.bags.writer import BagExistsError
     from hydro_ros.can.convert import convert_log
 
-    config = load_machine_config(args.config)
+    machine = load_machine_config(args.config)
     if Path(args.out).exists():
         raise InputError(f"--out {args.out}: already exists, refusing to overwrite")
-    try:
-        report = convert_log(args.logfile, config, args.out)
-    except BagExistsError as exc:
-        raise InputError(str(exc)) from None
+    report = convert_log(args.logfile, machine, args.out)
     print(json.dumps({"bag": str(args.out), **report.to_json()}))
     return 0
 
@@ -153,7 +140,7 @@ def cmd_gsa(args: argparse.Namespace) -> int:
     from hydro_ros.studies.gsa import LEAKS, PARAMETERS, interaction, ranking, sobol_indices
     from hydro_ros.studies.plots import plot_gsa
 
-    config = load_machine_config(args.config)
+    machine = load_machine_config(args.config)
     if args.samples < 2 or args.samples & (args.samples - 1):
         raise InputError(f"--samples {args.samples}: must be a power of two >= 2 (Sobol' sequence)")
     if args.workers < 1:
@@ -165,7 +152,7 @@ def cmd_gsa(args: argparse.Namespace) -> int:
     for name, space in (("parameters", PARAMETERS), ("leakages", LEAKS)):
         runs = args.samples * (len(space) + 2)
         with tqdm(total=runs, unit="run", desc=f"gsa {name}", disable=args.quiet) as bar:
-            results[name] = sobol_indices(config, space, args.samples, args.workers, progress=bar.update)
+            results[name] = sobol_indices(machine, space, args.samples, workers=args.workers, progress=bar.update)
         results[name]["ranking_4s"] = {o: ranking(results[name], o) for o in ("p_a", "p_b", "velocity")}
         results[name]["interaction_4s"] = {o: interaction(results[name], o) for o in ("p_a", "p_b", "velocity")}
     plot = plot_gsa(results, out.with_suffix(".png"))
@@ -180,17 +167,14 @@ def cmd_gsa(args: argparse.Namespace) -> int:
 def cmd_discrepancy(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hydro_ros.bags.reader import BagError, read_bag
+    from hydro_ros.bags.reader import read_bag
     from hydro_ros.studies.discrepancy import EFFECT_RANGES, run
 
-    config = load_machine_config(args.config)
-    try:
-        data = read_bag(args.bag)
-    except BagError as exc:
-        raise InputError(str(exc)) from None
+    machine = load_machine_config(args.config)
+    data = read_bag(args.bag)
     out = Path(args.out)
     with tqdm(total=2 + 2 * len(EFFECT_RANGES), unit="fit", desc="discrepancy", disable=args.quiet) as bar:
-        report = run(data, config, out, progress=bar.update)
+        report = run(data, machine, out, progress=bar.update)
         bar.update(bar.total - bar.n)
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     names = ", ".join(e["name"] for e in report["effects"]) or "none"
@@ -301,7 +285,6 @@ def cmd_db_list(args: argparse.Namespace) -> int:
 
 
 def cmd_dp_execute(args: argparse.Namespace) -> int:
-    from hydro_ros.bags.writer import BagExistsError
     from hydro_ros.models.crane import load_crane
     from hydro_ros.studies.execution import execute, write_bag
     from hydro_ros.planning.serving import executable_trajectory
@@ -316,10 +299,7 @@ def cmd_dp_execute(args: argparse.Namespace) -> int:
     )
     execution = execute(config, trajectory, args.supply, seed=args.seed)
     summary = {"machine": config["machine"], "path": args.path, "method": args.method, "planned": planned, **execution.summary}
-    try:
-        write_bag(execution, out, {"machine": config["machine"], "execution": summary})
-    except BagExistsError as exc:
-        raise InputError(str(exc)) from None
+    write_bag(execution, out, {"machine": config["machine"], "execution": summary})
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2) + "\n")
     energy_key = "cp_energy_J" if args.supply == "cp" else "ls_energy_J"

@@ -1,7 +1,7 @@
 """`make demo`: simulate the SAM with a developing leak, analyse it offline, then play it through
 bag_player -> fdi_node on a DDS graph, with the operator HMI (hydro_ros.nodes.hmi) serving the page whose
 URL it prints: the actuator's health turning from ok to the isolated fault name. Beside it, the K70M crane
-(plant_sim's crane mode) asks trajectory_server for the energy-optimal horizontal path from where it
+(crane_sim) asks trajectory_server for the energy-optimal horizontal path from where it
 stands and executes it; the operator sees its pump energy against the joint-space pseudo-inverse's.
 """
 
@@ -48,7 +48,7 @@ def _operator_view(duration_s: float, rate: float) -> tuple[list[str], dict | No
     node.create_subscription(JointState, "/crane/joint_states", lambda m: crane.update(q=list(m.position)), SENSOR_QOS)
     node.create_subscription(FluidPressure, "/crane/hydraulics/supply_pressure", lambda m: crane.update(p_s=m.fluid_pressure), SENSOR_QOS)
     node.create_subscription(String, "/crane/trajectory_server/result", lambda m: crane.update(result=json.loads(m.data)), LATCHED_QOS)
-    node.create_subscription(String, "/crane/plant_sim/execution", lambda m: crane.update(execution=json.loads(m.data)), LATCHED_QOS)
+    node.create_subscription(String, "/crane/crane_sim/execution", lambda m: crane.update(execution=json.loads(m.data)), LATCHED_QOS)
     requests = node.create_publisher(String, "/crane/trajectory_server/request", 10)
     lines = []
     end = time.monotonic() + duration_s / rate + 5.0
@@ -81,7 +81,7 @@ def _crane_status(crane: dict) -> str:
         return f"done: {run['energy_J'] / 1e3:.1f} kJ pump energy, ISO 9283 path accuracy {run['path_accuracy_iso9283_m']:.3f} m" if run["ok"] else run["error"]
     result = crane.get("result")
     if result is None:
-        return "waiting for plant_sim and trajectory_server"
+        return "waiting for crane_sim and trajectory_server"
     if not result:
         return f"requested {CRANE_PATH!r}"
     if not result["ok"]:
@@ -147,13 +147,13 @@ def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.
                   "--methods", "dp_cp", "pinv_joint", "--grid", *CRANE_GRID, "--quiet"])
     if status:
         return status
-    print(f"4/4 replaying the SAM x{rate:g}: bag_player -> fdi_node; beside it plant_sim (K70M crane, CP pump) <- "
+    print(f"4/4 replaying the SAM x{rate:g}: bag_player -> fdi_node; beside it crane_sim (K70M crane, CP pump) <- "
           f"trajectory_server on a DDS graph (ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}), operator view:")
     nodes = [
         ("fdi_node", "-p", f"config:={config}", "-p", "use_sim_time:=true"),
         ("bag_player", "-p", f"bag:={bag}", "-p", f"rate:={rate}", "-p", "start_delay:=3.0"),
         # the crane is a second machine on the graph: its contract topics live in the namespace /crane
-        ("plant_sim", "-r", "__ns:=/crane", "-p", f"config:={crane_config}", "-p", f"initial_path:={CRANE_PATH}",
+        ("crane_sim", "-r", "__ns:=/crane", "-p", f"config:={crane_config}", "-p", f"initial_path:={CRANE_PATH}",
          "-p", "initial_extension:=0.3"),
         ("trajectory_server", "-r", "__ns:=/crane", "-p", f"database:={database}", "-p", "output_topic:=joint_trajectory"),
     ]

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from hydro_ros.contract.config import load_machine_config
+from hydro_ros.contract.machine import load_machine_config
 
 REPO = Path(__file__).resolve().parent.parent
 SAM_CONFIG = REPO / "config" / "sam.yaml"

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hydro_ros.bags.reader import read_bag
 from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, crc8, cycle_values, sample_values
 from hydro_ros.can.convert import convert_log
-from hydro_ros.contract.config import load_machine_config
+from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import Injection
 from hydro_ros.sim.scenario import Scenario, run_blocks
 from test.conftest import REPO
@@ -102,8 +102,7 @@ def _log_sample_run(config, path, seconds=12.0, injections=(), corrupt_every=0):
     """Write the plant's sensors as frames to a python-can log, as a machine recording would."""
     bus = MachineBus(config)
     writer = can.Logger(str(path))
-    actuator = next(iter(config["actuators"]))
-    joint = config["actuators"][actuator]["joint"]
+    actuator, joint = config.first.name, config.first.joint
     k_total = 0
     try:
         for times, _, samples in run_blocks(config, Scenario(seconds, injections, seed=4)):

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from hydro_ros.bags.writer import ContractBagWriter
-from hydro_ros.contract.config import load_machine_config, with_overrides
+from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.studies.fdi_evaluation import mismatched_config
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, run_blocks
@@ -22,7 +22,7 @@ SEED = 3
 
 def plant_config(config, effect=None, value=0.0, seed=SEED):
     """The plant's config: 40 % of fdi-eval's mismatch drawn for ``seed`` and (maybe) one effect the model lacks."""
-    return with_overrides(mismatched_config(config, seed, PLANT_MISMATCH), {"effects": {effect: value}} if effect else {})
+    return mismatched_config(config, seed, PLANT_MISMATCH).with_overrides({"effects": {effect: value}} if effect else {})
 
 
 def hidden_effect_bag(config, path, effect=None, value=0.0, seed=SEED, duration=40.0):
@@ -80,7 +80,7 @@ def test_load_independent_localisation_separates_hydraulic_from_load_side_effect
 
     from hydro_ros.studies.discrepancy import Recording, load_independent_error, localise
 
-    plant = with_overrides(mismatched_config(sam_config, 3, 0.4), {"effects": {effect: value}})
+    plant = mismatched_config(sam_config, 3, 0.4).with_overrides({"effects": {effect: value}})
     blocks = [(m.times, m.joint_position, m.joint_velocity, m.pressure_a, m.pressure_b, m.valve_command)
               for _, _, m in run_blocks(plant, Scenario(20.0, [], seed=3))]
     rec = Recording(*(np.concatenate(part) for part in zip(*blocks)))

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydro_ros.contract.config import with_overrides
 from hydro_ros.studies.fdi_evaluation import Case, mismatched_config, run_case
 from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Isolator
-from hydro_ros.fdi.monitor import FdiMonitor, MovingAverage
+from hydro_ros.fdi.monitor import FdiMonitor
+from hydro_ros.fdi.residuals import MovingAverage
 from hydro_ros.fdi.offline import analyse_bag, blocks_from_bag
 from hydro_ros.fdi.reference import filterpy_twin
 from hydro_ros.fdi.ukf import UkfBank, UkfSettings, unscented_weights
@@ -122,15 +122,15 @@ def test_shipped_bags_are_isolated_after_onset_and_silent_before(sam_config, bag
 @pytest.fixture(scope="module")
 def calibrated(sam_config):
     # c0 found by `hydro-ros fdi-eval` on training seeds 100-109 of mismatched plants (README)
-    return with_overrides(sam_config, {"fdi": {"threshold_constant": 0.063}})
+    return sam_config.with_overrides({"fdi": {"threshold_constant": 0.063}})
 
 
 def test_mismatched_plant_really_differs_from_the_monitors_model(sam_config):
     plant = mismatched_config(sam_config, seed=4)
-    nominal, changed = sam_config["actuators"]["boom"], plant["actuators"]["boom"]
-    ratios = [changed["valve"]["kv_poly"][n][3] / nominal["valve"]["kv_poly"][n][3] for n in ("PA", "PB", "AT", "BT")]
+    nominal, changed = sam_config.actuator("boom"), plant.actuator("boom")
+    ratios = [changed.valve.kv_poly[n][3] / nominal.valve.kv_poly[n][3] for n in ("PA", "PB", "AT", "BT")]
     assert any(abs(r - 1.0) > 0.01 for r in ratios) and all(abs(r - 1.0) <= 0.05 for r in ratios)
-    assert changed["fluid"]["oil_bulk_modulus"] != nominal["fluid"]["oil_bulk_modulus"]
+    assert changed.fluid.oil_bulk_modulus != nominal.fluid.oil_bulk_modulus
 
 
 @pytest.mark.parametrize(

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydro_ros.contract.config import ConfigError, load_machine_config
+from hydro_ros.contract.config import ConfigError
+from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.models.complementary import ComplementaryFilter
 from hydro_ros.studies.fdi_evaluation import Case, run_case
 from test.conftest import REPO
@@ -30,9 +31,9 @@ def test_complementary_filter_removes_gyro_bias_and_follows_motion():
 
 def test_mems_config_extends_the_sam_and_raises_the_threshold():
     mems = load_machine_config(MEMS_CONFIG)
-    assert mems["sensors"]["motion_sensor"] == "mems"
-    assert mems["fdi"]["threshold_constant"] == pytest.approx(0.023)
-    assert mems["actuators"]["boom"]["cylinder"]["piston_diameter"] == 0.080  # inherited
+    assert mems.sensors.motion_sensor == "mems"
+    assert mems.fdi["threshold_constant"] == pytest.approx(0.023)
+    assert mems.actuator("boom").cylinder.piston_diameter == 0.080  # inherited
 
 
 def test_config_that_extends_itself_fails_clearly(tmp_path):

@@ -10,7 +10,7 @@ import yaml
 
 from hydro_ros.contract import topics
 from hydro_ros.can.codec import MachineBus
-from hydro_ros.contract.config import load_machine_config
+from hydro_ros.contract.machine import load_machine_config
 from test.conftest import REPO, SAM_CONFIG
 
 AGGREGATOR = REPO / "config" / "diagnostic_aggregator.yaml"
@@ -21,7 +21,7 @@ def _published_status_names() -> list[str]:
     names = ["hydro_ros/plant_sim", "hydro_ros/can_bridge/bus"]
     for machine in ("sam", "sam_mobile", "sam_mems"):
         config = load_machine_config(REPO / "config" / f"{machine}.yaml")
-        names += [f"{topics.FDI_STATUS_PREFIX}{actuator}" for actuator in config["actuators"]]
+        names += [f"{topics.FDI_STATUS_PREFIX}{actuator}" for actuator in config.actuator_names]
     names += [f"hydro_ros/can_bridge/{message}" for message in MachineBus(load_machine_config(SAM_CONFIG)).expected]
     return names
 
@@ -51,7 +51,7 @@ def test_the_foxglove_layout_plots_the_residual_channels_it_names():
     layout = json.loads(LAYOUT.read_text())
     panels = layout["configById"]
     assert _leaves(layout["layout"]) == set(panels)  # every panel is placed, every placed panel configured
-    channels = topics.fdi_residual_channels(list(load_machine_config(SAM_CONFIG)["actuators"]))
+    channels = topics.fdi_residual_channels(load_machine_config(SAM_CONFIG).actuator_names)
     plotted = set()
     for panel_id, panel in panels.items():
         if panel_id.startswith("Plot!"):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydro_ros.contract.config import load_machine_config, with_overrides
+from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.studies.fdi_evaluation import Case, _blocks, run_case
 from hydro_ros.fdi.monitor import FdiMonitor
 from test.conftest import REPO
@@ -35,7 +35,7 @@ def test_parity_residual_is_the_leak_flow(mobile):
 
 
 def test_parity_needs_fitted_thresholds(mobile):
-    bare = with_overrides(mobile, {"fdi": {"parity_thresholds": None}})
+    bare = mobile.with_overrides({"fdi": {"parity_thresholds": None}})
     with pytest.raises(ValueError, match="fdi-fit"):
         FdiMonitor(bare, "parity")
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydro_ros.contract.config import with_overrides
+from hydro_ros.contract.machine import Machine
 from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient
 from hydro_ros.models.sam import (
     AREA_A, AREA_B, BRISTLE, HOSE_MODULUS, HOSE_VOLUME, OIL_MODULUS, STROKE, V0_A, V0_B,
@@ -17,16 +17,15 @@ from hydro_ros.contract.names import Injection
 RETRACTED_JOINT = 0.728 - 1.6 + 0.005  # just off the retracted end stop (P-I GSA start, L4842)
 
 
-def _frictionless(config: dict) -> dict:
-    return with_overrides(
-        config,
+def _frictionless(machine: Machine) -> Machine:
+    return machine.with_overrides(
         {"actuators": {"boom": {"friction": {"viscous": 0.0, "static": 0.0, "coulomb": 0.0, "bristle_stiffness": 0.0},
                                 "valve": {"centre_leakage": {"PA": 0.0, "PB": 0.0, "AT": 0.0, "BT": 0.0}}}}},
     )
 
 
-def _no_centre_leakage(config: dict) -> dict:
-    return with_overrides(config, {"actuators": {"boom": {"valve": {"centre_leakage": {"PA": 0.0, "PB": 0.0, "AT": 0.0, "BT": 0.0}}}}})
+def _no_centre_leakage(machine: Machine) -> Machine:
+    return machine.with_overrides({"actuators": {"boom": {"valve": {"centre_leakage": {"PA": 0.0, "PB": 0.0, "AT": 0.0, "BT": 0.0}}}}})
 
 
 def test_leak_coefficient_matches_p1_calibration():
@@ -53,9 +52,9 @@ def test_step_extension_reaches_analytic_steady_pressures(sam_config):
     window = states[-200:]
     p_a, p_b, spool, x, v = (window[:, i].mean() for i in (0, 1, 2, 4, 5))
     assert spool == pytest.approx(0.25, abs=1e-6)
-    fric = sam_config["actuators"]["boom"]["friction"]
+    fric = sam_config.actuator("boom").friction
     # friction lumped into F_ext (P-I L3940): sliding LuGre force = F_C + (F_S-F_C) e^-(v/vs)^2 + b v
-    sliding = fric["coulomb"] + (fric["static"] - fric["coulomb"]) * np.exp(-(v / fric["stribeck_velocity"]) ** 2) + fric["viscous"] * v
+    sliding = fric.coulomb + (fric.static - fric.coulomb) * np.exp(-(v / fric.stribeck_velocity) ** 2) + fric.viscous * v
     expected_a, expected_b = extension_steady_pressures(model, 0.25, model.load_force(x) + sliding)
     assert p_a == pytest.approx(expected_a, rel=0.01)
     assert p_b == pytest.approx(expected_b, rel=0.03, abs=2e4)
@@ -67,7 +66,7 @@ def test_halving_the_step_changes_the_result_little(sam_config):
     commands = np.concatenate([np.full(3000, 0.4), np.full(2000, -0.3), np.full(3000, 0.6), np.zeros(2000)])
     results = []
     for substeps in (10, 20):
-        config = with_overrides(sam_config, {"simulation": {"substeps": substeps}})
+        config = sam_config.with_overrides({"simulation": {"substeps": substeps}})
         plant = SamPlant(SamModel(config), initial_joint=-0.3)
         results.append(plant.advance(len(commands), commands=commands)[1])
     coarse, fine = results
@@ -86,7 +85,7 @@ def test_closed_spool_without_leakage_holds_pressure(sam_config):
     # the held pressures carry the load within the static friction band
     p = model.base
     force = states[-1, 0] * p[AREA_A] - states[-1, 1] * p[AREA_B]
-    static = sam_config["actuators"]["boom"]["friction"]["static"]
+    static = sam_config.actuator("boom").friction.static
     assert abs(force - model.load_force(states[-1, 4])) <= static
 
 
@@ -109,7 +108,7 @@ def test_bristle_state_carries_what_static_friction_holds(sam_config, off_balanc
         travel[start] = np.ptp(states[:, 4])
     assert travel[z] < 1e-7 and travel[0.0] > 1e-5
     # beyond the static friction the bristles slip: the state saturates at F_S
-    static = sam_config["actuators"]["boom"]["friction"]["static"]
+    static = sam_config.actuator("boom").friction.static
     far = model.bristle_state(x, 0.0, p_a + np.sign(off_balance) * 1e7, p_b)
     assert far * p[BRISTLE] == pytest.approx(np.sign(off_balance) * static)
 

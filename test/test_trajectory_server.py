@@ -111,16 +111,16 @@ def test_server_answers_with_an_error_when_the_database_is_corrupt(ros_domain, t
 
 
 def test_served_trajectory_runs_on_the_simulated_crane(ros_domain, catalog_db):
-    """Server -> output_topic -> plant_sim's crane, both in a namespace: the run reports its energy and path accuracy."""
+    """Server -> output_topic -> crane_sim, both in a namespace: the run reports its energy and path accuracy."""
     db_path, _ = catalog_db
     executions: list[dict] = []
     results: list[dict] = []
-    with node_process("hydro_ros.nodes.plant_sim", "-r", "__ns:=/crane", "-p", f"config:={K70M}", "-p", "real_time_factor:=4.0",
+    with node_process("hydro_ros.nodes.crane_sim", "-r", "__ns:=/crane", "-p", f"config:={K70M}", "-p", "real_time_factor:=4.0",
                       "-p", "initial_path:=horizontal", "-p", "initial_extension:=0.3"), \
             node_process("hydro_ros.nodes.trajectory_server", "-r", "__ns:=/crane", "-p", f"database:={db_path}",
                          "-p", "output_topic:=joint_trajectory"), \
             probe_node("client") as node:
-        node.create_subscription(String, "/crane/plant_sim/execution", lambda m: executions.append(json.loads(m.data)), LATCHED_QOS)
+        node.create_subscription(String, "/crane/crane_sim/execution", lambda m: executions.append(json.loads(m.data)), LATCHED_QOS)
         node.create_subscription(String, "/crane/trajectory_server/result", lambda m: results.append(json.loads(m.data)), LATCHED_QOS)
         states: list[JointState] = []
         node.create_subscription(JointState, "/crane" + topics.JOINT_STATES, states.append, 10)

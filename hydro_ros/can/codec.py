@@ -18,6 +18,7 @@ from typing import Any
 import cantools
 
 from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.config import config_dir
 
 DLC = 8
@@ -76,18 +77,16 @@ class Cycle:
 class MachineBus:
     """Encoding and checked decoding of one machine's frames."""
 
-    def __init__(self, config: dict[str, Any], dbc: str | Path | None = None) -> None:
-        section = config.get("can", {}) or {}
-        path = Path(dbc) if dbc else config_dir() / str(section.get("dbc", "machine_bus.dbc"))
+    def __init__(self, machine: Machine, dbc: str | Path | None = None) -> None:
+        path = Path(dbc) if dbc else config_dir() / machine.dbc
         try:
             self.db = cantools.database.load_file(str(path))
         except (OSError, cantools.database.UnsupportedDatabaseFormatError) as exc:
             raise InputError(f"dbc {path}: cannot load ({exc})") from None
         self.dbc_path = path
         self.slots = []
-        for index, (name, actuator) in enumerate(config["actuators"].items(), start=1):
-            number = int(actuator.get("can_slot", index))
-            self.slots.append(Slot(name, str(actuator["joint"]), number, actuator["valve"].get("type") == "mobile"))
+        for actuator in machine.actuators:
+            self.slots.append(Slot(actuator.name, actuator.joint, actuator.can_slot, actuator.valve.mobile))
         self.by_id = {m.frame_id: m for m in self.db.messages}
         # every frame's counter and checksum signals, by message name
         self.framing = {m.name: (next(g.name for g in m.signals if g.name.endswith("_COUNTER")),

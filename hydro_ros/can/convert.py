@@ -16,6 +16,7 @@ import can
 import numpy as np
 
 from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.machine import Machine
 from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_values
 from hydro_ros.contract.samples import Samples
@@ -37,13 +38,13 @@ class ConversionReport:
                 "rejected_frames": dict(self.rejected), "counter_gaps": self.counter_gaps, "error_frames": self.error_frames}
 
 
-def convert_log(log: str | Path, config: dict[str, Any], out: str | Path, progress: Callable[[int], None] | None = None) -> ConversionReport:
+def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Callable[[int], None] | None = None) -> ConversionReport:
     log = Path(log)
     if not log.is_file():
         raise InputError(f"log {log}: no such file")
     if log.suffix.lower() not in LOG_SUFFIXES:
         raise InputError(f"log {log}: unsupported format {log.suffix!r}; expected candump .log, .asc or .blf")
-    bus = MachineBus(config)
+    bus = MachineBus(machine)
     if len(bus.slots) != 1:
         raise InputError("can convert: only single-actuator machines are written to bags so far")
     slot = bus.slots[0]
@@ -84,7 +85,7 @@ def convert_log(log: str | Path, config: dict[str, Any], out: str | Path, progre
     report.counter_gaps = dict(counters.gaps)
     report.cycles = len(rows)
     if not rows:
-        raise InputError(f"log {log}: no complete sensor cycle of machine {config.get('machine')!r} ({dict(report.rejected)})")
+        raise InputError(f"log {log}: no complete sensor cycle of machine {machine.name!r} ({dict(report.rejected)})")
     order = np.argsort(stamps, kind="stable")
 
     def series(key: str, name: str) -> np.ndarray:
@@ -100,7 +101,7 @@ def convert_log(log: str | Path, config: dict[str, Any], out: str | Path, progre
             "compensator_pressure": series("compensator_pressure", slot.actuator),
             "ls_pressure": np.array([rows[i]["ls_pressure"] for i in order])} if slot.mobile else {}),
     )
-    variance = float(config["sensors"]["pressure_noise_std"]) ** 2
+    variance = machine.sensors.pressure_noise_std ** 2
     with ContractBagWriter(out, actuators={slot.actuator: slot.joint}, pressure_variance=variance, mobile=slot.mobile) as writer:
         writer.custom_data["hydro_ros.source"] = str(log.name)
         writer.write(slot.actuator, samples)

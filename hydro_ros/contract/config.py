@@ -1,4 +1,6 @@
-"""Machine configs (contract section 3): load, coerce numbers, validate, locate defaults."""
+"""Config files (contract section 3): read YAML with ``extends`` and ``fitted`` merged, coerce numbers, locate defaults.
+
+A valve-controlled machine's config is then typed by :mod:`hydro_ros.contract.machine`."""
 
 from __future__ import annotations
 
@@ -9,15 +11,6 @@ from typing import Any
 import yaml
 
 from hydro_ros.contract.errors import InputError
-
-_REQUIRED_SAM_KEYS = (
-    "machine",
-    "sample_rate_hz",
-    "actuators",
-    "supply_pressure",
-    "tank_pressure",
-    "sensors",
-)
 
 
 class ConfigError(InputError):
@@ -38,11 +31,6 @@ def _coerce_numbers(node: Any) -> Any:
     return node
 
 
-def load_machine_config(path: str | Path) -> dict[str, Any]:
-    """Read a SAM-type ``config/<machine>.yaml``; raise ConfigError with a one-line reason on bad input."""
-    return read_config(path, required=_REQUIRED_SAM_KEYS, nonempty="actuators")
-
-
 def read_config(path: str | Path, *, required: tuple[str, ...], nonempty: str) -> dict[str, Any]:
     """Read any machine config (extends / fitted merged, numbers coerced) and check its required keys."""
     path = Path(path)
@@ -52,7 +40,6 @@ def read_config(path: str | Path, *, required: tuple[str, ...], nonempty: str) -
         raise ConfigError(f"config {path}: missing key(s) {', '.join(missing)}")
     if not config[nonempty]:
         raise ConfigError(f"config {path}: no {nonempty}")
-    config["_path"] = str(path.resolve())
     return config
 
 

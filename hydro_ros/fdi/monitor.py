@@ -1,113 +1,30 @@
 """Condition monitor of a machine: residual generation, evaluation and isolation per actuator.
 
-Per sample block: the residual generator (P-II UKF) gives chamber-pressure estimates; the
-residual r = p - p_hat is masked, averaged over a 5 s window (eq. 24), compared with the adaptive
-threshold +-(c0 + c2 mu_p^2) (eq. 25, per chamber, mu_p the 5 s mean measured pressure) and the
-crossing pattern is fed to the isolator (P-II Table 3). Everything is vectorised over the block;
+Per sample block: the residual generator of the configured method (:mod:`hydro_ros.fdi.residuals`;
+P-II's UKF: r = p - p_hat) gives two residuals per actuator; they are masked, averaged over a 5 s
+window (eq. 24), compared with the generator's thresholds (UKF: +-(c0 + c2 mu_p^2), eq. 25, per
+chamber, mu_p the 5 s mean measured pressure) and the crossing pattern is fed to the isolator
+with the generator's signature table (UKF: P-II Table 3). Everything is vectorised over the block;
 only changes of the evidence reach the (Python) isolation logic.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
-from hydro_ros.contract.errors import InputError
-from hydro_ros.fdi.isolation import (
-    A_DOWN,
-    A_UP,
-    B_DOWN,
-    B_UP,
-    UKF_TABLE,
-    Alarm,
-    Isolator,
-    PatternRow,
-    code_string,
-    signature_rows,
-)
-from hydro_ros.fdi.parity import ParityGenerator, ParityThresholds
-from hydro_ros.fdi.ukf import PRESSURE_UNIT, UkfBank, UkfSettings
-from hydro_ros.models.kinematics import piston_position, torque_arm
-from hydro_ros.models.sam import MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET, SamModel
+from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Fault
 from hydro_ros.contract.samples import Samples
+from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Alarm, Isolator, code_string
+from hydro_ros.fdi.residuals import BlockInput, MovingAverage, generator_for
+from hydro_ros.fdi.settings import FdiSettings
+from hydro_ros.fdi.ukf import PRESSURE_UNIT
+from hydro_ros.models.kinematics import piston_position, torque_arm
+from hydro_ros.models.sam import MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET, SamModel
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3  # diagnostic_msgs/DiagnosticStatus levels
-
-DEFAULT_SEVERE = (
-    Fault.SPOOL_TOO_SMALL_OPENING,
-    Fault.SPOOL_TOO_LARGE_OPENING,
-    Fault.SPOOL_STUCK_CLOSED,
-    Fault.MAIN_SPOOL_LOCKING,
-    Fault.COMPENSATOR_SPOOL_LOCKING,
-)
-
-
-@dataclass
-class FdiSettings:
-    """The ``fdi:`` section of a machine config (defaults = P-II; see config/sam.yaml)."""
-
-    method: str = "ukf"
-    window_s: float = 5.0
-    threshold_constant: float = 0.012  # [MPa] c0 of eq. (25); P-III: 0.015 encoder, 0.023 MEMS
-    threshold_quadratic: float = 4.0e-4  # [1/MPa] c2 of eq. (25)
-    residual: str = "posterior"  # which estimate p_hat is: a-posteriori (default) or a-priori
-    mask_pressure_b: float = 2.0e5  # [Pa] residuals zeroed while p_B is below this (P-II "close to zero")
-    mask_retracted: float = 2.0e-3  # [m] ... or while the piston is within this of full retraction (P-III)
-    large_residual: float = 1.0  # [MPa] "Large" of Table 3: both |mean residuals| above this (INFERRED, tuned in
-    # simulation: a spool stuck closed gives 1.5-1.8 MPa, a 40 % too small opening < 0.8 MPa, leaks < 0.2 MPa)
-    settle_s: float = 1.0  # [s] a crossing pattern must hold this long before it narrows the cause
-    command_deadband: float = 0.005  # |5 s mean valve command| below this leaves the command sign unknown
-    stale_timeout_s: float = 0.2  # [s] a sensor silent this long makes the actuator STALE
-    severe_faults: tuple[Fault, ...] = DEFAULT_SEVERE
-    ukf: UkfSettings = field(default_factory=UkfSettings)
-    parity_thresholds: ParityThresholds | None = None  # fitted by fdi-fit on fault-free data
-    parity_signatures: tuple[PatternRow, ...] = ()  # built by simulation (fdi-fit)
-
-    @classmethod
-    def from_config(cls, config: dict[str, Any]) -> "FdiSettings":
-        section = dict(config.get("fdi") or {})
-        ukf = UkfSettings.from_config(section.pop("ukf", None))
-        severe = section.pop("severe_faults", None)
-        thresholds = ParityThresholds.from_config(section.pop("parity_thresholds", None))
-        signatures = signature_rows(section.pop("parity_signatures", None) or [])
-        unknown = [name for name in section if name not in cls.__dataclass_fields__]
-        if unknown:
-            raise InputError(f"fdi: unknown key(s) {', '.join(sorted(unknown))}")
-        settings = cls(ukf=ukf, parity_thresholds=thresholds, parity_signatures=signatures, **section)
-        if severe is not None:
-            try:
-                settings.severe_faults = tuple(Fault(name) for name in severe)
-            except ValueError as exc:
-                raise InputError(f"fdi.severe_faults: {exc}") from None
-        if settings.method not in ("ukf", "parity"):
-            raise InputError(f"fdi.method {settings.method!r}: expected ukf or parity")
-        if settings.residual not in ("posterior", "prior"):
-            raise InputError(f"fdi.residual {settings.residual!r}: expected posterior or prior")
-        return settings
-
-
-class MovingAverage:
-    """Eq. (24): mean of the last N samples per channel, zero-initialised like the paper's buffer."""
-
-    def __init__(self, window: int, channels: int) -> None:
-        self.window = window
-        self.history = np.zeros((window, channels))
-
-    def reset(self) -> None:
-        self.history[:] = 0.0
-
-    def __call__(self, block: np.ndarray) -> np.ndarray:
-        m = block.shape[0]
-        extended = np.concatenate((self.history, block))
-        sums = np.cumsum(extended, axis=0)
-        # mean of the N samples ending at each block sample; cumsum differences stay exact enough
-        # because the whole history is re-summed every block (no recursive drift)
-        out = (sums[self.window :] - sums[:m]) / self.window
-        self.history = extended[m:].copy()
-        return out
 
 
 @dataclass
@@ -135,30 +52,22 @@ class ActuatorStatus:
 
 
 class FdiMonitor:
-    """Runs the configured FDI method on every actuator of a machine config."""
+    """Runs the configured residual generator on every actuator of a machine, then evaluates and isolates."""
 
-    def __init__(self, config: dict[str, Any], method: str | None = None) -> None:
-        self.config = config
-        self.settings = FdiSettings.from_config(config)
-        self.method = method or self.settings.method
-        if self.method not in ("ukf", "parity"):
-            raise InputError(f"fdi method {self.method!r}: expected ukf or parity")
-        self.actuators = list(config["actuators"])
-        self.joints = [str(config["actuators"][a]["joint"]) for a in self.actuators]
-        self.models = [SamModel(config, a) for a in self.actuators]
+    def __init__(self, machine: Machine, method: str | None = None) -> None:
+        self.machine = machine
+        self.settings = FdiSettings.from_machine(machine)
+        self.actuators = machine.actuator_names
+        self.joints = [actuator.joint for actuator in machine.actuators]
+        self.models = [SamModel(machine, a) for a in self.actuators]
         self.sample_rate = self.models[0].sample_rate
         self.window = int(round(self.settings.window_s * self.sample_rate))
-        self.bank = UkfBank(self.models, self.settings.ukf) if self.method == "ukf" else None
-        self.parity = ParityGenerator(self.models) if self.method == "parity" else None
-        if self.parity is not None and self.settings.parity_thresholds is None:
-            raise InputError("fdi method parity: the config has no fdi.parity_thresholds (fit them with hydro-ros fdi-fit --write)")
-        table = UKF_TABLE if self.method == "ukf" else self.settings.parity_signatures
+        self.generator = generator_for(method or self.settings.method, self.models, self.settings, self.window)
         n = len(self.actuators)
         self._residual_mean = MovingAverage(self.window, 2 * n)
         self._pressure_mean = MovingAverage(self.window, 2 * n)
         self._command_mean = MovingAverage(self.window, n)
-        self._opening_mean = MovingAverage(self.window, n)
-        self.isolators = [Isolator(a, table=table, settle_s=self.settings.settle_s) for a in self.actuators]
+        self.isolators = [Isolator(a, table=self.generator.table, settle_s=self.settings.settle_s) for a in self.actuators]
         self.samples_seen = 0
         self._last_key = [None] * n
         self._last_valid = np.zeros((n, 5))
@@ -169,13 +78,13 @@ class FdiMonitor:
         geometry = np.stack([m.base[[MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET]] for m in self.models])
         self._l1, self._l2, self._l3, self._offset = geometry.T
 
+    @property
+    def method(self) -> str:
+        return self.generator.method
+
     def reset(self) -> None:
         """Restart filters and averages (the ``~/reset`` service); also clears the latches."""
-        if self.bank is not None:
-            self.bank.reset()
-        if self.parity is not None:
-            self.parity.reset()
-        self._opening_mean.reset()
+        self.generator.reset()
         self._residual_mean.reset()
         self._pressure_mean.reset()
         self._command_mean.reset()
@@ -203,10 +112,7 @@ class FdiMonitor:
         raw = np.stack([block.joint_position, block.joint_velocity, block.valve_command, supply,
                         block.pressure_a, block.pressure_b], axis=2).reshape(n, n_act, 6)
         mobile = None
-        operating_point = None
-        if self.parity is not None:
-            if not block.mobile:
-                raise InputError("fdi method parity: no pilot/compensator pressures in the samples")
+        if self.generator.needs_mobile_pressures and block.mobile:
             mobile = np.stack([np.broadcast_to(np.asarray(getattr(block, name), dtype=float).reshape(n, -1), (n, n_act))
                                for name in ("pilot_pressure_1", "pilot_pressure_2", "compensator_pressure")], axis=2)
         valid = np.all(np.isfinite(raw), axis=2) & (np.all(np.isfinite(mobile), axis=2) if mobile is not None else True)
@@ -218,32 +124,17 @@ class FdiMonitor:
         held = self._hold_last(np.concatenate([measured, raw[:, :, 2:3]], axis=2), valid)
         mean_pressure = self._pressure_mean(held[:, :, :2].reshape(n, -1) / PRESSURE_UNIT).reshape(n, n_act, 2)
         mean_command = self._command_mean(held[:, :, 2])
-        s = self.settings
-        if self.bank is not None:
-            inputs = np.stack([x, v, raw[:, :, 2], raw[:, :, 3]], axis=2)
-            prior, posterior = self.bank.run(inputs, measured, valid)
-            estimate = posterior if s.residual == "posterior" else prior
-            residual = (measured - estimate) / PRESSURE_UNIT
-            residual[mask] = 0.0
-            mean_residual = self._residual_mean(residual.reshape(n, -1)).reshape(n, n_act, 2)
-            threshold = s.threshold_constant + s.threshold_quadratic * mean_pressure**2
-        else:
-            residual, opening = self.parity.run(x, v, measured[:, :, 0], measured[:, :, 1], mobile[:, :, 0], mobile[:, :, 1],
-                                                mobile[:, :, 2], valid)
-            residual[mask] = 0.0
-            mean_residual = self._residual_mean(residual.reshape(n, -1)).reshape(n, n_act, 2)
-            operating_point = self._opening_mean(opening)
-            threshold = s.parity_thresholds(operating_point)
-        code = (
-            A_UP * (mean_residual[:, :, 0] > threshold[:, :, 0])
-            + A_DOWN * (mean_residual[:, :, 0] < -threshold[:, :, 0])
-            + B_UP * (mean_residual[:, :, 1] > threshold[:, :, 1])
-            + B_DOWN * (mean_residual[:, :, 1] < -threshold[:, :, 1])
-        ).astype(np.int8)
+        residual, operating_point = self.generator.residuals(
+            BlockInput(piston=x, velocity=v, command=raw[:, :, 2], supply=raw[:, :, 3], pressure=measured, valid=valid, mobile=mobile))
+        residual[mask] = 0.0
+        mean_residual = self._residual_mean(residual.reshape(n, -1)).reshape(n, n_act, 2)
+        threshold = self.generator.thresholds(mean_pressure, operating_point)
+        code = crossing_code(mean_residual, threshold)
         armed = (self.samples_seen + np.arange(1, n + 1)) >= self.window
         code[~armed] = 0
         pa_gt_pb = mean_pressure[:, :, 0] > mean_pressure[:, :, 1]
-        large = np.all(np.abs(mean_residual) > s.large_residual, axis=2) if self.bank is not None else np.zeros_like(pa_gt_pb)
+        large = self.generator.large(mean_residual)
+        s = self.settings
         direction = np.where(np.abs(mean_command) < s.command_deadband, 0, np.sign(mean_command)).astype(np.int8)
         alarms = self._isolate(block.times, code, pa_gt_pb, large, direction)
         self.samples_seen += n
@@ -294,3 +185,22 @@ class FdiMonitor:
     @property
     def halt(self) -> bool:
         return any(self.status(i).level == ERROR for i in range(len(self.actuators)))
+
+
+def crossing_code(mean_residual: np.ndarray, threshold: np.ndarray) -> np.ndarray:
+    """(..., 2) mean residuals against +-threshold -> the crossing pattern bits of the signature tables (int8)."""
+    return (
+        A_UP * (mean_residual[..., 0] > threshold[..., 0])
+        + A_DOWN * (mean_residual[..., 0] < -threshold[..., 0])
+        + B_UP * (mean_residual[..., 1] > threshold[..., 1])
+        + B_DOWN * (mean_residual[..., 1] < -threshold[..., 1])
+    ).astype(np.int8)
+
+
+def crossing_episodes(code: np.ndarray, previous: bool = False) -> tuple[int, bool]:
+    """Threshold-crossing episodes (rising edges of code != 0) in a block, counting on from the last block's state."""
+    crossing = (np.asarray(code) != 0).astype(np.int8)
+    if crossing.size == 0:
+        return 0, previous
+    rising = np.count_nonzero(np.diff(np.concatenate(([int(previous)], crossing))) == 1)
+    return int(rising), bool(crossing[-1])

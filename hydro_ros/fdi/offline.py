@@ -10,6 +10,7 @@ import numpy as np
 
 from hydro_ros.contract import topics
 from hydro_ros.bags.reader import BagData, BagError, read_bag
+from hydro_ros.contract.machine import Machine
 from hydro_ros.fdi.isolation import Alarm
 from hydro_ros.fdi.monitor import BlockResult, FdiMonitor
 from hydro_ros.contract.samples import Samples
@@ -97,16 +98,16 @@ def run_monitor(monitor: FdiMonitor, samples: Samples, progress: Callable[[int],
     )
 
 
-def prepare(bag: str | Path, config: dict[str, Any], method: str | None = None) -> tuple[BagData, FdiMonitor, Samples]:
+def prepare(bag: str | Path, machine: Machine, method: str | None = None) -> tuple[BagData, FdiMonitor, Samples]:
     """Everything that can fail on bad input (bag, config, method, missing topics), before any work."""
     data = read_bag(bag)
-    monitor = FdiMonitor(config, method)
+    monitor = FdiMonitor(machine, method)
     return data, monitor, blocks_from_bag(data, monitor)
 
 
-def analyse_bag(bag: str | Path, config: dict[str, Any], method: str | None = None,
+def analyse_bag(bag: str | Path, machine: Machine, method: str | None = None,
                 progress: Callable[[int], None] | None = None) -> FdiRun:
-    data, monitor, samples = prepare(bag, config, method)
+    data, monitor, samples = prepare(bag, machine, method)
     run = run_monitor(monitor, samples, progress)
     run.data = data
     return run

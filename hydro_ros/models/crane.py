@@ -388,6 +388,7 @@ def _cylinder(entry: dict[str, Any]) -> Cylinder:
 def load_crane(path: str | Path) -> tuple[Crane, dict[str, Any]]:
     """The crane of a machine config and the config itself (one-line ConfigError on bad input)."""
     config = read_config(path, required=("machine",), nonempty="machine")
+    config["_path"] = str(Path(path).resolve())  # error messages of the crane's parts name their file
     if config.get("kind") != "crane":
         raise ConfigError(f"config {path}: not a crane config (kind: crane); DP needs crane3dof.yaml or k70m.yaml")
     missing = [key for key in _REQUIRED_KEYS if not config.get(key)]

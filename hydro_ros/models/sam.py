@@ -28,6 +28,7 @@ import numpy as np
 from numba import njit
 
 from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.machine import Machine
 from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient, leak_flow
 from hydro_ros.models.friction import bristle_rate, friction_force, stribeck_curve
 from hydro_ros.models.kinematics import (
@@ -270,90 +271,83 @@ SENSOR_INJECTIONS = frozenset(
 
 @dataclass
 class SamModel:
-    """Parameters of one SAM actuator taken from a machine config (contract section 3)."""
+    """Parameters of one actuator of a SAM-type machine (contract section 3) as the model's vector."""
 
-    config: dict[str, Any]
-    actuator: str = "boom"
+    machine: Machine
+    actuator: str | None = None  # None: the machine's first actuator
     base: np.ndarray = field(init=False)
     poly: np.ndarray = field(init=False)
     centre_leakage: np.ndarray = field(init=False)
     sample_rate: float = field(init=False)
     effects: dict[str, float] = field(init=False)
     substeps: int = field(init=False)
+    joint_name: str = field(init=False)
 
     def __post_init__(self) -> None:
-        cfg = self.config
-        try:
-            act = cfg["actuators"][self.actuator]
-        except KeyError:
-            raise InputError(f"config has no actuator {self.actuator!r}") from None
-        cyl, mount, valve = act["cylinder"], act["mount"], act["valve"]
-        fluid, fric, load = act["fluid"], act["friction"], act["load"]
-        sim = cfg.get("simulation", {})
+        machine = self.machine
+        act = machine.first if self.actuator is None else machine.actuator(self.actuator)
+        self.actuator = act.name
+        self.joint_name = act.joint
+        cyl, mount, valve = act.cylinder, act.mount, act.valve
+        fluid, fric, load = act.fluid, act.friction, act.load
+        sim = machine.simulation
         p = np.zeros(N_PARAMS)
-        area_a = math.pi * cyl["piston_diameter"] ** 2 / 4.0
+        area_a = math.pi * cyl.piston_diameter ** 2 / 4.0
         p[AREA_A] = area_a
-        p[AREA_B] = area_a - math.pi * cyl["rod_diameter"] ** 2 / 4.0
-        p[STROKE] = cyl["stroke"]
-        p[V0_A] = cyl["dead_volume_a"]
-        p[V0_B] = cyl["dead_volume_b"]
-        p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3] = mount["l1"], mount["l2"], mount["l3"]
-        p[THETA_OFFSET] = mount["theta_offset"]
-        p[SPOOL_OMEGA] = valve["natural_frequency"]
-        p[SPOOL_DAMPING] = valve["damping"]
-        p[LAMINAR_BAND] = valve["laminar_band"]
-        p[OIL_MODULUS] = fluid["oil_bulk_modulus"]
-        p[HOSE_MODULUS] = fluid["hose_bulk_modulus"]
-        p[HOSE_VOLUME] = fluid["hose_volume"]
-        p[VISCOUS] = fric["viscous"]
-        p[STATIC] = fric["static"]
-        p[COULOMB] = fric["coulomb"]
-        p[STRIBECK] = fric["stribeck_velocity"]
-        p[BRISTLE] = fric["bristle_stiffness"]
-        p[BOOM_MASS] = load["boom_mass"]
-        p[BOOM_LENGTH] = load["boom_length"]
-        p[BOOM_COG] = load["boom_cog_distance"]
-        p[LEFT_MASS] = load["left_mass"]
-        p[RIGHT_MASS] = load["right_mass"]
-        p[LOAD_DISTANCE] = load["load_distance"]
-        p[SUPPLY] = cfg["supply_pressure"]
-        p[TANK] = cfg["tank_pressure"]
+        p[AREA_B] = area_a - math.pi * cyl.rod_diameter ** 2 / 4.0
+        p[STROKE] = cyl.stroke
+        p[V0_A] = cyl.dead_volume_a
+        p[V0_B] = cyl.dead_volume_b
+        p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3] = mount.l1, mount.l2, mount.l3
+        p[THETA_OFFSET] = mount.theta_offset
+        p[SPOOL_OMEGA] = valve.natural_frequency
+        p[SPOOL_DAMPING] = valve.damping
+        p[LAMINAR_BAND] = valve.laminar_band
+        p[OIL_MODULUS] = fluid.oil_bulk_modulus
+        p[HOSE_MODULUS] = fluid.hose_bulk_modulus
+        p[HOSE_VOLUME] = fluid.hose_volume
+        p[VISCOUS] = fric.viscous
+        p[STATIC] = fric.static
+        p[COULOMB] = fric.coulomb
+        p[STRIBECK] = fric.stribeck_velocity
+        p[BRISTLE] = fric.bristle_stiffness
+        p[BOOM_MASS] = load.boom_mass
+        p[BOOM_LENGTH] = load.boom_length
+        p[BOOM_COG] = load.boom_cog_distance
+        p[LEFT_MASS] = load.left_mass
+        p[RIGHT_MASS] = load.right_mass
+        p[LOAD_DISTANCE] = load.load_distance
+        p[SUPPLY] = machine.supply_pressure
+        p[TANK] = machine.tank_pressure
         p[OPENING_GAIN] = 1.0
         p[FLOW_GAIN] = 1.0
-        p[STOP_LOWER] = sim.get("end_stop_lower", 0.0)
-        p[STOP_UPPER] = min(sim.get("end_stop_upper", cyl["stroke"]), cyl["stroke"])
-        p[STOP_STIFFNESS] = sim.get("end_stop_stiffness", 1.0e8)
-        p[STOP_DAMPING] = sim.get("end_stop_damping", 2.0e6)
-        p[CAVITATION] = sim.get("cavitation_pressure", -9.0e4)
-        p[GRAVITY] = sim.get("gravity", 9.81)
-        valve_type = valve.get("type", "proportional")
-        if valve_type not in ("proportional", "mobile"):
-            raise InputError(f"actuator {self.actuator!r}: valve.type {valve_type!r}, expected proportional or mobile")
-        if valve_type == "mobile":
+        p[STOP_LOWER] = sim.end_stop_lower
+        p[STOP_UPPER] = cyl.stroke if sim.end_stop_upper is None else min(sim.end_stop_upper, cyl.stroke)
+        p[STOP_STIFFNESS] = sim.end_stop_stiffness
+        p[STOP_DAMPING] = sim.end_stop_damping
+        p[CAVITATION] = sim.cavitation_pressure
+        p[GRAVITY] = sim.gravity
+        if valve.mobile:
             p[VALVE_MOBILE] = 1.0
-            p[COMP_DROP] = valve["compensator_pressure_drop"]
-            p[PILOT_MAX] = valve["pilot_pressure_max"]
-            p[DEADZONE] = valve.get("deadzone", 0.0)
-        self.sample_rate = float(cfg["sample_rate_hz"])
+            p[COMP_DROP] = valve.compensator_pressure_drop
+            p[PILOT_MAX] = valve.pilot_pressure_max
+            p[DEADZONE] = valve.deadzone
+        self.sample_rate = machine.sample_rate_hz
         # `effects:` of a config (written by hydro-ros discrepancy) are part of the model from t = 0;
         # sensor biases among them belong to the sensors, not to the plant
-        self.effects = {str(name): float(value) for name, value in (cfg.get("effects") or {}).items()}
+        self.effects = dict(machine.effects)
         for name, value in self.effects.items():
             Injection(name, value)  # validates the name
             if name not in SENSOR_INJECTIONS:
                 _apply(p.reshape(1, -1), name, np.array([value]), self.sample_rate)
         self.base = p
-        self.poly = np.array([valve["kv_poly"][notch] for notch in NOTCHES], dtype=float)
-        self.centre_leakage = np.array([valve["centre_leakage"][notch] for notch in NOTCHES], dtype=float)
-        self.substeps = int(sim.get("substeps", 10))
+        self.poly = np.array([valve.kv_poly[notch] for notch in NOTCHES], dtype=float)
+        self.centre_leakage = np.array([valve.centre_leakage[notch] for notch in NOTCHES], dtype=float)
+        self.substeps = sim.substeps
 
     @property
     def mobile_valve(self) -> bool:
         return bool(self.base[VALVE_MOBILE] > 0.5)
-
-    @property
-    def joint_name(self) -> str:
-        return str(self.config["actuators"][self.actuator]["joint"])
 
     def parameter_matrix(self, times: np.ndarray, injections: Sequence[Injection] = ()) -> np.ndarray:
         """Parameter vector per sample time, with every plant-side injection applied."""
@@ -457,7 +451,7 @@ class SamPlant:
     ) -> None:
         self.model = model
         self.injections: list[Injection] = list(injections)
-        joint0 = model.config.get("simulation", {}).get("initial_joint_position", 0.0) if initial_joint is None else initial_joint
+        joint0 = model.machine.simulation.initial_joint_position if initial_joint is None else initial_joint
         self.state = model.resting_state(joint0)
         self.sample_index = 0
         self.operator_gain = operator_gain

@@ -12,7 +12,8 @@ import math
 import numpy as np
 from numba import njit
 
-NOTCHES = ("PA", "PB", "AT", "BT")
+from hydro_ros.contract.machine import NOTCHES
+
 PA, PB, AT, BT = 0, 1, 2, 3
 CENTRE_BAND = 0.01  # |spool| below which the laminar centre leakage acts (P-I eqs. 13-14)
 

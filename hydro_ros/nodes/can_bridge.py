@@ -30,7 +30,8 @@ from sensor_msgs.msg import FluidPressure, JointState
 from hydro_ros.contract import topics
 from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
 from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_values
-from hydro_ros.contract.config import default_config_path, load_machine_config
+from hydro_ros.contract.config import default_config_path
+from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.nodes.common import SENSOR_QOS, run_node
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
@@ -111,9 +112,9 @@ class CanBridge(Node):
         self.declare_parameter("diagnostics_period", 1.0)
         self.declare_parameter("stale_cycles", 50)
         self.declare_parameter("reconnect_backoff", [0.5, 10.0])
-        self.config = load_machine_config(self.get_parameter("config").value)
-        self.codec = MachineBus(self.config, self.get_parameter("dbc").value or None)
-        self.machine = str(self.config["machine"])
+        machine = load_machine_config(self.get_parameter("config").value)
+        self.codec = MachineBus(machine, self.get_parameter("dbc").value or None)
+        self.machine = machine.name
         self.forward = bool(self.get_parameter("forward_commands").value)
         interface = str(self.get_parameter("interface").value)
         channel = str(self.get_parameter("channel").value)

@@ -1,4 +1,4 @@
-"""plant_sim's crane mode: a crane config (``kind: crane``) runs the closed-loop crane of
+"""crane_sim: a crane config (``kind: crane``) as a simulated machine, the closed-loop crane of
 ``hydro_ros.studies.execution`` (plant + P-VI Appendix A controller) in scaled real time.
 
 The crane starts at rest with its tip at the start of ``initial_path`` (extension
@@ -29,8 +29,9 @@ from trajectory_msgs.msg import JointTrajectory
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract import topics
-from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative
-from hydro_ros.models.crane import Crane
+from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
+from hydro_ros.contract.config import default_config_path
+from hydro_ros.models.crane import load_crane
 from hydro_ros.planning.dp import DpGrid, start_position
 from hydro_ros.studies.execution import ClosedLoop, execution_from_rows, log_row, measures
 from hydro_ros.planning.paths import path_from_config
@@ -40,19 +41,27 @@ from hydro_ros.planning.trajectory import JointTrajectoryData
 MAX_CATCH_UP_S = 0.25
 
 
-class CraneRunner:
-    """The crane half of plant_sim: owns the closed loop, its publishers and its trajectory input."""
+class CraneSim(Node):
+    """The simulated crane: the closed loop, its sensor publishers and its trajectory input."""
 
-    def __init__(self, node: Node, config: dict[str, Any], *, real_time_factor: float, tick_period: float, seed: int) -> None:
-        self.node = node
+    def __init__(self) -> None:
+        super().__init__("crane_sim")
+        config_path = str(self.declare_parameter("config", str(default_config_path("k70m"))).value)
+        real_time_factor = float(self.declare_parameter("real_time_factor", 1.0).value)
+        tick_period = float(self.declare_parameter("tick_period", 0.01).value)
+        seed = int(self.declare_parameter("seed", 0).value)
+        if not (real_time_factor > 0.0 and math.isfinite(real_time_factor)):
+            raise InputError(f"parameter real_time_factor={real_time_factor}: must be > 0")
+        if not (tick_period > 0.0 and math.isfinite(tick_period)):
+            raise InputError(f"parameter tick_period={tick_period}: must be > 0")
+        self.crane, config = load_crane(config_path)
         self.config = config
-        self.crane = Crane(config)
-        supply = str(node.declare_parameter("supply", "cp").value)
-        initial_path = str(node.declare_parameter("initial_path", next(iter(config["paths"]))).value)
-        initial_extension = float(node.declare_parameter("initial_extension", -1.0).value)
-        trajectory_topic = str(node.declare_parameter("trajectory_topic", "joint_trajectory").value)
-        self.start_tolerance = float(node.declare_parameter("start_tolerance", 0.02).value)
-        publish_rate = float(node.declare_parameter("publish_rate", 50.0).value)
+        supply = str(self.declare_parameter("supply", "cp").value)
+        initial_path = str(self.declare_parameter("initial_path", next(iter(config["paths"]))).value)
+        initial_extension = float(self.declare_parameter("initial_extension", -1.0).value)
+        trajectory_topic = str(self.declare_parameter("trajectory_topic", "joint_trajectory").value)
+        self.start_tolerance = float(self.declare_parameter("start_tolerance", 0.02).value)
+        publish_rate = float(self.declare_parameter("publish_rate", 50.0).value)
         if initial_path not in config["paths"]:
             raise InputError(f"parameter initial_path={initial_path!r}: not a path of {config['machine']} ({', '.join(config['paths'])})")
         if initial_extension < 0.0:
@@ -63,24 +72,24 @@ class CraneRunner:
         self.rtf = real_time_factor
         self.names = list(self.crane.names)
         # relative names: /joint_states etc. by default, /<ns>/joint_states for a machine in a namespace
-        self.pub_joints = node.create_publisher(JointState, relative(topics.JOINT_STATES), SENSOR_QOS)
-        self.pub_commands = node.create_publisher(JointState, relative(topics.VALVE_COMMANDS), SENSOR_QOS)
-        self.pub_supply = node.create_publisher(FluidPressure, relative(topics.SUPPLY_PRESSURE), SENSOR_QOS)
+        self.pub_joints = self.create_publisher(JointState, relative(topics.JOINT_STATES), SENSOR_QOS)
+        self.pub_commands = self.create_publisher(JointState, relative(topics.VALVE_COMMANDS), SENSOR_QOS)
+        self.pub_supply = self.create_publisher(FluidPressure, relative(topics.SUPPLY_PRESSURE), SENSOR_QOS)
         self.pub_pressures = [
-            (node.create_publisher(FluidPressure, relative(topics.pressure_a(name)), SENSOR_QOS),
-             node.create_publisher(FluidPressure, relative(topics.pressure_b(name)), SENSOR_QOS))
+            (self.create_publisher(FluidPressure, relative(topics.pressure_a(name)), SENSOR_QOS),
+             self.create_publisher(FluidPressure, relative(topics.pressure_b(name)), SENSOR_QOS))
             for name in self.names
         ]
-        self.pub_execution = node.create_publisher(String, "~/execution", LATCHED_QOS)
-        node.create_subscription(JointTrajectory, trajectory_topic, self._on_trajectory, 10)
+        self.pub_execution = self.create_publisher(String, "~/execution", LATCHED_QOS)
+        self.create_subscription(JointTrajectory, trajectory_topic, self._on_trajectory, 10)
         self.publish_every = max(int(round(1.0 / (publish_rate * self.loop.plant.dt))), 1)
         self.trajectory: JointTrajectoryData | None = None
         self.rows: list[tuple] = []
         self.end_time = math.inf
         self.start_wall = time.monotonic()
-        self.stamp_origin_ns = node.get_clock().now().nanoseconds
-        node.create_timer(tick_period, self._tick)
-        node.get_logger().info(
+        self.stamp_origin_ns = self.get_clock().now().nanoseconds
+        self.create_timer(tick_period, self._tick)
+        self.get_logger().info(
             f"crane {config['machine']} ({supply.upper()} pump) at the start of {initial_path!r}, "
             f"extension {initial_extension:.3f} m; trajectories on {trajectory_topic}"
         )
@@ -95,7 +104,7 @@ class CraneRunner:
         self.trajectory = trajectory
         self.rows = [log_row(self.loop)]
         self.end_time = self.loop.time + float(trajectory.time[-1]) + self.loop.settings["settle_time"]
-        self.node.get_logger().info(f"executing a {trajectory.time[-1]:.1f} s trajectory of {len(trajectory.time)} points")
+        self.get_logger().info(f"executing a {trajectory.time[-1]:.1f} s trajectory of {len(trajectory.time)} points")
 
     def _trajectory_data(self, msg: JointTrajectory) -> JointTrajectoryData:
         missing = [name for name in self.names if name not in msg.joint_names]
@@ -115,7 +124,7 @@ class CraneRunner:
 
     def _report(self, result: dict[str, Any]) -> None:
         if not result.get("ok", True):
-            self.node.get_logger().warning(result["error"])
+            self.get_logger().warning(result["error"])
         self.pub_execution.publish(String(data=json.dumps(result)))
 
     def _tick(self) -> None:
@@ -157,3 +166,11 @@ def _pressure(stamp: Any, frame: str, value: float) -> FluidPressure:
     msg.header.stamp = stamp
     msg.header.frame_id = frame
     return msg
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node(CraneSim, args)
+
+
+if __name__ == "__main__":
+    main()

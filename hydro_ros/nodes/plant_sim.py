@@ -1,7 +1,6 @@
 """plant_sim: the machine of a config in (scaled) real time on the contract topics.
 
-A crane config (``kind: crane``) runs the closed-loop crane of ``hydro_ros.nodes.crane_sim``:
-it executes the JointTrajectory it receives; the rest of this docstring is the SAM-type machine.
+A crane config (``kind: crane``) is refused: ``crane_sim`` simulates cranes.
 
 Publishes the measured topics of contract section 1 (raw CDR, the same bytes a bag holds),
 optionally /clock. Valve commands come from the simulated operator (`excitation: operator`,
@@ -27,7 +26,8 @@ from sensor_msgs.msg import FluidPressure, JointState
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract import topics
 from hydro_ros.bags.writer import sample_payloads, sample_topics
-from hydro_ros.contract.config import default_config_path, load_machine_config, read_config
+from hydro_ros.contract.config import default_config_path, read_config
+from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import INJECTABLE, Injection
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, run_node
 from hydro_ros.sim.scenario import Scenario, start
@@ -53,19 +53,18 @@ class PlantSim(Node):
             raise InputError(f"parameter real_time_factor={self.rtf}: must be > 0")
         config_path = str(self.get_parameter("config").value)
         if read_config(config_path, required=("machine",), nonempty="machine").get("kind") == "crane":
-            self._start_crane(config_path)
-            return
+            raise InputError(f"parameter config={config_path}: a crane config; run crane_sim for a crane")
         for name in sorted(INJECTABLE):
             self.declare_parameter(f"fault.{name}", 0.0)
-        self.config = load_machine_config(config_path)
-        self.actuator = next(iter(self.config["actuators"]))
-        self.joint = self.config["actuators"][self.actuator]["joint"]
+        self.machine = load_machine_config(config_path)
+        self.actuator = self.machine.first.name
+        self.joint = self.machine.first.joint
         self.excitation = self.get_parameter("excitation").value
         if self.excitation not in ("operator", "topic"):
             raise InputError(f"parameter excitation={self.excitation!r}: expected 'operator' or 'topic'")
         self.publish_clock = bool(self.get_parameter("publish_clock").value)
-        self.run = start(self.config, Scenario(float("inf"), (), seed=int(self.get_parameter("seed").value), actuator=self.actuator))
-        self.variance = float(self.config["sensors"]["pressure_noise_std"]) ** 2
+        self.run = start(self.machine, Scenario(float("inf"), (), seed=int(self.get_parameter("seed").value), actuator=self.actuator))
+        self.variance = self.machine.sensors.pressure_noise_std ** 2
         self._pending: dict[str, float] = {}
         self.add_on_set_parameters_callback(self._on_parameters)
 
@@ -89,7 +88,7 @@ class PlantSim(Node):
 
             from hydro_ros.can.codec import MachineBus
 
-            self.can_codec = MachineBus(self.config)
+            self.can_codec = MachineBus(self.machine)
             self.can_bus = can.Bus(interface=interface, channel=str(self.get_parameter("can_channel").value))
             self.can_counter = 0
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
@@ -102,18 +101,8 @@ class PlantSim(Node):
         self.create_timer(float(self.get_parameter("tick_period").value), self._tick, clock=self.steady)
         self.create_timer(1.0, self._diagnose, clock=self.steady)
         self.get_logger().info(
-            f"simulating {self.config['machine']} ({self.actuator}) at {self.config['sample_rate_hz']:.0f} Hz, "
+            f"simulating {self.machine.name} ({self.actuator}) at {self.machine.sample_rate_hz:.0f} Hz, "
             f"x{self.rtf:g} real time, excitation={self.excitation}"
-        )
-
-    def _start_crane(self, config_path: str) -> None:
-        from hydro_ros.nodes.crane_sim import CraneRunner
-        from hydro_ros.models.crane import load_crane
-
-        _, config = load_crane(config_path)
-        self.crane = CraneRunner(
-            self, config, real_time_factor=self.rtf, tick_period=float(self.get_parameter("tick_period").value),
-            seed=int(self.get_parameter("seed").value),
         )
 
     def _on_parameters(self, params: list) -> SetParametersResult:
@@ -194,7 +183,7 @@ class PlantSim(Node):
         super().destroy_node()
 
     def _diagnose(self) -> None:
-        status = DiagnosticStatus(name="hydro_ros/plant_sim", hardware_id=str(self.config["machine"]))
+        status = DiagnosticStatus(name="hydro_ros/plant_sim", hardware_id=self.machine.name)
         sim_time = self.run.plant.time
         wall = time.monotonic() - self.start_wall
         achieved = sim_time / wall if wall > 0 else 0.0

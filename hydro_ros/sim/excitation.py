@@ -8,16 +8,16 @@ the offline simulator share it.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+
+from hydro_ros.contract.machine import Excitation
 
 
 class OperatorReference:
-    def __init__(self, settings: dict[str, Any], rng: np.random.Generator, start: float, sample_rate: float) -> None:
-        self.low, self.high = (float(v) for v in settings["joint_range"])
-        self.speed_range = tuple(float(v) for v in settings["move_speed"])
-        self.rest_range = tuple(float(v) for v in settings["rest_time"])
+    def __init__(self, settings: Excitation, rng: np.random.Generator, start: float, sample_rate: float) -> None:
+        self.low, self.high = settings.joint_range
+        self.speed_range = settings.move_speed
+        self.rest_range = settings.rest_time
         self.rng = rng
         self.dt = 1.0 / sample_rate
         self.position = float(np.clip(start, self.low, self.high))

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
+from hydro_ros.contract.machine import Machine
 from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.contract.names import Injection
 from hydro_ros.sim.excitation import OperatorReference
@@ -22,14 +22,14 @@ class Scenario:
     duration_s: float
     injections: Sequence[Injection] = ()
     seed: int = 0
-    actuator: str = "boom"
+    actuator: str | None = None  # None: the machine's first actuator
 
-    def truth(self, config: dict[str, Any]) -> dict[str, Any]:
+    def truth(self, machine: Machine) -> dict[str, Any]:
         """Ground truth stored in the bag's custom_data (contract section 2)."""
         return {
-            "machine": config["machine"],
-            "config": Path(str(config.get("_path", ""))).name,
-            "actuator": self.actuator,
+            "machine": machine.name,
+            "config": machine.source.name,
+            "actuator": self.actuator or machine.first.name,
             "seed": self.seed,
             "duration_s": self.duration_s,
             "faults": [
@@ -55,18 +55,13 @@ class ScenarioRun:
         return times, states, self.sensors.measure(times, states, applied)
 
 
-def start(config: dict[str, Any], scenario: Scenario) -> ScenarioRun:
+def start(machine: Machine, scenario: Scenario) -> ScenarioRun:
     rng = np.random.default_rng(scenario.seed)
-    model = SamModel(config, scenario.actuator)
-    excitation = config.get("excitation", {})
-    plant = SamPlant(
-        model,
-        injections=scenario.injections,
-        operator_gain=float(excitation.get("gain", 4.0)),
-        max_command=float(excitation.get("max_command", 1.0)),
-    )
+    model = SamModel(machine, scenario.actuator)
+    excitation = machine.excitation
+    plant = SamPlant(model, injections=scenario.injections, operator_gain=excitation.gain, max_command=excitation.max_command)
     operator = OperatorReference(
-        excitation or {"joint_range": [-0.5, 0.5], "move_speed": [0.05, 0.2], "rest_time": [0.5, 3.0]},
+        excitation,
         rng,
         start=float(model.joint_from_piston(plant.state[4])[0]),
         sample_rate=model.sample_rate,
@@ -75,10 +70,10 @@ def start(config: dict[str, Any], scenario: Scenario) -> ScenarioRun:
 
 
 def run_blocks(
-    config: dict[str, Any], scenario: Scenario, progress: Callable[[int], None] | None = None
+    machine: Machine, scenario: Scenario, progress: Callable[[int], None] | None = None
 ) -> Iterator[tuple[np.ndarray, np.ndarray, Samples]]:
     """Yield (times, true states, measurements) per block until ``duration_s``."""
-    run = start(config, scenario)
+    run = start(machine, scenario)
     total = int(round(scenario.duration_s * run.plant.model.sample_rate))
     done = 0
     while done < total:

@@ -12,11 +12,11 @@ The sample rate is the config's.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.config import ConfigError
 from hydro_ros.models.complementary import ComplementaryFilter
 from hydro_ros.models.sam import COMP_DROP, PILOT_MAX, SamModel, compensator_pressures, injection_levels
 from hydro_ros.contract.samples import Samples
@@ -27,25 +27,23 @@ class SensorModel:
     """Stateful (velocity filter, encoder history) so blocks can be measured one after another."""
 
     def __init__(self, model: SamModel, rng: np.random.Generator, injections: Sequence[Injection] = ()) -> None:
-        sensors: dict[str, Any] = model.config["sensors"]
+        sensors = model.machine.sensors
         self.model = model
         self.rng = rng
         self.injections = list(injections)
-        self.noise_std = float(sensors["pressure_noise_std"])
-        self.range = tuple(float(v) for v in sensors["pressure_range"])
-        self.resolution = float(sensors["encoder_resolution"])
-        cutoff = float(sensors.get("velocity_filter_hz", 20.0))
+        self.noise_std = sensors.pressure_noise_std
+        self.pilot_noise_std = sensors.pilot_pressure_noise_std
+        self.range = sensors.pressure_range
+        self.resolution = sensors.encoder_resolution
+        cutoff = sensors.velocity_filter_hz
         dt = 1.0 / model.sample_rate
         self._alpha = dt / (dt + 1.0 / (2.0 * math.pi * cutoff))
         self._previous_angle: float | None = None
         self._velocity = 0.0
-        self.motion_sensor = str(sensors.get("motion_sensor", "encoder"))
-        if self.motion_sensor not in ("encoder", "mems"):
-            raise InputError(f"sensors.motion_sensor {self.motion_sensor!r}: expected encoder or mems")
-        if self.motion_sensor == "mems":
-            mems = sensors["mems"]
-            self.mems = {key: float(value) for key, value in mems.items()}
-            self.complementary = ComplementaryFilter(self.mems["k_p"], self.mems["k_i"], model.sample_rate)
+        self.motion_sensor = sensors.motion_sensor
+        self.mems = sensors.mems
+        if self.mems is not None:
+            self.complementary = ComplementaryFilter(self.mems.k_p, self.mems.k_i, model.sample_rate)
 
     def _bias(self, name: str, times: np.ndarray) -> np.ndarray | float:
         total: np.ndarray | float = self.model.effects.get(name, 0.0)
@@ -62,10 +60,10 @@ class SensorModel:
     def _mems(self, angle: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         m = self.mems
         rate = states[:, 5] / np.array([self.model.torque_arm_at(x) for x in states[:, 4]])  # eq. (4) inverted
-        inclination = angle + self.rng.normal(0.0, m["inclination_noise_std"], size=angle.shape)
-        inclination = np.round(inclination / m["inclination_resolution"]) * m["inclination_resolution"]
-        gyro = rate + m["gyro_bias"] + self.rng.normal(0.0, m["gyro_noise_std"], size=rate.shape)
-        gyro = np.round(gyro / m["gyro_resolution"]) * m["gyro_resolution"]
+        inclination = angle + self.rng.normal(0.0, m.inclination_noise_std, size=angle.shape)
+        inclination = np.round(inclination / m.inclination_resolution) * m.inclination_resolution
+        gyro = rate + m.gyro_bias + self.rng.normal(0.0, m.gyro_noise_std, size=rate.shape)
+        gyro = np.round(gyro / m.gyro_resolution) * m.gyro_resolution
         return self.complementary(inclination, gyro)
 
     def measure(self, times: np.ndarray, states: np.ndarray, commands: np.ndarray) -> Samples:
@@ -91,7 +89,9 @@ class SensorModel:
         params = self.model.parameter_matrix(times, self.injections)
         pilot_max = self.model.base[PILOT_MAX]
         compensator = compensator_pressures(states, params)
-        pilot_noise = float(self.model.config["sensors"]["pilot_pressure_noise_std"])
+        if self.pilot_noise_std is None:
+            raise ConfigError(f"config {self.model.machine.source}: missing key sensors.pilot_pressure_noise_std (mobile valves)")
+        pilot_noise = self.pilot_noise_std
         return {
             "pilot_pressure_1": self._pressure(pilot_max * np.clip(commands, 0.0, 1.0), self._bias("pilot_pressure_sensor_bias", times), pilot_noise),
             "pilot_pressure_2": self._pressure(pilot_max * np.clip(-commands, 0.0, 1.0), 0.0, pilot_noise),
@@ -100,7 +100,7 @@ class SensorModel:
         }
 
     def _measurements(self, times, states, commands, joint: np.ndarray, velocity: np.ndarray) -> Samples:
-        supply = np.full(len(times), self.model.config["supply_pressure"], dtype=float)
+        supply = np.full(len(times), self.model.machine.supply_pressure, dtype=float)
         extra = self._mobile_valve(times, states, commands) if self.model.mobile_valve else {}
         return Samples(
             times=times,

@@ -40,7 +40,7 @@ from scipy.optimize import minimize, minimize_scalar
 from hydro_ros.contract.errors import InputError
 from hydro_ros.studies.plots import plot_discrepancy
 from hydro_ros.bags.reader import BagData
-from hydro_ros.contract.config import with_overrides
+from hydro_ros.contract.machine import Machine
 from hydro_ros.models.kinematics import piston_position, torque_arm
 from hydro_ros.fdi.parity import flow_balance
 from hydro_ros.models.sam import (
@@ -114,9 +114,8 @@ class Recording:
         return np.concatenate([held, known])
 
     @classmethod
-    def from_bag(cls, data: BagData, config: dict[str, Any]) -> "Recording":
-        actuator = next(iter(config["actuators"]))
-        joint = config["actuators"][actuator]["joint"]
+    def from_bag(cls, data: BagData, machine: Machine) -> "Recording":
+        actuator, joint = machine.first.name, machine.first.joint
         for label, source, key in (("joint", data.joint_position, joint), ("pressure_a", data.pressure_a, actuator),
                                    ("pressure_b", data.pressure_b, actuator), ("valve command", data.valve_command, actuator)):
             if key not in source:
@@ -129,9 +128,9 @@ class Recording:
         return cls(data.times[good], *(signal[good] for signal in signals))
 
 
-def simulate(config: dict[str, Any], rec: Recording) -> np.ndarray:
+def simulate(machine: Machine, rec: Recording) -> np.ndarray:
     """Normalised error (n, 3) of 2 s segment simulations started from the measured state."""
-    model = SamModel(config)
+    model = SamModel(machine)
     p = model.base
     theta = rec.joint + p[THETA_OFFSET]
     piston = piston_position(theta, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
@@ -173,18 +172,17 @@ def gap(error: np.ndarray) -> float:
     return float(np.sqrt(np.mean(smooth(error) ** 2)))
 
 
-def _with(config: dict[str, Any], effects: dict[str, float], calibration: dict[str, float]) -> dict[str, Any]:
-    actuator = next(iter(config["actuators"]))
-    valve = config["actuators"][actuator]["valve"]
-    fluid = config["actuators"][actuator]["fluid"]
-    gain = {notch: calibration.get(f"{NOTCH_GROUP[notch]}_flow_gain", 1.0) for notch in valve["kv_poly"]}
-    overrides = {"actuators": {actuator: {
-        "valve": {"kv_poly": {n: [c * gain[n] for c in valve["kv_poly"][n]] for n in valve["kv_poly"]}},
-        "fluid": {"oil_bulk_modulus": fluid["oil_bulk_modulus"] * calibration.get("bulk_factor", 1.0)},
-    }}}
-    merged = with_overrides(config, overrides)
-    merged["effects"] = {**(config.get("effects") or {}), **effects}
-    return merged
+def _with(machine: Machine, effects: dict[str, float], calibration: dict[str, float]) -> Machine:
+    actuator = machine.first
+    valve, fluid = actuator.valve, actuator.fluid
+    gain = {notch: calibration.get(f"{NOTCH_GROUP[notch]}_flow_gain", 1.0) for notch in valve.kv_poly}
+    return machine.with_overrides({
+        "actuators": {actuator.name: {
+            "valve": {"kv_poly": {n: [c * gain[n] for c in valve.kv_poly[n]] for n in valve.kv_poly}},
+            "fluid": {"oil_bulk_modulus": fluid.oil_bulk_modulus * calibration.get("bulk_factor", 1.0)},
+        }},
+        "effects": effects,
+    })
 
 
 # an identified valve's flow, per notch group (P-I's GSA ranks the supply notches first, then the return
@@ -205,11 +203,11 @@ def _calibration_coordinates(calibration: dict[str, float]) -> list[float]:
             for name, tolerance in CALIBRATION_TOLERANCE.items()]
 
 
-def calibrate(config: dict[str, Any], rec: Recording) -> dict[str, float]:
+def calibrate(machine: Machine, rec: Recording) -> dict[str, float]:
     """Supply- and return-notch flow gains within +-5 % and bulk-modulus factor within +-30 % (ordinary calibration error)."""
 
     def cost(z: np.ndarray) -> float:
-        return gap(simulate(_with(config, {}, _calibration(z)), rec))
+        return gap(simulate(_with(machine, {}, _calibration(z)), rec))
 
     start = np.zeros(len(CALIBRATION_TOLERANCE))
     simplex = np.vstack([start, 0.6 * np.eye(len(start))])  # steps of ~3 % flow and ~17 % bulk modulus
@@ -218,7 +216,7 @@ def calibrate(config: dict[str, Any], rec: Recording) -> dict[str, float]:
     return _calibration(result.x)
 
 
-def refine(config: dict[str, Any], calibration: dict[str, float], named: dict[str, float], rec: Recording,
+def refine(machine: Machine, calibration: dict[str, float], named: dict[str, float], rec: Recording,
            max_evaluations: int = 100) -> tuple[dict[str, float], dict[str, float]]:
     """The named effects and the calibration fitted jointly, from the one-at-a-time values.
 
@@ -232,7 +230,7 @@ def refine(config: dict[str, Any], calibration: dict[str, float], named: dict[st
     """
     if not named:
         return calibration, named
-    start_gap, calibration = min(((gap(simulate(_with(config, named, c), rec)), c) for c in (calibration, NO_CALIBRATION)),
+    start_gap, calibration = min(((gap(simulate(_with(machine, named, c), rec)), c) for c in (calibration, NO_CALIBRATION)),
                                  key=lambda scored: scored[0])
     names = list(named)
     ranges = [EFFECT_RANGES[n] for n in names]
@@ -244,7 +242,7 @@ def refine(config: dict[str, Any], calibration: dict[str, float], named: dict[st
 
     def cost(z: np.ndarray) -> float:
         calibrated, effects = unpack(z)
-        return gap(simulate(_with(config, effects, calibrated), rec))
+        return gap(simulate(_with(machine, effects, calibrated), rec))
 
     start = np.concatenate([_calibration_coordinates(calibration), np.zeros(len(names))])
     # ~1.5 % flow, ~9 % bulk modulus, 5 % of each effect's range
@@ -279,11 +277,11 @@ def _equation_error(piston, velocity, p_a, p_b, command, supply, params, poly, c
         out[k, 0], out[k, 1] = flow_balance(s, piston[k], velocity[k], p_a[k], p_b[k], dpa, dpb, supply[k], params, poly, centre)
 
 
-def load_independent_error(config: dict[str, Any], rec: Recording) -> np.ndarray:
+def load_independent_error(machine: Machine, rec: Recording) -> np.ndarray:
     """Flow errors [L/min] of the load-independent model (P-II's reduced model as equation error):
     measured motion and pressures in, no load, friction or mass involved - so what remains here is
     a valve, leak or bulk-modulus matter, and what appears only in the forward simulation is load-side."""
-    model = SamModel(config)
+    model = SamModel(machine)
     p = model.base
     theta = rec.joint + p[THETA_OFFSET]
     piston = piston_position(theta, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
@@ -351,21 +349,21 @@ class Candidate:
         return self.bic_gain > BIC_MARGIN and self.reduction >= self.required_reduction
 
 
-def fit_effects(config: dict[str, Any], calibration: dict[str, float], rec: Recording, named: dict[str, float],
+def fit_effects(machine: Machine, calibration: dict[str, float], rec: Recording, named: dict[str, float],
                 progress: Callable[[int], None] | None = None) -> list[Candidate]:
-    base = simulate(_with(config, named, calibration), rec)
-    base_bic = _bic(base, len(named), SamModel(config).sample_rate)
+    base = simulate(_with(machine, named, calibration), rec)
+    base_bic = _bic(base, len(named), SamModel(machine).sample_rate)
     out = []
     for name, (low, high) in EFFECT_RANGES.items():
         if name in named:
             continue
 
         def cost(value: float, name: str = name) -> float:
-            return gap(simulate(_with(config, {**named, name: value}, calibration), rec))
+            return gap(simulate(_with(machine, {**named, name: value}, calibration), rec))
 
         result = minimize_scalar(cost, bounds=(low, high), method="bounded", options={"maxiter": 14, "xatol": 1e-3 * (high - low)})
-        error = simulate(_with(config, {**named, name: float(result.x)}, calibration), rec)
-        bic = _bic(error, len(named) + 1, SamModel(config).sample_rate)
+        error = simulate(_with(machine, {**named, name: float(result.x)}, calibration), rec)
+        bic = _bic(error, len(named) + 1, SamModel(machine).sample_rate)
         # a second effect on top of a first must explain more of what is left (it competes with the rest of the mismatch)
         out.append(Candidate(name, float(result.x), base_bic - bic, 1.0 - (gap(error) / gap(base)) ** 2,
                              _signature(rec, smooth(base), smooth(error)), MIN_REDUCTION if not named else 2 * MIN_REDUCTION))
@@ -374,37 +372,36 @@ def fit_effects(config: dict[str, Any], calibration: dict[str, float], rec: Reco
     return sorted(out, key=lambda c: (-c.bic_gain, -c.signature))
 
 
-def run(data: BagData, config: dict[str, Any], out: Path, progress: Callable[[int], None] | None = None) -> dict[str, Any]:
-    rec = Recording.from_bag(data, config)
+def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+    rec = Recording.from_bag(data, machine)
     split = int(FIT_SHARE * len(rec.times))
     fit, validation = rec.part(slice(0, split)), rec.part(slice(split, None))
-    calibration = calibrate(config, fit)
+    calibration = calibrate(machine, fit)
     if progress:
         progress(1)
     named: dict[str, float] = {}
     rounds = []
     for _ in range(2):
-        candidates = fit_effects(config, calibration, fit, named, progress)
+        candidates = fit_effects(machine, calibration, fit, named, progress)
         rounds.append([c.__dict__ | {"significant": c.significant} for c in candidates])
         best = next((c for c in candidates if c.significant), None)
         if best is None:
             break
         named[best.name] = best.value
     separate = dict(named)
-    joint_calibration, named = refine(config, calibration, named, fit)
+    joint_calibration, named = refine(machine, calibration, named, fit)
     if progress:
         progress(1)
-    before_fit = simulate(_with(config, {}, calibration), fit)
-    after_fit = simulate(_with(config, named, joint_calibration), fit)
-    raw_validation = simulate(config, validation)
-    before_validation = simulate(_with(config, {}, calibration), validation)
-    after_validation = simulate(_with(config, named, joint_calibration), validation)
-    model = _with(config, named, joint_calibration)
-    model.pop("_path", None)
+    before_fit = simulate(_with(machine, {}, calibration), fit)
+    after_fit = simulate(_with(machine, named, joint_calibration), fit)
+    raw_validation = simulate(machine, validation)
+    before_validation = simulate(_with(machine, {}, calibration), validation)
+    after_validation = simulate(_with(machine, named, joint_calibration), validation)
+    model = _with(machine, named, joint_calibration)
     out.mkdir(parents=True, exist_ok=True)
     (out / "model.yaml").write_text("# model of hydro-ros discrepancy: calibrated flow gain and bulk modulus, named effects\n"
-                                    + yaml.safe_dump(model, sort_keys=False))
-    plot = plot_discrepancy(validation, config, before_validation, after_validation, named, out / "validation.png", scales=SCALES)
+                                    + yaml.safe_dump(model.to_yaml_mapping(), sort_keys=False))
+    plot = plot_discrepancy(validation, machine, before_validation, after_validation, named, out / "validation.png", scales=SCALES)
     return {
         "effects": [{"name": name, "parameters": {"value": value}} for name, value in named.items()],
         "gap": {"metric": "rms of the 0.1 s mean error of 2 s segment simulations; p_A, p_B per 0.1 MPa, position per 1 mm",
@@ -415,7 +412,7 @@ def run(data: BagData, config: dict[str, Any], out: Path, progress: Callable[[in
         "joint_fit": {"calibration": joint_calibration, "effects": named, "separate_effects": separate},
         "candidates": rounds,
         "localisation": {"forward": localise(fit, before_fit),
-                         "load_independent_l_min": localise(fit, load_independent_error(_with(config, {}, calibration), fit),
+                         "load_independent_l_min": localise(fit, load_independent_error(_with(machine, {}, calibration), fit),
                                                             ("q_a", "q_b"))},
         "fit_s": float(fit.times[-1] - fit.times[0]), "validation_s": float(validation.times[-1] - validation.times[0]),
         "plots": [str(plot)],

@@ -12,15 +12,17 @@ from __future__ import annotations
 import math
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from hydro_ros.contract.config import with_overrides
-from hydro_ros.fdi.monitor import FdiMonitor
-from hydro_ros.contract.samples import Samples
-from hydro_ros.models.valve import NOTCHES
+from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.names import Injection
+from hydro_ros.fdi.isolation import code_string
+from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
+from hydro_ros.fdi.parity import ParityThresholds
+from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
 # Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order
@@ -39,34 +41,34 @@ LEAK_SIZES = (0.1, 0.2, 0.3, 0.5, 1.0, 2.0)  # [L/min at 10 MPa]
 VALVE_FAULTS = (("spool_too_small_opening", 0.4), ("spool_too_large_opening", 0.4), ("spool_stuck_closed", 1.0))
 
 
-def mismatched_config(config: dict[str, Any], seed: int, scale: float = 1.0) -> dict[str, Any]:
-    """The plant's config: the nominal one with every MISMATCH parameter drawn for ``seed``."""
+def mismatched_config(machine: Machine, seed: int, scale: float = 1.0) -> Machine:
+    """The plant's machine: the nominal one with every MISMATCH parameter drawn for ``seed``."""
     rng = np.random.default_rng(10_000 + seed)
 
     def factor(name: str) -> float:
         return 1.0 + scale * MISMATCH[name] * rng.uniform(-1.0, 1.0)
 
     overrides: dict[str, Any] = {"actuators": {}}
-    for name, actuator in config["actuators"].items():
-        valve, fluid, friction = actuator["valve"], actuator["fluid"], actuator["friction"]
+    for actuator in machine.actuators:
+        valve, fluid, friction = actuator.valve, actuator.fluid, actuator.friction
         f_static = factor("friction")
-        overrides["actuators"][name] = {
+        overrides["actuators"][actuator.name] = {
             "valve": {
-                "kv_poly": {n: list(np.multiply(valve["kv_poly"][n], factor("flow_coefficient"))) for n in NOTCHES},
-                "centre_leakage": {n: valve["centre_leakage"][n] * factor("centre_leakage") for n in NOTCHES},
+                "kv_poly": {n: list(np.multiply(valve.kv_poly[n], factor("flow_coefficient"))) for n in NOTCHES},
+                "centre_leakage": {n: valve.centre_leakage[n] * factor("centre_leakage") for n in NOTCHES},
             },
             "fluid": {
-                "oil_bulk_modulus": fluid["oil_bulk_modulus"] * factor("oil_bulk_modulus"),
-                "hose_bulk_modulus": fluid["hose_bulk_modulus"] * factor("hose_bulk_modulus"),
+                "oil_bulk_modulus": fluid.oil_bulk_modulus * factor("oil_bulk_modulus"),
+                "hose_bulk_modulus": fluid.hose_bulk_modulus * factor("hose_bulk_modulus"),
             },
             "friction": {
-                "static": friction["static"] * f_static,
-                "coulomb": friction["coulomb"] * f_static,
-                "viscous": friction["viscous"] * factor("friction"),
+                "static": friction.static * f_static,
+                "coulomb": friction.coulomb * f_static,
+                "viscous": friction.viscous * factor("friction"),
             },
         }
-    overrides["sensors"] = {"pressure_noise_std": config["sensors"]["pressure_noise_std"] * factor("pressure_noise_std")}
-    return with_overrides(config, overrides)
+    overrides["sensors"] = {"pressure_noise_std": machine.sensors.pressure_noise_std * factor("pressure_noise_std")}
+    return machine.with_overrides(overrides)
 
 
 @dataclass
@@ -108,16 +110,16 @@ def _leak_flow_l_min(fault: str, value: float, states: np.ndarray) -> np.ndarray
     return value * np.sqrt(drop / 1e7)
 
 
-def _blocks(config: dict[str, Any], case: Case, monitor: FdiMonitor):
+def _blocks(machine: Machine, case: Case, monitor: FdiMonitor):
     """(true states, monitor result) per block of the case's mismatched plant."""
-    plant_config = mismatched_config(config, case.seed, case.mismatch)
+    plant_config = mismatched_config(machine, case.seed, case.mismatch)
     injections = [Injection(case.fault, case.value, case.onset_s)] if case.fault else []
     scenario = Scenario(case.duration_s, injections, seed=case.seed, actuator=monitor.actuators[0])
     for _, states, measured in run_blocks(plant_config, scenario):
         yield states, monitor.process(measured.as_columns())
 
 
-def calibrate_threshold_constant(config: dict[str, Any], seeds: Iterable[int], duration_s: float = 120.0,
+def calibrate_threshold_constant(machine: Machine, seeds: Iterable[int], duration_s: float = 120.0,
                                  margin: float = 1.25) -> float:
     """c0 of eq. (25) for fault-free data of mismatched plants, keeping P-II's c2.
 
@@ -127,10 +129,10 @@ def calibrate_threshold_constant(config: dict[str, Any], seeds: Iterable[int], d
     """
     worst = 0.0
     for seed in seeds:
-        monitor = FdiMonitor(config)
+        monitor = FdiMonitor(machine)
         c2 = monitor.settings.threshold_quadratic
         skip = monitor.window
-        for _, result in _blocks(config, Case(None, 0.0, seed, duration_s=duration_s), monitor):
+        for _, result in _blocks(machine, Case(None, 0.0, seed, duration_s=duration_s), monitor):
             armed = slice(max(skip, 0), None)
             skip -= len(result.times)
             mean_pressure_sq = (result.threshold[armed] - monitor.settings.threshold_constant) / c2
@@ -140,18 +142,17 @@ def calibrate_threshold_constant(config: dict[str, Any], seeds: Iterable[int], d
     return margin * worst
 
 
-def run_case(config: dict[str, Any], case: Case) -> Outcome:
-    monitor = FdiMonitor(config)
+def run_case(machine: Machine, case: Case) -> Outcome:
+    monitor = FdiMonitor(machine)
     first: float | None = None
     early = False
     episodes = 0
-    previous = 0
+    crossing = False
     leak: list[np.ndarray] = []
-    for states, result in _blocks(config, case, monitor):
+    for states, result in _blocks(machine, case, monitor):
         times = result.times
-        alarming = (result.code[:, 0] != 0).astype(np.int8)
-        episodes += int(np.count_nonzero(np.diff(np.concatenate(([previous], alarming))) == 1))
-        previous = int(alarming[-1])
+        new, crossing = crossing_episodes(result.code[:, 0], crossing)
+        episodes += new
         for alarm in result.alarms:
             if alarm.time_s < case.onset_s or case.fault is None:
                 early = True
@@ -173,21 +174,21 @@ def run_case(config: dict[str, Any], case: Case) -> Outcome:
     )
 
 
-def _run(args: tuple[dict[str, Any], Case]) -> Outcome:
+def _run(args: tuple[Machine, Case]) -> Outcome:
     return run_case(*args)
 
 
-def run_cases(config: dict[str, Any], cases: list[Case], workers: int = 2, progress: Callable[[int], None] | None = None) -> list[Outcome]:
+def run_cases(machine: Machine, cases: list[Case], *, workers: int = 2, progress: Callable[[int], None] | None = None) -> list[Outcome]:
     if workers <= 1:
         out = []
         for case in cases:
-            out.append(run_case(config, case))
+            out.append(run_case(machine, case))
             if progress:
                 progress(1)
         return out
     with ProcessPoolExecutor(workers) as pool:
         out = []
-        for outcome in pool.map(_run, [(config, c) for c in cases]):
+        for outcome in pool.map(_run, [(machine, c) for c in cases]):
             out.append(outcome)
             if progress:
                 progress(1)
@@ -239,30 +240,31 @@ def summarise(outcomes: list[Outcome], fault_free: list[Outcome]) -> dict[str, A
     }
 
 
-def evaluate(config: dict[str, Any], *, seeds: int = 5, calibration_seeds: int = 10, duration_s: float = 90.0,
+def evaluate(machine: Machine, *, seeds: int = 5, calibration_seeds: int = 10, duration_s: float = 90.0,
              fault_free_minutes: float = 60.0, workers: int = 2, progress: Callable[[int], None] | None = None,
              leak_sizes: Iterable[float] = LEAK_SIZES) -> dict[str, Any]:
     """Calibrate c0 on training seeds, then score the scenario matrix and long fault-free runs on others.
 
     A parity config (fitted by fdi-fit on seeds 100+ and 300+) is scored on the P-IV fault list instead.
     """
-    if FdiMonitor(config).method == "parity":
-        return evaluate_parity(config, seeds=seeds, duration_s=duration_s, fault_free_minutes=fault_free_minutes,
+    settings = FdiSettings.from_machine(machine)
+    if settings.method == "parity":
+        return evaluate_parity(machine, seeds=seeds, duration_s=duration_s, fault_free_minutes=fault_free_minutes,
                                workers=workers, progress=progress)
-    c0 = calibrate_threshold_constant(config, range(100, 100 + calibration_seeds))
-    calibrated = with_overrides(config, {"fdi": {"threshold_constant": c0}})
+    c0 = calibrate_threshold_constant(machine, range(100, 100 + calibration_seeds))
+    calibrated = machine.with_overrides({"fdi": {"threshold_constant": c0}})
     cases = scenario_matrix(range(seeds), leak_sizes, duration_s)
     runs = max(1, int(round(fault_free_minutes * 60.0 / 600.0)))
     free = [Case(None, 0.0, 200 + s, duration_s=fault_free_minutes * 60.0 / runs) for s in range(runs)]
     paper_free = [Case(None, 0.0, 200 + s, duration_s=fault_free_minutes * 60.0 / runs) for s in range(runs)]
-    outcomes = run_cases(calibrated, cases + free, workers, progress)
-    paper = run_cases(config, paper_free, workers, progress)
+    outcomes = run_cases(calibrated, cases + free, workers=workers, progress=progress)
+    paper = run_cases(machine, paper_free, workers=workers, progress=progress)
     summary = summarise(outcomes[: len(cases)], outcomes[len(cases):])
     paper_hours = sum(o.monitored_s for o in paper) / 3600.0
     summary["threshold"] = {
         "calibrated_constant_mpa": c0,
-        "paper_constant_mpa": FdiMonitor(config).settings.threshold_constant,
-        "quadratic_per_mpa": FdiMonitor(config).settings.threshold_quadratic,
+        "paper_constant_mpa": settings.threshold_constant,
+        "quadratic_per_mpa": settings.threshold_quadratic,
         "paper_threshold_false_alarms_per_hour": sum(o.crossing_episodes for o in paper) / paper_hours,
     }
     summary["settings"] = {"seeds": seeds, "calibration_seeds": calibration_seeds, "duration_s": duration_s,
@@ -279,14 +281,14 @@ def parity_matrix(seeds: Iterable[int], duration_s: float) -> list[Case]:
     return cases
 
 
-def evaluate_parity(config: dict[str, Any], *, seeds: int, duration_s: float, fault_free_minutes: float, workers: int,
+def evaluate_parity(machine: Machine, *, seeds: int, duration_s: float, fault_free_minutes: float, workers: int,
                     progress: Callable[[int], None] | None) -> dict[str, Any]:
     cases = parity_matrix(range(seeds), duration_s)
     runs = max(1, int(round(fault_free_minutes * 60.0 / 600.0)))
     free = [Case(None, 0.0, 200 + s, duration_s=fault_free_minutes * 60.0 / runs) for s in range(runs)]
-    outcomes = run_cases(config, cases + free, workers, progress)
+    outcomes = run_cases(machine, cases + free, workers=workers, progress=progress)
     summary = summarise(outcomes[: len(cases)], outcomes[len(cases):])
-    fitted = FdiMonitor(config).settings.parity_thresholds
+    fitted = FdiSettings.from_machine(machine).parity_thresholds
     summary["threshold"] = {"method": "parity", "factor": fitted.factor, "opening_edges": list(fitted.edges)}
     summary["settings"] = {"seeds": seeds, "duration_s": duration_s, "onset_s": cases[0].onset_s,
                            "fault_free_minutes": fault_free_minutes}
@@ -329,9 +331,9 @@ THRESHOLD_FACTORS = (2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 14.0)
 _UNBOUNDED = {"edges": [0.0, 1.5], "mean": [[0.0, 0.0]], "std": [[1.0, 1.0]], "factor": 1e12}
 
 
-def _parity_records(config: dict[str, Any], case: Case) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _parity_records(machine: Machine, case: Case) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Armed (mean residual (n, 2), mean opening (n,), mean command (n,), times (n,)) of one run."""
-    probe = with_overrides(config, {"fdi": {"parity_thresholds": _UNBOUNDED, "parity_signatures": []}})
+    probe = machine.with_overrides({"fdi": {"parity_thresholds": _UNBOUNDED, "parity_signatures": []}})
     monitor = FdiMonitor(probe, "parity")
     parts = [(r.mean_residual[:, 0], r.operating_point[:, 0], r.mean_command[:, 0], r.times) for _, r in _blocks(probe, case, monitor)]
     residual, opening, command, times = (np.concatenate([p[i] for p in parts]) for i in range(4))
@@ -339,18 +341,14 @@ def _parity_records(config: dict[str, Any], case: Case) -> tuple[np.ndarray, np.
     return residual[armed], opening[armed], command[armed], times[armed]
 
 
-def _crossing_episodes(residual: np.ndarray, opening: np.ndarray, thresholds: "ParityThresholds") -> int:
-    limit = thresholds(opening[:, None])[:, 0]
-    crossing = np.any(np.abs(residual) > limit, axis=1).astype(np.int8)
-    return int(np.count_nonzero(np.diff(np.concatenate(([0], crossing))) == 1))
+def _crossing_episodes(residual: np.ndarray, opening: np.ndarray, thresholds: ParityThresholds) -> int:
+    return crossing_episodes(crossing_code(residual, thresholds(opening[:, None])[:, 0]))[0]
 
 
-def fit_parity_thresholds(config: dict[str, Any], train: Iterable[int], held_out: Iterable[int], duration_s: float = 120.0,
+def fit_parity_thresholds(machine: Machine, train: Iterable[int], held_out: Iterable[int], duration_s: float = 120.0,
                           target_per_hour: float = 1.0) -> tuple["ParityThresholds", dict[str, Any]]:
     """Bin fault-free 5 s mean residuals by mean opening; pick c for the false-alarm target on held-out plants."""
-    from hydro_ros.fdi.parity import ParityThresholds
-
-    train_runs = [_parity_records(config, Case(None, 0.0, seed, duration_s=duration_s)) for seed in train]
+    train_runs = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s)) for seed in train]
     residual = np.concatenate([r[0] for r in train_runs])
     opening = np.concatenate([r[1] for r in train_runs])
     bins = np.clip(np.searchsorted(OPENING_EDGES, opening, side="right") - 1, 0, len(OPENING_EDGES) - 2)
@@ -361,8 +359,8 @@ def fit_parity_thresholds(config: dict[str, Any], train: Iterable[int], held_out
             chosen = residual
         mean.append(tuple(float(v) for v in chosen.mean(axis=0)))
         std.append(tuple(float(v) for v in chosen.std(axis=0)))
-    held = [_parity_records(config, Case(None, 0.0, seed, duration_s=duration_s)) for seed in held_out]
-    hours = sum(len(r[3]) for r in held) / float(config["sample_rate_hz"]) / 3600.0
+    held = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s)) for seed in held_out]
+    hours = sum(len(r[3]) for r in held) / machine.sample_rate_hz / 3600.0
     report: dict[str, Any] = {"held_out_hours": hours, "tried": {}}
     for factor in THRESHOLD_FACTORS:
         thresholds = ParityThresholds(OPENING_EDGES, tuple(mean), tuple(std), factor)
@@ -376,19 +374,15 @@ def fit_parity_thresholds(config: dict[str, Any], train: Iterable[int], held_out
     return ParityThresholds(OPENING_EDGES, tuple(mean), tuple(std), THRESHOLD_FACTORS[-1]), report
 
 
-def build_parity_signatures(config: dict[str, Any], thresholds: "ParityThresholds", seeds: Iterable[int],
+def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seeds: Iterable[int],
                             duration_s: float = 60.0, onset_s: float = 20.0, share: float = 0.25) -> list[dict[str, Any]]:
     """Signature table by simulation: per fault and command sign, the crossing pattern that dominates after onset."""
-    from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, code_string
-
     rows: list[dict[str, Any]] = []
     for fault, value in PARITY_FAULTS:
         counts: dict[tuple[int, int], int] = {}
         for seed in seeds:
-            residual, opening, command, times = _parity_records(config, Case(fault, value, seed, onset_s, duration_s))
-            limit = thresholds(opening[:, None])[:, 0]
-            code = (A_UP * (residual[:, 0] > limit[:, 0]) + A_DOWN * (residual[:, 0] < -limit[:, 0])
-                    + B_UP * (residual[:, 1] > limit[:, 1]) + B_DOWN * (residual[:, 1] < -limit[:, 1]))
+            residual, opening, command, times = _parity_records(machine, Case(fault, value, seed, onset_s, duration_s))
+            code = crossing_code(residual, thresholds(opening[:, None])[:, 0])
             after = times >= onset_s
             direction = np.sign(command)
             for c, d in zip(code[after], direction[after]):
@@ -408,7 +402,7 @@ def build_parity_signatures(config: dict[str, Any], thresholds: "ParityThreshold
 FIT_MARKER = "# --- fitted by `hydro-ros fdi-fit`"
 
 
-def write_fitted_block(path: "Path", thresholds: "ParityThresholds", rows: list[dict[str, Any]], report: dict[str, Any]) -> None:
+def write_fitted_block(path: Path, thresholds: ParityThresholds, rows: list[dict[str, Any]], report: dict[str, Any]) -> None:
     """Replace the fitted block at the end of a machine config file (hand-written part untouched)."""
     import yaml
 

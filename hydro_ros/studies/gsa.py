@@ -17,7 +17,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hydro_ros.contract.config import with_overrides
+from hydro_ros.contract.machine import Machine
 from hydro_ros.models.chamber import leak_coefficient
 from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.contract.names import Injection
@@ -41,15 +41,10 @@ SETTLE_S = 0.5  # at rest before the step, so the start is the centre-leakage eq
 RETRACTED_JOINT = 0.728 - 1.6 + 0.005  # P-I's initial angle (L4842), just off the end stop (INFERRED)
 
 
-def _nominal_kv(config: dict[str, Any], actuator: str) -> float:
-    valve = config["actuators"][actuator]["valve"]
-    return float(valve["nominal_flow"]) / math.sqrt(float(valve["nominal_pressure_drop"]))
-
-
-def run_once(config: dict[str, Any], values: dict[str, float]) -> np.ndarray:
+def run_once(machine: Machine, values: dict[str, float]) -> np.ndarray:
     """Outputs (p_A, p_B, v) at TIMES after the step, flattened output-major, for one parameter set."""
-    actuator = next(iter(config["actuators"]))
-    kv = _nominal_kv(config, actuator)
+    actuator = machine.first
+    kv = actuator.valve.nominal_flow / math.sqrt(actuator.valve.nominal_pressure_drop)
     kv_pa = values["q_n_pa"] / math.sqrt(values["dp_n_pa"]) if "q_n_pa" in values else kv
     kv_bt = values["q_n_bt"] / math.sqrt(values["dp_n_bt"]) if "q_n_bt" in values else kv
     overrides: dict[str, Any] = {"valve": {"kv_poly": {"PA": [0, 0, 0, kv_pa], "BT": [0, 0, 0, kv_bt],
@@ -58,7 +53,7 @@ def run_once(config: dict[str, Any], values: dict[str, float]) -> np.ndarray:
         overrides["fluid"] = {"oil_bulk_modulus": values["bulk_modulus"], "hose_volume": 0.0}
     if "viscous" in values:
         overrides["friction"] = {"viscous": values["viscous"]}
-    model = SamModel(with_overrides(config, {"actuators": {actuator: overrides}}), actuator)
+    model = SamModel(machine.with_overrides({"actuators": {actuator.name: overrides}}), actuator.name)
     injections = []
     if values.get("offset"):
         injections.append(Injection("spool_offset", values["offset"], 0.0))
@@ -76,15 +71,15 @@ def run_once(config: dict[str, Any], values: dict[str, float]) -> np.ndarray:
 
 
 def _run_rows(args: tuple[dict[str, Any], list[str], np.ndarray]) -> np.ndarray:
-    config, names, rows = args
-    return np.array([run_once(config, dict(zip(names, row))) for row in rows])
+    machine, names, rows = args
+    return np.array([run_once(machine, dict(zip(names, row))) for row in rows])
 
 
 def problem(space: dict[str, tuple[float, float]]) -> dict[str, Any]:
     return {"num_vars": len(space), "names": list(space), "bounds": [list(b) for b in space.values()]}
 
 
-def sobol_indices(config: dict[str, Any], space: dict[str, tuple[float, float]], samples: int, workers: int = 2,
+def sobol_indices(machine: Machine, space: dict[str, tuple[float, float]], samples: int, *, workers: int = 2,
                   seed: int = 0, resamples: int = 200, progress: Callable[[int], None] | None = None) -> dict[str, Any]:
     """First- and total-order indices with 95 % bootstrap intervals, per output and instant."""
     from SALib.analyze import sobol as analyze
@@ -95,7 +90,7 @@ def sobol_indices(config: dict[str, Any], space: dict[str, tuple[float, float]],
     chunks = np.array_split(matrix, max(1, min(len(matrix), 8 * workers)))
     results = []
     with ProcessPoolExecutor(workers) as pool:
-        for block in pool.map(_run_rows, [(config, spec["names"], c) for c in chunks]):
+        for block in pool.map(_run_rows, [(machine, spec["names"], c) for c in chunks]):
             results.append(block)
             if progress is not None:
                 progress(len(block))

@@ -12,6 +12,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from hydro_ros.bags.reader import BagData  # noqa: E402
+from hydro_ros.contract.machine import Machine  # noqa: E402
+from hydro_ros.models.sam import SamModel  # noqa: E402
 
 if TYPE_CHECKING:
     from hydro_ros.fdi.offline import FdiRun
@@ -132,7 +134,7 @@ def plot_gsa(results: dict, out: str | Path) -> Path:
     return out
 
 
-def plot_discrepancy(rec, config: dict, before, after, effects: dict, out: str | Path, *, scales: np.ndarray) -> Path:
+def plot_discrepancy(rec, machine: Machine, before, after, effects: dict, out: str | Path, *, scales: np.ndarray) -> Path:
     """Validation data: measured vs simulated p_A, p_B and position, before and after the named effects.
 
     ``before`` and ``after`` are normalised errors: measured - simulated = error * scales.
@@ -150,9 +152,7 @@ def plot_discrepancy(rec, config: dict, before, after, effects: dict, out: str |
             measured = (rec.pressure_a, rec.pressure_b)[i]
             measured_scaled = measured / units[i]
         else:
-            from hydro_ros.models.sam import SamModel
-
-            model = SamModel(config)
+            model = SamModel(machine)
             measured_scaled = np.array([model.piston_from_joint(j) for j in rec.joint]) / units[i]
         ax.plot(t, measured_scaled, color="k", lw=0.6, label="measured")
         ax.plot(t, measured_scaled - before[:, i] * scales[i] / units[i], lw=0.6, label="model before")

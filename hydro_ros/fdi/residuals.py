@@ -1,0 +1,184 @@
+"""Residual generators behind one interface, chosen by method name (``fdi.method`` of a machine config).
+
+A generator turns a block of measured samples of every actuator into two residuals per actuator
+(chamber A, chamber B), gives the thresholds they are compared with and the "Large" evidence of
+its signature table, and can be reset and self-checked. The monitor
+(:class:`hydro_ros.fdi.monitor.FdiMonitor`) does the rest the same way for every method: masking,
+the 5 s means, the crossing codes and isolation.
+
+- ``ukf`` (P-II, P-III): chamber-pressure residuals of a batched unscented Kalman filter [MPa];
+  adaptive threshold +-(c0 + c2 mu_p^2) (P-II eq. 25); the P-II Table 3 signatures.
+- ``parity`` (P-IV style, mobile valves): chamber-flow balance residuals [L/min]; statistical
+  thresholds per operating point (5 s mean opening) fitted by ``hydro-ros fdi-fit``; a signature
+  table built by simulation.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+from hydro_ros.contract.errors import InputError
+from hydro_ros.fdi.isolation import UKF_TABLE, PatternRow
+from hydro_ros.fdi.parity import ParityGenerator
+from hydro_ros.fdi.settings import FdiSettings
+from hydro_ros.fdi.ukf import PRESSURE_UNIT, UkfBank
+from hydro_ros.models.sam import SamModel
+
+
+class MovingAverage:
+    """Eq. (24): mean of the last N samples per channel, zero-initialised like the paper's buffer."""
+
+    def __init__(self, window: int, channels: int) -> None:
+        self.window = window
+        self.history = np.zeros((window, channels))
+
+    def reset(self) -> None:
+        self.history[:] = 0.0
+
+    def __call__(self, block: np.ndarray) -> np.ndarray:
+        m = block.shape[0]
+        extended = np.concatenate((self.history, block))
+        sums = np.cumsum(extended, axis=0)
+        # mean of the N samples ending at each block sample; cumsum differences stay exact enough
+        # because the whole history is re-summed every block (no recursive drift)
+        out = (sums[self.window :] - sums[:m]) / self.window
+        self.history = extended[m:].copy()
+        return out
+
+
+@dataclass
+class BlockInput:
+    """One block of every actuator's measurements, (n, A) arrays, as a generator needs them."""
+
+    piston: np.ndarray  # [m] from the joint angle (P-I eqs. 3-4)
+    velocity: np.ndarray  # [m/s]
+    command: np.ndarray  # [-]
+    supply: np.ndarray  # [Pa]
+    pressure: np.ndarray  # (n, A, 2) [Pa] chambers A and B
+    valid: np.ndarray  # (n, A) every value of the sample finite
+    mobile: np.ndarray | None = None  # (n, A, 3) [Pa] pilot 1, pilot 2, compensator (mobile valves)
+
+
+class ResidualGenerator(ABC):
+    """What the monitor needs of a method; subclasses register under their ``method`` name."""
+
+    method: str
+    unit: str  # of residuals and thresholds
+    needs_mobile_pressures: bool = False
+
+    def __init__(self, models: list[SamModel], settings: FdiSettings, window: int) -> None:
+        self.models = models
+        self.settings = settings
+        self.window = window
+
+    @property
+    @abstractmethod
+    def table(self) -> tuple[PatternRow, ...]:
+        """The fault signature table the isolator narrows causes with."""
+
+    @abstractmethod
+    def residuals(self, block: BlockInput) -> tuple[np.ndarray, np.ndarray | None]:
+        """(n, A, 2) raw residuals, and the (n, A) operating point the thresholds depend on, if any."""
+
+    @abstractmethod
+    def thresholds(self, mean_pressure: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
+        """(n, A, 2) positive thresholds from the 5 s mean pressures [MPa] or the operating point."""
+
+    def large(self, mean_residual: np.ndarray) -> np.ndarray:
+        """(n, A) "Large" evidence of the signature table; methods whose table has none say False."""
+        return np.zeros(mean_residual.shape[:2], dtype=bool)
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Restart the generator's state (filters, memories)."""
+
+    def self_check(self) -> list[tuple[str, bool]]:
+        """Checks of the generator's own set-up, each (what was checked, passed)."""
+        return []
+
+
+class UkfResiduals(ResidualGenerator):
+    method = "ukf"
+    unit = "MPa"
+
+    def __init__(self, models: list[SamModel], settings: FdiSettings, window: int) -> None:
+        super().__init__(models, settings, window)
+        self.bank = UkfBank(models, settings.ukf)
+
+    @property
+    def table(self) -> tuple[PatternRow, ...]:
+        return UKF_TABLE
+
+    def residuals(self, block: BlockInput) -> tuple[np.ndarray, None]:
+        inputs = np.stack([block.piston, block.velocity, block.command, block.supply], axis=2)
+        prior, posterior = self.bank.run(inputs, block.pressure, block.valid)
+        estimate = posterior if self.settings.residual == "posterior" else prior
+        return (block.pressure - estimate) / PRESSURE_UNIT, None
+
+    def thresholds(self, mean_pressure: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
+        return self.settings.threshold_constant + self.settings.threshold_quadratic * mean_pressure**2
+
+    def large(self, mean_residual: np.ndarray) -> np.ndarray:
+        return np.all(np.abs(mean_residual) > self.settings.large_residual, axis=2)
+
+    def reset(self) -> None:
+        self.bank.reset()
+
+    def self_check(self) -> list[tuple[str, bool]]:
+        weights = self.bank.weights
+        # mean weights: w0 + 2 n wi with n = 4 states
+        return [("unscented weights sum to one", bool(np.all(np.isfinite(weights)) and abs(weights[0] + 8 * weights[2] - 1.0) < 1e-6))]
+
+
+class ParityResiduals(ResidualGenerator):
+    method = "parity"
+    unit = "L/min"
+    needs_mobile_pressures = True
+
+    def __init__(self, models: list[SamModel], settings: FdiSettings, window: int) -> None:
+        super().__init__(models, settings, window)
+        if not all(model.mobile_valve for model in models):
+            raise InputError("fdi method parity: needs pressure-compensated mobile valves (valve.type: mobile) and their "
+                             "pilot pressures; this machine has neither")
+        if settings.parity_thresholds is None:
+            raise InputError("fdi method parity: the config has no fdi.parity_thresholds (fit them with hydro-ros fdi-fit --write)")
+        self.generator = ParityGenerator(models)
+        self._opening_mean = MovingAverage(window, len(models))
+
+    @property
+    def table(self) -> tuple[PatternRow, ...]:
+        return self.settings.parity_signatures
+
+    def residuals(self, block: BlockInput) -> tuple[np.ndarray, np.ndarray]:
+        if block.mobile is None:
+            raise InputError("fdi method parity: no pilot/compensator pressures in the samples")
+        residual, opening = self.generator.run(block.piston, block.velocity, block.pressure[:, :, 0], block.pressure[:, :, 1],
+                                               block.mobile[:, :, 0], block.mobile[:, :, 1], block.mobile[:, :, 2], block.valid)
+        return residual, self._opening_mean(opening)
+
+    def thresholds(self, mean_pressure: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
+        return self.settings.parity_thresholds(operating_point)
+
+    def reset(self) -> None:
+        self.generator.reset()
+        self._opening_mean.reset()
+
+    def self_check(self) -> list[tuple[str, bool]]:
+        thresholds = self.settings.parity_thresholds
+        positive = bool(np.all(thresholds(np.asarray([list(thresholds.edges)]).reshape(-1, 1)) > 0.0))
+        return [("parity thresholds positive at every operating point", positive),
+                ("signature table present", bool(self.table))]
+
+
+GENERATORS: dict[str, type[ResidualGenerator]] = {generator.method: generator for generator in (UkfResiduals, ParityResiduals)}
+
+
+def generator_for(method: str, models: list[SamModel], settings: FdiSettings, window: int) -> ResidualGenerator:
+    try:
+        kind = GENERATORS[method]
+    except KeyError:
+        raise InputError(f"fdi method {method!r}: expected {' or '.join(GENERATORS)}") from None
+    return kind(models, settings, window)
