@@ -9,8 +9,6 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-import pytest
-
 PACKAGE = Path(__file__).resolve().parent.parent / "hydro_ros"
 
 # each folder (or top-level module) and its layer; an import may reach its own folder or a lower layer
@@ -30,14 +28,14 @@ ROS_MODULES = ("rclpy", "rosidl", "rmw", "std_msgs", "sensor_msgs", "diagnostic_
                "geometry_msgs", "rosgraph_msgs", "builtin_interfaces", "control_msgs")
 
 
-def module_name(path: Path) -> str:
-    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+def module_name(path: Path, package: Path = PACKAGE) -> str:
+    parts = path.relative_to(package.parent).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def imports(path: Path) -> set[str]:
+def imports(path: Path, package: Path = PACKAGE) -> set[str]:
     """Every module the file imports, absolute, whether at module level or inside a function."""
-    name = module_name(path)
+    name = module_name(path, package)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
@@ -54,9 +52,9 @@ def imports(path: Path) -> set[str]:
     return found
 
 
-def graph() -> dict[str, set[str]]:
-    modules = {module_name(p): p for p in PACKAGE.rglob("*.py")}
-    return {name: {m for m in imports(path) if m in modules and m != name} for name, path in modules.items()}
+def graph(package: Path = PACKAGE) -> dict[str, set[str]]:
+    modules = {module_name(p, package): p for p in package.rglob("*.py")}
+    return {name: {m for m in imports(path, package) if m in modules and m != name} for name, path in modules.items()}
 
 
 def folder(module: str) -> str | None:
@@ -69,9 +67,9 @@ def test_every_module_belongs_to_a_layer() -> None:
     assert not unplaced, f"folders or top-level modules without a layer: {unplaced}"
 
 
-def test_imports_point_down() -> None:
+def upward_imports(package: Path = PACKAGE) -> list[str]:
     upward = []
-    for module, deps in graph().items():
+    for module, deps in graph(package).items():
         here = folder(module)
         for dep in deps:
             there = folder(dep)
@@ -79,27 +77,26 @@ def test_imports_point_down() -> None:
                 continue
             if LAYER[there] >= LAYER[here]:
                 upward.append(f"{module} -> {dep}")
-    assert not upward, "imports that do not point to a lower layer:\n" + "\n".join(sorted(upward))
+    return sorted(upward)
 
 
-def test_science_never_imports_ros() -> None:
+def ros_in_science(package: Path = PACKAGE) -> list[str]:
     offenders = []
-    for path in PACKAGE.rglob("*.py"):
-        if folder(module_name(path)) in SCIENCE:
-            ros = sorted(m for m in imports(path) if m.split(".")[0] in ROS_MODULES)
+    for path in package.rglob("*.py"):
+        if folder(module_name(path, package)) in SCIENCE:
+            ros = sorted(m for m in imports(path, package) if m.split(".")[0] in ROS_MODULES)
             if ros:
-                offenders.append(f"{module_name(path)}: {', '.join(ros)}")
-    assert not offenders, "science modules importing ROS:\n" + "\n".join(offenders)
+                offenders.append(f"{module_name(path, package)}: {', '.join(ros)}")
+    return offenders
 
 
-def test_no_import_cycle() -> None:
-    edges = graph()
-    # a dependency on a package's __init__ is a dependency on that package only, not on its submodules
+def cycles(package: Path = PACKAGE) -> list[list[str]]:
+    edges = graph(package)
     index: dict[str, int] = {}
     low: dict[str, int] = {}
     stack: list[str] = []
     on_stack: set[str] = set()
-    cycles: list[list[str]] = []
+    found: list[list[str]] = []
 
     def visit(node: str) -> None:  # Tarjan's strongly connected components
         index[node] = low[node] = len(index)
@@ -120,28 +117,35 @@ def test_no_import_cycle() -> None:
                 if member == node:
                     break
             if len(component) > 1:
-                cycles.append(sorted(component))
+                found.append(sorted(component))
 
     for node in sorted(edges):
         if node not in index:
             visit(node)
-    assert not cycles, f"import cycles: {cycles}"
+    return found
 
 
-@pytest.mark.parametrize("rule", ["up", "ros"])
-def test_the_checks_catch_a_violation(tmp_path: Path, rule: str) -> None:
-    """The rule checker itself fails on a planted upward import and a planted rclpy import."""
-    source = "from hydro_ros.nodes.common import run_node\n" if rule == "up" else "import rclpy\n"
-    planted = tmp_path / "planted.py"
-    planted.write_text(source)
-    found = imports(planted.rename(PACKAGE / "fdi" / "_planted_for_test.py"))
-    try:
-        if rule == "up":
-            with pytest.raises(AssertionError, match="_planted_for_test -> hydro_ros.nodes.common"):
-                test_imports_point_down()
-        else:
-            assert "rclpy" in found
-            with pytest.raises(AssertionError, match="_planted_for_test: rclpy"):
-                test_science_never_imports_ros()
-    finally:
-        (PACKAGE / "fdi" / "_planted_for_test.py").unlink()
+def test_imports_point_down() -> None:
+    assert not upward_imports(), "imports that do not point to a lower layer:\n" + "\n".join(upward_imports())
+
+
+def test_science_never_imports_ros() -> None:
+    assert not ros_in_science(), "science modules importing ROS:\n" + "\n".join(ros_in_science())
+
+
+def test_no_import_cycle() -> None:
+    assert not cycles(), f"import cycles: {cycles()}"
+
+
+def test_the_checks_catch_violations(tmp_path: Path) -> None:
+    """A planted package with an upward import, an rclpy import in science and a cycle fails each check."""
+    package = tmp_path / "hydro_ros"
+    for folder_name, source in (("fdi", "from hydro_ros.nodes.common import run_node\nimport rclpy\n"),
+                                ("nodes", "from hydro_ros.nodes import other\n")):
+        (package / folder_name).mkdir(parents=True)
+        (package / folder_name / "__init__.py").write_text("")
+        (package / folder_name / ("monitor.py" if folder_name == "fdi" else "common.py")).write_text(source)
+    (package / "nodes" / "other.py").write_text("from hydro_ros.nodes.common import run_node\n")
+    assert upward_imports(package) == ["hydro_ros.fdi.monitor -> hydro_ros.nodes.common"]
+    assert ros_in_science(package) == ["hydro_ros.fdi.monitor: rclpy"]
+    assert cycles(package) == [["hydro_ros.nodes.common", "hydro_ros.nodes.other"]]

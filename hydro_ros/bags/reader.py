@@ -2,7 +2,7 @@
 
 Reads the MCAP file sequentially (so a truncated or corrupt file yields everything before the
 damage), decodes the fixed-layout types in compiled batches (hydro_ros.bags.mcap_scan), and aligns every topic on the sample stamps
-of /joint_states. Damage is reported in ``BagData.errors`` and never raises past what was read.
+of /joint_states with the aligner the live monitor uses (hydro_ros.bags.align). Damage is reported in ``BagData.errors`` and never raises past what was read.
 """
 
 from __future__ import annotations
@@ -17,6 +17,8 @@ import yaml
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract import topics
+from hydro_ros.contract.samples import Samples
+from hydro_ros.bags.align import Column, SampleAligner, SampleLayout
 from hydro_ros.bags.cdr import CdrError, decode_joint_state
 from hydro_ros.bags.mcap_scan import (
     McapScanner,
@@ -62,6 +64,18 @@ class BagData:
     @property
     def complete(self) -> bool:
         return not self.errors
+
+    def samples(self, layout: SampleLayout) -> Samples:
+        """The bag's samples of a machine's actuators (times from the first sample); BagError names a missing topic."""
+        rows = []
+        for column in layout.columns:
+            quantity, name = column
+            source = getattr(self, quantity)
+            values = source if quantity == "supply_pressure" else source.get(name)
+            if values is None:
+                raise BagError(f"bag {self.path}: no {SampleLayout.source(column)}")
+            rows.append(values)
+        return layout.samples(self.times, np.stack(rows, axis=1).reshape(len(self.stamps_ns), len(rows)))
 
 
 def mcap_file(path: Path) -> Path:
@@ -190,29 +204,30 @@ def read_bag(path: str | Path) -> BagData:
             raise BagError(errors[-1])
         raise BagError(f"bag {path}: no {topics.JOINT_STATES} samples; not a contract bag")
 
-    base = np.unique(np.concatenate([entry["position"].arrays()[0] for entry in joint.values()]))
-
-    def aligned(series: _Series) -> np.ndarray:
-        out = np.full(len(base), np.nan)
-        stamps, values = series.arrays()
-        index = np.searchsorted(base, stamps)
-        ok = (index < len(base)) & (base[np.minimum(index, len(base) - 1)] == stamps)
-        out[index[ok]] = values[ok]
-        return out
-
-    data = BagData(path=path, stamps_ns=base, truth=truth, message_count=total, topic_counts=counts, errors=errors)
+    series: dict[Column, _Series] = {}
     for name, entry in joint.items():
-        data.joint_position[name] = aligned(entry["position"])
-        data.joint_velocity[name] = aligned(entry["velocity"])
-    for name, series in valves.items():
-        data.valve_command[name] = aligned(series)
-    for topic, series in pressures.items():
-        if topic == topics.SUPPLY_PRESSURE:
-            data.supply_pressure = aligned(series)
-            continue
+        series[("joint_position", name)] = entry["position"]
+        series[("joint_velocity", name)] = entry["velocity"]
+    for name, valve in valves.items():
+        series[("valve_command", name)] = valve
+    for topic, pressure in pressures.items():
         parts = topic.strip("/").split("/")
-        if topic == topics.LS_PRESSURE:
-            data.ls_pressure = aligned(series)
+        if topic == topics.SUPPLY_PRESSURE:
+            series[("supply_pressure", "")] = pressure
+        elif topic == topics.LS_PRESSURE:
+            series[("ls_pressure", "")] = pressure
         elif len(parts) == 3 and parts[0] == "hydraulics" and parts[2] in ("pressure_a", "pressure_b", *topics.MOBILE_VALVE_PRESSURES):
-            getattr(data, parts[2])[parts[1]] = aligned(series)
+            series[(parts[2], parts[1])] = pressure
+    columns = list(series)
+    # a bag's samples are the /joint_states stamps; a value at another stamp belongs to no sample
+    aligner = SampleAligner(len(columns), key_columns=[k for k, (quantity, _) in enumerate(columns) if quantity == "joint_position"])
+    for k, column in enumerate(columns):
+        aligner.add(k, *series[column].arrays())
+    stamps, rows = aligner.take(final=True)
+    data = BagData(path=path, stamps_ns=stamps, truth=truth, message_count=total, topic_counts=counts, errors=errors)
+    for k, (quantity, name) in enumerate(columns):
+        if quantity in ("supply_pressure", "ls_pressure"):
+            setattr(data, quantity, rows[:, k])
+        else:
+            getattr(data, quantity)[name] = rows[:, k]
     return data

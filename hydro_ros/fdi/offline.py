@@ -8,7 +8,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hydro_ros.contract import topics
+from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.reader import BagData, BagError, read_bag
 from hydro_ros.contract.machine import Machine
 from hydro_ros.fdi.isolation import Alarm
@@ -51,32 +51,7 @@ class FdiRun:
 
 def blocks_from_bag(data: BagData, monitor: FdiMonitor) -> Samples:
     """The bag's samples for the monitor's actuators; a clear error names a missing topic."""
-    columns: dict[str, list[np.ndarray]] = {k: [] for k in ("jp", "jv", "pa", "pb", "u")}
-    for actuator, joint in zip(monitor.actuators, monitor.joints):
-        if joint not in data.joint_position:
-            raise BagError(f"bag {data.path}: /joint_states has no joint {joint!r} (config actuator {actuator!r})")
-        for key, source, label in (
-            ("pa", data.pressure_a, f"/hydraulics/{actuator}/pressure_a"),
-            ("pb", data.pressure_b, f"/hydraulics/{actuator}/pressure_b"),
-            ("u", data.valve_command, f"/hydraulics/valve_commands name {actuator!r}"),
-        ):
-            if actuator not in source:
-                raise BagError(f"bag {data.path}: no {label}")
-            columns[key].append(source[actuator])
-        columns["jp"].append(data.joint_position[joint])
-        columns["jv"].append(data.joint_velocity[joint])
-    if data.supply_pressure is None:
-        raise BagError(f"bag {data.path}: no /hydraulics/supply_pressure")
-    stack = {key: np.stack(values, axis=1) for key, values in columns.items()}
-    mobile = {}
-    if monitor.method == "parity":
-        for quantity in topics.MOBILE_VALVE_PRESSURES:
-            source = getattr(data, quantity)
-            for actuator in monitor.actuators:
-                if actuator not in source:
-                    raise BagError(f"bag {data.path}: no {topics.actuator_pressure(actuator, quantity)} (needed by the parity method)")
-            mobile[quantity] = np.stack([source[a] for a in monitor.actuators], axis=1)
-    return Samples(data.times, stack["jp"], stack["jv"], stack["pa"], stack["pb"], data.supply_pressure, stack["u"], **mobile)
+    return data.samples(SampleLayout(monitor.actuators, monitor.joints, mobile=monitor.generator.needs_mobile_pressures))
 
 
 def run_monitor(monitor: FdiMonitor, samples: Samples, progress: Callable[[int], None] | None = None) -> FdiRun:

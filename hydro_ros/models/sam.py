@@ -269,6 +269,10 @@ SENSOR_INJECTIONS = frozenset(
 )
 
 
+class SimulationDiverged(InputError, FloatingPointError):
+    """The model left its physical range: a config, fault or effect value outside what it can simulate."""
+
+
 @dataclass
 class SamModel:
     """Parameters of one actuator of a SAM-type machine (contract section 3) as the model's vector."""

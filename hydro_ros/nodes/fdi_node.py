@@ -29,87 +29,17 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
+from hydro_ros.bags.align import SampleAligner, SampleLayout
 from hydro_ros.contract import topics
 from hydro_ros.bags.cdr import CdrError, decode_fluid_pressure, decode_joint_state
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.fdi.monitor import STALE, FdiMonitor
-from hydro_ros.contract.samples import PER_ACTUATOR, Samples
+from hydro_ros.contract.samples import PER_ACTUATOR
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, run_node
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
-JP, JV, PA, PB, U, PIL1, PIL2, PC = range(8)  # per-actuator fields of an assembled sample (the last 3: mobile valves)
-MAX_PENDING_S = 5.0  # samples waiting for a missing topic longer than this are given up
-
-
-class SampleAssembler:
-    """Collects per-topic values by stamp into complete samples, in stamp order."""
-
-    def __init__(self, actuators: list[str], joints: list[str], sync_window_ns: int, mobile: bool = False) -> None:
-        self.actuators = {name: i for i, name in enumerate(actuators)}
-        self.joints = {name: i for i, name in enumerate(joints)}
-        self.fields = 8 if mobile else 5
-        self.width = self.fields * len(actuators) + 1
-        self.sync_window_ns = sync_window_ns
-        self.pending: dict[int, np.ndarray] = {}
-        self.filled: dict[int, int] = {}
-        self.last_processed = -1
-        self.out_of_order = 0
-        self.incomplete = 0
-        self.undecodable = 0
-
-    def put(self, stamp: int, column: int, value: float) -> None:
-        if stamp <= self.last_processed:
-            self.out_of_order += 1
-            return
-        row = self.pending.get(stamp)
-        if row is None:
-            row = self.pending[stamp] = np.full(self.width, np.nan)
-            self.filled[stamp] = 0
-        if math.isnan(row[column]):
-            self.filled[stamp] += 1
-        row[column] = value
-
-    def put_joint_states(self, data: bytes) -> None:
-        stamp, names, position, velocity = decode_joint_state(data)
-        for name, index in self.joints.items():
-            if name in names:
-                k = names.index(name)
-                self.put(stamp, self.fields * index + JP, position[k] if k < len(position) else math.nan)
-                self.put(stamp, self.fields * index + JV, velocity[k] if k < len(velocity) else math.nan)
-
-    def put_commands(self, data: bytes) -> None:
-        stamp, names, position, _ = decode_joint_state(data)
-        for name, index in self.actuators.items():
-            if name in names:
-                k = names.index(name)
-                self.put(stamp, self.fields * index + U, position[k] if k < len(position) else math.nan)
-
-    def put_pressure(self, data: bytes, column: int) -> None:
-        stamp, value, _ = decode_fluid_pressure(data)
-        self.put(stamp, column, value)
-
-    def take(self) -> tuple[np.ndarray, np.ndarray]:
-        """Stamps (ns) and rows ready to process: complete, or given up after the sync window."""
-        if not self.pending:
-            return np.zeros(0, dtype=np.int64), np.zeros((0, self.width))
-        complete = [s for s, n in self.filled.items() if n == self.width]
-        newest = max(complete) if complete else max(self.pending) - int(MAX_PENDING_S * 1e9)
-        ready = []
-        for stamp in sorted(self.pending):
-            if stamp > newest:
-                break
-            if self.filled[stamp] < self.width:
-                if newest - stamp <= self.sync_window_ns:
-                    break
-                self.incomplete += 1
-            ready.append(stamp)
-        rows = np.array([self.pending.pop(s) for s in ready]).reshape(len(ready), self.width)
-        for stamp in ready:
-            del self.filled[stamp]
-        if ready:
-            self.last_processed = ready[-1]
-        return np.asarray(ready, dtype=np.int64), rows
+MAX_PENDING_NS = 5_000_000_000  # samples waiting for a missing topic longer than this are given up
 
 
 class FdiNode(Node):
@@ -129,22 +59,23 @@ class FdiNode(Node):
         self.stale_timeout = float(self.get_parameter("stale_timeout").value)
         actuators = self.monitor.actuators
         self.mobile = self.monitor.generator.needs_mobile_pressures
-        self.assembler = SampleAssembler(actuators, self.monitor.joints, int(float(self.get_parameter("sync_window").value) * 1e9),
-                                         self.mobile)
-        width = self.assembler.fields
+        self.layout = SampleLayout(actuators, self.monitor.joints, mobile=self.mobile)
+        self.aligner = SampleAligner(len(self.layout.columns), sync_window_ns=int(float(self.get_parameter("sync_window").value) * 1e9),
+                                     max_pending_ns=MAX_PENDING_NS)
+        self.undecodable = 0
+        index = self.layout.index
+        self._joint_columns = {joint: (index("joint_position", joint), index("joint_velocity", joint)) for joint in self.monitor.joints}
+        self._command_columns = {actuator: index("valve_command", actuator) for actuator in actuators}
 
         self.last_arrival: dict[str, float] = {}
-        self._subscribe_raw(JointState, topics.JOINT_STATES, self.assembler.put_joint_states)
-        self._subscribe_raw(JointState, topics.VALVE_COMMANDS, self.assembler.put_commands)
-        self._subscribe_raw(FluidPressure, topics.SUPPLY_PRESSURE,
-                            lambda d: self.assembler.put_pressure(d, self.assembler.width - 1))
-        for i, actuator in enumerate(actuators):
-            self._subscribe_raw(FluidPressure, topics.pressure_a(actuator), lambda d, c=width * i + PA: self.assembler.put_pressure(d, c))
-            self._subscribe_raw(FluidPressure, topics.pressure_b(actuator), lambda d, c=width * i + PB: self.assembler.put_pressure(d, c))
-            if self.mobile:
-                for field, quantity in zip((PIL1, PIL2, PC), topics.MOBILE_VALVE_PRESSURES):
-                    self._subscribe_raw(FluidPressure, topics.actuator_pressure(actuator, quantity),
-                                        lambda d, c=width * i + field: self.assembler.put_pressure(d, c))
+        self._subscribe_raw(JointState, topics.JOINT_STATES, self._put_joint_states)
+        self._subscribe_raw(JointState, topics.VALVE_COMMANDS, self._put_commands)
+        self._subscribe_raw(FluidPressure, topics.SUPPLY_PRESSURE, lambda d, c=index("supply_pressure"): self._put_pressure(d, c))
+        for actuator in actuators:
+            quantities = ("pressure_a", "pressure_b", *(topics.MOBILE_VALVE_PRESSURES if self.mobile else ()))
+            for quantity in quantities:
+                self._subscribe_raw(FluidPressure, topics.actuator_pressure(actuator, quantity),
+                                    lambda d, c=index(quantity, actuator): self._put_pressure(d, c))
 
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.pub_halt = self.create_publisher(Bool, topics.FDI_HALT, LATCHED_QOS)
@@ -172,27 +103,36 @@ class FdiNode(Node):
             try:
                 handler(data)
             except CdrError:
-                self.assembler.undecodable += 1
+                self.undecodable += 1
 
         self.create_subscription(msg_type, topic, callback, SENSOR_QOS, raw=True)
 
+    def _put_joint_states(self, data: bytes) -> None:
+        stamp, names, position, velocity = decode_joint_state(data)
+        for k, name in enumerate(names):
+            columns = self._joint_columns.get(name)
+            if columns is not None:
+                self.aligner.add(columns[0], stamp, position[k] if k < len(position) else math.nan)
+                self.aligner.add(columns[1], stamp, velocity[k] if k < len(velocity) else math.nan)
+
+    def _put_commands(self, data: bytes) -> None:
+        stamp, names, position, _ = decode_joint_state(data)
+        for k, name in enumerate(names):
+            column = self._command_columns.get(name)
+            if column is not None:
+                self.aligner.add(column, stamp, position[k] if k < len(position) else math.nan)
+
+    def _put_pressure(self, data: bytes, column: int) -> None:
+        stamp, value, _ = decode_fluid_pressure(data)
+        self.aligner.add(column, stamp, value)
+
     # processing -------------------------------------------------------------------------------
     def _process(self) -> None:
-        stamps, rows = self.assembler.take()
+        stamps, rows = self.aligner.take()
         if len(stamps) == 0:
             self._check_levels()
             return
-        n_act = len(self.monitor.actuators)
-        per = rows[:, :-1].reshape(len(stamps), n_act, self.assembler.fields)
-        mobile = {"pilot_pressure_1": per[:, :, PIL1], "pilot_pressure_2": per[:, :, PIL2],
-                  "compensator_pressure": per[:, :, PC]} if self.mobile else {}
-        block = Samples(
-            times=stamps * 1e-9,
-            joint_position=per[:, :, JP], joint_velocity=per[:, :, JV],
-            pressure_a=per[:, :, PA], pressure_b=per[:, :, PB],
-            supply_pressure=rows[:, -1], valve_command=per[:, :, U], **mobile,
-        )
-        result = self.monitor.process(block)
+        result = self.monitor.process(self.layout.samples(stamps * 1e-9, rows))
         self.samples += len(stamps)
         for alarm in result.alarms:
             self.get_logger().warning(f"{alarm.actuator}: {alarm.fault.value} (pattern {alarm.code}) at stamp {alarm.time_s:.3f} s")
@@ -241,7 +181,7 @@ class FdiNode(Node):
 
     def statuses(self) -> list[DiagnosticStatus]:
         out = []
-        a = self.assembler
+        a = self.aligner
         # UKF residuals are chamber pressures [MPa]; parity residuals are chamber flows [L/min]
         labels = ("QA_L_min", "QB_L_min") if self.mobile else ("pA_MPa", "pB_MPa")
         for i, actuator in enumerate(self.monitor.actuators):
@@ -261,7 +201,7 @@ class FdiNode(Node):
                 "gap_samples": str(self.monitor.invalid_samples),
                 "incomplete_samples": str(a.incomplete),
                 "out_of_order_dropped": str(a.out_of_order),
-                "undecodable_messages": str(a.undecodable),
+                "undecodable_messages": str(self.undecodable),
                 "stale_topics": ",".join(stale),
             }
             out.append(DiagnosticStatus(level=bytes([level]), name=f"{topics.FDI_STATUS_PREFIX}{actuator}", message=message,

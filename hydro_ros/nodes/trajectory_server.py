@@ -18,7 +18,6 @@ the server comes up before the first build and republishes the catalog when a bu
 from __future__ import annotations
 
 import json
-import sqlite3
 from typing import Any
 
 from builtin_interfaces.msg import Duration
@@ -92,12 +91,12 @@ class TrajectoryServer(Node):
                     self._publish_catalog([])
                 return
         try:
-            version = self.service.db.connection.execute("PRAGMA data_version").fetchone()[0]
+            version = self.service.db.data_version()
             if version != self.data_version:
                 self.data_version = version
                 self._publish_catalog(self._catalog())
-        except sqlite3.Error as exc:  # the file was replaced or damaged under us: reopen on the next poll
-            self._drop_database(f"database {self.database_path}: {exc}")
+        except DatabaseError as exc:  # the file was replaced or damaged under us: reopen on the next poll
+            self._drop_database(str(exc))
 
     def _drop_database(self, reason: str) -> None:
         self.get_logger().error(reason)
@@ -153,10 +152,9 @@ class TrajectoryServer(Node):
         except ServeError as exc:
             self._answer({"path": path_id, "ok": False, "error": str(exc)})
             return
-        except (DatabaseError, sqlite3.Error) as exc:  # damaged, replaced or locked under us: answer, reopen later
-            reason = str(exc) if isinstance(exc, DatabaseError) else f"database {self.database_path}: {exc}"
-            self._drop_database(reason)
-            self._answer({"path": path_id, "ok": False, "error": reason})
+        except DatabaseError as exc:  # damaged, replaced or locked under us: answer, reopen later
+            self._drop_database(str(exc))
+            self._answer({"path": path_id, "ok": False, "error": str(exc)})
             return
         self._publish_trajectory(served)
         self._answer(served.result())

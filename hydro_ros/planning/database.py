@@ -188,24 +188,39 @@ class TrajectoryDatabase:
             )
 
     # -- reading ---------------------------------------------------------------------------
+    def _rows(self, query: str, parameters: tuple = ()) -> list[tuple[Any, ...]]:
+        """A read query's rows; a file damaged, replaced or locked under us is a DatabaseError naming it."""
+        try:
+            return self.connection.execute(query, parameters).fetchall()
+        except sqlite3.Error as exc:
+            raise DatabaseError(f"database {self.path}: {self._reason(exc)}") from None
+
+    def _row(self, query: str, parameters: tuple = ()) -> tuple[Any, ...] | None:
+        rows = self._rows(query, parameters)
+        return rows[0] if rows else None
+
+    def data_version(self) -> int:
+        """SQLite's data_version: changes when another connection commits (a build adding solutions)."""
+        return int(self._rows("PRAGMA data_version")[0][0])
+
     def committed(self) -> dict[tuple[str, str, str], str]:
         """(machine, path, method) -> inputs hash of every stored solution."""
-        rows = self.connection.execute("SELECT machine, path_id, method, inputs_hash FROM solutions")
+        rows = self._rows("SELECT machine, path_id, method, inputs_hash FROM solutions")
         return {(m, p, meth): h for m, p, meth, h in rows}
 
     def machine_config(self, machine: str) -> dict[str, Any]:
-        row = self.connection.execute("SELECT config FROM machines WHERE machine = ?", (machine,)).fetchone()
+        row = self._row("SELECT config FROM machines WHERE machine = ?", (machine,))
         if row is None:
             raise DatabaseError(f"database {self.path}: no machine {machine!r}")
         return json.loads(row[0])
 
     def machines(self) -> list[str]:
-        return [row[0] for row in self.connection.execute("SELECT machine FROM machines ORDER BY machine")]
+        return [row[0] for row in self._rows("SELECT machine FROM machines ORDER BY machine")]
 
     def catalog(self) -> list[dict[str, Any]]:
         """Every stored path with its solutions' energies and limit flags (the server's latched catalog)."""
         entries: dict[tuple[str, str], dict[str, Any]] = {}
-        for machine, path_id, definition in self.connection.execute("SELECT machine, path_id, definition FROM paths ORDER BY machine, path_id"):
+        for machine, path_id, definition in self._rows("SELECT machine, path_id, definition FROM paths ORDER BY machine, path_id"):
             definition = json.loads(definition)
             entries[(machine, path_id)] = {
                 "machine": machine,
@@ -214,7 +229,7 @@ class TrajectoryDatabase:
                 "duration_s": float(sum(float(segment["duration"]) for segment in definition.get("segments", []))),
                 "solutions": {},
             }
-        rows = self.connection.execute(
+        rows = self._rows(
             "SELECT machine, path_id, method, cost, cp_energy_J, ls_energy_J, limits_ok, start_position, grid, created "
             "FROM solutions ORDER BY machine, path_id, method"
         )
@@ -235,7 +250,7 @@ class TrajectoryDatabase:
 
     def paths_of(self, machine: str | None = None) -> list[str]:
         query = "SELECT path_id FROM paths" + (" WHERE machine = ?" if machine else "") + " ORDER BY path_id"
-        return [row[0] for row in self.connection.execute(query, (machine,) if machine else ())]
+        return [row[0] for row in self._rows(query, (machine,) if machine else ())]
 
     def solution(self, path_id: str, method: str, machine: str | None = None) -> StoredSolution:
         # length(), not IS NOT NULL: SQLite answers it from the row header instead of reading the whole blob
@@ -243,12 +258,12 @@ class TrajectoryDatabase:
             "SELECT machine, path_id, method, cost, grid, start_position, record, trajectory, coalesce(length(policy), 0) > 0 "
             "FROM solutions WHERE path_id = ? AND method = ?" + (" AND machine = ?" if machine else "")
         )
-        rows = self.connection.execute(query, (path_id, method, machine) if machine else (path_id, method)).fetchall()
+        rows = self._rows(query, (path_id, method, machine) if machine else (path_id, method))
         if not rows:
             known = self.paths_of(machine)
             if path_id not in known:
                 raise KeyError(f"path {path_id!r}: not in the database (stored: {', '.join(known) or 'none'})")
-            methods = [r[0] for r in self.connection.execute("SELECT method FROM solutions WHERE path_id = ?", (path_id,))]
+            methods = [r[0] for r in self._rows("SELECT method FROM solutions WHERE path_id = ?", (path_id,))]
             raise KeyError(f"path {path_id!r}: no {method!r} solution (stored: {', '.join(methods) or 'none'})")
         if len(rows) > 1:
             raise KeyError(f"path {path_id!r}: stored for several machines, name one")
@@ -266,16 +281,14 @@ class TrajectoryDatabase:
         return StoredSolution(machine, path_id, method, cost, tuple(json.loads(grid)), start, json.loads(record), trajectory, bool(has_policy))
 
     def policy(self, machine: str, path_id: str, method: str) -> dict[str, np.ndarray]:
-        row = self.connection.execute(
-            "SELECT policy FROM solutions WHERE machine = ? AND path_id = ? AND method = ?", (machine, path_id, method)
-        ).fetchone()
+        row = self._row("SELECT policy FROM solutions WHERE machine = ? AND path_id = ? AND method = ?", (machine, path_id, method))
         if row is None or row[0] is None:
             raise KeyError(f"path {path_id!r}: {method!r} has no stored DP policy")
         return unpack_arrays(row[0], f"database {self.path}: {path_id}/{method} policy")
 
     def rows(self) -> Iterator[tuple[Any, ...]]:
         """(machine, path, method, cost, CP J, LS J, limits ok, seconds, created) for ``db list``."""
-        yield from self.connection.execute(
+        yield from self._rows(
             "SELECT machine, path_id, method, cost, cp_energy_J, ls_energy_J, limits_ok, seconds, created "
             "FROM solutions ORDER BY machine, path_id, cp_energy_J"
         )

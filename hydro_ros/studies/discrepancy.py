@@ -39,6 +39,7 @@ from scipy.optimize import minimize, minimize_scalar
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.studies.plots import plot_discrepancy
+from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.reader import BagData
 from hydro_ros.contract.machine import Machine
 from hydro_ros.models.kinematics import piston_position, torque_arm
@@ -115,13 +116,10 @@ class Recording:
 
     @classmethod
     def from_bag(cls, data: BagData, machine: Machine) -> "Recording":
-        actuator, joint = machine.first.name, machine.first.joint
-        for label, source, key in (("joint", data.joint_position, joint), ("pressure_a", data.pressure_a, actuator),
-                                   ("pressure_b", data.pressure_b, actuator), ("valve command", data.valve_command, actuator)):
-            if key not in source:
-                raise InputError(f"bag {data.path}: no {label} for {key!r}")
-        signals = (data.joint_position[joint], data.joint_velocity[joint], data.pressure_a[actuator], data.pressure_b[actuator],
-                   data.valve_command[actuator])
+        actuator = machine.first
+        samples = data.samples(SampleLayout([actuator.name], [actuator.joint]))
+        signals = tuple(getattr(samples, quantity)[:, 0] for quantity in
+                        ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command"))
         good = np.all(np.isfinite(np.stack(signals)), axis=0)
         if good.sum() < 0.9 * len(good):
             raise InputError(f"bag {data.path}: {np.count_nonzero(~good)} of {len(good)} samples incomplete")

@@ -1,0 +1,151 @@
+"""One sample aligner for the live node and the bag reader: per-topic values by stamp -> rows of samples.
+
+Every measured quantity is a column named ``(quantity, name)``: ``("joint_position", "boom_joint")``,
+``("pressure_a", "boom")``, ``("supply_pressure", "")``. :class:`SampleAligner` collects values of
+any column at any stamp (one at a time from a subscription, or whole arrays from a bag) and hands
+out rows in stamp order, NaN where a column had no value. :class:`SampleLayout` is the column set
+of a machine's actuators and turns rows into :class:`~hydro_ros.contract.samples.Samples`.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from hydro_ros.contract import topics
+from hydro_ros.contract.samples import Samples
+
+Column = tuple[str, str]
+MOBILE_QUANTITIES = topics.MOBILE_VALVE_PRESSURES  # pilot_pressure_1, pilot_pressure_2, compensator_pressure
+PER_JOINT = ("joint_position", "joint_velocity")
+PER_ACTUATOR = ("pressure_a", "pressure_b", "valve_command")
+
+
+class SampleLayout:
+    """The columns of a machine's samples: per actuator its joint, chamber pressures and command, then the supply."""
+
+    def __init__(self, actuators: Sequence[str], joints: Sequence[str], *, mobile: bool = False) -> None:
+        self.actuators = list(actuators)
+        self.joints = list(joints)
+        self.mobile = mobile
+        per_actuator = (*PER_JOINT, *PER_ACTUATOR, *(MOBILE_QUANTITIES if mobile else ()))
+        self.fields = per_actuator
+        self.columns: list[Column] = [
+            (quantity, joint if quantity in PER_JOINT else actuator)
+            for actuator, joint in zip(self.actuators, self.joints) for quantity in per_actuator
+        ] + [("supply_pressure", "")]
+        self._index = {column: k for k, column in enumerate(self.columns)}
+
+    def index(self, quantity: str, name: str = "") -> int:
+        return self._index[(quantity, name)]
+
+    @staticmethod
+    def source(column: Column) -> str:
+        """Where a column comes from on the graph or in a bag, as a user reads it in an error."""
+        quantity, name = column
+        if quantity in PER_JOINT:
+            return f"{topics.JOINT_STATES} name {name!r}"
+        if quantity == "valve_command":
+            return f"{topics.VALVE_COMMANDS} name {name!r}"
+        if quantity == "supply_pressure":
+            return topics.SUPPLY_PRESSURE
+        if quantity == "ls_pressure":
+            return topics.LS_PRESSURE
+        return topics.actuator_pressure(name, quantity)
+
+    def samples(self, times: np.ndarray, rows: np.ndarray) -> Samples:
+        """Rows of this layout's columns -> Samples with (n, A) per-actuator arrays."""
+        n = len(times)
+        per = rows[:, :-1].reshape(n, len(self.actuators), len(self.fields))
+        arrays = {quantity: per[:, :, k] for k, quantity in enumerate(self.fields)}
+        return Samples(times=times, supply_pressure=rows[:, -1], **arrays)
+
+
+class SampleAligner:
+    """Collects column values by stamp and releases complete rows in stamp order.
+
+    A row is released when every column has a value, or, still incomplete, once a complete row
+    ``sync_window_ns`` newer exists (counted in ``incomplete``: the monitor sees a gap). Values
+    stamped at or before the last released row arrive too late and are dropped (``out_of_order``).
+    ``take(final=True)`` releases everything, as at the end of a bag. With ``key_columns``, rows
+    exist only at the stamps of those columns (a bag's samples are the /joint_states stamps).
+    """
+
+    def __init__(self, columns: int, *, sync_window_ns: int = 0, max_pending_ns: int = 5_000_000_000,
+                 key_columns: Sequence[int] | None = None) -> None:
+        self.width = columns
+        self.sync_window_ns = sync_window_ns
+        self.max_pending_ns = max_pending_ns
+        self.key_columns = None if key_columns is None else np.asarray(key_columns)
+        self._columns: list[np.ndarray] = []
+        self._stamps: list[np.ndarray] = []
+        self._values: list[np.ndarray] = []
+        self._pending_stamps = np.zeros(0, dtype=np.int64)
+        self._pending_rows = np.zeros((0, columns))
+        self._pending_present = np.zeros((0, columns), dtype=bool)
+        self.last_released = -(1 << 63)
+        self.out_of_order = 0
+        self.incomplete = 0
+
+    def add(self, column: int, stamps: np.ndarray | int, values: np.ndarray | float) -> None:
+        stamps = np.atleast_1d(np.asarray(stamps, dtype=np.int64))
+        values = np.atleast_1d(np.asarray(values, dtype=float))
+        late = stamps <= self.last_released
+        if late.any():
+            self.out_of_order += int(np.count_nonzero(late))
+            stamps, values = stamps[~late], values[~late]
+        self._columns.append(np.full(len(stamps), column, dtype=np.int64))
+        self._stamps.append(stamps)
+        self._values.append(values)
+
+    @property
+    def pending(self) -> int:
+        """Stamps held back, waiting for a missing column."""
+        return len(self._pending_stamps) + sum(len(s) for s in self._stamps)
+
+    def _gather(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pending rows and the values added since, merged into one stamp-sorted matrix, and which cells arrived.
+
+        A cell that arrived holding NaN (a sensor sending NaN) counts as arrived: the row is not
+        held back for it, and the monitor sees the NaN as the gap it is.
+        """
+        if not self._stamps:
+            return self._pending_stamps, self._pending_rows, self._pending_present
+        columns, stamps, values = (np.concatenate(parts) for parts in (self._columns, self._stamps, self._values))
+        self._columns, self._stamps, self._values = [], [], []
+        if self.key_columns is not None:
+            keys = np.unique(stamps[np.isin(columns, self.key_columns)])
+            all_stamps = np.union1d(self._pending_stamps, keys)
+        else:
+            all_stamps = np.union1d(self._pending_stamps, stamps)
+        rows = np.full((len(all_stamps), self.width), np.nan)
+        present = np.zeros(rows.shape, dtype=bool)
+        earlier = np.searchsorted(all_stamps, self._pending_stamps)
+        rows[earlier] = self._pending_rows
+        present[earlier] = self._pending_present
+        where = np.searchsorted(all_stamps, stamps)
+        known = (where < len(all_stamps)) & (all_stamps[np.minimum(where, len(all_stamps) - 1)] == stamps)
+        rows[where[known], columns[known]] = values[known]
+        present[where[known], columns[known]] = True
+        return all_stamps, rows, present
+
+    def take(self, *, final: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Stamps (ns) and rows ready now; the rest stays pending."""
+        stamps, rows, present = self._gather()
+        if len(stamps) == 0:
+            return stamps, rows
+        complete = present.all(axis=1)
+        if final:
+            ready = len(stamps)
+        else:
+            newest = stamps[complete].max() if complete.any() else stamps[-1] - self.max_pending_ns
+            waiting = (stamps <= newest) & ~complete & (newest - stamps <= self.sync_window_ns)
+            ready = int(np.searchsorted(stamps, newest, side="right"))
+            if waiting.any():
+                ready = min(ready, int(np.argmax(waiting)))
+        self.incomplete += int(np.count_nonzero(~complete[:ready]))
+        self._pending_stamps, self._pending_rows, self._pending_present = stamps[ready:], rows[ready:], present[ready:]
+        if ready:
+            self.last_released = int(stamps[ready - 1])
+        return stamps[:ready], rows[:ready]
