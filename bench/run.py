@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hydro_ros.bags.reader import mcap_file, read_bag
+from hydro_ros.bags.reader import mcap_files, read_bag
 from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import load_machine_config
@@ -53,7 +53,7 @@ def bag_read(config: dict, seconds: float = 30.0) -> dict:
         with AnyReader([path]) as reader:
             count = sum(1 for c, _, raw in reader.messages() if reader.deserialize(raw, c.msgtype) is not None)
         reference = time.perf_counter() - start
-        size = mcap_file(path).stat().st_size
+        size = mcap_files(path)[0].stat().st_size
     assert count == data.message_count
     return {"messages": data.message_count, "hydro_ros_msgs_per_s": data.message_count / ours,
             "rosbags_anyreader_msgs_per_s": count / reference, "speedup_vs_rosbags": reference / ours,

@@ -12,7 +12,7 @@ from rosbags.highlevel import AnyReader
 
 from hydro_ros.contract import topics
 from hydro_ros.bags.cdr import decode_fluid_pressure, decode_joint_state, encode_fluid_pressure, encode_joint_state
-from hydro_ros.bags.reader import BagError, mcap_file, read_bag
+from hydro_ros.bags.reader import BagError, mcap_files, read_bag
 from hydro_ros.bags.writer import TYPESTORE, BagExistsError, ContractBagWriter
 from hydro_ros.contract.names import Injection
 from hydro_ros.sim.scenario import Scenario, run_blocks
@@ -60,7 +60,7 @@ def test_bag_is_readable_by_rosbags_with_contract_types(leak_bag, sam_config):
 
 
 def test_bag_is_readable_by_mcap_reader(leak_bag):
-    with mcap_file(leak_bag).open("rb") as stream:
+    with mcap_files(leak_bag)[0].open("rb") as stream:
         reader = make_reader(stream)
         summary = reader.get_summary()
         assert {s.name for s in summary.schemas.values()} == {topics.JOINT_STATE_TYPE, topics.FLUID_PRESSURE_TYPE}
@@ -82,7 +82,7 @@ def test_reader_aligns_samples_and_keeps_truth(leak_bag):
 def test_truncated_bag_returns_what_was_readable(leak_bag, tmp_path):
     damaged = tmp_path / "damaged"
     shutil.copytree(leak_bag, damaged)
-    file = mcap_file(damaged)
+    file = mcap_files(damaged)[0]
     raw = file.read_bytes()
     file.write_bytes(raw[: len(raw) // 2])
     data = read_bag(damaged)
@@ -110,19 +110,79 @@ def test_writer_refuses_to_overwrite(leak_bag):
         ContractBagWriter(leak_bag, actuators={"boom": "boom_joint"}, pressure_variance=1.0)
 
 
-def test_flipped_byte_in_a_chunk_is_reported_and_earlier_chunks_kept(leak_bag, tmp_path):
-    from hydro_ros.bags.reader import mcap_file, read_bag
+def _same_where_shared(data, full) -> bool:
+    shared = np.isin(full.stamps_ns, data.stamps_ns)
+    return np.array_equal(data.pressure_a["boom"], full.pressure_a["boom"][shared])
 
-    source = mcap_file(leak_bag).read_bytes()
+
+def test_flipped_byte_in_a_chunk_is_reported_and_every_intact_chunk_kept(leak_bag, tmp_path):
+    source = mcap_files(leak_bag)[0].read_bytes()
     damaged = bytearray(source)
     damaged[len(source) // 2] ^= 0xFF  # inside a compressed chunk in the middle of the file
     target = tmp_path / "flipped.mcap"
     target.write_bytes(bytes(damaged))
     full = read_bag(leak_bag)
     data = read_bag(target)
-    assert any("damaged" in e for e in data.errors)
+    assert any("damaged chunk" in e for e in data.errors)
     assert 0 < len(data.stamps_ns) < len(full.stamps_ns)
-    assert np.array_equal(data.pressure_a["boom"], full.pressure_a["boom"][: len(data.stamps_ns)])
+    assert data.stamps_ns[-1] == full.stamps_ns[-1]  # the chunks after the damaged one are read too
+    assert _same_where_shared(data, full)
+
+
+def test_damaged_record_header_resumes_at_the_next_intact_chunk(leak_bag, tmp_path):
+    source = mcap_files(leak_bag)[0].read_bytes()
+    chunks, position = [], 8
+    while source[position] != 0x02:  # walk the records to the footer; note where each chunk starts
+        if source[position] == 0x06:
+            chunks.append(position)
+        position += 9 + int.from_bytes(source[position + 1 : position + 9], "little")
+    assert len(chunks) >= 3
+    chunk = chunks[1]
+    damaged = bytearray(source)
+    damaged[chunk + 8] = 0x7F  # the length's top byte: the header now claims a record larger than the file
+    target = tmp_path / "header.mcap"
+    target.write_bytes(bytes(damaged))
+    full = read_bag(leak_bag)
+    data = read_bag(target)
+    assert any("skipped to the next intact chunk" in e for e in data.errors)
+    assert len(data.stamps_ns) < len(full.stamps_ns) and data.stamps_ns[-1] == full.stamps_ns[-1]
+    assert _same_where_shared(data, full)
+
+
+def test_a_split_bag_is_read_whole_in_its_listed_order(leak_bag, tmp_path):
+    """A recording split over two files (rosbag2's max_bag_size) reads like the single file it came from."""
+    import yaml
+    from mcap.writer import Writer
+
+    split = tmp_path / "split"
+    split.mkdir()
+    with mcap_files(leak_bag)[0].open("rb") as stream:
+        reader = make_reader(stream)
+        messages = [(schema, channel, message) for schema, channel, message in reader.iter_messages()]
+    cut = len(messages) // 2
+    names = ["split_9.mcap", "split_10.mcap"]  # listed order, not name order
+    for name, part in zip(names, (messages[:cut], messages[cut:])):
+        with (split / name).open("wb") as out:
+            writer = Writer(out)
+            writer.start("ros2", "test")
+            ids: dict[int, int] = {}
+            for schema, channel, message in part:
+                if channel.id not in ids:
+                    schema_id = writer.register_schema(schema.name, schema.encoding, schema.data)
+                    ids[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, schema_id)
+                writer.add_message(ids[channel.id], message.log_time, message.data, message.publish_time)
+            writer.finish()
+    meta = yaml.safe_load((leak_bag / "metadata.yaml").read_text())
+    meta["rosbag2_bagfile_information"]["relative_file_paths"] = names
+    (split / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    assert mcap_files(split) == [split / name for name in names]
+    full, data = read_bag(leak_bag), read_bag(split)
+    assert data.complete and data.message_count == full.message_count
+    assert np.array_equal(data.stamps_ns, full.stamps_ns) and _same_where_shared(data, full)
+    (split / names[1]).unlink()
+    half = read_bag(split)
+    assert any("listed in metadata.yaml but missing" in e for e in half.errors)
+    assert 0 < len(half.stamps_ns) < len(full.stamps_ns)
 
 
 def test_joint_states_with_changing_names_are_decoded_per_message(tmp_path):

@@ -19,6 +19,7 @@ from numba import njit
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_FOOTER = 0x03, 0x04, 0x05, 0x06, 0x02
+RECORD_OPS = frozenset(range(0x01, 0x10))  # header ... data end: the record types of the MCAP spec
 
 
 class McapDamage(Exception):
@@ -225,6 +226,20 @@ def _decompress(compression: str, payload: bytes, size: int) -> bytes:
     raise McapDamage(f"unsupported chunk compression {compression!r}")
 
 
+def _chunk_records(content: bytes) -> bytes | None:
+    """A chunk record's decompressed records, or None where the chunk is damaged."""
+    try:
+        _, _, size, crc = struct.unpack_from("<QQQI", content, 0)
+        compression, offset = _string(content, 28)
+        (records_len,) = struct.unpack_from("<Q", content, offset)
+        records = _decompress(compression, content[offset + 8 : offset + 8 + records_len], size)
+    except Exception:  # noqa: BLE001 - struct, UnicodeDecodeError, zstd or lz4 errors all mean a damaged chunk
+        return None
+    if len(records) != size or (crc and zlib.crc32(records) != crc):
+        return None
+    return records
+
+
 @dataclass
 class McapScanner:
     """Walks an MCAP stream: ``channels`` fills as records appear; ``batches()`` yields messages."""
@@ -233,6 +248,7 @@ class McapScanner:
     channels: dict[int, Channel] = field(default_factory=dict)
     schemas: dict[int, str] = field(default_factory=dict)
     messages: int = 0
+    skipped: list[str] = field(default_factory=list)  # damaged stretches read past, each said once
 
     def _records(self, buf: np.ndarray, raw: bytes) -> Iterator[MessageBatch]:
         ops, starts, ends, channel_ids, _ = scan_records(buf)
@@ -245,6 +261,23 @@ class McapScanner:
             pick = ids == channel_id
             yield MessageBatch(int(channel_id), buf, starts[messages][pick] + 22, ends[messages][pick])
 
+    def _resync(self, position: int, reason: str) -> bool:
+        """Move to the next intact chunk after a damaged record header; False if there is none."""
+        self.stream.seek(position + 1)
+        rest = self.stream.read()
+        start = 0
+        while True:
+            k = rest.find(bytes([OP_CHUNK]), start)
+            if k < 0 or k + 9 > len(rest):
+                self.skipped.append(f"{reason} at byte {position}: no intact chunk after it")
+                return False
+            (length,) = struct.unpack_from("<Q", rest, k + 1)
+            if k + 9 + length <= len(rest) and _chunk_records(rest[k + 9 : k + 9 + length]) is not None:
+                self.skipped.append(f"{reason} at byte {position}: {k + 1} bytes skipped to the next intact chunk")
+                self.stream.seek(position + 1 + k)
+                return True
+            start = k + 1
+
     def _metadata(self, op: int, content: bytes) -> None:
         if op == OP_SCHEMA:
             (schema_id,) = struct.unpack_from("<H", content, 0)
@@ -255,10 +288,17 @@ class McapScanner:
             self.channels[channel_id] = Channel(topic, self.schemas.get(schema_id, ""))
 
     def batches(self) -> Iterator[MessageBatch]:
-        """Message batches in file order; raises McapDamage where the stream stops making sense."""
+        """Message batches in file order; raises McapDamage where the stream stops making sense.
+
+        A damaged chunk is skipped and noted in ``skipped``; where a record header itself is damaged,
+        reading resumes at the next intact chunk, so the chunks after a damaged one are still read.
+        """
+        size = self.stream.seek(0, 2)
+        self.stream.seek(0)
         if self.stream.read(8) != MAGIC:
             raise McapDamage("not an MCAP file (bad magic)")
         while True:
+            position = self.stream.tell()
             head = self.stream.read(9)
             if not head:
                 raise McapDamage("file ends without a footer (truncated)")
@@ -266,18 +306,23 @@ class McapScanner:
                 raise McapDamage("truncated record header")
             op = head[0]
             (length,) = struct.unpack_from("<Q", head, 1)
+            if op not in RECORD_OPS:
+                if not self._resync(position, f"unknown record opcode 0x{op:02x}"):
+                    return
+                continue
+            remaining = size - position - 9
+            if length > remaining:
+                if not self._resync(position, f"record of {length} bytes in the {remaining} bytes left"):
+                    raise McapDamage(f"record of {length} bytes truncated to {remaining}")
+                continue
             content = self.stream.read(length)
-            if len(content) < length:
-                raise McapDamage(f"record of {length} bytes truncated to {len(content)}")
             if op == OP_FOOTER:
                 return
             if op == OP_CHUNK:
-                _, _, size, crc = struct.unpack_from("<QQQI", content, 0)
-                compression, offset = _string(content, 28)
-                (records_len,) = struct.unpack_from("<Q", content, offset)
-                records = _decompress(compression, content[offset + 8 : offset + 8 + records_len], size)
-                if len(records) != size or (crc and zlib.crc32(records) != crc):
-                    raise McapDamage("chunk CRC or size mismatch")
+                records = _chunk_records(content)
+                if records is None:
+                    self.skipped.append(f"damaged chunk at byte {position} skipped (CRC, size or compression)")
+                    continue
                 yield from self._records(np.frombuffer(records, np.uint8), records)
             elif op == OP_MESSAGE:
                 record = head + content

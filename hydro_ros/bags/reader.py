@@ -8,6 +8,7 @@ of /joint_states with the aligner the live monitor uses (hydro_ros.bags.align). 
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -78,15 +79,38 @@ class BagData:
         return layout.samples(self.times, np.stack(rows, axis=1).reshape(len(self.stamps_ns), len(rows)))
 
 
-def mcap_file(path: Path) -> Path:
+def _natural(path: Path) -> list:
+    # rosbag2 numbers split files name_0.mcap, name_1.mcap, ..., name_10.mcap: 10 comes after 9
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
+
+
+def mcap_files(path: Path, errors: list[str] | None = None) -> list[Path]:
+    """Every storage file of a bag, in recording order: a bag split over several files is read whole.
+
+    The order is metadata.yaml's ``relative_file_paths`` where it lists them, else the files' numbering;
+    a listed file that is missing is reported in ``errors``.
+    """
     if path.is_file():
-        return path
+        return [path]
     if not path.is_dir():
         raise BagError(f"bag {path}: no such file or directory")
-    files = sorted(path.glob("*.mcap"))
-    if not files:
+    present = sorted(path.glob("*.mcap"), key=_natural)
+    if not present:
         raise BagError(f"bag {path}: no .mcap file in the directory (only MCAP storage is supported)")
-    return files[0]
+    listed = [path / name for name in _metadata(path).get("relative_file_paths") or [] if str(name).endswith(".mcap")]
+    if errors is not None:
+        errors += [f"{file}: listed in metadata.yaml but missing" for file in listed if not file.is_file()]
+    ordered = [file for file in listed if file.is_file()]
+    return ordered + [file for file in present if file not in ordered]
+
+
+def _metadata(path: Path) -> dict[str, Any]:
+    """The rosbag2_bagfile_information mapping of a bag directory, or {} where it cannot be read."""
+    try:
+        info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        return {}
+    return info if isinstance(info, dict) else {}
 
 
 def _read_truth(path: Path, errors: list[str]) -> dict[str, Any] | None:
@@ -98,7 +122,7 @@ def _read_truth(path: Path, errors: list[str]) -> dict[str, Any] | None:
         info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
         custom = info.get("custom_data") or {}
         return json.loads(custom[topics.TRUTH_KEY]) if topics.TRUTH_KEY in custom else None
-    except (yaml.YAMLError, KeyError, TypeError, json.JSONDecodeError) as exc:
+    except (yaml.YAMLError, KeyError, TypeError, AttributeError, json.JSONDecodeError) as exc:
         errors.append(f"{meta}: unreadable metadata ({type(exc).__name__})")
         return None
 
@@ -113,6 +137,10 @@ class _Series:
     def add(self, stamps: np.ndarray, values: np.ndarray) -> None:
         self.stamps.append(np.asarray(stamps, dtype=np.int64))
         self.values.append(np.asarray(values, dtype=float))
+
+    def extend(self, other: "_Series") -> None:
+        self.stamps += other.stamps
+        self.values += other.values
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         return np.concatenate(self.stamps), np.concatenate(self.values)
@@ -160,45 +188,54 @@ class _JointStateChannel:
 
 
 def read_bag(path: str | Path) -> BagData:
+    """Every readable message of every file of the bag; what could not be read is listed in ``errors``."""
     path = Path(path)
-    file = mcap_file(path)
     errors: list[str] = []
+    files = mcap_files(path, errors)
     truth = _read_truth(path, errors)
-    joint_channels: dict[int, _JointStateChannel] = {}
+    joint_channels: dict[tuple[int, int], tuple[str, _JointStateChannel]] = {}
     pressures: dict[str, _Series] = {}
     counts: dict[str, int] = {}
-    bad = [0]
-    scanner = None
-    try:
-        with file.open("rb") as stream:
-            scanner = McapScanner(stream)
-            for batch in scanner.batches():
-                channel = scanner.channels.get(batch.channel_id)
-                if channel is None:
-                    bad[0] += len(batch.starts)
-                    continue
-                counts[channel.topic] = counts.get(channel.topic, 0) + len(batch.starts)
-                if channel.schema == topics.FLUID_PRESSURE_TYPE:
-                    stamps, values, ok = decode_fluid_pressures(batch.buffer, batch.starts, batch.ends)
-                    pressures.setdefault(channel.topic, _Series()).add(stamps[ok], values[ok])
-                    bad[0] += int(np.count_nonzero(~ok))
-                elif channel.schema == topics.JOINT_STATE_TYPE and channel.topic in (topics.JOINT_STATES, topics.VALVE_COMMANDS):
-                    joint_channels.setdefault(batch.channel_id, _JointStateChannel()).add(batch, bad)
-    except Exception as exc:  # noqa: BLE001 - any damage (McapDamage, zstd, struct) ends reading, not the caller
-        done = scanner.messages if scanner is not None else 0
-        errors.append(f"{file}: damaged after {done} messages ({exc})")
-    total = scanner.messages if scanner is not None else 0
-    if bad[0]:
-        errors.append(f"{file}: {bad[0]} undecodable messages")
+    total = 0
+    for index, file in enumerate(files):
+        bad = [0]
+        scanner = None
+        try:
+            with file.open("rb") as stream:
+                scanner = McapScanner(stream)
+                for batch in scanner.batches():
+                    channel = scanner.channels.get(batch.channel_id)
+                    if channel is None:
+                        bad[0] += len(batch.starts)
+                        continue
+                    counts[channel.topic] = counts.get(channel.topic, 0) + len(batch.starts)
+                    if channel.schema == topics.FLUID_PRESSURE_TYPE:
+                        stamps, values, ok = decode_fluid_pressures(batch.buffer, batch.starts, batch.ends)
+                        pressures.setdefault(channel.topic, _Series()).add(stamps[ok], values[ok])
+                        bad[0] += int(np.count_nonzero(~ok))
+                    elif channel.schema == topics.JOINT_STATE_TYPE and channel.topic in (topics.JOINT_STATES, topics.VALVE_COMMANDS):
+                        key = (index, batch.channel_id)
+                        if key not in joint_channels:
+                            joint_channels[key] = (channel.topic, _JointStateChannel())
+                        joint_channels[key][1].add(batch, bad)
+        except Exception as exc:  # noqa: BLE001 - any damage (McapDamage, zstd, struct) ends this file, not the caller
+            done = scanner.messages if scanner is not None else 0
+            errors.append(f"{file}: damaged after {done} messages ({exc})")
+        if scanner is not None:
+            total += scanner.messages
+            errors += [f"{file}: {damage}" for damage in scanner.skipped]
+        if bad[0]:
+            errors.append(f"{file}: {bad[0]} undecodable messages")
     joint: dict[str, dict[str, _Series]] = {}
     valves: dict[str, _Series] = {}
-    for channel_id, decoded in joint_channels.items():
-        is_valve = scanner.channels[channel_id].topic == topics.VALVE_COMMANDS
+    for topic, decoded in joint_channels.values():
         for name, (pos, vel) in decoded.series.items():
-            if is_valve:
-                valves[name] = pos
+            if topic == topics.VALVE_COMMANDS:
+                valves.setdefault(name, _Series()).extend(pos)
             else:
-                joint[name] = {"position": pos, "velocity": vel}
+                entry = joint.setdefault(name, {"position": _Series(), "velocity": _Series()})
+                entry["position"].extend(pos)
+                entry["velocity"].extend(vel)
     if not joint:
         if total == 0 and errors:
             raise BagError(errors[-1])

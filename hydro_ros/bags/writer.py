@@ -49,7 +49,7 @@ def sample_payloads(block: Samples, k: int, stamp: int, actuator: str, joint: st
     )
 
 
-def sample_topics(actuator: str, mobile: bool = False) -> tuple[str, ...]:
+def sample_topics(actuator: str, *, mobile: bool = False) -> tuple[str, ...]:
     base = (topics.JOINT_STATES, topics.pressure_a(actuator), topics.pressure_b(actuator), topics.SUPPLY_PRESSURE, topics.VALVE_COMMANDS)
     if not mobile:
         return base
@@ -72,7 +72,7 @@ class ContractBagWriter:
         self._counts: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self.mobile = mobile
-        self._types = topics.sensor_topics(list(actuators), mobile)
+        self._types = topics.sensor_topics(list(actuators), mobile=mobile)
         self._first = None
         self._last = 0
 
@@ -160,7 +160,7 @@ class ContractBagWriter:
         """Write one actuator's block of samples; stamps (and bag log times) are sample times."""
         joint = self.actuators[actuator]
         channels = self._channels
-        names = sample_topics(actuator, self.mobile)
+        names = sample_topics(actuator, mobile=self.mobile)
         ids = [channels[name] for name in names]
         add = self._mcap.add_message
         for k in range(len(block.times)):

@@ -33,7 +33,7 @@ def actuator_pressure(actuator: str, quantity: str) -> str:
     return f"/hydraulics/{actuator}/{quantity}"
 
 
-def sensor_topics(actuators: list[str], mobile: bool = False) -> dict[str, str]:
+def sensor_topics(actuators: list[str], *, mobile: bool = False) -> dict[str, str]:
     """Every measured topic of a machine and its type; mobile valves add pilot/compensator/LS."""
     topics = {JOINT_STATES: JOINT_STATE_TYPE, SUPPLY_PRESSURE: FLUID_PRESSURE_TYPE, VALVE_COMMANDS: JOINT_STATE_TYPE}
     for actuator in actuators:
@@ -47,7 +47,7 @@ def sensor_topics(actuators: list[str], mobile: bool = False) -> dict[str, str]:
     return topics
 
 
-def fdi_residual_channels(actuators: list[str], mobile: bool = False) -> list[str]:
+def fdi_residual_channels(actuators: list[str], *, mobile: bool = False) -> list[str]:
     """The `name` layout of /fdi/residuals: per actuator and chamber, the filtered residual then its threshold.
 
     UKF residuals are chamber pressures (``p``, MPa); parity residuals on mobile valves are chamber

@@ -197,7 +197,7 @@ def crossing_code(mean_residual: np.ndarray, threshold: np.ndarray) -> np.ndarra
     ).astype(np.int8)
 
 
-def crossing_episodes(code: np.ndarray, previous: bool = False) -> tuple[int, bool]:
+def crossing_episodes(code: np.ndarray, *, previous: bool = False) -> tuple[int, bool]:
     """Threshold-crossing episodes (rising edges of code != 0) in a block, counting on from the last block's state."""
     crossing = (np.asarray(code) != 0).astype(np.int8)
     if crossing.size == 0:

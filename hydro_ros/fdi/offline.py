@@ -45,6 +45,7 @@ class FdiRun:
         if self.data is not None:
             out["bag"] = str(self.data.path)
             out["errors"] = list(self.data.errors)
+            out["partial"] = not self.data.complete  # computed on what could be read, not on the whole recording
         out["invalid_samples"] = self.monitor.invalid_samples
         return out
 

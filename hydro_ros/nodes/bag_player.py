@@ -1,8 +1,9 @@
 """bag_player: replay a contract bag onto its topics with /clock, rate and loop (like ros2 bag play).
 
 Messages are published as the bag's raw CDR bytes, so a replay is byte-identical to the
-recording. A damaged bag is played up to the damage, then the error is logged and playback
-ends (or loops) as usual.
+recording. A bag split over several files is played whole, file after file. A damaged file is
+played up to the damage, the error is logged and playback goes on with the next file; ``replay``
+then exits non-zero.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract import topics
-from hydro_ros.bags.reader import mcap_file
+from hydro_ros.bags.reader import mcap_files
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, message_class, run_node
 
 
@@ -39,40 +40,44 @@ class BagPlayer(Node):
         if not (self.rate > 0 and math.isfinite(self.rate)):
             raise InputError(f"parameter rate={self.rate}: must be > 0")
         self.loop = bool(self.get_parameter("loop").value)
-        self.file = mcap_file(self.path)
+        self.errors: list[str] = []
+        self.files = mcap_files(self.path, self.errors)
+        for error in self.errors:
+            self.get_logger().error(error)
         self.publishers_by_topic: dict[str, object] = {}
         self.clock_pub = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.get_parameter("publish_clock").value else None
         self.finished = False
         self.published = 0
-        self.errors: list[str] = []
         self._advertise()
         self._delay = float(self.get_parameter("start_delay").value)
         self._restart()
         self.create_timer(float(self.get_parameter("tick_period").value), self._tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _messages(self) -> Iterator[tuple[str, str, int, bytes]]:
-        with self.file.open("rb") as stream:
-            try:
-                for schema, channel, message in NonSeekingReader(stream, validate_crcs=True).iter_messages(log_time_order=False):
-                    yield channel.topic, schema.name if schema else "", message.log_time, message.data
-            except Exception as exc:  # noqa: BLE001 - damage ends playback, not the node
-                error = f"{self.file}: damaged after {self.published} messages ({type(exc).__name__}: {exc})"
-                self.errors.append(error)
-                self.get_logger().error(error)
+        for file in self.files:
+            with file.open("rb") as stream:
+                try:
+                    for schema, channel, message in NonSeekingReader(stream, validate_crcs=True).iter_messages(log_time_order=False):
+                        yield channel.topic, schema.name if schema else "", message.log_time, message.data
+                except Exception as exc:  # noqa: BLE001 - damage ends this file's playback, not the node
+                    error = f"{file}: damaged after {self.published} messages ({type(exc).__name__}: {exc})"
+                    self.errors.append(error)
+                    self.get_logger().error(error)
 
     def _advertise(self) -> None:
         """Create every publisher up front from the MCAP summary, when the file has one."""
-        try:
-            with self.file.open("rb") as stream:
-                summary = make_reader(stream).get_summary()
-        except Exception:  # noqa: BLE001 - a damaged summary only means publishers are made lazily
-            return
-        if summary is None:
-            return
-        for channel in summary.channels.values():
-            schema = summary.schemas.get(channel.schema_id)
-            if schema is not None:
-                self._publisher(channel.topic, schema.name)
+        for file in self.files:
+            try:
+                with file.open("rb") as stream:
+                    summary = make_reader(stream).get_summary()
+            except Exception:  # noqa: BLE001 - a damaged summary only means publishers are made lazily
+                continue
+            if summary is None:
+                continue
+            for channel in summary.channels.values():
+                schema = summary.schemas.get(channel.schema_id)
+                if schema is not None:
+                    self._publisher(channel.topic, schema.name)
 
     def _restart(self) -> None:
         self._stream = self._messages()

@@ -129,7 +129,7 @@ class CanBridge(Node):
         self.bus_name = f"{interface}:{channel}"
 
         mobile = any(slot.mobile for slot in self.codec.slots)
-        types = topics.sensor_topics([s.actuator for s in self.codec.slots], mobile)
+        types = topics.sensor_topics([s.actuator for s in self.codec.slots], mobile=mobile)
         self.pubs = {name: self.create_publisher(JointState if kind == topics.JOINT_STATE_TYPE else FluidPressure, name, SENSOR_QOS)
                      for name, kind in types.items() if not (self.forward and name == topics.VALVE_COMMANDS)}
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)

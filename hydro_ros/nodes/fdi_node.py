@@ -80,7 +80,7 @@ class FdiNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.pub_halt = self.create_publisher(Bool, topics.FDI_HALT, LATCHED_QOS)
         self.pub_residuals = self.create_publisher(JointState, topics.FDI_RESIDUALS, 10)
-        self._residual_channels = topics.fdi_residual_channels(actuators, self.mobile)
+        self._residual_channels = topics.fdi_residual_channels(actuators, mobile=self.mobile)
         self.create_service(Trigger, "~/acknowledge", self._on_acknowledge)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SelfTest, "~/self_test", self._on_self_test)

@@ -71,11 +71,11 @@ class PlantSim(Node):
         # one publisher per sample topic, in sample_payloads' order; valve commands are only
         # published when the simulated operator makes them
         mobile = self.run.plant.model.mobile_valve
-        types = topics.sensor_topics([self.actuator], mobile)
+        types = topics.sensor_topics([self.actuator], mobile=mobile)
         self.publishers_in_order = [
             None if (name == topics.VALVE_COMMANDS and self.excitation != "operator")
             else self.create_publisher(JointState if types[name] == topics.JOINT_STATE_TYPE else FluidPressure, name, SENSOR_QOS)
-            for name in sample_topics(self.actuator, mobile)
+            for name in sample_topics(self.actuator, mobile=mobile)
         ]
         self.command = 0.0
         self.command_wall = -math.inf

@@ -399,7 +399,8 @@ def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], No
     out.mkdir(parents=True, exist_ok=True)
     (out / "model.yaml").write_text("# model of hydro-ros discrepancy: calibrated flow gain and bulk modulus, named effects\n"
                                     + yaml.safe_dump(model.to_yaml_mapping(), sort_keys=False))
-    plot = plot_discrepancy(validation, machine, before_validation, after_validation, named, out / "validation.png", scales=SCALES)
+    plot = plot_discrepancy(validation, machine, before=before_validation, after=after_validation, effects=named,
+                            out=out / "validation.png", scales=SCALES)
     return {
         "effects": [{"name": name, "parameters": {"value": value}} for name, value in named.items()],
         "gap": {"metric": "rms of the 0.1 s mean error of 2 s segment simulations; p_A, p_B per 0.1 MPa, position per 1 mm",
@@ -414,4 +415,6 @@ def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], No
                                                             ("q_a", "q_b"))},
         "fit_s": float(fit.times[-1] - fit.times[0]), "validation_s": float(validation.times[-1] - validation.times[0]),
         "plots": [str(plot)],
+        "bag_errors": list(data.errors),
+        "partial": not data.complete,  # computed on what could be read, not on the whole recording
     }

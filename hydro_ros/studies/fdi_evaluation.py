@@ -151,7 +151,7 @@ def run_case(machine: Machine, case: Case) -> Outcome:
     leak: list[np.ndarray] = []
     for states, result in _blocks(machine, case, monitor):
         times = result.times
-        new, crossing = crossing_episodes(result.code[:, 0], crossing)
+        new, crossing = crossing_episodes(result.code[:, 0], previous=crossing)
         episodes += new
         for alarm in result.alarms:
             if alarm.time_s < case.onset_s or case.fault is None:
@@ -374,7 +374,7 @@ def fit_parity_thresholds(machine: Machine, train: Iterable[int], held_out: Iter
     return ParityThresholds(OPENING_EDGES, tuple(mean), tuple(std), THRESHOLD_FACTORS[-1]), report
 
 
-def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seeds: Iterable[int],
+def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seeds: Iterable[int], *,
                             duration_s: float = 60.0, onset_s: float = 20.0, share: float = 0.25) -> list[dict[str, Any]]:
     """Signature table by simulation: per fault and command sign, the crossing pattern that dominates after onset."""
     rows: list[dict[str, Any]] = []

@@ -134,7 +134,8 @@ def plot_gsa(results: dict, out: str | Path) -> Path:
     return out
 
 
-def plot_discrepancy(rec, machine: Machine, before, after, effects: dict, out: str | Path, *, scales: np.ndarray) -> Path:
+def plot_discrepancy(rec, machine: Machine, *, before: np.ndarray, after: np.ndarray, effects: dict, out: str | Path,
+                     scales: np.ndarray) -> Path:
     """Validation data: measured vs simulated p_A, p_B and position, before and after the named effects.
 
     ``before`` and ``after`` are normalised errors: measured - simulated = error * scales.
