@@ -64,9 +64,9 @@ def convergence(out_dir: Path) -> dict:
     import matplotlib.pyplot as plt
 
     from hydro_ros.contract.config import default_config_path
-    from hydro_ros.planning.problem import Problem, plan_dp
-    from hydro_ros.planning.costs import Cost
     from hydro_ros.models.crane import load_crane
+    from hydro_ros.planning.costs import Cost
+    from hydro_ros.planning.problem import Problem, plan_dp
 
     crane, config = load_crane(default_config_path("k70m"))
     scales = (0.25, 0.35, 0.5, 0.7, 1.0)

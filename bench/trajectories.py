@@ -22,11 +22,11 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from hydro_ros.contract.config import default_config_path  # noqa: E402
-from hydro_ros.planning.catalog import build, plan_units  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
+from hydro_ros.planning.catalog import build, plan_units  # noqa: E402
 from hydro_ros.planning.database import TrajectoryDatabase  # noqa: E402
-from hydro_ros.studies.execution import execute  # noqa: E402
 from hydro_ros.planning.serving import path_start_state  # noqa: E402
+from hydro_ros.studies.execution import execute  # noqa: E402
 
 METHODS = ("dp_cp", "dp_ls", "pinv_actuator", "pinv_joint")
 THROUGHPUT_GRID = (178, 51, 76)  # half the P-VI grid per axis: three builds stay within minutes
@@ -74,8 +74,8 @@ def latency(config: dict, db_path: Path, requests: int = 200, replans: int = 30)
     from std_msgs.msg import String
     from trajectory_msgs.msg import JointTrajectory
 
-    from test.ros_graph import node_process, spin_until
     from hydro_ros.nodes.common import LATCHED_QOS
+    from test.ros_graph import node_process, spin_until
 
     with TrajectoryDatabase(db_path) as db:
         stored = db.solution("horizontal", "dp_cp")

@@ -12,9 +12,9 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
+from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import INJECTION_UNITS, parse_injection
-from hydro_ros.contract.errors import InputError
 
 
 def _injections(texts: Sequence[str], kind: str, timed: bool) -> list:
@@ -34,8 +34,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     from hydro_ros.bags.reader import read_bag
     from hydro_ros.bags.writer import ContractBagWriter
-    from hydro_ros.studies.plots import plot_bag
     from hydro_ros.sim.scenario import Scenario, run_blocks
+    from hydro_ros.studies.plots import plot_bag
 
     machine = load_machine_config(args.config)
     if args.duration <= 0:
@@ -183,8 +183,8 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
 
 
 def _dp_problem(args: argparse.Namespace):  # noqa: ANN202 - planning types imported lazily
-    from hydro_ros.planning.problem import Problem
     from hydro_ros.models.crane import load_crane
+    from hydro_ros.planning.problem import Problem
 
     out = Path(args.json)
     if not out.parent.is_dir():
@@ -194,8 +194,8 @@ def _dp_problem(args: argparse.Namespace):  # noqa: ANN202 - planning types impo
 
 
 def cmd_dp_solve(args: argparse.Namespace) -> int:
-    from hydro_ros.planning.problem import method_record, plan_dp
     from hydro_ros.planning.costs import Cost
+    from hydro_ros.planning.problem import method_record, plan_dp
     from hydro_ros.planning.trajectory import joint_table
 
     problem, out = _dp_problem(args)
@@ -246,8 +246,8 @@ def cmd_dp_compare(args: argparse.Namespace) -> int:
 def cmd_db_build(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hydro_ros.planning.catalog import build, plan_units
     from hydro_ros.models.crane import load_crane
+    from hydro_ros.planning.catalog import build, plan_units
     from hydro_ros.planning.database import TrajectoryDatabase
 
     _, config = load_crane(args.config)
@@ -286,8 +286,8 @@ def cmd_db_list(args: argparse.Namespace) -> int:
 
 def cmd_dp_execute(args: argparse.Namespace) -> int:
     from hydro_ros.models.crane import load_crane
-    from hydro_ros.studies.execution import execute, write_bag
     from hydro_ros.planning.serving import executable_trajectory
+    from hydro_ros.studies.execution import execute, write_bag
 
     out = Path(args.out)
     if out.exists():

@@ -15,7 +15,6 @@ from pathlib import Path
 
 from hydro_ros.contract.config import default_config_path
 
-
 CRANE_PATH = "horizontal"
 CRANE_GRID = ("120", "41", "41")  # a catalog in seconds; make bench runs the full P-VI grid
 
@@ -28,9 +27,7 @@ def _operator_view(duration_s: float, rate: float) -> tuple[list[str], dict | No
     from sensor_msgs.msg import FluidPressure, JointState
     from std_msgs.msg import String
 
-    from hydro_ros.nodes.common import LATCHED_QOS
-
-    from hydro_ros.nodes.common import SENSOR_QOS
+    from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS
 
     rclpy.init()
     node = rclpy.create_node("operator_view")
@@ -180,8 +177,8 @@ def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.
 def _energy_against_pseudo_inverse(crane_config: str, database: Path, executed: dict) -> None:
     """The pseudo-inverse from the same start on the same simulated crane (offline: the live crane has moved on)."""
     from hydro_ros.models.crane import load_crane
-    from hydro_ros.studies.execution import execute
     from hydro_ros.planning.serving import executable_trajectory
+    from hydro_ros.studies.execution import execute
 
     _, config = load_crane(crane_config)
     trajectory, _ = executable_trajectory(config, CRANE_PATH, "pinv_joint", database=str(database), start_extension=0.3)

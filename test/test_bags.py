@@ -10,10 +10,10 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
-from hydro_ros.contract import topics
 from hydro_ros.bags.cdr import decode_fluid_pressure, decode_joint_state, encode_fluid_pressure, encode_joint_state
 from hydro_ros.bags.reader import BagError, mcap_files, read_bag
 from hydro_ros.bags.writer import TYPESTORE, BagExistsError, ContractBagWriter
+from hydro_ros.contract import topics
 from hydro_ros.contract.names import Injection
 from hydro_ros.sim.scenario import Scenario, run_blocks
 

@@ -10,11 +10,10 @@ import pytest
 
 from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.studies.fdi_evaluation import mismatched_config
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, run_blocks
+from hydro_ros.studies.fdi_evaluation import mismatched_config
 from test.conftest import SAM_CONFIG
-
 
 PLANT_MISMATCH = 0.4  # of fdi-eval's model mismatch
 SEED = 3

@@ -9,11 +9,11 @@ import pytest
 
 from hydro_ros.cli import main
 from hydro_ros.contract.config import default_config_path, with_overrides
-from hydro_ros.planning.problem import Problem, run_method
-from hydro_ros.planning.costs import Cost
 from hydro_ros.models.crane import Crane, load_crane
+from hydro_ros.planning.costs import Cost
 from hydro_ros.planning.dp import DpGrid, InfeasibleStart, extension_windows, solve, start_position
 from hydro_ros.planning.paths import path_from_config
+from hydro_ros.planning.problem import Problem, run_method
 from hydro_ros.planning.reference import solve_reference
 from hydro_ros.planning.trajectory import evaluate
 

@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydro_ros.studies.fdi_evaluation import Case, mismatched_config, run_case
-from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Isolator
-from hydro_ros.fdi.monitor import FdiMonitor
-from hydro_ros.fdi.residuals import MovingAverage
-from hydro_ros.fdi.offline import analyse_bag, blocks_from_bag
-from hydro_ros.fdi.reference import filterpy_twin
-from hydro_ros.fdi.ukf import UkfBank, UkfSettings, unscented_weights
 from hydro_ros.bags.reader import read_bag
 from hydro_ros.contract.names import Fault
+from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Isolator
+from hydro_ros.fdi.monitor import FdiMonitor
+from hydro_ros.fdi.offline import analyse_bag, blocks_from_bag
+from hydro_ros.fdi.reference import filterpy_twin
+from hydro_ros.fdi.residuals import MovingAverage
+from hydro_ros.fdi.ukf import UkfBank, UkfSettings, unscented_weights
+from hydro_ros.studies.fdi_evaluation import Case, mismatched_config, run_case
 from test.conftest import REPO
 
 BAGS = REPO / "bags"

@@ -13,9 +13,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
+from hydro_ros.bags.align import ContractAligner, SampleLayout
 from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
 from hydro_ros.nodes.common import LATCHED_QOS
-from hydro_ros.nodes.fdi_node import SampleAssembler
 from test.conftest import REPO, SAM_CONFIG
 from test.ros_graph import node_process, probe_node, spin_until
 
@@ -133,7 +133,7 @@ def test_bag_replay_with_sim_time_isolates_the_recorded_fault(ros_domain):
         assert not any(s.message not in ("ok", "stale", "unisolated", "external_leakage_b") for s in _fdi_statuses(diags))
 
 
-def _sample(assembler: SampleAssembler, stamp: int, pressure_a: float = 5e6) -> None:
+def _sample(assembler: ContractAligner, stamp: int, pressure_a: float = 5e6) -> None:
     assembler.put_joint_states(encode_joint_state(stamp, "", ["boom_joint"], [0.1], [0.0], []))
     assembler.put_commands(encode_joint_state(stamp, "", ["boom"], [0.0], [], []))
     assembler.put_pressure(encode_fluid_pressure(stamp, "", pressure_a, 0.0), 2)
@@ -142,7 +142,7 @@ def _sample(assembler: SampleAssembler, stamp: int, pressure_a: float = 5e6) -> 
 
 
 def test_assembler_orders_samples_drops_late_ones_and_gives_up_on_missing_topics():
-    assembler = SampleAssembler(["boom"], ["boom_joint"], sync_window_ns=50_000_000)
+    assembler = ContractAligner(SampleLayout(["boom"], ["boom_joint"]), sync_window_ns=50_000_000)
     for stamp in (3_000_000, 1_000_000, 2_000_000):  # out of arrival order
         _sample(assembler, stamp)
     stamps, rows = assembler.take()

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.contract.names import INJECTABLE, Injection, parse_injection
+from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.sim.sensors import SensorModel
 from test.conftest import REPO
 

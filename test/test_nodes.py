@@ -10,8 +10,8 @@ from rclpy.parameter_client import AsyncParameterClient
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import FluidPressure, JointState
 
-from hydro_ros.contract import topics
 from hydro_ros.bags.writer import ContractBagWriter
+from hydro_ros.contract import topics
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS
 from hydro_ros.sim.scenario import Scenario, run_blocks
 from test.conftest import SAM_CONFIG

@@ -8,8 +8,8 @@ import re
 
 import yaml
 
-from hydro_ros.contract import topics
 from hydro_ros.can.codec import MachineBus
+from hydro_ros.contract import topics
 from hydro_ros.contract.machine import load_machine_config
 from test.conftest import REPO, SAM_CONFIG
 

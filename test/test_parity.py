@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.studies.fdi_evaluation import Case, _blocks, run_case
 from hydro_ros.fdi.monitor import FdiMonitor
+from hydro_ros.studies.fdi_evaluation import Case, _blocks, run_case
 from test.conftest import REPO
 
 MOBILE = REPO / "config" / "sam_mobile.yaml"

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from hydro_ros.contract.config import ConfigError, default_config_path, with_overrides
+from hydro_ros.models.crane import Crane, Motion, load_crane
 from hydro_ros.models.crane_hydraulics import driven_pressure, pump_flow
 from hydro_ros.planning.costs import Cost, stage_power
-from hydro_ros.models.crane import Crane, Motion, load_crane
 from hydro_ros.planning.paths import TipPath, path_from_config
 
 CRANES = ("k70m", "crane3dof")

@@ -6,13 +6,23 @@ import numpy as np
 import pytest
 
 from hydro_ros.contract.machine import Machine
+from hydro_ros.contract.names import Injection
 from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient
 from hydro_ros.models.sam import (
-    AREA_A, AREA_B, BRISTLE, HOSE_MODULUS, HOSE_VOLUME, OIL_MODULUS, STROKE, V0_A, V0_B,
-    SamModel, SamPlant, valve_and_leak_flows,
+    AREA_A,
+    AREA_B,
+    BRISTLE,
+    HOSE_MODULUS,
+    HOSE_VOLUME,
+    OIL_MODULUS,
+    STROKE,
+    V0_A,
+    V0_B,
+    SamModel,
+    SamPlant,
+    valve_and_leak_flows,
 )
 from hydro_ros.models.steady_state import extension_steady_pressures, hydraulic_natural_frequency
-from hydro_ros.contract.names import Injection
 
 RETRACTED_JOINT = 0.728 - 1.6 + 0.005  # just off the retracted end stop (P-I GSA start, L4842)
 

@@ -11,15 +11,14 @@ from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
 from hydro_ros.contract import topics
+from hydro_ros.models.crane import Crane
 from hydro_ros.nodes.common import LATCHED_QOS
 from hydro_ros.planning.catalog import build, plan_units
-from hydro_ros.models.crane import Crane
 from hydro_ros.planning.database import TrajectoryDatabase
 from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE
 from test.conftest import K70M
 from test.ros_graph import node_process, probe_node, spin_until
-
 
 
 @pytest.fixture(scope="module")

@@ -9,10 +9,12 @@ of a machine's actuators and turns rows into :class:`~hydro_ros.contract.samples
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
 
+from hydro_ros.bags.cdr import decode_fluid_pressure, decode_joint_state
 from hydro_ros.contract import topics
 from hydro_ros.contract.samples import Samples
 
@@ -100,9 +102,9 @@ class SampleAligner:
         self._values.append(values)
 
     @property
-    def pending(self) -> int:
+    def pending(self) -> set[int]:
         """Stamps held back, waiting for a missing column."""
-        return len(self._pending_stamps) + sum(len(s) for s in self._stamps)
+        return {int(stamp) for part in (self._pending_stamps, *self._stamps) for stamp in part}
 
     def _gather(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pending rows and the values added since, merged into one stamp-sorted matrix, and which cells arrived.
@@ -149,3 +151,32 @@ class SampleAligner:
         if ready:
             self.last_released = int(stamps[ready - 1])
         return stamps[:ready], rows[:ready]
+
+
+class ContractAligner(SampleAligner):
+    """The live monitor's front: raw CDR messages of the contract topics into the columns of a layout."""
+
+    def __init__(self, layout: SampleLayout, *, sync_window_ns: int, max_pending_ns: int = 5_000_000_000) -> None:
+        super().__init__(len(layout.columns), sync_window_ns=sync_window_ns, max_pending_ns=max_pending_ns)
+        self.layout = layout
+        self._joints = {joint: (layout.index("joint_position", joint), layout.index("joint_velocity", joint)) for joint in layout.joints}
+        self._commands = {actuator: layout.index("valve_command", actuator) for actuator in layout.actuators}
+
+    def put_joint_states(self, data: bytes) -> None:
+        stamp, names, position, velocity = decode_joint_state(data)
+        for k, name in enumerate(names):
+            columns = self._joints.get(name)
+            if columns is not None:
+                self.add(columns[0], stamp, position[k] if k < len(position) else math.nan)
+                self.add(columns[1], stamp, velocity[k] if k < len(velocity) else math.nan)
+
+    def put_commands(self, data: bytes) -> None:
+        stamp, names, position, _ = decode_joint_state(data)
+        for k, name in enumerate(names):
+            column = self._commands.get(name)
+            if column is not None:
+                self.add(column, stamp, position[k] if k < len(position) else math.nan)
+
+    def put_pressure(self, data: bytes, column: int) -> None:
+        stamp, value, _ = decode_fluid_pressure(data)
+        self.add(column, stamp, value)

@@ -16,9 +16,6 @@ from typing import Any
 import numpy as np
 import yaml
 
-from hydro_ros.contract.errors import InputError
-from hydro_ros.contract import topics
-from hydro_ros.contract.samples import Samples
 from hydro_ros.bags.align import Column, SampleAligner, SampleLayout
 from hydro_ros.bags.cdr import CdrError, decode_joint_state
 from hydro_ros.bags.mcap_scan import (
@@ -28,6 +25,9 @@ from hydro_ros.bags.mcap_scan import (
     decode_joint_states,
     same_bytes,
 )
+from hydro_ros.contract import topics
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.samples import Samples
 
 
 class BagError(InputError):

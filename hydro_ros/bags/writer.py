@@ -17,9 +17,9 @@ import yaml
 from mcap.writer import CompressionType, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from hydro_ros.contract.errors import InputError
-from hydro_ros.contract import topics
 from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
+from hydro_ros.contract import topics
+from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.samples import Samples
 
 TYPESTORE = get_typestore(Stores.ROS2_KILTED)

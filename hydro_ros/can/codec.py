@@ -17,9 +17,9 @@ from typing import Any
 
 import cantools
 
+from hydro_ros.contract.config import config_dir
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
-from hydro_ros.contract.config import config_dir
 
 DLC = 8
 COUNTER_MODULO = 16

@@ -15,10 +15,10 @@ from typing import Any, Callable
 import can
 import numpy as np
 
-from hydro_ros.contract.errors import InputError
-from hydro_ros.contract.machine import Machine
 from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_values
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.samples import Samples
 
 LOG_SUFFIXES = (".log", ".asc", ".blf")

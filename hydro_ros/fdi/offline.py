@@ -11,9 +11,9 @@ import numpy as np
 from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.reader import BagData, BagError, read_bag
 from hydro_ros.contract.machine import Machine
+from hydro_ros.contract.samples import Samples
 from hydro_ros.fdi.isolation import Alarm
 from hydro_ros.fdi.monitor import BlockResult, FdiMonitor
-from hydro_ros.contract.samples import Samples
 
 BLOCK = 5000  # samples per call of the monitor: long enough to amortise, short enough for progress
 

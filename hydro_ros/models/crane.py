@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.config import ConfigError, read_config
+from hydro_ros.contract.errors import InputError
 
 NUMPY = SimpleNamespace(
     cos=np.cos,

@@ -22,13 +22,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 from numba import njit
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.contract.machine import Machine
+from hydro_ros.contract.machine import NOTCHES, Machine
+from hydro_ros.contract.names import Injection
 from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient, leak_flow
 from hydro_ros.models.friction import bristle_rate, friction_force, stribeck_curve
 from hydro_ros.models.kinematics import (
@@ -38,13 +39,11 @@ from hydro_ros.models.kinematics import (
     triangle_angle,
 )
 from hydro_ros.models.valve import (
-    NOTCHES,
     chamber_valve_flows,
     compensator_pressure,
     spool_acceleration,
     spool_opening,
 )
-from hydro_ros.contract.names import Injection
 
 STATE_NAMES = ("p_a", "p_b", "spool", "spool_rate", "piston", "piston_velocity", "bristle")
 N_STATES = len(STATE_NAMES)

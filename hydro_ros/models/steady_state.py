@@ -6,7 +6,17 @@ import math
 
 from hydro_ros.models.chamber import effective_bulk_modulus
 from hydro_ros.models.sam import (
-    AREA_A, AREA_B, HOSE_MODULUS, HOSE_VOLUME, OIL_MODULUS, STROKE, SUPPLY, TANK, V0_A, V0_B, SamModel,
+    AREA_A,
+    AREA_B,
+    HOSE_MODULUS,
+    HOSE_VOLUME,
+    OIL_MODULUS,
+    STROKE,
+    SUPPLY,
+    TANK,
+    V0_A,
+    V0_B,
+    SamModel,
 )
 from hydro_ros.models.valve import BT, PA, flow_coefficient
 

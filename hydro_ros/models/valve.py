@@ -12,8 +12,6 @@ import math
 import numpy as np
 from numba import njit
 
-from hydro_ros.contract.machine import NOTCHES
-
 PA, PB, AT, BT = 0, 1, 2, 3
 CENTRE_BAND = 0.01  # |spool| below which the laminar centre leakage acts (P-I eqs. 13-14)
 

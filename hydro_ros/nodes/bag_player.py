@@ -19,9 +19,9 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 
-from hydro_ros.contract.errors import InputError
-from hydro_ros.contract import topics
 from hydro_ros.bags.reader import mcap_files
+from hydro_ros.contract import topics
+from hydro_ros.contract.errors import InputError
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, message_class, run_node
 
 

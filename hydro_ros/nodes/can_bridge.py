@@ -27,9 +27,9 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import FluidPressure, JointState
 
-from hydro_ros.contract import topics
 from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
 from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_values
+from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.nodes.common import SENSOR_QOS, run_node

@@ -27,16 +27,16 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
-from hydro_ros.contract.errors import InputError
 from hydro_ros.contract import topics
-from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
 from hydro_ros.contract.config import default_config_path
+from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import load_crane
+from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
 from hydro_ros.planning.dp import DpGrid, start_position
-from hydro_ros.studies.execution import ClosedLoop, execution_from_rows, log_row, measures
 from hydro_ros.planning.paths import path_from_config
 from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import JointTrajectoryData
+from hydro_ros.studies.execution import ClosedLoop, execution_from_rows, log_row, measures
 
 MAX_CATCH_UP_S = 0.25
 

@@ -16,7 +16,6 @@ raised from stale data). All counters are in the diagnostic values.
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any
 
@@ -29,13 +28,13 @@ from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from hydro_ros.bags.align import SampleAligner, SampleLayout
+from hydro_ros.bags.align import ContractAligner, SampleLayout
+from hydro_ros.bags.cdr import CdrError
 from hydro_ros.contract import topics
-from hydro_ros.bags.cdr import CdrError, decode_fluid_pressure, decode_joint_state
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.fdi.monitor import STALE, FdiMonitor
 from hydro_ros.contract.samples import PER_ACTUATOR
+from hydro_ros.fdi.monitor import STALE, FdiMonitor
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, run_node
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
@@ -60,22 +59,20 @@ class FdiNode(Node):
         actuators = self.monitor.actuators
         self.mobile = self.monitor.generator.needs_mobile_pressures
         self.layout = SampleLayout(actuators, self.monitor.joints, mobile=self.mobile)
-        self.aligner = SampleAligner(len(self.layout.columns), sync_window_ns=int(float(self.get_parameter("sync_window").value) * 1e9),
-                                     max_pending_ns=MAX_PENDING_NS)
+        self.aligner = ContractAligner(self.layout, sync_window_ns=int(float(self.get_parameter("sync_window").value) * 1e9),
+                                       max_pending_ns=MAX_PENDING_NS)
         self.undecodable = 0
         index = self.layout.index
-        self._joint_columns = {joint: (index("joint_position", joint), index("joint_velocity", joint)) for joint in self.monitor.joints}
-        self._command_columns = {actuator: index("valve_command", actuator) for actuator in actuators}
 
         self.last_arrival: dict[str, float] = {}
-        self._subscribe_raw(JointState, topics.JOINT_STATES, self._put_joint_states)
-        self._subscribe_raw(JointState, topics.VALVE_COMMANDS, self._put_commands)
-        self._subscribe_raw(FluidPressure, topics.SUPPLY_PRESSURE, lambda d, c=index("supply_pressure"): self._put_pressure(d, c))
+        self._subscribe_raw(JointState, topics.JOINT_STATES, self.aligner.put_joint_states)
+        self._subscribe_raw(JointState, topics.VALVE_COMMANDS, self.aligner.put_commands)
+        self._subscribe_raw(FluidPressure, topics.SUPPLY_PRESSURE, lambda d, c=index("supply_pressure"): self.aligner.put_pressure(d, c))
         for actuator in actuators:
             quantities = ("pressure_a", "pressure_b", *(topics.MOBILE_VALVE_PRESSURES if self.mobile else ()))
             for quantity in quantities:
                 self._subscribe_raw(FluidPressure, topics.actuator_pressure(actuator, quantity),
-                                    lambda d, c=index(quantity, actuator): self._put_pressure(d, c))
+                                    lambda d, c=index(quantity, actuator): self.aligner.put_pressure(d, c))
 
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.pub_halt = self.create_publisher(Bool, topics.FDI_HALT, LATCHED_QOS)
@@ -106,25 +103,6 @@ class FdiNode(Node):
                 self.undecodable += 1
 
         self.create_subscription(msg_type, topic, callback, SENSOR_QOS, raw=True)
-
-    def _put_joint_states(self, data: bytes) -> None:
-        stamp, names, position, velocity = decode_joint_state(data)
-        for k, name in enumerate(names):
-            columns = self._joint_columns.get(name)
-            if columns is not None:
-                self.aligner.add(columns[0], stamp, position[k] if k < len(position) else math.nan)
-                self.aligner.add(columns[1], stamp, velocity[k] if k < len(velocity) else math.nan)
-
-    def _put_commands(self, data: bytes) -> None:
-        stamp, names, position, _ = decode_joint_state(data)
-        for k, name in enumerate(names):
-            column = self._command_columns.get(name)
-            if column is not None:
-                self.aligner.add(column, stamp, position[k] if k < len(position) else math.nan)
-
-    def _put_pressure(self, data: bytes, column: int) -> None:
-        stamp, value, _ = decode_fluid_pressure(data)
-        self.aligner.add(column, stamp, value)
 
     # processing -------------------------------------------------------------------------------
     def _process(self) -> None:

@@ -29,10 +29,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 
-from hydro_ros.contract.errors import InputError
-from hydro_ros.contract import topics
 from hydro_ros.bags.cdr import CdrError, decode_joint_state
+from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path, read_config
+from hydro_ros.contract.errors import InputError
 from hydro_ros.hmi.server import create_app
 from hydro_ros.hmi.state import HmiState, StatusReport
 from hydro_ros.nodes.common import LATCHED_QOS, run_node

@@ -15,7 +15,6 @@ import math
 import time
 
 import numpy as np
-
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
@@ -23,10 +22,10 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import FluidPressure, JointState
 
-from hydro_ros.contract.errors import InputError
-from hydro_ros.contract import topics
 from hydro_ros.bags.writer import sample_payloads, sample_topics
+from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path, read_config
+from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import INJECTABLE, Injection
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, run_node

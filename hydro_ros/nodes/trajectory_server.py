@@ -27,11 +27,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from hydro_ros.contract.errors import InputError
 from hydro_ros.contract import topics
+from hydro_ros.contract.errors import InputError
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
-from hydro_ros.planning.problem import METHODS
 from hydro_ros.planning.database import DatabaseError, JointTrajectoryData, TrajectoryDatabase
+from hydro_ros.planning.problem import METHODS
 from hydro_ros.planning.serving import JointStateSample, Served, ServeError, TrajectoryService
 
 _MAX_REQUEST_CHARS = 256

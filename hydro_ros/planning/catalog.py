@@ -19,11 +19,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hydro_ros.contract.errors import InputError
-from hydro_ros.planning.problem import METHODS, Problem, method_record, run_method
+from hydro_ros.contract.errors import BuildError, InputError
 from hydro_ros.models.crane import Crane
 from hydro_ros.planning.database import TrajectoryDatabase, inputs_hash, pack_arrays
-from hydro_ros.contract.errors import BuildError
+from hydro_ros.planning.problem import METHODS, Problem, method_record, run_method
 from hydro_ros.planning.trajectory import joint_trajectory
 
 # what a catalog holds unless the config's `catalog.methods` says otherwise: the served optimum for

@@ -26,16 +26,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numba import njit, prange
 from tqdm import tqdm
 
 from hydro_ros.contract.errors import InputError
+from hydro_ros.models.crane import Crane
 from hydro_ros.models.crane_hydraulics import cylinder_table, driven_pressure, total_pump_flow
 from hydro_ros.planning.costs import Cost, stage_power
-from hydro_ros.models.crane import Crane
 from hydro_ros.planning.paths import PathSamples
 from hydro_ros.planning.trajectory import ExtensionTrajectory
 

@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.config import ConfigError
+from hydro_ros.contract.errors import InputError
 
 
 @dataclass(frozen=True)

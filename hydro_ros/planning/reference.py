@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from tqdm import tqdm
 
-from hydro_ros.planning.costs import Cost, stage_power
 from hydro_ros.models.crane import Crane
+from hydro_ros.planning.costs import Cost, stage_power
 from hydro_ros.planning.dp import EDGE_SLACK, INFEASIBLE, SNAP, DpGrid, DpSolution, terminal_cost
 from hydro_ros.planning.paths import PathSamples
 

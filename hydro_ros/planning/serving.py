@@ -19,12 +19,12 @@ from typing import Any
 import numpy as np
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.planning.problem import METHODS, Problem, method_record, run_method
-from hydro_ros.planning.costs import Cost
 from hydro_ros.models.crane import Crane
+from hydro_ros.planning.costs import Cost
 from hydro_ros.planning.database import StoredSolution, TrajectoryDatabase
 from hydro_ros.planning.dp import DpSolution, InfeasibleStart
 from hydro_ros.planning.paths import path_from_config
+from hydro_ros.planning.problem import METHODS, Problem, method_record, run_method
 from hydro_ros.planning.trajectory import JointTrajectoryData, evaluate, joint_trajectory
 
 # a state this close to the stored start (rad or m, rad/s or m/s) is served as stored

@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from hydro_ros.models.crane import Crane, Motion
 from hydro_ros.models.crane_hydraulics import ls_supply_pressure, total_pump_flow
 from hydro_ros.planning.costs import Cost, stage_power
-from hydro_ros.models.crane import Crane, Motion
 from hydro_ros.planning.paths import PathSamples
 
 # limits hold to 0.5 % after the 5 Hz filter and the differencing (claims are checked against this)

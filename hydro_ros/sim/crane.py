@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.models.crane_hydraulics import pump_flow
 from hydro_ros.models.crane import Crane, Motion
+from hydro_ros.models.crane_hydraulics import pump_flow
 
 PLANT_DEFAULTS = {
     "valve_dead_zone": 0.53,

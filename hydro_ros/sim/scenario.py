@@ -8,10 +8,10 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 
 from hydro_ros.contract.machine import Machine
-from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.contract.names import Injection
-from hydro_ros.sim.excitation import OperatorReference
 from hydro_ros.contract.samples import Samples
+from hydro_ros.models.sam import SamModel, SamPlant
+from hydro_ros.sim.excitation import OperatorReference
 from hydro_ros.sim.sensors import SensorModel
 
 BLOCK = 1000  # samples per block: bounds memory for long runs

@@ -17,10 +17,10 @@ from typing import Sequence
 import numpy as np
 
 from hydro_ros.contract.config import ConfigError
+from hydro_ros.contract.names import Injection
+from hydro_ros.contract.samples import Samples
 from hydro_ros.models.complementary import ComplementaryFilter
 from hydro_ros.models.sam import COMP_DROP, PILOT_MAX, SamModel, compensator_pressures, injection_levels
-from hydro_ros.contract.samples import Samples
-from hydro_ros.contract.names import Injection
 
 
 class SensorModel:

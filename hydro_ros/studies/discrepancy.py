@@ -37,13 +37,13 @@ import yaml
 from numba import njit
 from scipy.optimize import minimize, minimize_scalar
 
-from hydro_ros.contract.errors import InputError
-from hydro_ros.studies.plots import plot_discrepancy
 from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.reader import BagData
+from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
-from hydro_ros.models.kinematics import piston_position, torque_arm
+from hydro_ros.contract.names import Effect
 from hydro_ros.fdi.parity import flow_balance
+from hydro_ros.models.kinematics import piston_position, torque_arm
 from hydro_ros.models.sam import (
     DEADZONE,
     DELAY_BUFFER,
@@ -58,7 +58,7 @@ from hydro_ros.models.sam import (
     SamPlant,
 )
 from hydro_ros.models.valve import spool_acceleration, spool_opening
-from hydro_ros.contract.names import Effect
+from hydro_ros.studies.plots import plot_discrepancy
 
 SEGMENT_S = 2.0
 FORCE_SAMPLES = 10  # each side of a segment start: the pressures that estimate the friction state

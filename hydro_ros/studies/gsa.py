@@ -18,9 +18,9 @@ from typing import Any, Callable
 import numpy as np
 
 from hydro_ros.contract.machine import Machine
+from hydro_ros.contract.names import Injection
 from hydro_ros.models.chamber import leak_coefficient
 from hydro_ros.models.sam import SamModel, SamPlant
-from hydro_ros.contract.names import Injection
 
 # P-I Table 1 (L3749-L3830); SI units
 PARAMETERS = {
