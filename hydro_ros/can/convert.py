@@ -32,10 +32,39 @@ class ConversionReport:
     rejected: Counter = field(default_factory=Counter)
     counter_gaps: dict[str, int] = field(default_factory=dict)
     error_frames: int = 0
+    out_of_order_cycles: int = 0  # cycles stamped before an earlier one: put back in time order
+    rejected_samples: Counter = field(default_factory=Counter)  # complete cycles not written, by reason
 
     def to_json(self) -> dict[str, Any]:
         return {"frames": self.frames, "samples": self.cycles, "incomplete_cycles": self.incomplete_cycles,
-                "rejected_frames": dict(self.rejected), "counter_gaps": self.counter_gaps, "error_frames": self.error_frames}
+                "rejected_frames": dict(self.rejected), "counter_gaps": self.counter_gaps, "error_frames": self.error_frames,
+                "out_of_order_cycles": self.out_of_order_cycles, "rejected_samples": dict(self.rejected_samples)}
+
+
+def _kept_in_time_order(stamps: np.ndarray, rows: list[dict[str, Any]], slot: Any, machine: Machine,
+                        report: ConversionReport) -> np.ndarray:
+    """Indices of the cycles to write, in time order: a second cycle at one stamp and a physically
+    impossible reading (a garbage frame whose CRC-8 matched by chance) are rejected and counted."""
+    report.out_of_order_cycles = int(np.count_nonzero(np.diff(stamps) < 0))
+    order = np.argsort(stamps, kind="stable")
+    duplicate = np.concatenate([[False], np.diff(stamps[order]) == 0])
+    report.rejected_samples["duplicate_stamp"] = int(np.count_nonzero(duplicate))
+    sensors = machine.sensors
+    low, high = sensors.pressure_range
+    keep = []
+    for i in order[~duplicate]:
+        row = rows[i]
+        pressures = [row["pressure_a"][slot.actuator], row["pressure_b"][slot.actuator], row["supply_pressure"]]
+        readings = [row["joint_position"][slot.joint], row["joint_velocity"][slot.joint], *pressures]
+        if not np.all(np.isfinite(readings)):
+            report.rejected_samples["nonfinite"] += 1
+        elif (not sensors.joint_range[0] <= row["joint_position"][slot.joint] <= sensors.joint_range[1]
+              or abs(row["joint_velocity"][slot.joint]) > sensors.joint_velocity_max
+              or not all(low <= p <= high for p in pressures)):
+            report.rejected_samples["implausible"] += 1
+        else:
+            keep.append(i)
+    return np.asarray(keep, dtype=np.int64)
 
 
 def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Callable[[int], None] | None = None) -> ConversionReport:
@@ -83,10 +112,12 @@ def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Ca
     keep(assembler.flush())
     report.incomplete_cycles = assembler.incomplete
     report.counter_gaps = dict(counters.gaps)
-    report.cycles = len(rows)
     if not rows:
         raise InputError(f"log {log}: no complete sensor cycle of machine {machine.name!r} ({dict(report.rejected)})")
-    order = np.argsort(stamps, kind="stable")
+    order = _kept_in_time_order(np.asarray(stamps), rows, slot, machine, report)
+    report.cycles = len(order)
+    if not len(order):
+        raise InputError(f"log {log}: no plausible sensor cycle of machine {machine.name!r} ({dict(report.rejected_samples)})")
 
     def series(key: str, name: str) -> np.ndarray:
         return np.array([rows[i][key][name] for i in order])

@@ -11,6 +11,7 @@ merged file the machine was parsed from, which tools write back.
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -219,6 +220,12 @@ class Sensors:
     mems: Mems | None = None
     pilot_pressure_noise_std: float | None = None
     """[Pa] mobile valves: pilot and compensator pressure transducers"""
+    joint_range: tuple[float, float] = (-math.pi, math.pi)
+    """[rad] a joint reading outside this is implausible (a sensor fault, not motion)"""
+    joint_velocity_max: float = 5.0
+    """[rad/s] a joint rate reading beyond this is implausible"""
+    frozen_s: float = 1.0
+    """[s] a pressure reading repeating the same value this long, inside its range, is a frozen sensor"""
 
 
 @dataclass(frozen=True)
@@ -349,6 +356,9 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
             motion_sensor=_choice(sensors, "motion_sensor", ("encoder", "mems"), "encoder"),
             mems=_mems(sensors.section("mems")) if sensors.node.get("motion_sensor") == "mems" else None,
             pilot_pressure_noise_std=sensors.number("pilot_pressure_noise_std") if "pilot_pressure_noise_std" in sensors.node else None,
+            joint_range=sensors.numbers("joint_range", 2) if "joint_range" in sensors.node else (-math.pi, math.pi),  # type: ignore[arg-type]
+            joint_velocity_max=sensors.number("joint_velocity_max", 5.0),
+            frozen_s=sensors.number("frozen_s", 1.0),
         ),
         simulation=Simulation(
             substeps=int(simulation.number("substeps", 10)),

@@ -10,6 +10,7 @@ CLOCK = "/clock"
 FDI_HALT = "/fdi/halt"
 FDI_RESIDUALS = "/fdi/residuals"
 FDI_STATUS_PREFIX = "hydro_ros/fdi/"  # + actuator: one DiagnosticStatus per monitored actuator
+SENSOR_STATUS_PREFIX = "hydro_ros/sensors/"  # + actuator: the health of its readings (fdi_node)
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 FLUID_PRESSURE_TYPE = "sensor_msgs/msg/FluidPressure"

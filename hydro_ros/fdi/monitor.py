@@ -17,6 +17,7 @@ import numpy as np
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Fault
 from hydro_ros.contract.samples import Samples
+from hydro_ros.fdi.health import CHANNELS, SensorHealth
 from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Alarm, Isolator, code_string
 from hydro_ros.fdi.residuals import BlockInput, MovingAverage, generator_for
 from hydro_ros.fdi.settings import FdiSettings
@@ -25,6 +26,7 @@ from hydro_ros.models.kinematics import piston_position, torque_arm
 from hydro_ros.models.sam import MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET, SamModel
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3  # diagnostic_msgs/DiagnosticStatus levels
+SUPPLY = CHANNELS.index("supply_pressure")
 
 
 @dataclass
@@ -75,6 +77,9 @@ class FdiMonitor:
         self.last_threshold = np.zeros((n, 2))
         self.last_mean_pressure = np.zeros((n, 2))
         self.invalid_samples = 0
+        self.supply_substituted = 0
+        self.nominal_supply = machine.supply_pressure
+        self.health = SensorHealth(machine, 9 if self.generator.needs_mobile_pressures else 6, self.sample_rate)
         geometry = np.stack([m.base[[MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET]] for m in self.models])
         self._l1, self._l2, self._l3, self._offset = geometry.T
 
@@ -82,15 +87,37 @@ class FdiMonitor:
     def method(self) -> str:
         return self.generator.method
 
-    def reset(self) -> None:
-        """Restart filters and averages (the ``~/reset`` service); also clears the latches."""
+    @property
+    def armed(self) -> bool:
+        """Whether a full window of data has been evaluated since the start, a reset or a time jump."""
+        return self.samples_seen >= self.window
+
+    @property
+    def confirmed(self) -> bool:
+        """Armed, and every actuator's evidence explained: an alarm latched, or no threshold crossing at the last sample.
+
+        Until then "no severe fault" is assumed, not known (a restarted monitor before it re-isolates a fault).
+        """
+        return self.armed and all(isolator.fault is not None or (key is not None and key // 32 == 0)
+                                  for isolator, key in zip(self.isolators, self._last_key))
+
+    def sensor_problems(self, index: int) -> dict[str, str]:
+        """The actuator's readings that were invalid within the last second: sensor -> nonfinite / out_of_range / frozen."""
+        return self.health.problems(index)
+
+    def restart(self) -> None:
+        """Restart filters and averages, keeping the latched alarms: detection re-arms after a window of data."""
         self.generator.reset()
         self._residual_mean.reset()
         self._pressure_mean.reset()
         self._command_mean.reset()
+        self.samples_seen = 0
+
+    def reset(self) -> None:
+        """Restart filters and averages (the ``~/reset`` service); also clears the latches."""
+        self.restart()
         for isolator in self.isolators:
             isolator.acknowledge()
-        self.samples_seen = 0
         self._last_key = [None] * len(self.actuators)
 
     def acknowledge(self) -> None:
@@ -115,7 +142,17 @@ class FdiMonitor:
         if self.generator.needs_mobile_pressures and block.mobile:
             mobile = np.stack([np.broadcast_to(np.asarray(getattr(block, name), dtype=float).reshape(n, -1), (n, n_act))
                                for name in ("pilot_pressure_1", "pilot_pressure_2", "compensator_pressure")], axis=2)
-        valid = np.all(np.isfinite(raw), axis=2) & (np.all(np.isfinite(mobile), axis=2) if mobile is not None else True)
+        readings = raw[:, :, [0, 1, 4, 5, 2, 3]]  # health.CHANNELS order
+        if self.generator.needs_mobile_pressures:
+            readings = np.concatenate([readings, mobile if mobile is not None else np.full((n, n_act, 3), np.nan)], axis=2)
+        good = self.health.check(readings)
+        # a bad supply reading is replaced by the nominal supply pressure (the pump's relief setting), so the
+        # cylinders stay monitored; every other bad reading makes the actuator's sample a gap
+        supply_bad = ~good[:, :, SUPPLY]
+        raw[:, :, 3] = np.where(supply_bad, self.nominal_supply, raw[:, :, 3])
+        self.supply_substituted += int(np.count_nonzero(supply_bad))
+        good[:, :, SUPPLY] = True
+        valid = good.all(axis=2)
         self.invalid_samples += int(np.count_nonzero(~valid))
         x, v = self.piston_motion(raw[:, :, 0], raw[:, :, 1])
         measured = raw[:, :, 4:6]

@@ -22,8 +22,8 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.topics import FDI_STATUS_PREFIX
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
-HEALTHY_MESSAGES = ("ok", "stale")  # fdi_node's messages that name no fault
-TILE_VALUES = ("pattern", "method", "first_detection_stamp_s", "stale_topics")  # status values a tile shows
+HEALTHY_MESSAGES = ("ok", "stale", "not_monitored", "overloaded")  # fdi_node's messages that name no fault
+TILE_VALUES = ("pattern", "method", "first_detection_stamp_s", "stale_topics", "invalid_sensors")  # status values a tile shows
 MAX_ALARMS = 200
 MAX_ACTIONS = 50
 

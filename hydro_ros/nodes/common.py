@@ -7,6 +7,7 @@ import sys
 from typing import Any, Callable
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -20,6 +21,13 @@ LATCHED_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
 )
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+# /fdi/halt: latched, and re-published every HALT_PERIOD_S with an offered deadline, so a consumer that
+# asks for a deadline (or watches the heartbeat) can tell "no halt" from "monitor dead"
+HALT_PERIOD_S = 0.5
+HALT_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    deadline=Duration(seconds=3 * HALT_PERIOD_S),
+)
 
 
 def relative(topic: str) -> str:

@@ -11,12 +11,19 @@ sample time). Services: ``~/acknowledge``, ``~/reset`` (std_srvs/Trigger), ``~/s
 Robustness: a sample whose topics do not all arrive within ``sync_window`` is processed as a gap
 (the filter holds, no residual); stamps at or before the last processed one are dropped and
 counted; a topic silent for ``stale_timeout`` of wall time makes its actuators STALE (no alarm is
-raised from stale data). All counters are in the diagnostic values.
+raised from stale data). A time jump of the input (clock step, bag loop, sim-time reset) restarts
+the filters on the new time base; a single stray stamp is dropped. An actuator is ``ok`` only while
+it is really monitored: until a window of data is evaluated (start, reset, time jump) and while a
+reading is invalid (non-finite, implausible, frozen: ``hydro_ros/sensors/<actuator>`` names it) it
+is STALE ``not_monitored``; when samples arrive incomplete it is WARN ``overloaded``. All counters
+are in the diagnostic values.
 """
 
 from __future__ import annotations
 
+import math
 import time
+from collections import deque
 from typing import Any
 
 import numpy as np
@@ -34,11 +41,14 @@ from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.samples import PER_ACTUATOR
-from hydro_ros.fdi.monitor import STALE, FdiMonitor
-from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, run_node
+from hydro_ros.fdi.monitor import OK, STALE, WARN, FdiMonitor
+from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, SENSOR_QOS, run_node
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
 MAX_PENDING_NS = 5_000_000_000  # samples waiting for a missing topic longer than this are given up
+DRAIN_MAX = 200  # messages of one topic taken per callback at most, so one topic cannot starve the timers
+OVERLOAD_WINDOW_S = 2.0  # [s] of wall time over which the share of incomplete samples is measured
+OVERLOAD_SHARE = 0.05  # more incomplete samples than this: the input outruns the node ("overloaded")
 
 
 class FdiNode(Node):
@@ -51,6 +61,8 @@ class FdiNode(Node):
         self.declare_parameter("residual_rate", 50.0)
         self.declare_parameter("sync_window", 0.05)
         self.declare_parameter("stale_timeout", 0.5)
+        self.declare_parameter("time_jump_threshold", 1.0)
+        self.declare_parameter("reset_min_interval", 5.0)
         self.machine_config = load_machine_config(self.get_parameter("config").value)
         method = str(self.get_parameter("method").value) or None
         self.monitor = FdiMonitor(self.machine_config, method)
@@ -60,11 +72,17 @@ class FdiNode(Node):
         self.mobile = self.monitor.generator.needs_mobile_pressures
         self.layout = SampleLayout(actuators, self.monitor.joints, mobile=self.mobile)
         self.aligner = ContractAligner(self.layout, sync_window_ns=int(float(self.get_parameter("sync_window").value) * 1e9),
-                                       max_pending_ns=MAX_PENDING_NS)
+                                       max_pending_ns=MAX_PENDING_NS,
+                                       jump_ns=int(float(self.get_parameter("time_jump_threshold").value) * 1e9))
+        self.reset_min_interval = float(self.get_parameter("reset_min_interval").value)
+        self.last_reset = -math.inf
+        self._jumps_seen = 0
+        self._recent: deque[tuple[float, int, int]] = deque()  # (wall time, samples, incomplete) per processed block
         self.undecodable = 0
         index = self.layout.index
 
         self.last_arrival: dict[str, float] = {}
+        self.first_arrival: dict[str, float] = {}
         self._subscribe_raw(JointState, topics.JOINT_STATES, self.aligner.put_joint_states)
         self._subscribe_raw(JointState, topics.VALVE_COMMANDS, self.aligner.put_commands)
         self._subscribe_raw(FluidPressure, topics.SUPPLY_PRESSURE, lambda d, c=index("supply_pressure"): self.aligner.put_pressure(d, c))
@@ -75,7 +93,7 @@ class FdiNode(Node):
                                     lambda d, c=index(quantity, actuator): self.aligner.put_pressure(d, c))
 
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.pub_halt = self.create_publisher(Bool, topics.FDI_HALT, LATCHED_QOS)
+        self.pub_halt = self.create_publisher(Bool, topics.FDI_HALT, HALT_QOS)
         self.pub_residuals = self.create_publisher(JointState, topics.FDI_RESIDUALS, 10)
         self._residual_channels = topics.fdi_residual_channels(actuators, mobile=self.mobile)
         self.create_service(Trigger, "~/acknowledge", self._on_acknowledge)
@@ -86,27 +104,49 @@ class FdiNode(Node):
         self.started = time.monotonic()
         self.samples = 0
         self.halt: bool | None = None
-        self._levels: list[int] = []
+        self._levels: list[tuple[int, str]] = []
         self._residual_interval_ns = int(1e9 / max(float(self.get_parameter("residual_rate").value), 1e-3))
         self._last_residual_ns = -(1 << 62)
         self.create_timer(float(self.get_parameter("process_period").value), self._process, clock=self.steady)
         self.create_timer(float(self.get_parameter("diagnostics_period").value), self._publish_diagnostics, clock=self.steady)
-        self._publish_halt()
+        self.create_timer(HALT_PERIOD_S, self._publish_halt, clock=self.steady)
         self.get_logger().info(f"monitoring {', '.join(actuators)} of {self.machine} with the {self.monitor.method} method")
 
     def _subscribe_raw(self, msg_type: Any, topic: str, handler: Any) -> None:
-        def callback(data: bytes) -> None:
-            self.last_arrival[topic] = time.monotonic()
+        def consume(data: bytes) -> None:
             try:
                 handler(data)
             except CdrError:
                 self.undecodable += 1
 
-        self.create_subscription(msg_type, topic, callback, SENSOR_QOS, raw=True)
+        def callback(data: bytes) -> None:
+            self.last_arrival[topic] = time.monotonic()
+            self.first_arrival.setdefault(topic, self.last_arrival[topic])
+            consume(data)
+            # take what else is queued now: the executor's overhead (a wait set per message, most of
+            # this node's CPU at 1 kHz) is then paid once per burst, not once per message
+            with subscription.handle:
+                for _ in range(DRAIN_MAX):
+                    taken = subscription.handle.take_message(msg_type, True)
+                    if taken is None:
+                        break
+                    consume(taken[0])
+
+        subscription = self.create_subscription(msg_type, topic, callback, SENSOR_QOS, raw=True)
 
     # processing -------------------------------------------------------------------------------
     def _process(self) -> None:
+        if len(self.aligner.time_jumps) != self._jumps_seen:
+            self._jumps_seen = len(self.aligner.time_jumps)
+            self.monitor.restart()
+            self.get_logger().warning(f"input time jumped by {self.aligner.time_jumps[-1]:+.3f} s: filters restart on the new "
+                                      f"time base, detection re-arms after {self.monitor.settings.window_s:g} s of data")
+        incomplete = self.aligner.incomplete
         stamps, rows = self.aligner.take()
+        now = time.monotonic()
+        self._recent.append((now, len(stamps), self.aligner.incomplete - incomplete))
+        while self._recent and now - self._recent[0][0] > OVERLOAD_WINDOW_S:
+            self._recent.popleft()
         if len(stamps) == 0:
             self._check_levels()
             return
@@ -128,34 +168,61 @@ class FdiNode(Node):
         msg.position = np.stack([result.mean_residual[-1], result.threshold[-1]], axis=-1).ravel().tolist()
         self.pub_residuals.publish(msg)
 
-    def _stale_topics(self, index: int) -> list[str]:
+    def _topics(self, index: int) -> tuple[str, ...]:
+        """The topics one actuator's samples need."""
         actuator = self.monitor.actuators[index]
         needed = (topics.JOINT_STATES, topics.VALVE_COMMANDS, topics.SUPPLY_PRESSURE, topics.pressure_a(actuator), topics.pressure_b(actuator))
         if self.mobile:
             needed += tuple(topics.actuator_pressure(actuator, q) for q in topics.MOBILE_VALVE_PRESSURES)
-        now = time.monotonic()
-        return [t for t in needed if now - self.last_arrival.get(t, self.started) > self.stale_timeout]
+        return needed
 
-    def _level(self, index: int) -> int:
+    def _stale_topics(self, index: int) -> list[str]:
+        now = time.monotonic()
+        return [t for t in self._topics(index) if now - self.last_arrival.get(t, self.started) > self.stale_timeout]
+
+    def _incomplete_share(self) -> float:
+        samples = sum(n for _, n, _ in self._recent)
+        return sum(k for _, _, k in self._recent) / samples if samples else 0.0
+
+    def _overloaded(self, index: int) -> bool:
+        """Too many incomplete samples, once every topic has been flowing for a whole measuring window
+        (while subscriptions are still matching at start-up, samples are incomplete for another reason)."""
+        needed = self._topics(index)
+        if any(topic not in self.first_arrival for topic in needed):
+            return False
+        flowing = time.monotonic() - max(self.first_arrival[topic] for topic in needed)
+        return flowing > 2 * OVERLOAD_WINDOW_S and self._incomplete_share() > OVERLOAD_SHARE
+
+    def _state(self, index: int) -> tuple[int, str]:
+        """Level and message of an actuator: a latched fault first, then why it is not (fully) monitored."""
         status = self.monitor.status(index)
-        if status.fault is None and self._stale_topics(index):
-            return STALE
-        return status.level
+        if status.fault is not None:
+            return status.level, status.message
+        if self._stale_topics(index):
+            return STALE, "stale"
+        if self._overloaded(index):
+            return WARN, "overloaded"
+        problems = {c: p for c, p in self.monitor.sensor_problems(index).items() if c != "supply_pressure"}
+        if problems or not self.monitor.armed:
+            return STALE, "not_monitored"
+        return OK, "ok"
 
     def _check_levels(self) -> None:
-        levels = [self._level(i) for i in range(len(self.monitor.actuators))]
+        levels = [self._state(i) for i in range(len(self.monitor.actuators))]
         if levels != self._levels:
             self._levels = levels
             self._publish_diagnostics()
             self._publish_halt()
 
     def _publish_halt(self) -> None:
+        """Heartbeat of the halt request; nothing while "no halt" is not confirmed (start, time jump, a crossing pending)."""
         halt = self.monitor.halt
-        if halt != self.halt:
-            self.halt = halt
-            self.pub_halt.publish(Bool(data=halt))
-            if halt:
-                self.get_logger().error(f"severe fault: requesting halt on {topics.FDI_HALT}")
+        if not halt and not self.monitor.confirmed:
+            return
+        if halt != self.halt and halt:
+            self.get_logger().error(f"severe fault: requesting halt on {topics.FDI_HALT}")
+        self.halt = halt
+        self.pub_halt.publish(Bool(data=halt))
 
     def statuses(self) -> list[DiagnosticStatus]:
         out = []
@@ -165,8 +232,8 @@ class FdiNode(Node):
         for i, actuator in enumerate(self.monitor.actuators):
             status = self.monitor.status(i)
             stale = self._stale_topics(i)
-            level = STALE if status.fault is None and stale else status.level
-            message = "stale" if level == STALE else status.message
+            level, message = self._state(i)
+            problems = self.monitor.sensor_problems(i)
             values = {
                 f"mean_r_{labels[0]}": f"{self.monitor.last_mean_residual[i, 0]:.5f}",
                 f"mean_r_{labels[1]}": f"{self.monitor.last_mean_residual[i, 1]:.5f}",
@@ -181,11 +248,27 @@ class FdiNode(Node):
                 "out_of_order_dropped": str(a.out_of_order),
                 "undecodable_messages": str(self.undecodable),
                 "stale_topics": ",".join(stale),
+                "armed": str(self.monitor.armed).lower(),
+                "invalid_sensors": ",".join(f"{self._source(c, actuator)}:{p}" for c, p in problems.items()),
+                "supply_substituted_samples": str(self.monitor.supply_substituted),
+                "time_jumps": str(len(a.time_jumps)),
+                "last_time_jump_s": f"{a.time_jumps[-1]:+.3f}" if a.time_jumps else "",
+                "off_time_base_dropped": str(a.off_base),
+                "incomplete_share": f"{self._incomplete_share():.3f}",
             }
             out.append(DiagnosticStatus(level=bytes([level]), name=f"{topics.FDI_STATUS_PREFIX}{actuator}", message=message,
                                         hardware_id=self.machine,
                                         values=[KeyValue(key=k, value=v) for k, v in values.items()]))
+            # the sensors' own health: never OK while a reading is invalid
+            out.append(DiagnosticStatus(
+                level=bytes([WARN if problems else OK]), name=f"{topics.SENSOR_STATUS_PREFIX}{actuator}", hardware_id=self.machine,
+                message="; ".join(f"{self._source(c, actuator)} {p}" for c, p in problems.items()) or "ok",
+                values=[KeyValue(key=self._source(c, actuator), value=p) for c, p in problems.items()]))
         return out
+
+    def _source(self, channel: str, actuator: str) -> str:
+        name = self.monitor.joints[self.monitor.actuators.index(actuator)] if channel.startswith("joint_") else actuator
+        return SampleLayout.source((channel, "" if channel == "supply_pressure" else name))
 
     def _publish_diagnostics(self) -> None:
         array = DiagnosticArray(status=self.statuses())
@@ -208,8 +291,17 @@ class FdiNode(Node):
         return self._answer(response, f"acknowledged: {'; '.join(cleared) or 'no latched alarm'}")
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        since = time.monotonic() - self.last_reset
+        if since < self.reset_min_interval:
+            response.success = False
+            response.message = f"reset refused: the last one was {since:.1f} s ago (at most one per {self.reset_min_interval:g} s)"
+            self.get_logger().warning(response.message)
+            return response
+        self.last_reset = time.monotonic()
+        before = "; ".join(f"{a}: {message}" for a, (_, message) in zip(self.monitor.actuators, self._levels)) or "no status yet"
         self.monitor.reset()
-        return self._answer(response, f"filters, averages and latches reset; detection re-arms after {self.monitor.settings.window_s:g} s of data")
+        return self._answer(response, f"filters, averages and latches reset (before: {before}); detection re-arms after "
+                                      f"{self.monitor.settings.window_s:g} s of data")
 
     def _on_self_test(self, _request: SelfTest.Request, response: SelfTest.Response) -> SelfTest.Response:
         """The residual generator's own checks, a simulated healthy machine without alarm, sensor topics fresh."""

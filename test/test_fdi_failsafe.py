@@ -1,0 +1,252 @@
+"""A monitor that never goes blind in silence: time jumps, invalid sensors, a restart around a severe fault, reset spam.
+
+Each live case replays a simulated bag whose header stamps or readings were tampered with through
+bag_player -> fdi_node on a private DDS graph (bag_player paces by the untouched log times). The
+sources run at half real time, which this 2-core machine sustains with fdi_node beside them.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from mcap.reader import make_reader
+from mcap.writer import Writer
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from hydro_ros.bags.align import ContractAligner, SampleLayout
+from hydro_ros.bags.cdr import decode_fluid_pressure, decode_joint_state, encode_fluid_pressure, encode_joint_state
+from hydro_ros.bags.reader import mcap_files
+from hydro_ros.bags.writer import ContractBagWriter
+from hydro_ros.contract import topics
+from hydro_ros.contract.names import Injection
+from hydro_ros.fdi.health import SensorHealth
+from hydro_ros.nodes.common import HALT_QOS
+from hydro_ros.sim.scenario import Scenario, run_blocks
+from test.conftest import SAM_CONFIG
+from test.ros_graph import node_process, probe_node, spin_until
+
+HOUR_NS = 3600 * 1_000_000_000
+LEAK_ONSET_S = 8.0
+
+
+@pytest.fixture(scope="module")
+def leak_bag(tmp_path_factory, sam_config) -> Path:
+    """14 s of the SAM with an external leak A from 8 s (3 L/min at 10 MPa)."""
+    path = tmp_path_factory.mktemp("failsafe") / "leak"
+    scenario = Scenario(14.0, [Injection("external_leakage_a", 3.0, LEAK_ONSET_S)], seed=5)
+    with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
+        writer.set_truth(scenario.truth(sam_config))
+        for _, _, block in run_blocks(sam_config, scenario):
+            writer.write("boom", block)
+    return path
+
+
+Tamper = Callable[[str, int, float], tuple[int, float] | None]  # (topic, stamp, value) -> new (stamp, value), or None: drop
+
+
+def tampered(source: Path, target: Path, tamper: Tamper) -> Path:
+    """A copy of a contract bag with each message's header stamp / reading passed through ``tamper``."""
+    target.mkdir()
+    with mcap_files(source)[0].open("rb") as stream:
+        messages = list(make_reader(stream).iter_messages())
+    first = min(message.log_time for _, _, message in messages)
+    with (target / "tampered.mcap").open("wb") as out:
+        writer = Writer(out)
+        writer.start("ros2", "test")
+        ids: dict[int, int] = {}
+        for schema, channel, message in messages:
+            if channel.id not in ids:
+                ids[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                          writer.register_schema(schema.name, schema.encoding, schema.data))
+            relative = message.log_time - first
+            if schema.name == topics.FLUID_PRESSURE_TYPE:
+                stamp, value, variance = decode_fluid_pressure(message.data)
+                changed = tamper(channel.topic, relative, value)
+                if changed is None:
+                    continue
+                data = encode_fluid_pressure(stamp + changed[0] - relative, "", changed[1], variance)
+            else:
+                stamp, names, position, velocity = decode_joint_state(message.data)
+                changed = tamper(channel.topic, relative, position[0])
+                if changed is None:
+                    continue
+                data = encode_joint_state(stamp + changed[0] - relative, "", names, [changed[1], *position[1:]], velocity, [])
+            writer.add_message(ids[channel.id], message.log_time, data, message.publish_time)
+        writer.finish()
+    meta = yaml.safe_load((source / "metadata.yaml").read_text())
+    meta["rosbag2_bagfile_information"]["relative_file_paths"] = ["tampered.mcap"]
+    (target / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    return target
+
+
+def _statuses(diags: list[DiagnosticArray], name: str) -> list:
+    return [s for m in diags for s in m.status if s.name == name]
+
+
+def _replay(bag: Path, until: Callable[[list[DiagnosticArray]], bool], timeout: float = 45.0) -> list[DiagnosticArray]:
+    diags: list[DiagnosticArray] = []
+    with probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 50)
+        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), \
+                node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={bag}", "-p", "publish_clock:=false", "-p", "rate:=0.5",
+                             "-p", "start_delay:=3.0"):
+            spin_until(node, lambda: until(diags), timeout)
+    return diags
+
+
+def _found_leak(diags: list[DiagnosticArray]) -> bool:
+    return any(s.message == "external_leakage_a" for s in _statuses(diags, "hydro_ros/fdi/boom"))
+
+
+def _values(status) -> dict[str, str]:
+    return {v.key: v.value for v in status.values}
+
+
+@pytest.mark.parametrize("step_ns", [-HOUR_NS, HOUR_NS], ids=["back", "forward"])
+def test_time_jumps_and_a_stray_stamp_do_not_blind_the_monitor(ros_domain, leak_bag, tmp_path, step_ns):
+    """Stamps step by an hour at 2.5 s and one sample at 2 s is stamped an hour ahead: the leak at 8 s is still found."""
+
+    def tamper(topic: str, stamp: int, value: float) -> tuple[int, float]:
+        if stamp >= 2_500_000_000:
+            return stamp + step_ns, value
+        if stamp == 2_000_000_000:
+            return stamp + HOUR_NS, value
+        return stamp, value
+
+    diags = _replay(tampered(leak_bag, tmp_path / "bag", tamper), _found_leak)
+    boom = _statuses(diags, "hydro_ros/fdi/boom")
+    assert _found_leak(diags), [s.message for s in boom[-5:]]
+    last = _values(boom[-1])
+    assert last["time_jumps"] == "1" and float(last["last_time_jump_s"]) == pytest.approx(step_ns * 1e-9, abs=0.1)
+    assert int(last["off_time_base_dropped"]) >= 6  # the stray sample's six readings, and the jump's confirmation
+    # right after the jump the actuator is re-arming: not monitored, never "ok"
+    after_jump = [s for s in boom if _values(s)["time_jumps"] == "1"]
+    assert after_jump[0].message == "not_monitored" and after_jump[0].level == bytes([3])
+
+
+def test_a_nan_supply_sensor_is_named_and_the_leak_still_found(ros_domain, leak_bag, tmp_path):
+    def tamper(topic: str, stamp: int, value: float) -> tuple[int, float]:
+        return stamp, (float("nan") if topic == topics.SUPPLY_PRESSURE and stamp >= 2_000_000_000 else value)
+
+    diags = _replay(tampered(leak_bag, tmp_path / "bag", tamper), _found_leak)
+    assert _found_leak(diags)
+    sensors = _statuses(diags, "hydro_ros/sensors/boom")
+    assert any(s.level == bytes([1]) and "/hydraulics/supply_pressure nonfinite" in s.message for s in sensors)
+    assert int(_values(_statuses(diags, "hydro_ros/fdi/boom")[-1])["supply_substituted_samples"]) > 1000
+
+
+def test_a_frozen_pressure_sensor_is_never_reported_healthy(ros_domain, leak_bag, tmp_path):
+    frozen: dict[str, float] = {}
+
+    def tamper(topic: str, stamp: int, value: float) -> tuple[int, float]:
+        if topic == topics.pressure_b("boom") and stamp >= 4_000_000_000:
+            return stamp, frozen.setdefault("value", value)
+        return stamp, value
+
+    def frozen_named(diags: list[DiagnosticArray]) -> bool:
+        return any("frozen" in s.message for s in _statuses(diags, "hydro_ros/sensors/boom")[-3:])
+
+    diags = _replay(tampered(leak_bag, tmp_path / "bag", tamper), frozen_named)
+    assert frozen_named(diags)
+    boom = _statuses(diags, "hydro_ros/fdi/boom")
+    since = next(i for i, s in enumerate(boom) if "pressure_b:frozen" in _values(s)["invalid_sensors"])
+    assert all(s.message != "ok" for s in boom[since:])
+    assert boom[-1].message == "not_monitored" and boom[-1].level == bytes([3])
+
+
+def test_a_dead_monitor_goes_quiet_and_a_restarted_one_says_nothing_until_armed(ros_domain):
+    """kill -9 while a spool fault asks for a halt: the heartbeat stops; the new monitor sends nothing on /fdi/halt before a
+    window of data is evaluated, then requests the halt again."""
+    halts: list[tuple[float, bool]] = []
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"), \
+            probe_node("probe") as node:
+        node.create_subscription(Bool, topics.FDI_HALT, lambda m: halts.append((time.monotonic(), m.data)), HALT_QOS)
+        client = AsyncParameterClient(node, "plant_sim")
+        assert client.wait_for_services(10.0)
+        future = client.set_parameters([Parameter("fault.spool_stuck_closed", value=1.0)])
+        assert spin_until(node, future.done, 10)
+        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}") as first:
+            assert spin_until(node, lambda: any(h for _, h in halts), 60), "no halt from the first monitor"
+            first.send_signal(signal.SIGKILL)
+            first.wait(timeout=10)
+        killed = time.monotonic()
+        heartbeats = len(halts)
+        spin_until(node, lambda: False, 2.0)
+        assert len(halts) == heartbeats, "a dead monitor's halt heartbeat must stop"
+        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"):
+            restarted = time.monotonic()
+            assert spin_until(node, lambda: any(h for t, h in halts if t > killed), 60), "the new monitor never requested the halt"
+    first = min(t for t, _ in halts if t > killed)
+    assert first - restarted > 8.0  # 5 s of samples at half real time (and start-up) before anything is said
+
+
+def test_reset_spam_is_refused_and_re_arming_is_not_ok(ros_domain):
+    diags: list[DiagnosticArray] = []
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"), \
+            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 50)
+        assert spin_until(node, lambda: any(s.message == "ok" for s in _statuses(diags, "hydro_ros/fdi/boom")), 60)
+        client = node.create_client(Trigger, "/fdi_node/reset")
+        assert client.wait_for_service(timeout_sec=10)
+        answers = []
+        for _ in range(5):
+            future = client.call_async(Trigger.Request())
+            assert spin_until(node, future.done, 10), "a reset call got no answer"
+            answers.append(future.result())
+        assert answers[0].success and "before: boom: ok" in answers[0].message
+        assert not any(a.success for a in answers[1:]) and all("refused" in a.message for a in answers[1:])
+        reset_at = len(diags)
+        assert spin_until(node, lambda: any(s.message == "ok" for s in _statuses(diags[reset_at:], "hydro_ros/fdi/boom")), 30)
+    after = _statuses(diags[reset_at:], "hydro_ros/fdi/boom")
+    first_ok = next(i for i, s in enumerate(after) if s.message == "ok")
+    assert first_ok > 0 and all(s.message == "not_monitored" for s in after[:first_ok])
+
+
+def test_aligner_holds_off_a_stray_stamp_and_follows_a_confirmed_jump():
+    aligner = ContractAligner(SampleLayout(["boom"], ["boom_joint"]), sync_window_ns=0, confirm=5)
+
+    def sample(stamp: int) -> None:
+        aligner.put_joint_states(encode_joint_state(stamp, "", ["boom_joint"], [0.1], [0.0], []))
+        aligner.put_commands(encode_joint_state(stamp, "", ["boom"], [0.0], [], []))
+        for column in (2, 3, 5):
+            aligner.put_pressure(encode_fluid_pressure(stamp, "", 5e6, 0.0), column)
+
+    for k in range(10):
+        sample(k * 1_000_000)
+    sample(HOUR_NS)  # one stray sample an hour ahead
+    for k in range(10, 20):
+        sample(k * 1_000_000)
+    stamps, _ = aligner.take()
+    assert len(stamps) == 20 and aligner.off_base == 5 and not aligner.time_jumps  # the stray sample's five readings
+    for k in range(8):  # the clock steps back by an hour
+        sample(-HOUR_NS + k * 1_000_000)
+    stamps, _ = aligner.take()
+    assert aligner.time_jumps == [pytest.approx(-3600.019, abs=1e-6)]
+    assert list(stamps) == [-HOUR_NS + k * 1_000_000 for k in range(4, 8)]  # 4 held off while confirming, then followed
+
+
+def test_sensor_health_names_nonfinite_implausible_and_frozen_readings(sam_config):
+    health = SensorHealth(sam_config, 6, 1000.0)
+    rng = np.random.default_rng(0)
+    n = 3000
+    readings = np.stack([np.full(n, 0.1), np.zeros(n), 5e6 + rng.normal(0, 1e5, n), 2e6 + rng.normal(0, 1e5, n), np.zeros(n),
+                         1e7 + rng.normal(0, 1e5, n)], axis=1)[:, None, :]
+    readings[1000:2600, 0, 3] = 2.1e6  # p_B frozen for 1.6 s
+    readings[2990, 0, 0] = 7.0  # an impossible joint angle
+    readings[2995, 0, 5] = np.inf
+    good = health.check(readings)
+    assert not good[2995, 0, 5] and not good[2990, 0, 0] and good[2989, 0, 0]
+    assert good[1998, 0, 3] and not good[1999:2600, 0, 3].any() and good[2600:, 0, 3].all()  # flagged after frozen_s
+    assert health.problems(0) == {"pressure_b": "frozen", "joint_position": "out_of_range", "supply_pressure": "nonfinite"}
+    health.check(readings[:1500])  # a second of good readings clears them
+    assert health.problems(0) == {}
