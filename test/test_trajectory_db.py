@@ -95,6 +95,26 @@ def test_a_killed_build_resumes_without_recomputing_committed_entries(tmp_path, 
     assert all(after[key] == created for key, created in committed.items())  # committed rows untouched
 
 
+def test_the_workers_of_a_killed_build_die_with_it(tmp_path):
+    """kill -9 of `db build` (not of its process group): its pool workers stop instead of computing on as orphans."""
+    import psutil
+
+    command = [sys.executable, "-m", "hydro_ros.cli", "db", "build", "--config", str(K70M), "--db", str(tmp_path / "orphans.db"),
+               "--workers", "2", "--quiet", "--grid", "120", "41", "41", "--methods", "dp_cp", "dp_ls"]
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    parent = psutil.Process(proc.pid)
+    deadline = time.monotonic() + 90
+    workers: list = []
+    while time.monotonic() < deadline and len(workers) < 2 and proc.poll() is None:
+        time.sleep(0.2)
+        workers = [child for child in parent.children(recursive=True) if "spawn_main" in " ".join(child.cmdline())]
+    assert len(workers) == 2, "the build did not start its two workers"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    _, alive = psutil.wait_procs(workers, timeout=60)  # a worker still importing stops once it is up
+    assert not alive, [worker.pid for worker in alive]
+
+
 def test_dask_local_cluster_builds_the_same_catalog(tmp_path, small_db, k70m):
     distributed = pytest.importorskip("distributed")
     units = plan_units(k70m, methods=("dp_cp", "pinv_joint"), grid=SMALL_GRID, paths=("horizontal", "vertical"))

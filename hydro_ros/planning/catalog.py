@@ -9,8 +9,11 @@ committed unit and the next build skips what is stored with the same inputs.
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
+import signal
+import sys
 import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from contextlib import ExitStack
@@ -113,6 +116,17 @@ def _single_threaded_worker() -> None:
     import numba
 
     numba.set_num_threads(1)
+    _die_with_parent()
+
+
+def _die_with_parent() -> None:
+    """A worker of a killed build must not go on computing (Linux: the parent's death sends SIGTERM)."""
+    if sys.platform.startswith("linux"):
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
+    parent = multiprocessing.parent_process()
+    if parent is not None and os.getppid() != parent.pid:  # the build died while this worker was still starting
+        os._exit(1)
 
 
 def build(
