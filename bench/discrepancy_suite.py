@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from hydro_ros.bags.reader import BagData, read_bag  # noqa: E402
 from hydro_ros.contract.config import default_config_path  # noqa: E402
-from hydro_ros.contract.machine import load_machine_config  # noqa: E402
+from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E402
 from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, run, simulate  # noqa: E402
 from test.test_discrepancy import hidden_effect_bag, plant_config  # noqa: E402
 
@@ -31,7 +31,7 @@ SUITE = [(None, 0.0), ("internal_leakage", 1.5), ("external_leakage_a", 2.0), ("
          ("payload_mass", 150.0), ("pressure_sensor_bias_a", 5e5), ("pressure_sensor_bias_b", 5e5)]
 
 
-def floor(config: dict, data: BagData, effect: str | None, value: float) -> float:
+def floor(config: Machine, data: BagData, effect: str | None, value: float) -> float:
     """Validation gap of the plant's own model on the validation part run() uses."""
     rec = Recording.from_bag(data, config)
     validation = rec.part(slice(int(FIT_SHARE * len(rec.times)), None))

@@ -20,12 +20,12 @@ import numpy as np
 from hydro_ros.bags.reader import mcap_files, read_bag
 from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.contract.config import default_config_path
-from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
 
-def model_speed(config: dict, seconds: float = 60.0) -> dict:
+def model_speed(config: Machine, seconds: float = 60.0) -> dict:
     model = SamModel(config)
     SamPlant(model).advance(10, commands=np.zeros(10))  # JIT warm-up
     plant = SamPlant(model)
@@ -38,7 +38,7 @@ def model_speed(config: dict, seconds: float = 60.0) -> dict:
             "target_real_time_factor": 50.0}
 
 
-def bag_read(config: dict, seconds: float = 30.0) -> dict:
+def bag_read(config: Machine, seconds: float = 30.0) -> dict:
     from rosbags.highlevel import AnyReader
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -60,7 +60,7 @@ def bag_read(config: dict, seconds: float = 30.0) -> dict:
             "bag_bytes_per_simulated_s": size / seconds}
 
 
-def ukf_speed(config: dict, steps: int = 20000, reference_steps: int = 1500) -> dict:
+def ukf_speed(config: Machine, steps: int = 20000, reference_steps: int = 1500) -> dict:
     from hydro_ros.fdi.reference import filterpy_twin
     from hydro_ros.fdi.ukf import UkfBank, UkfSettings
 
@@ -92,7 +92,7 @@ def ukf_speed(config: dict, steps: int = 20000, reference_steps: int = 1500) -> 
             "agreement": "max |p_hat difference| < 1 Pa over 2000 recorded samples (test_fdi.py)"}
 
 
-def fdi_offline(config: dict, seconds: float = 60.0) -> dict:
+def fdi_offline(config: Machine, seconds: float = 60.0) -> dict:
     from hydro_ros.fdi.monitor import FdiMonitor
     from hydro_ros.fdi.offline import analyse_bag, blocks_from_bag, run_monitor
 
@@ -165,7 +165,7 @@ def fdi_node_live(config_path: Path, measure_s: float = 20.0) -> dict:
             "messages_per_s": 5 * processed / wall}
 
 
-def can_decode(config: dict, cycles: int = 5000) -> dict:
+def can_decode(config: Machine, cycles: int = 5000) -> dict:
     """Checked decoding (DLC, CRC, counter, cycle grouping) against bare cantools decoding, same frames."""
     from hydro_ros.can.codec import CounterCheck, CycleAssembler, MachineBus
 
@@ -202,7 +202,7 @@ def can_bridge_live(config_path: Path, measure_s: float = 15.0) -> dict:
             "incomplete_cycles": int(v1["incomplete_cycles"]), "sample_rate_hz": 1000.0}
 
 
-def fdi_evaluation(config: dict, out_dir: Path, name: str = "fdi_eval") -> dict:
+def fdi_evaluation(config: Machine, out_dir: Path, name: str = "fdi_eval") -> dict:
     from tqdm import tqdm
 
     from hydro_ros.studies.fdi_evaluation import evaluate, markdown_table
