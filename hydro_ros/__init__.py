@@ -1,7 +1,9 @@
 """hydro_ros: condition monitoring and energy-optimal motion for hydraulic manipulators.
 
-The science lives in plain libraries (``models``, ``sim``, ``bags``) that never import rclpy;
-``nodes`` wires them to ROS 2 and ``cli`` drives them offline.
+Layers, each importing only from those before it: ``contract`` (names, sample types, the typed
+machine config, the InputError family) <- ``bags``, ``can`` <- ``models`` <- ``sim``, ``fdi``,
+``planning`` <- ``studies``, ``hmi`` <- ``nodes`` <- ``demo`` <- ``cli``. Nothing below ``nodes``
+imports rclpy (test/test_layers.py keeps it so).
 """
 
 __version__ = "0.1.0"
