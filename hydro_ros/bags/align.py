@@ -80,6 +80,12 @@ class SampleAligner:
         self.sync_window_ns = sync_window_ns
         self.max_pending_ns = max_pending_ns
         self.key_columns = None if key_columns is None else np.asarray(key_columns)
+        self.out_of_order = 0
+        self.incomplete = 0
+        self.restart()
+
+    def restart(self) -> None:
+        """Forget everything pending: alignment starts again on whatever time base comes next."""
         self._columns: list[np.ndarray] = []
         self._stamps: list[np.ndarray] = []
         self._values: list[np.ndarray] = []
@@ -88,11 +94,9 @@ class SampleAligner:
         self._one_stamps: list[int] = []
         self._one_values: list[float] = []
         self._pending_stamps = np.zeros(0, dtype=np.int64)
-        self._pending_rows = np.zeros((0, columns))
-        self._pending_present = np.zeros((0, columns), dtype=bool)
+        self._pending_rows = np.zeros((0, self.width))
+        self._pending_present = np.zeros((0, self.width), dtype=bool)
         self.last_released = -(1 << 63)
-        self.out_of_order = 0
-        self.incomplete = 0
 
     def put(self, column: int, stamp: int, value: float) -> None:
         """One value, as a subscription delivers it (the live path: no NumPy per message)."""
@@ -186,7 +190,6 @@ class ContractAligner(SampleAligner):
     def __init__(self, layout: SampleLayout, *, sync_window_ns: int, max_pending_ns: int = 5_000_000_000,
                  jump_ns: int = 1_000_000_000, confirm: int = 20) -> None:
         super().__init__(len(layout.columns), sync_window_ns=sync_window_ns, max_pending_ns=max_pending_ns)
-        self.layout = layout
         self.jump_ns = jump_ns
         self.confirm = confirm
         self.base: int | None = None
@@ -218,15 +221,6 @@ class ContractAligner(SampleAligner):
         self.restart()
         self.base, self._candidate = stamp, []
         return True
-
-    def restart(self) -> None:
-        """Forget everything pending: alignment starts again on whatever time base comes next."""
-        self._columns, self._stamps, self._values = [], [], []
-        self._one_columns, self._one_stamps, self._one_values = [], [], []
-        self._pending_stamps = self._pending_stamps[:0]
-        self._pending_rows = self._pending_rows[:0]
-        self._pending_present = self._pending_present[:0]
-        self.last_released = -(1 << 63)
 
     def put_joint_states(self, data: bytes) -> None:
         stamp, names, position, velocity = decode_joint_state(data)

@@ -37,7 +37,6 @@ class SensorHealth:
         self._last: np.ndarray | None = None  # (A, C) last reading
         self._run: np.ndarray | None = None  # (A, C) how many samples the last reading has repeated
         self._since: dict[str, np.ndarray] = {}  # problem -> (A, C) samples since last seen
-        self.samples = 0
 
     def check(self, values: np.ndarray) -> np.ndarray:
         """(n, A, C) readings -> (n, A, C) whether each reading is valid."""
@@ -52,7 +51,6 @@ class SensorHealth:
         for problem, seen in ((NONFINITE, ~finite), (OUT_OF_RANGE, out_of_range), (FROZEN, frozen)):
             last = np.where(seen.any(axis=0), n - 1 - np.argmax(seen[::-1], axis=0), -1)
             self._since[problem] = np.where(last >= 0, n - 1 - last, self._since[problem] + n)
-        self.samples += n
         return finite & ~out_of_range & ~frozen
 
     def _frozen(self, values: np.ndarray, usable: np.ndarray) -> np.ndarray:
