@@ -38,6 +38,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/dp.py --out bench/dp.json
 	$(PY) bench/trajectories.py --out bench/trajectories.json
 	$(PY) bench/hmi.py --out bench/hmi.json
+	$(PY) bench/commissioning.py --out bench/commissioning.json
 
 bags: setup
 	$(PY) scripts/make_sample_bags.py --out bags

@@ -45,7 +45,7 @@ def bag_read(config: Machine, seconds: float = 30.0) -> dict:
         path = Path(tmp) / "bench"
         with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
             for _, _, block in run_blocks(config, Scenario(seconds, (), seed=1)):
-                writer.write("boom", block)
+                writer.write_block("boom", block)
         start = time.perf_counter()
         data = read_bag(path)
         ours = time.perf_counter() - start
@@ -100,7 +100,7 @@ def fdi_offline(config: Machine, seconds: float = 60.0) -> dict:
         path = Path(tmp) / "bench"
         with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
             for _, _, block in run_blocks(config, Scenario(seconds, (), seed=3)):
-                writer.write("boom", block)
+                writer.write_block("boom", block)
         analyse_bag(path, config)  # JIT warm-up
         start = time.perf_counter()
         analyse_bag(path, config)

@@ -49,7 +49,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     with writer, tqdm(total=total, unit="sample", desc="simulate", disable=args.quiet) as bar:
         writer.set_truth(scenario.truth(machine))
         for _, _, block in run_blocks(machine, scenario, progress=bar.update):
-            writer.write(actuator.name, block)
+            writer.write_block(actuator.name, block)
     plot = plot_bag(read_bag(args.out), Path(str(args.out).rstrip("/") + ".png"))
     print(json.dumps({"bag": str(args.out), "messages": writer.messages, "plot": str(plot)}))
     return 0
@@ -120,6 +120,36 @@ def cmd_fdi_fit(args: argparse.Namespace) -> int:
     if args.write:
         write_fitted_block(Path(args.config), thresholds, rows, report)
         print(f"written to {args.config}")
+    return 0
+
+
+def cmd_commission(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hydro_ros.studies.commissioning import commission, load_recordings, write_config
+    from hydro_ros.studies.plots import plot_commissioning
+
+    config, out = Path(args.config), Path(args.out)
+    if out.resolve() == config.resolve():
+        raise InputError(f"--out {out}: is the config it extends; write the commissioned config beside it")
+    if not out.parent.is_dir():
+        raise InputError(f"--out {out}: directory {out.parent} does not exist")
+    machine = load_machine_config(config)
+    recordings = load_recordings(args.bag, machine)
+    with tqdm(total=len(machine.actuators) + len(recordings), unit="step", desc="commission", disable=args.quiet) as bar:
+        block, report = commission(machine, recordings, progress=lambda _: bar.update())
+    if args.report:
+        report_dir = Path(args.report)
+        report_dir.mkdir(parents=True, exist_ok=True)
+        (report_dir / "commissioning.json").write_text(json.dumps(report, indent=2) + "\n")
+        plot_commissioning(report, machine, report_dir / "commissioning.png")
+    write_config(config, out, block)
+    for actuator, fit in block["fit"].items():
+        gains = ", ".join(f"{n} {g:.3f}" for n, g in fit["notch_gain"].items())
+        print(f"{actuator}: notch gains {gains}; flow error {fit['rms_flow_error_l_min']['nominal']:.3f} -> "
+              f"{fit['rms_flow_error_l_min']['commissioned']:.3f} L/min")
+    print(f"threshold c0 {block['model']['fdi']['threshold_constant']:.4f} MPa (config had "
+          f"{report['nominal_threshold_constant_mpa']:.4f}); written to {out}")
     return 0
 
 
@@ -310,6 +340,77 @@ def cmd_dp_execute(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_record(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hydro_ros.nodes.recorder import record
+
+    machine = load_machine_config(args.config)
+    for flag, value in (("--duration", args.duration), ("--split-duration", args.split_duration), ("--split-size", args.split_size)):
+        if value is not None and not value > 0:
+            raise InputError(f"{flag} {value}: must be > 0")
+    split_bytes = None if args.split_size is None else int(args.split_size * 1e6)
+    with tqdm(unit="msg", desc="record", disable=args.quiet) as bar:
+        summary = record(machine, Path(args.out), duration_s=args.duration, split_duration_s=args.split_duration,
+                         split_size_bytes=split_bytes, outputs=args.outputs, progress=lambda n: bar.update(n - bar.n))
+    print(json.dumps(summary))
+    return 0
+
+
+def cmd_bag_info(args: argparse.Namespace) -> int:
+    from hydro_ros.bags.reader import bag_info
+
+    info = bag_info(args.bag)
+    if args.json:
+        print(json.dumps(info, indent=1))
+    else:
+        print(f"bag {info['bag']}: {info['messages']} messages over {info['duration_s']:.3f} s in {len(info['files'])} file(s)"
+              f"{', with ground truth' if info['ground_truth'] else ''}")
+        for row in info["files"]:
+            print(f"  {row['path']}: {row['messages']} messages, {row['bytes']} bytes")
+        for topic, row in info["topics"].items():
+            print(f"  {topic} [{row['type']}]: {row['messages']}")
+        for error in info["errors"]:
+            print(f"  error: {error}")
+    return 1 if info["errors"] else 0
+
+
+def cmd_params(args: argparse.Namespace) -> int:
+    from hydro_ros.nodes.bringup import machine_params
+
+    load_machine_config(args.config)
+    print(machine_params(Path(args.config)), end="")
+    return 0
+
+
+def cmd_alarms_export(args: argparse.Namespace) -> int:
+    import csv
+
+    from hydro_ros.fdi.alarm_log import COLUMNS, read_events
+
+    if not (args.csv or args.json):
+        raise InputError("alarms export: give --csv OUT and/or --json OUT")
+    events, _ = read_events(args.db, newest_first=False)
+    if args.json:
+        Path(args.json).write_text(json.dumps(events, indent=1))
+    if args.csv:
+        with open(args.csv, "w", newline="") as out:
+            writer = csv.DictWriter(out, fieldnames=COLUMNS)
+            writer.writeheader()
+            writer.writerows(dict(event, evidence=json.dumps(event["evidence"], sort_keys=True)) for event in events)
+    print(json.dumps({"events": len(events), "csv": args.csv, "json": args.json}))
+    return 0
+
+
+def cmd_foxglove_layout(args: argparse.Namespace) -> int:
+    from hydro_ros.hmi.foxglove_layout import foxglove_layout
+
+    layout = foxglove_layout(load_machine_config(args.config))
+    Path(args.out).write_text(json.dumps(layout, indent=2) + "\n")
+    print(json.dumps({"layout": args.out, "panels": len(layout["configById"])}))
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bag_player import replay
 
@@ -369,6 +470,16 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--signature-seeds", type=int, default=2, help="plants per fault for the signature table")
     fit.add_argument("--write", action="store_true", help="write the result into the config's fitted block")
     fit.set_defaults(func=cmd_fdi_fit)
+
+    com = sub.add_parser("commission", help="identify the monitor's model and threshold from fault-free recordings of the machine",
+                         description="Per-notch flow-coefficient polynomials, bulk moduli and centre leakage from the "
+                                     "continuity equations (load-independent), then c0 on the held-out last third.")
+    com.add_argument("--bag", action="append", required=True, help="a fault-free recording of normal operation (repeat for more)")
+    com.add_argument("--config", required=True, help="the machine config the commissioned one extends, e.g. config/sam.yaml")
+    com.add_argument("--out", required=True, help="the commissioned machine config to write (extends --config)")
+    com.add_argument("--report", help="directory for commissioning.json and commissioning.png")
+    com.add_argument("--quiet", action="store_true", help="no progress bar")
+    com.set_defaults(func=cmd_commission)
 
     can_cmd = sub.add_parser("can", help="CAN bus tools")
     can_sub = can_cmd.add_subparsers(dest="can_command", required=True)
@@ -448,6 +559,49 @@ def build_parser() -> argparse.ArgumentParser:
     execute.add_argument("--out", required=True, help="bag directory to create (must not exist)")
     execute.add_argument("--json", default=None, help="also write the summary here")
     execute.set_defaults(func=cmd_dp_execute)
+
+    rec = sub.add_parser("record", help="record a running machine's contract topics into a bag, like ros2 bag record",
+                         description="Subscribe to the config's sensor topics (raw CDR, each with the reliability its "
+                         "publishers offer) and write them into a contract bag, log time = header stamp. Ctrl-C or SIGTERM "
+                         "stops and closes the bag.")
+    rec.add_argument("--config", required=True, help="machine config: which topics the machine has")
+    rec.add_argument("--out", required=True, help="bag directory to create")
+    rec.add_argument("--duration", type=float, default=None, help="stop after S seconds of wall time (default: until Ctrl-C)")
+    rec.add_argument("--split-duration", type=float, default=None, metavar="S", help="start a new file every S seconds of log time")
+    rec.add_argument("--split-size", type=float, default=None, metavar="MB", help="start a new file after MB megabytes of messages (before compression)")
+    rec.add_argument("--outputs", action="store_true", help="also record /diagnostics")
+    rec.add_argument("--quiet", action="store_true", help="no progress bar")
+    rec.set_defaults(func=cmd_record)
+
+    bag_cmd = sub.add_parser("bag", help="bag tools")
+    bag_sub = bag_cmd.add_subparsers(dest="bag_command", required=True)
+    info = bag_sub.add_parser("info", help="files, topics, message counts and damage of a bag, read from the files",
+                              description="Read every file of a bag (split bags whole) and report its messages per topic; "
+                              "exits 1 when a file is damaged or disagrees with metadata.yaml.")
+    info.add_argument("bag", help="bag directory or .mcap file")
+    info.add_argument("--json", action="store_true", help="print JSON")
+    info.set_defaults(func=cmd_bag_info)
+
+    params = sub.add_parser("params", help="the commented params file of a machine's bring-up (can_bridge, fdi_node, hmi)",
+                            description="Print the ros__parameters of the nodes launch/machine.launch.py starts, every "
+                            "parameter with its unit, default and range, from the nodes' own tables.")
+    params.add_argument("--config", required=True, help="machine config of the package's config/, e.g. config/sam.yaml")
+    params.set_defaults(func=cmd_params)
+
+    alarms = sub.add_parser("alarms", help="fdi_node's alarm log")
+    alarms_sub = alarms.add_subparsers(dest="alarms_command", required=True)
+    export = alarms_sub.add_parser("export", help="every event of an alarm log as CSV and/or JSON, oldest first",
+                                   description="Read fdi_node's SQLite alarm log (parameter alarm_log) without writing to it.")
+    export.add_argument("--db", required=True, help="the alarm log file")
+    export.add_argument("--csv", default=None, help="write CSV here")
+    export.add_argument("--json", default=None, help="write JSON here")
+    export.set_defaults(func=cmd_alarms_export)
+
+    layout = sub.add_parser("foxglove-layout", help="a Foxglove layout for a machine: every actuator's status and residual plots",
+                            description="Write the Foxglove layout of a machine config (import it in Foxglove: Layouts, Import).")
+    layout.add_argument("--config", required=True, help="machine config, e.g. config/sam.yaml")
+    layout.add_argument("--out", required=True, help="layout JSON to write")
+    layout.set_defaults(func=cmd_foxglove_layout)
 
     replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
     replay.add_argument("bag", help="bag directory")

@@ -59,8 +59,8 @@ def _operator_view(duration_s: float, rate: float) -> tuple[list[str], dict | No
             print(line, flush=True)
             lines.append(line)
             result = crane.get("result")
-            if result and not result["ok"] and "nothing received" in result["error"]:
-                del crane["result"]  # the server has not yet discovered the crane's joint states: ask again
+            if result and not result["ok"] and ("nothing received" in result["error"] or "no subscriber" in result["error"]):
+                del crane["result"]  # the server has not yet discovered the crane: ask again
             if "result" not in crane and "q" in crane and requests.get_subscription_count() > 0:
                 requests.publish(String(data=CRANE_PATH))
                 crane["result"] = {}

@@ -72,6 +72,14 @@ def wait_for(done: Callable[[], bool], timeout: float, period: float = 0.05) -> 
     return False
 
 
+def port_open(port: int, host: str = "127.0.0.1") -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
 def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))

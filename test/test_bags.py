@@ -25,7 +25,7 @@ def leak_bag(tmp_path_factory, sam_config) -> Path:
     with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
         writer.set_truth(scenario.truth(sam_config))
         for _, _, block in run_blocks(sam_config, scenario):
-            writer.write("boom", block)
+            writer.write_block("boom", block)
     return path
 
 
@@ -65,6 +65,8 @@ def test_bag_is_readable_by_mcap_reader(leak_bag):
         summary = reader.get_summary()
         assert {s.name for s in summary.schemas.values()} == {topics.JOINT_STATE_TYPE, topics.FLUID_PRESSURE_TYPE}
         assert summary.statistics.message_count == 5 * 6000
+        for channel in summary.channels.values():  # what ros2 bag play needs to offer the recorded QoS
+            assert "reliability: reliable" in channel.metadata["offered_qos_profiles"], channel.topic
 
 
 def test_reader_aligns_samples_and_keeps_truth(leak_bag):
@@ -206,3 +208,31 @@ def test_joint_states_with_changing_names_are_decoded_per_message(tmp_path):
     assert list(data.stamps_ns) == list(range(10))
     assert np.isnan(data.joint_position["a"][0]) and data.joint_position["a"][4] == 4.0
     assert data.joint_position["b"][3] == -1.0 and data.joint_position["b"][5] == 10.0
+
+
+def test_split_by_size_is_read_whole_and_a_killed_recording_keeps_its_closed_parts(tmp_path, sam_config):
+    from hydro_ros.bags.writer import SENSOR_QOS, BagWriter
+
+    def fill(writer: BagWriter, seconds: float) -> None:
+        handle = writer.add_topic(topics.pressure_a("boom"), topics.FLUID_PRESSURE_TYPE, [SENSOR_QOS])
+        for k in range(int(seconds * 1000)):
+            stamp = k * 1_000_000
+            writer.write(handle, stamp, encode_fluid_pressure(stamp, "boom", 1e6 + k, 0.0))
+
+    whole = BagWriter(tmp_path / "sized", split_size_bytes=100_000)
+    with whole:
+        fill(whole, 12.0)
+    assert len(whole.files) >= 3
+    assert [p.name for p in mcap_files(tmp_path / "sized")] == whole.files
+    from hydro_ros.bags.reader import bag_info
+
+    info = bag_info(tmp_path / "sized")
+    assert info["errors"] == [] and info["messages"] == 12000
+
+    killed = BagWriter(tmp_path / "killed", split_duration_s=4.0)
+    killed.__enter__()
+    fill(killed, 10.0)  # two closed parts, the third still open when the process dies
+    info = bag_info(tmp_path / "killed")
+    assert len(killed.files) == 2 and len(info["files"]) == 3
+    assert 8000 <= info["messages"] < 10000  # the open part's unflushed chunk is all that is lost
+    assert any("killed_2.mcap" in error for error in info["errors"]), info["errors"]  # the open part is said to be cut

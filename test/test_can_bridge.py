@@ -72,7 +72,9 @@ def test_plant_on_can_to_bridge_to_fdi_raises_the_leak(ros_domain):
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
         assert spin_until(node, lambda: any(s.message == "ok" for s in _statuses(diags, "hydro_ros/fdi/boom")), 45)
         spin_until(node, lambda: False, 6.0)
-        assert all(s.message in ("ok", "stale", "not_monitored") for s in _statuses(diags, "hydro_ros/fdi/boom")), [(s.message, {v.key: v.value for v in s.values}.get("incomplete_share")) for s in _statuses(diags, "hydro_ros/fdi/boom")]
+        unexpected = [(s.message, {v.key: v.value for v in s.values}) for s in _statuses(diags, "hydro_ros/fdi/boom")
+                      if s.message not in ("ok", "stale", "not_monitored", "overloaded")]  # overloaded: said, not an alarm
+        assert not unexpected, unexpected[:3]
         client = AsyncParameterClient(node, "plant_sim")
         assert client.wait_for_services(10.0)
         future = client.set_parameters([Parameter("fault.external_leakage_a", value=3.0)])
@@ -80,7 +82,11 @@ def test_plant_on_can_to_bridge_to_fdi_raises_the_leak(ros_domain):
         assert spin_until(node, lambda: _statuses(diags, "hydro_ros/fdi/boom")[-1].message == "external_leakage_a", 50)
         bus = _statuses(diags, "hydro_ros/can_bridge/bus")[-1]
         values = {v.key: v.value for v in bus.values}
-        assert bus.level == bytes([0]) and values["connected"] == "True" and int(values["incomplete_cycles"]) == 0, (bus.message, values)
+        # UDP multicast, this test's stand-in for a CAN bus, drops datagrams when a starved 2-core host
+        # cannot drain the socket (3 of ~10,000 cycles in one CI run); the bridge must count them, not hide them
+        published = int(values["published_cycles"])
+        assert bus.level == bytes([0]) and values["connected"] == "True" and published > 5000, (bus.message, values)
+        assert int(values["incomplete_cycles"]) <= 0.002 * published, values
         for name in ("JOINT1_STATE", "CYL1_PRESSURE", "VALVE1_STATE", "SUPPLY_STATE"):
             status = _statuses(diags, f"hydro_ros/can_bridge/{name}")[-1]
             # every frame of the half-speed plant arrives: 500/s, which the bridge reports against the DBC's 1 ms cycle
@@ -180,5 +186,74 @@ def test_forward_commands_sends_valve_requests_and_drops_nan(ros_domain, sam_con
         signals = codec.db.get_message_by_frame_id(0x201).decode(bytes(frames[0].data))
         assert signals["REQ1_COMMAND"] == pytest.approx(0.25, abs=1e-4)
         assert frames[0].data[7] == crc8(0x201, bytes(frames[0].data))
+    finally:
+        listener.shutdown()
+
+
+def _change_state(node, transition_id: int) -> bool:
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+
+    client = node.create_client(ChangeState, "/can_bridge/change_state")
+    assert client.wait_for_service(20.0)
+    future = client.call_async(ChangeState.Request(transition=Transition(id=transition_id)))
+    assert spin_until(node, future.done, 10)
+    node.destroy_client(client)
+    return future.result().success
+
+
+def _state(node) -> str:
+    from lifecycle_msgs.srv import GetState
+
+    client = node.create_client(GetState, "/can_bridge/get_state")
+    assert client.wait_for_service(20.0)
+    future = client.call_async(GetState.Request())
+    assert spin_until(node, future.done, 10)
+    node.destroy_client(client)
+    return future.result().current_state.label
+
+
+def test_lifecycle_opens_forwards_and_leaves_the_valves_neutral(ros_domain, sam_config):
+    """configure opens the bus without driving anything; activate forwards; deactivate sends neutral requests."""
+    from lifecycle_msgs.msg import Transition
+    from sensor_msgs.msg import JointState
+
+    group = _group(ros_domain)
+    codec = MachineBus(sam_config)
+    request_id = codec.db.get_message_by_name("VALVE1_REQUEST").frame_id
+    listener = can.Bus(interface="udp_multicast", channel=group)
+
+    def requests(seconds: float) -> list[float]:
+        found, end = [], time.monotonic() + seconds
+        while time.monotonic() < end:
+            spin_until(node, lambda: False, 0.02)
+            message = listener.recv(0.02)
+            if message is not None and message.arbitration_id == request_id:
+                found.append(codec.db.decode_message(request_id, bytes(message.data))["REQ1_COMMAND"])
+        return found
+
+    try:
+        with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={SAM_CONFIG}", "-p", "interface:=udp_multicast",
+                          "-p", f"channel:={group}", "-p", "forward_commands:=true", "-p", "autostart:=false"), \
+                probe_node("probe") as node:
+            publisher = node.create_publisher(JointState, "/hydraulics/valve_commands", SENSOR_QOS)
+            assert _state(node) == "unconfigured"
+            assert _change_state(node, Transition.TRANSITION_CONFIGURE)
+            assert _state(node) == "inactive"
+            assert spin_until(node, lambda: publisher.get_subscription_count() > 0, 20)
+            publisher.publish(JointState(name=["boom"], position=[0.25]))
+            assert requests(1.5) == []  # inactive: the bus is open, nothing drives the valve
+
+            assert _change_state(node, Transition.TRANSITION_ACTIVATE)
+            publisher.publish(JointState(name=["boom"], position=[0.25]))
+            assert requests(1.5) == [pytest.approx(0.25, abs=1e-4)]
+
+            assert _change_state(node, Transition.TRANSITION_DEACTIVATE)
+            assert requests(1.0) == [0.0]  # the valve is left neutral
+            publisher.publish(JointState(name=["boom"], position=[0.5]))
+            assert requests(1.0) == []
+
+            assert _change_state(node, Transition.TRANSITION_CLEANUP)
+            assert _state(node) == "unconfigured"
     finally:
         listener.shutdown()

@@ -29,8 +29,9 @@ def test_colcon_build_installs_executables_in_the_ament_index(tmp_path):
     for name in EXECUTABLES:
         exe = prefix / "lib" / "hydro_ros" / name
         assert exe.is_file() and os.access(exe, os.X_OK), f"{exe} missing"
-    for name in ("sam.yaml", "foxglove_layout.json", "diagnostic_aggregator.yaml"):
+    for name in ("sam.yaml", "foxglove_layout.json", "diagnostic_aggregator.yaml", "params/sam.yaml"):
         assert (prefix / "share" / "hydro_ros" / "config" / name).is_file(), name
+    assert (prefix / "share" / "hydro_ros" / "launch" / "machine.launch.py").is_file()
     pages = list(prefix.glob("lib/python3*/site-packages/hydro_ros/hmi/static/index.html"))
     assert pages and (pages[0].parent / "hmi.js").is_file()  # the HMI's page travels with the package
     assert (prefix / "share" / "hydro_ros" / "package.xml").is_file()

@@ -29,7 +29,7 @@ def hidden_effect_bag(config, path, effect=None, value=0.0, seed=SEED, duration=
     plant = plant_config(config, effect, value, seed)
     with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
         for _, _, block in run_blocks(plant, Scenario(duration, [], seed=seed)):
-            writer.write("boom", block)
+            writer.write_block("boom", block)
     return path
 
 

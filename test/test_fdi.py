@@ -6,15 +6,18 @@ import numpy as np
 import pytest
 
 from hydro_ros.bags.reader import read_bag
-from hydro_ros.contract.names import Fault
+from hydro_ros.contract.names import Fault, Injection
 from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Isolator
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import analyse_bag, blocks_from_bag
 from hydro_ros.fdi.reference import filterpy_twin
 from hydro_ros.fdi.residuals import MovingAverage
 from hydro_ros.fdi.ukf import UkfBank, UkfSettings, unscented_weights
+from hydro_ros.sim.scenario import Scenario, run_blocks
 from hydro_ros.studies.fdi_evaluation import Case, mismatched_config, run_case
 from test.conftest import REPO
+
+PAPER_C0 = 0.012  # [MPa] P-II's threshold constant, tuned on its rig's identified model
 
 BAGS = REPO / "bags"
 
@@ -107,7 +110,9 @@ def test_short_partial_patterns_do_not_isolate_and_acknowledge_clears():
         "spool_too_small_opening", "spool_too_large_opening", "spool_stuck_closed")],
 )
 def test_shipped_bags_are_isolated_after_onset_and_silent_before(sam_config, bag, fault):
-    run = analyse_bag(BAGS / bag, sam_config)
+    # the shipped bags' plant is the model itself: a machine whose model is identified, so P-II's own c0
+    identified = sam_config.with_overrides({"fdi": {"threshold_constant": PAPER_C0}})
+    run = analyse_bag(BAGS / bag, identified)
     result = run.to_json()["actuators"]["boom"]
     if fault is None:
         assert result["fault"] == "none" and not run.alarms
@@ -149,5 +154,16 @@ def test_fresh_mismatched_simulations_are_isolated(calibrated, fault, value):
 
 def test_paper_thresholds_false_alarm_on_a_mismatched_plant(sam_config):
     """Why fdi-eval calibrates c0: P-II's 0.012 MPa fits its rig's model accuracy, not 5 % flow errors."""
-    outcome = run_case(sam_config, Case(None, 0.0, seed=1, duration_s=40.0))
+    outcome = run_case(sam_config.with_overrides({"fdi": {"threshold_constant": PAPER_C0}}), Case(None, 0.0, seed=1, duration_s=40.0))
     assert outcome.crossing_episodes > 0
+
+
+@pytest.mark.parametrize("seed", [300, 301])
+def test_the_shipped_config_stays_quiet_on_a_machine_it_has_never_seen(sam_config, seed):
+    """Safe before commissioning: mismatched plants (not those c0 was chosen on) with 300 kg picked up and set down."""
+    plant = mismatched_config(sam_config, seed)
+    steps = [Injection("payload_mass", 300.0, 15.0), Injection("payload_mass", -300.0, 45.0)]
+    blocks = [m.as_columns() for _, _, m in run_blocks(plant, Scenario(70.0, steps, seed=seed))]
+    monitor = FdiMonitor(sam_config)
+    alarms = [a for block in blocks for a in monitor.process(block).alarms]
+    assert monitor.armed and alarms == [], [a.to_json() for a in alarms]

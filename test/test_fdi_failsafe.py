@@ -47,7 +47,7 @@ def leak_bag(tmp_path_factory, sam_config) -> Path:
     with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
         writer.set_truth(scenario.truth(sam_config))
         for _, _, block in run_blocks(sam_config, scenario):
-            writer.write("boom", block)
+            writer.write_block("boom", block)
     return path
 
 
@@ -179,14 +179,15 @@ def test_a_dead_monitor_goes_quiet_and_a_restarted_one_says_nothing_until_armed(
             assert spin_until(node, lambda: any(h for _, h in halts), 60), "no halt from the first monitor"
             first.send_signal(signal.SIGKILL)
             first.wait(timeout=10)
-        killed = time.monotonic()
+        # what the monitor sent before it died may still be in the probe's queue: take it, then count
+        spin_until(node, lambda: False, 0.5)
         heartbeats = len(halts)
         spin_until(node, lambda: False, 2.0)
         assert len(halts) == heartbeats, "a dead monitor's halt heartbeat must stop"
         with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"):
             restarted = time.monotonic()
-            assert spin_until(node, lambda: any(h for t, h in halts if t > killed), 60), "the new monitor never requested the halt"
-    first = min(t for t, _ in halts if t > killed)
+            assert spin_until(node, lambda: any(h for _, h in halts[heartbeats:]), 60), "the new monitor never requested the halt"
+    first = halts[heartbeats][0]
     assert first - restarted > 8.0  # 5 s of samples at half real time (and start-up) before anything is said
 
 
@@ -250,3 +251,48 @@ def test_sensor_health_names_nonfinite_implausible_and_frozen_readings(sam_confi
     assert health.problems(0) == {"pressure_b": "frozen", "joint_position": "out_of_range", "supply_pressure": "nonfinite"}
     health.check(readings[:1500])  # a second of good readings clears them
     assert health.problems(0) == {}
+
+
+@pytest.fixture(scope="module")
+def healthy_bag(tmp_path_factory, sam_config) -> Path:
+    """30 s of the fault-free SAM."""
+    path = tmp_path_factory.mktemp("failsafe") / "healthy"
+    scenario = Scenario(30.0, [], seed=8)
+    with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
+        writer.set_truth(scenario.truth(sam_config))
+        for _, _, block in run_blocks(sam_config, scenario):
+            writer.write_block("boom", block)
+    return path
+
+
+def test_incomplete_input_is_named_overloaded_and_raises_no_alarm(ros_domain, healthy_bag, tmp_path):
+    """A third of one pressure topic's messages lost on the way (what a source faster than the node causes:
+    on this machine bag_player's own 5x tops out at what fdi_node keeps up with, so the loss is made here):
+    fdi_node says overloaded with the share, holds detection, and raises no alarm from the gapped data."""
+    rng = np.random.default_rng(4)
+
+    def lose(topic: str, stamp: int, value: float) -> tuple[int, float] | None:
+        return None if topic == topics.pressure_b("boom") and rng.random() < 0.33 else (stamp, value)
+
+    diags: list[DiagnosticArray] = []
+    with probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 50)
+        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), \
+                node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={tampered(healthy_bag, tmp_path / 'bag', lose)}",
+                             "-p", "publish_clock:=false", "-p", "rate:=0.5", "-p", "start_delay:=3.0"):
+            assert spin_until(node, lambda: any(s.message == "overloaded" for s in _statuses(diags, "hydro_ros/fdi/boom")), 60)
+            spin_until(node, lambda: False, 25.0)
+    statuses = _statuses(diags, "hydro_ros/fdi/boom")
+    overloaded = [s for s in statuses if s.message == "overloaded"]
+    assert float(_values(overloaded[-1])["incomplete_share"]) > 0.2 and _values(overloaded[-1])["detection_held"] == "true"
+    assert {s.message for s in statuses} <= {"ok", "stale", "not_monitored", "overloaded"}, {s.message for s in statuses}
+
+
+def test_held_detection_raises_no_alarm_from_data_that_would_raise_one(sam_config):
+    from hydro_ros.fdi.monitor import FdiMonitor
+
+    scenario = Scenario(14.0, [Injection("external_leakage_a", 3.0, 6.0)], seed=5)
+    blocks = [measured.as_columns() for _, _, measured in run_blocks(sam_config, scenario)]
+    held, free = FdiMonitor(sam_config), FdiMonitor(sam_config)
+    assert [a for block in blocks for a in held.process(block, hold=True).alarms] == []
+    assert any(a.fault.value == "external_leakage_a" for block in blocks for a in free.process(block).alarms)

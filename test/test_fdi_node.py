@@ -179,3 +179,114 @@ def test_fdi_node_refuses_a_method_the_machine_cannot_run(ros_domain, method):
     with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"method:={method}") as proc:
         output, _ = proc.communicate(timeout=30)
     assert proc.returncode != 0 and "pilot pressures" in output
+
+
+def test_parameters_are_described_refused_with_a_reason_or_applied_in_a_namespace(ros_domain):
+    """Two machines on one graph: the namespace keeps this one's topics apart; its monitor's parameters behave."""
+    namespace = ["-r", "__ns:=/machine2"]
+    root_diags: list[DiagnosticArray] = []
+    diags: list[DiagnosticArray] = []
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=0.5", *namespace), \
+            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", *namespace), probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", root_diags.append, 10)
+        node.create_subscription(DiagnosticArray, "/machine2/diagnostics", diags.append, 10)
+        assert spin_until(node, lambda: any(s.message == "ok" for s in _fdi_statuses(diags)), 45)
+        assert root_diags == []
+
+        client = AsyncParameterClient(node, "/machine2/fdi_node")
+        assert client.wait_for_services(10.0)
+        names = _result(node, client.list_parameters()).result.names
+        assert {"config", "stale_timeout", "reset_min_interval", "use_sim_time"} <= set(names)
+        descriptors = _result(node, client.describe_parameters(names)).descriptors
+        assert [d.name for d in descriptors if not d.description] == []
+        assert next(d for d in descriptors if d.name == "process_period").read_only
+
+        refused = _result(node, client.set_parameters([Parameter("stale_timeout", value=-1.0)])).results[0]
+        assert not refused.successful and "stale_timeout" in refused.reason and "range" in refused.reason
+        for bad in (Parameter("process_period", value=0.5), Parameter("config", value="/nonexistent.yaml"),
+                    Parameter("reset_min_interval", value=float("nan"))):
+            result = _result(node, client.set_parameters([bad])).results[0]
+            assert not result.successful and result.reason, bad.name
+
+        reset = node.create_client(Trigger, "/machine2/fdi_node/reset")
+        assert reset.wait_for_service(10.0)
+        assert _call(node, reset, Trigger.Request()).success
+        assert not _call(node, reset, Trigger.Request()).success  # at most one per reset_min_interval (5 s)
+        assert _result(node, client.set_parameters([Parameter("reset_min_interval", value=0.0)])).results[0].successful
+        assert _call(node, reset, Trigger.Request()).success
+        assert _call(node, reset, Trigger.Request()).success
+
+
+def _result(node, future, timeout=10.0):
+    assert spin_until(node, future.done, timeout)
+    return future.result()
+
+
+def test_a_best_effort_driver_is_monitored_through_qos_overrides(ros_domain):
+    """A driver offering best-effort sensor topics: the override in fdi_node's parameters makes it match."""
+    from hydro_ros.contract import topics
+
+    sensor_topics = topics.sensor_topics(["boom"])
+    best_effort = [arg for topic in sensor_topics for arg in ("-p", f"qos_overrides.{topic}.publisher.reliability:=best_effort")]
+    accepts = [arg for topic in sensor_topics for arg in ("-p", f"qos_overrides.{topic}.subscription.reliability:=best_effort")]
+    diags: list[DiagnosticArray] = []
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=0.5", *best_effort), \
+            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", *accepts), probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        assert spin_until(node, lambda: any(s.message == "ok" for s in _fdi_statuses(diags)), 45), \
+            [s.message for s in _fdi_statuses(diags)][-3:]
+
+
+def test_alarm_log_round_trip_a_killed_monitor_restores_its_latched_alarm(ros_domain, tmp_path):
+    """A leak alarmed live, fdi_node killed: the export holds the alarm, and a restarted fdi_node and the HMI show it again."""
+    import json
+    import subprocess
+    import sys
+    import urllib.request
+
+    from test.ros_graph import free_port
+
+    log = tmp_path / "alarms.sqlite"
+    diags: list[DiagnosticArray] = []
+    with probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"):
+            with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"alarm_log:={log}") as monitor:
+                assert spin_until(node, lambda: any(s.message == "ok" for s in _fdi_statuses(diags)), 45)
+                client = AsyncParameterClient(node, "plant_sim")
+                assert client.wait_for_services(10.0)
+                future = client.set_parameters([Parameter("fault.external_leakage_a", value=3.0)])
+                assert spin_until(node, future.done, 10)
+                assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message == "external_leakage_a", 50)
+                monitor.kill()  # no shutdown path runs
+                monitor.wait(10)
+
+        out = tmp_path / "alarms.json"
+        exported = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "alarms", "export", "--db", str(log), "--json", str(out)],
+                                  capture_output=True, text=True, timeout=60)
+        assert exported.returncode == 0, exported.stderr
+        events = json.loads(out.read_text())
+        assert any(e["event"] in ("raised", "changed") and e["fault"] == "external_leakage_a" and e["actuator"] == "boom" for e in events)
+
+        diags.clear()
+        port = free_port()
+        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"alarm_log:={log}"), \
+                node_process("hydro_ros.nodes.hmi", "-p", f"config:={SAM_CONFIG}", "-p", f"port:={port}", "-p", f"alarm_log:={log}"):
+            # no machine is running now: only the log can say what was latched
+            assert spin_until(node, lambda: any(s.message == "external_leakage_a" for s in _fdi_statuses(diags)), 30)
+            restored = next(s for s in _fdi_statuses(diags) if s.message == "external_leakage_a")
+            assert {v.key: v.value for v in restored.values}["restored_from_alarm_log"] == "true"
+
+            def page(path: str) -> dict:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=5) as answer:
+                    return json.loads(answer.read())
+
+            def tile_shows_it() -> bool:
+                spin_until(node, lambda: False, 0.2)
+                try:
+                    return any(t["fault"] == "external_leakage_a" for t in page("/api/state")["tiles"])
+                except OSError:
+                    return False
+
+            assert spin_until(node, tile_shows_it, 30)
+            assert any(e["fault"] == "external_leakage_a" for e in page("/api/alarm_log?limit=50")["events"])

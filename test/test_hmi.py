@@ -5,13 +5,14 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import time
 from typing import Any
 
 import pytest
 from aiohttp.test_utils import TestClient, TestServer
 
-from hydro_ros.hmi.server import MAX_BODY_BYTES, create_app
-from hydro_ros.hmi.state import HmiState, StatusReport
+from hydro_ros.hmi.server import GUARD_KEY, MAX_BODY_BYTES, TOKEN_FAILURES, TOKEN_WINDOW_S, create_app
+from hydro_ros.hmi.state import MAX_ACTIONS, MAX_DETAIL_CHARS, MAX_REFUSALS, HmiState, StatusReport
 
 TOKEN = "s3cret-operator-token"
 
@@ -125,14 +126,14 @@ class FakeActions:
         return True, f"requested {path}"
 
 
-def _serve(token: str, check) -> tuple[FakeActions, list[str], HmiState]:
+def _serve(token: str, check, **options: Any) -> tuple[FakeActions, list[str], HmiState]:
     state = HmiState()
     state.on_diagnostics(1.0, [_status(1, "external_leakage_a")])
     state.on_catalog(json.dumps([{"path": "horizontal", "solutions": {"dp_cp": {"cp_energy_J": 7e4}}}]))
     actions, log = FakeActions(), []
 
     async def run() -> None:
-        app = create_app(state, actions, token=token, update_period_s=0.05, log=log.append)
+        app = create_app(state, actions, token=token, update_period_s=0.05, log=log.append, **options)
         async with TestClient(TestServer(app)) as client:
             await check(client, state)
 
@@ -219,3 +220,80 @@ def test_only_the_page_assets_are_served(path):
         assert response.status in (403, 404)
 
     _serve("", check)
+
+
+def test_a_rebound_host_name_is_refused_everywhere():
+    """DNS rebinding: evil.example resolved to this address; the browser sends Host and Origin evil.example."""
+    async def check(client, _state):
+        hostile = {"Host": "evil.example", "Origin": "http://evil.example"}
+        for path in ("/", "/api/state", "/ws"):
+            answer = await client.get(path, headers=hostile)
+            assert answer.status == 421 and "evil.example" in (await answer.json())["error"], path
+        acted = await client.post("/api/acknowledge", json={}, headers={**hostile, **_bearer(TOKEN)})
+        assert acted.status == 421
+        assert (await client.get("/api/state", headers={"Host": "localhost:8080"})).status == 200
+        assert (await client.get("/api/state", headers={"Host": "hmi.plant.example"})).status == 200  # allowed_hosts
+        assert client.app[GUARD_KEY].counts["refused_hosts"] == 4
+
+    actions, _, _ = _serve(TOKEN, check, allowed_hosts=frozenset({"hmi.plant.example"}))
+    assert actions.calls == []
+
+
+def test_refused_requests_cannot_flood_the_page_or_flush_the_operator_log():
+    async def check(client, state):
+        for _ in range(MAX_ACTIONS):
+            assert (await client.post("/api/acknowledge", json={}, headers=_bearer(TOKEN))).status == 200
+        before = len(json.dumps(state.snapshot()[0]))
+        for k in range(60):
+            origin = f"http://evil{k}.example/" + "x" * 7900
+            assert (await client.post("/api/acknowledge", json={}, headers={"Origin": origin})).status == 403
+        view = state.snapshot()[0]
+        assert len(json.dumps(view)) < before + MAX_REFUSALS * (MAX_DETAIL_CHARS + 200)
+        assert [a["ok"] for a in view["actions"]] == [True] * MAX_ACTIONS  # every operator entry kept
+        assert len(view["refusals"]) == MAX_REFUSALS and all(len(r["detail"]) <= MAX_DETAIL_CHARS for r in view["refusals"])
+        for _ in range(30):  # the same refusal again only counts up
+            await client.post("/api/acknowledge", json={}, headers={"Origin": "http://evil.example"})
+        assert state.snapshot()[0]["refusals"][0]["count"] == 30
+
+    _, log, _ = _serve(TOKEN, check)
+    assert max(len(line) for line in log) < 300
+
+
+def test_token_guesses_are_rate_limited_per_client():
+    async def check(client, _state):
+        for _ in range(TOKEN_FAILURES):
+            assert (await client.post("/api/acknowledge", json={}, headers=_bearer("guess"))).status == 401
+        limited = await client.post("/api/acknowledge", json={}, headers=_bearer(TOKEN))  # even the right token waits
+        assert limited.status == 429 and "try again" in (await limited.json())["error"]
+        guard = client.app[GUARD_KEY]
+        assert guard.counts["token_failures"] == TOKEN_FAILURES and guard.counts["rate_limited"] == 1
+        guard.clock = lambda: time.monotonic() + TOKEN_WINDOW_S + 0.1  # the window has passed
+        assert (await client.post("/api/acknowledge", json={}, headers=_bearer(TOKEN))).status == 200
+
+    actions, _, _ = _serve(TOKEN, check)
+    assert actions.calls == [("acknowledge",)]
+
+
+def test_the_alarm_log_is_served_paged_and_read_only(tmp_path):
+    from hydro_ros.fdi.alarm_log import AlarmLog
+
+    path = tmp_path / "alarms.sqlite"
+    log = AlarmLog(path, "sam")
+    for k in range(30):
+        log.record("raised" if k % 2 == 0 else "cleared", "boom", f"fault_{k}", 1)
+
+    async def check(client, _state):
+        page = await (await client.get("/api/alarm_log?offset=20&limit=20")).json()
+        assert page["total"] == 30 and [e["fault"] for e in page["events"]] == [f"fault_{k}" for k in range(9, -1, -1)]
+        for query in ("limit=1000", "offset=-1", "offset=x"):
+            assert (await client.get(f"/api/alarm_log?{query}")).status == 400, query
+        assert (await client.post("/api/alarm_log")).status == 405
+
+    _serve(TOKEN, check, alarm_log=path)
+    assert len(log._db.execute("SELECT id FROM alarm_events").fetchall()) == 30
+
+    async def without(client, _state):
+        answer = await client.get("/api/alarm_log")
+        assert answer.status == 404 and "no alarm log" in (await answer.json())["error"]
+
+    _serve(TOKEN, without)

@@ -21,7 +21,7 @@ from hydro_ros.nodes.common import LATCHED_QOS
 from hydro_ros.nodes.hmi import TOKEN_ENV
 from test.browser import chromium_page, require_chromium
 from test.conftest import REPO, SAM_CONFIG
-from test.ros_graph import free_port, node_process, probe_node, spinning, wait_for
+from test.ros_graph import free_port, node_process, port_open, probe_node, spinning, wait_for
 
 TOKEN = "hmi-e2e-token"
 SCREENSHOT = REPO / "out" / "hmi.png"
@@ -60,8 +60,9 @@ def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_doma
                               "pinv_joint": {"cp_energy_J": 82.5e3, "ls_energy_J": 60.2e3, "limits_ok": True}}}]
     # the plant at half real time: plant_sim, fdi_node, hmi and a browser at 1 kHz overload this 2-core machine
     with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"), \
-            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), \
-            node_process("hydro_ros.nodes.hmi", "-p", f"port:={port}") as hmi, \
+            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"alarm_log:={tmp_path / 'alarms.sqlite'}"), \
+            node_process("hydro_ros.nodes.hmi", "-p", f"port:={port}", "-p", f"alarm_log:={tmp_path / 'alarms.sqlite'}",
+                         "-p", "foxglove_port:=-1") as hmi, \
             probe_node("trajectory_server_stand_in") as node, spinning(node), chromium_page() as page:
         # a stand-in for trajectory_server: the latched catalog, and an answer to every request
         node.create_publisher(String, "/trajectory_server/catalog", LATCHED_QOS).publish(String(data=json.dumps(catalog)))
@@ -76,6 +77,8 @@ def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_doma
         node.create_subscription(JointState, topics.FDI_RESIDUALS, residuals.append, 10)
         plant = AsyncParameterClient(node, "plant_sim")
         assert plant.wait_for_services(15.0)
+        # on a loaded machine the hmi process can take longer to listen than plant_sim to offer its services
+        assert wait_for(lambda: port_open(port), 30), f"hmi did not listen on {port}: {hmi.poll()}"
 
         page.goto(f"http://127.0.0.1:{port}/")
         _tile_is(page, "OK", "ok", timeout_s=60)
@@ -113,6 +116,12 @@ def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_doma
         _tile_is(page, "OK", "ok", timeout_s=15)
         alarm = page.text_content("#alarms tbody tr")
         assert "cleared" in alarm and "acknowledged" in alarm
+        # the alarm log, newest first: the acknowledgement, and below it the alarm as raised
+        page.wait_for_function("() => document.querySelector('#alarm-log tbody tr[data-event=acknowledged]') !== null", timeout=15_000)
+        logged = page.text_content("#alarm-log tbody")
+        assert "external_leakage_a" in logged and ("raised" in logged or "changed" in logged)
+        refused = page.text_content("#refusals")  # the two attempts without a valid token, apart from the actions
+        assert "operator token required" in refused and "operator token rejected" in refused
         latencies = page.evaluate("() => window.hmiLatencies")
         assert latencies and all(0.0 <= s < 5.0 for s in latencies), latencies  # /diagnostics stamp -> DOM
     log = hmi.stdout.read()

@@ -11,6 +11,8 @@ import yaml
 from hydro_ros.can.codec import MachineBus
 from hydro_ros.contract import topics
 from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.nodes.fdi_node import ALARM_LOG_STATUS
+from hydro_ros.nodes.hmi import HMI_STATUS
 from test.conftest import REPO, SAM_CONFIG
 
 AGGREGATOR = REPO / "config" / "diagnostic_aggregator.yaml"
@@ -18,7 +20,7 @@ LAYOUT = REPO / "config" / "foxglove_layout.json"
 
 
 def _published_status_names() -> list[str]:
-    names = ["hydro_ros/plant_sim", "hydro_ros/can_bridge/bus"]
+    names = ["hydro_ros/plant_sim", "hydro_ros/can_bridge/bus", HMI_STATUS, ALARM_LOG_STATUS]
     for machine in ("sam", "sam_mobile", "sam_mems"):
         config = load_machine_config(REPO / "config" / f"{machine}.yaml")
         names += [f"{prefix}{actuator}" for actuator in config.actuator_names
@@ -68,3 +70,13 @@ def test_the_foxglove_layout_plots_the_residual_channels_it_names():
     assert halt["path"] == f"{topics.FDI_HALT}.data" and halt["rules"][0]["rawValue"] == "true"
     transitions = next(p for k, p in panels.items() if k.startswith("StateTransitions!"))
     assert f'name=="{topics.FDI_STATUS_PREFIX}boom"' in transitions["paths"][0]["value"]
+
+
+def test_the_shipped_layout_is_the_generated_one_and_follows_the_config():
+    from hydro_ros.hmi.foxglove_layout import foxglove_layout
+
+    assert json.loads(LAYOUT.read_text()) == foxglove_layout(load_machine_config(SAM_CONFIG)), \
+        "regenerate: hydro-ros foxglove-layout --config config/sam.yaml --out config/foxglove_layout.json"
+    mobile = foxglove_layout(load_machine_config(REPO / "config" / "sam_mobile.yaml"))
+    labels = [series["label"] for panel in mobile["configById"].values() for series in panel.get("paths", []) if "position" in series["value"]]
+    assert labels and all("[L/min]" in label for label in labels)  # parity residuals are flows

@@ -52,7 +52,8 @@ def test_server_serves_from_the_clients_joint_state_and_refuses_unknown_paths(ro
         node.create_subscription(String, "/trajectory_server/catalog", lambda m: received["catalog"].append(m), LATCHED_QOS)
         node.create_subscription(String, "/trajectory_server/result", lambda m: received["result"].append(json.loads(m.data)), LATCHED_QOS)
         node.create_subscription(JointTrajectory, "/trajectory_server/trajectory", lambda m: received["trajectory"].append(m), LATCHED_QOS)
-        node.create_subscription(JointTrajectory, "/crane/joint_trajectory", lambda m: received["output"].append(m), LATCHED_QOS)
+        # volatile, as a ros2_control controller subscribes (a latched subscription would not match)
+        node.create_subscription(JointTrajectory, "/crane/joint_trajectory", lambda m: received["output"].append(m), 10)
         requests = node.create_publisher(String, "/trajectory_server/request", 10)
         joints = node.create_publisher(JointState, topics.JOINT_STATES, 10)
         assert spin_until(node, lambda: received["catalog"], 30), proc.stdout.read() if proc.poll() is not None else "no catalog"
@@ -69,7 +70,7 @@ def test_server_serves_from_the_clients_joint_state_and_refuses_unknown_paths(ro
             joints.publish(JointState(name=config_joint_names(config), position=q0.tolist(), velocity=[0.0] * 4))
 
         node.create_timer(0.05, publish_state)
-        assert spin_until(node, lambda: joints.get_subscription_count() > 0, 10)
+        assert spin_until(node, lambda: joints.get_subscription_count() > 0 and node.count_publishers("/crane/joint_trajectory") > 0, 10)
         for method in ("dp_cp", "pinv_actuator"):
             count = len(received["result"])
             spin_until(node, lambda: False, 0.3)  # a fresh joint state has arrived
@@ -85,10 +86,27 @@ def test_server_serves_from_the_clients_joint_state_and_refuses_unknown_paths(ro
             assert len(msg.points) == result["points"]
         assert spin_until(node, lambda: received["output"], 5)
 
+        # a request with an id, echoed; cancelling it sends the empty trajectory that stops a controller
+        count, outputs = len(received["result"]), len(received["output"])
+        requests.publish(String(data=json.dumps({"path": "horizontal", "id": "run-7"})))
+        assert spin_until(node, lambda: len(received["result"]) > count and len(received["output"]) > outputs, 20)
+        assert received["result"][-1]["ok"] and received["result"][-1]["id"] == "run-7"
+        for wrong in ("run-6", "run 7!"):
+            count = len(received["result"])
+            requests.publish(String(data=json.dumps({"cancel": wrong})))
+            assert spin_until(node, lambda: len(received["result"]) > count, 10)
+            assert not received["result"][-1]["ok"], wrong
+        count, outputs = len(received["result"]), len(received["output"])
+        requests.publish(String(data=json.dumps({"cancel": "run-7"})))
+        assert spin_until(node, lambda: len(received["result"]) > count and len(received["output"]) > outputs, 10)
+        assert received["result"][-1] == {"path": "horizontal", "id": "run-7", "ok": True, "cancelled": True, "error": ""}
+        stop = received["output"][-1]
+        assert stop.points == [] and list(stop.joint_names) == ["base", "lift", "tilt", "extension"]
+
         count = len(received["result"])
         requests.publish(String(data="nowhere"))
         assert spin_until(node, lambda: len(received["result"]) > count, 10)
-        assert received["result"][-1] == {"path": "nowhere", "ok": False, "error": received["result"][-1]["error"]}
+        assert received["result"][-1] == {"path": "nowhere", "id": "", "ok": False, "error": received["result"][-1]["error"]}
         assert "not in the database" in received["result"][-1]["error"]
 
 
@@ -129,7 +147,7 @@ def test_served_trajectory_runs_on_the_simulated_crane(ros_domain, catalog_db):
             count = len(results)
             requests.publish(String(data="horizontal"))
             assert spin_until(node, lambda: len(results) > count, 20)
-            if results[-1]["ok"] or "nothing received" not in results[-1]["error"]:
+            if results[-1]["ok"] or not ("nothing received" in results[-1]["error"] or "no subscriber" in results[-1]["error"]):
                 break
             spin_until(node, lambda: False, 0.5)
         assert results[-1]["ok"] and results[-1]["replanned"], results[-1]

@@ -17,6 +17,11 @@ from typing import BinaryIO, Iterator
 import numpy as np
 from numba import njit
 
+try:
+    from compression import zstd  # Python >= 3.14
+except ImportError:
+    from backports import zstd  # before 3.14: a dependency of rosbags
+
 MAGIC = b"\x89MCAP0\r\n"
 OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_FOOTER = 0x03, 0x04, 0x05, 0x06, 0x02
 RECORD_OPS = frozenset(range(0x01, 0x10))  # header ... data end: the record types of the MCAP spec
@@ -216,9 +221,7 @@ def _decompress(compression: str, payload: bytes, size: int) -> bytes:
     if compression == "":
         return payload
     if compression == "zstd":
-        import zstandard
-
-        return zstandard.ZstdDecompressor().decompress(payload, max_output_size=size)
+        return zstd.decompress(payload)
     if compression == "lz4":
         import lz4.frame
 
@@ -329,3 +332,24 @@ class McapScanner:
                 yield from self._records(np.frombuffer(record, np.uint8), record)
             else:
                 self._metadata(op, content)
+
+    def iter_messages(self) -> Iterator[tuple[str, str, int, bytes]]:
+        """(topic, schema name, log time, CDR bytes) of every message: chunk after chunk, by log time within one."""
+        pending: list[MessageBatch] = []
+        for batch in self.batches():
+            if pending and batch.buffer is not pending[0].buffer:
+                yield from self._by_log_time(pending)
+                pending = []
+            pending.append(batch)
+        yield from self._by_log_time(pending)
+
+    def _by_log_time(self, batches: list[MessageBatch]) -> Iterator[tuple[str, str, int, bytes]]:
+        rows = []
+        for batch in batches:
+            channel = self.channels.get(batch.channel_id, Channel("", ""))
+            # a message record's log time sits 16 bytes before its data (publish time between)
+            log_times = batch.buffer[(batch.starts - 16)[:, None] + np.arange(8)].copy().view("<u8")[:, 0]
+            rows += [(int(t), channel, batch.buffer, int(a), int(b)) for t, a, b in zip(log_times, batch.starts, batch.ends)]
+        rows.sort(key=lambda row: row[0])
+        for log_time, channel, buffer, start, end in rows:
+            yield channel.topic, channel.schema, log_time, buffer[start:end].tobytes()

@@ -19,6 +19,7 @@ import yaml
 from hydro_ros.bags.align import Column, SampleAligner, SampleLayout
 from hydro_ros.bags.cdr import CdrError, decode_joint_state
 from hydro_ros.bags.mcap_scan import (
+    McapDamage,
     McapScanner,
     MessageBatch,
     decode_fluid_pressures,
@@ -94,7 +95,8 @@ def mcap_files(path: Path, errors: list[str] | None = None) -> list[Path]:
         return [path]
     if not path.is_dir():
         raise BagError(f"bag {path}: no such file or directory")
-    present = sorted(path.glob("*.mcap"), key=_natural)
+    # a part still in its own directory is what a recording killed mid-part left behind (bags/writer.py)
+    present = sorted([*path.glob("*.mcap"), *path.glob("*/*.mcap")], key=_natural)
     if not present:
         raise BagError(f"bag {path}: no .mcap file in the directory (only MCAP storage is supported)")
     listed = [path / name for name in _metadata(path).get("relative_file_paths") or [] if str(name).endswith(".mcap")]
@@ -111,6 +113,61 @@ def _metadata(path: Path) -> dict[str, Any]:
     except (OSError, yaml.YAMLError, KeyError, TypeError):
         return {}
     return info if isinstance(info, dict) else {}
+
+
+def bag_topics(path: Path) -> dict[str, str]:
+    """Topic -> message type as metadata.yaml lists them ({} for a bare file or unreadable metadata)."""
+    topics_meta = _metadata(path).get("topics_with_message_count") or [] if path.is_dir() else []
+    try:
+        return {str(entry["topic_metadata"]["name"]): str(entry["topic_metadata"]["type"]) for entry in topics_meta}
+    except (KeyError, TypeError):
+        return {}
+
+
+def bag_info(path: str | Path) -> dict[str, Any]:
+    """What a bag holds, from its files themselves: per file and topic the messages and log-time span,
+    the metadata's claims beside them, and every damage or disagreement found."""
+    path = Path(path)
+    errors: list[str] = []
+    files = mcap_files(path, errors)
+    listed = {name: int(count) for name, count in _listed_counts(path).items()}
+    types = bag_topics(path)
+    per_topic: dict[str, dict[str, Any]] = {}
+    file_rows = []
+    for file in files:
+        with file.open("rb") as stream:
+            scanner = McapScanner(stream)
+            count, first, last = 0, None, None
+            try:
+                for topic, schema, log_time, _ in scanner.iter_messages():
+                    row = per_topic.setdefault(topic, {"type": types.get(topic, schema), "messages": 0})
+                    row["messages"] += 1
+                    count += 1
+                    first = log_time if first is None else min(first, log_time)
+                    last = log_time if last is None else max(last, log_time)
+            except McapDamage as exc:
+                errors.append(f"{file}: {exc}")
+            errors += [f"{file}: {damage}" for damage in scanner.skipped]
+        file_rows.append({"path": str(file.relative_to(path) if path.is_dir() else file.name), "bytes": file.stat().st_size,
+                          "messages": count, "start_s": None if first is None else first * 1e-9,
+                          "end_s": None if last is None else last * 1e-9})
+    for topic, claimed in listed.items():
+        found = per_topic.get(topic, {}).get("messages", 0)
+        if found != claimed:
+            errors.append(f"{topic}: metadata.yaml says {claimed} messages, the files hold {found}")
+    starts = [row["start_s"] for row in file_rows if row["start_s"] is not None]
+    ends = [row["end_s"] for row in file_rows if row["end_s"] is not None]
+    return {"bag": str(path), "files": file_rows, "duration_s": (max(ends) - min(starts)) if starts else 0.0,
+            "messages": sum(row["messages"] for row in file_rows), "topics": dict(sorted(per_topic.items())),
+            "ground_truth": _read_truth(path, []) is not None, "errors": errors}
+
+
+def _listed_counts(path: Path) -> dict[str, Any]:
+    entries = _metadata(path).get("topics_with_message_count") or [] if path.is_dir() else []
+    try:
+        return {str(entry["topic_metadata"]["name"]): entry["message_count"] for entry in entries}
+    except (KeyError, TypeError):
+        return {}
 
 
 def _read_truth(path: Path, errors: list[str]) -> dict[str, Any] | None:

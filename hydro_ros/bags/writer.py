@@ -1,32 +1,208 @@
-"""Write contract bags: ROS 2 bag directory (metadata.yaml + one MCAP file), CDR messages.
+"""Write ROS 2 bags: a bag directory of MCAP files and one metadata.yaml, CDR messages.
 
-The MCAP file is written with the `mcap` library in the layout `ros2 bag record` produces:
-schema and channel records precede the messages in the data section and chunks are closed
-every ~1 MB, so a bag cut short by a crash loses only its last chunk (rosbags' writer keeps
-schemas and channels for the summary at the end, which a truncated file never reaches).
-metadata.yaml follows rosbag2 version 9; ground truth goes into its custom_data.
+The files are written by rosbags' MCAP writer (rosdep key python3-rosbags-pip), which puts the
+schema and channel records into the first chunk and closes a chunk every 1 MB, so a file cut short
+by a crash still reads up to its last closed chunk. A bag may be split by duration or size, as
+`ros2 bag record` does: each part is written by its own rosbags writer and moved into the bag
+directory as ``<name>_<i>.mcap`` when it closes; the bag's metadata.yaml (rosbag2 version 9, with
+every topic's offered QoS profiles and type hash and the custom data) is rewritten after every part,
+so a recording killed mid-part keeps the metadata of the parts it finished. The part being written
+lives in ``<name>_<i>/`` until then; the reader reads it too.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import yaml
-from mcap.writer import CompressionType, Writer
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
+from hydro_ros.bags.mcap_scan import zstd
 from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.samples import Samples
 
 TYPESTORE = get_typestore(Stores.ROS2_KILTED)
+_NO_TIME = QosTime(0, 0)
+# what the package's own publishers offer on the sensor topics (nodes/common.SENSOR_QOS)
+SENSOR_QOS = Qos(QosHistory.KEEP_LAST, topics.SENSOR_QUEUE_DEPTH, QosReliability.RELIABLE, QosDurability.VOLATILE,
+                 _NO_TIME, _NO_TIME, QosLiveliness.AUTOMATIC, _NO_TIME, False)
+
+
+def _checksummed_zstd(data: bytes) -> bytes:
+    return zstd.compress(data, options={zstd.CompressionParameter.checksum_flag: 1})
 
 
 class BagExistsError(InputError, FileExistsError):
     pass
+
+
+@dataclass
+class _Topic:
+    name: str
+    msgtype: str
+    qos: tuple[Qos, ...]
+    count: int = 0
+
+
+@dataclass
+class _Part:
+    writer: Writer
+    directory: Path
+    connections: dict[int, Any] = field(default_factory=dict)  # topic handle -> rosbags connection
+    first: int | None = None
+    last: int = 0
+    messages: int = 0
+    payload_bytes: int = 0
+
+
+class BagWriter:
+    """Context manager writing one bag directory, split into parts by log-time duration and/or size.
+
+    The size is that of the messages before compression: the file of a part is smaller (zstd), and
+    it is known only chunk by chunk.
+
+    ``add_topic`` returns a handle for ``write``; topics may be added at any time (a recorder finds
+    them as they appear). Nothing is overwritten: an existing path is refused.
+    """
+
+    def __init__(self, path: str | Path, *, split_duration_s: float | None = None, split_size_bytes: int | None = None) -> None:
+        self.path = Path(path)
+        if self.path.exists():
+            raise BagExistsError(f"bag {self.path}: already exists, refusing to overwrite")
+        for name, value in (("split duration", split_duration_s), ("split size", split_size_bytes)):
+            if value is not None and not value > 0:
+                raise InputError(f"bag {self.path}: {name} {value} must be > 0")
+        self._split_ns = None if split_duration_s is None else int(split_duration_s * 1e9)
+        self._split_bytes = split_size_bytes
+        self.custom_data: dict[str, str] = {}
+        self.messages = 0
+        self._topics: list[_Topic] = []
+        self._files: list[dict[str, Any]] = []
+        self._qos_yaml: dict[str, Any] = {}  # rosbags' own serialisation of each topic's QoS, from the parts' metadata
+        self._part: _Part | None = None
+
+    def __enter__(self) -> "BagWriter":
+        self.path.mkdir(parents=True)
+        self._open_part()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._part is None:
+            return
+        if self._part.messages == 0 and self._files:  # a split just before the end: no empty last file
+            part, self._part = self._part, None
+            part.writer.close()
+            shutil.rmtree(part.directory)
+        else:
+            self._close_part()
+
+    @property
+    def files(self) -> list[str]:
+        return [entry["path"] for entry in self._files]
+
+    def add_topic(self, topic: str, msgtype: str, qos: Sequence[Qos] = ()) -> int:
+        if msgtype not in TYPESTORE.types:
+            raise InputError(f"topic {topic}: message type {msgtype} is not a ROS 2 Kilted type rosbags knows")
+        self._topics.append(_Topic(topic, msgtype, tuple(qos)))
+        return len(self._topics) - 1
+
+    def write(self, handle: int, stamp: int, data: bytes) -> None:
+        """One message; ``stamp`` (ns) is its log time."""
+        part = self._part
+        if part.first is None:
+            part.first = stamp
+        elif (self._split_ns is not None and stamp - part.first >= self._split_ns) or (
+            self._split_bytes is not None and part.payload_bytes >= self._split_bytes
+        ):
+            self.split()
+            part = self._part
+            part.first = stamp
+        connection = part.connections.get(handle)
+        if connection is None:
+            topic = self._topics[handle]
+            connection = part.connections[handle] = part.writer.add_connection(
+                topic.name, topic.msgtype, typestore=TYPESTORE, offered_qos_profiles=topic.qos)
+        part.writer.write(connection, stamp, data)
+        part.last = max(part.last, stamp)
+        part.messages += 1
+        part.payload_bytes += len(data)
+        self._topics[handle].count += 1
+        self.messages += 1
+
+    def split(self) -> None:
+        """Close the open part (when it holds anything) and continue in a new one."""
+        if self._part.messages:
+            self._close_part()
+            self._open_part()
+
+    def _open_part(self) -> None:
+        directory = self.path / f"{self.path.name}_{len(self._files)}"
+        writer = Writer(directory, version=9, storage_plugin=StoragePlugin.MCAP)
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        writer.open()
+        # rosbags leaves the chunk CRC at 0; a zstd frame checksum lets every reader see a damaged chunk
+        writer.storage.compressor = _checksummed_zstd
+        self._part = _Part(writer, directory)
+
+    def _close_part(self) -> None:
+        part, self._part = self._part, None
+        part.writer.close()
+        name = f"{part.directory.name}.mcap"
+        (part.directory / name).replace(self.path / name)
+        part_topics = yaml.safe_load((part.directory / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        shutil.rmtree(part.directory)
+        first = part.first or 0
+        self._files.append({"path": name, "starting_time": {"nanoseconds_since_epoch": first},
+                            "duration": {"nanoseconds": part.last - first if part.messages else 0},
+                            "message_count": part.messages})
+        self._qos_yaml.update({entry["topic_metadata"]["name"]: entry["topic_metadata"]["offered_qos_profiles"]
+                               for entry in part_topics["topics_with_message_count"]})
+        self._write_metadata()
+
+    def _write_metadata(self) -> None:
+        written = [entry for entry in self._files if entry["message_count"]]
+        start = min((entry["starting_time"]["nanoseconds_since_epoch"] for entry in written), default=0)
+        end = max((entry["starting_time"]["nanoseconds_since_epoch"] + entry["duration"]["nanoseconds"] for entry in written), default=0)
+        info = {
+            "version": 9,
+            "storage_identifier": "mcap",
+            "duration": {"nanoseconds": end - start},
+            "starting_time": {"nanoseconds_since_epoch": start},
+            "message_count": sum(entry["message_count"] for entry in self._files),
+            "topics_with_message_count": [
+                {
+                    "message_count": topic.count,
+                    "topic_metadata": {
+                        "name": topic.name,
+                        "type": topic.msgtype,
+                        "serialization_format": "cdr",
+                        "offered_qos_profiles": self._qos_yaml.get(topic.name, []),
+                        "type_description_hash": TYPESTORE.hash_rihs01(topic.msgtype),
+                    },
+                }
+                for topic in self._topics
+            ],
+            "compression_format": "",
+            "compression_mode": "",
+            "relative_file_paths": self.files,
+            "files": self._files,
+            "custom_data": self.custom_data,
+            "ros_distro": "kilted",
+        }
+        temporary = self.path / "metadata.yaml.tmp"
+        temporary.write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False))
+        temporary.replace(self.path / "metadata.yaml")
 
 
 def sample_payloads(block: Samples, k: int, stamp: int, actuator: str, joint: str, variance: float) -> tuple[bytes, ...]:
@@ -56,79 +232,20 @@ def sample_topics(actuator: str, *, mobile: bool = False) -> tuple[str, ...]:
     return base + tuple(topics.actuator_pressure(actuator, q) for q in topics.MOBILE_VALVE_PRESSURES) + (topics.LS_PRESSURE,)
 
 
-class ContractBagWriter:
-    """Context manager writing one machine's sensor topics."""
+class ContractBagWriter(BagWriter):
+    """One machine's sensor topics, written from simulated or converted samples (one file)."""
 
     def __init__(self, path: str | Path, *, actuators: dict[str, str], pressure_variance: float, mobile: bool = False) -> None:
         """``actuators`` maps actuator name -> joint name (machine config order)."""
-        self.path = Path(path)
-        if self.path.exists():
-            raise BagExistsError(f"bag {self.path}: already exists, refusing to overwrite")
+        super().__init__(path)
         self.actuators = actuators
         self.variance = pressure_variance
-        self.file = self.path / f"{self.path.name}.mcap"
-        self.custom_data: dict[str, str] = {}
-        self.messages = 0
-        self._counts: dict[str, int] = {}
-        self._channels: dict[str, int] = {}
         self.mobile = mobile
-        self._types = topics.sensor_topics(list(actuators), mobile=mobile)
-        self._first = None
-        self._last = 0
-
-    def __enter__(self) -> "ContractBagWriter":
-        self.path.mkdir(parents=True)
-        self._stream = self.file.open("wb")
-        self._mcap = Writer(self._stream, compression=CompressionType.ZSTD)
-        self._mcap.start(profile="ros2", library="hydro_ros")
-        schemas: dict[str, int] = {}
-        for topic, msgtype in self._types.items():
-            if msgtype not in schemas:
-                definition, _ = TYPESTORE.generate_msgdef(msgtype, ros_version=2)
-                schemas[msgtype] = self._mcap.register_schema(msgtype, "ros2msg", definition.encode())
-            self._channels[topic] = self._mcap.register_channel(topic, "cdr", schemas[msgtype])
-            self._counts[topic] = 0
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._mcap.finish()
-        self._stream.close()
-        self._write_metadata()
+        self._handles = {topic: self.add_topic(topic, msgtype, [SENSOR_QOS])
+                         for topic, msgtype in topics.sensor_topics(list(actuators), mobile=mobile).items()}
 
     def set_truth(self, truth: dict[str, Any]) -> None:
         self.custom_data[topics.TRUTH_KEY] = json.dumps(truth, sort_keys=True)
-
-    def _write_metadata(self) -> None:
-        start = self._first or 0
-        duration = {"nanoseconds": self._last - start}
-        starting = {"nanoseconds_since_epoch": start}
-        info = {
-            "version": 9,
-            "storage_identifier": "mcap",
-            "duration": duration,
-            "starting_time": starting,
-            "message_count": self.messages,
-            "topics_with_message_count": [
-                {
-                    "message_count": self._counts[topic],
-                    "topic_metadata": {
-                        "name": topic,
-                        "type": msgtype,
-                        "serialization_format": "cdr",
-                        "offered_qos_profiles": [],
-                        "type_description_hash": TYPESTORE.hash_rihs01(msgtype),
-                    },
-                }
-                for topic, msgtype in self._types.items()
-            ],
-            "compression_format": "",
-            "compression_mode": "",
-            "relative_file_paths": [self.file.name],
-            "files": [{"path": self.file.name, "starting_time": starting, "duration": duration, "message_count": self.messages}],
-            "custom_data": self.custom_data,
-            "ros_distro": "kilted",
-        }
-        (self.path / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False))
 
     def write_machine_sample(
         self,
@@ -139,39 +256,20 @@ class ContractBagWriter:
         commands: list[float],
     ) -> None:
         """One sample of a multi-joint machine: one JointState with every joint, per-actuator pressures."""
-        channels, add = self._channels, self._mcap.add_message
+        handles = self._handles
         names = list(self.actuators)
-        payloads = [
-            (topics.JOINT_STATES, encode_joint_state(stamp, "", list(self.actuators.values()), joints[0], joints[1], [])),
-            (topics.SUPPLY_PRESSURE, encode_fluid_pressure(stamp, "supply", supply_pressure, self.variance)),
-            (topics.VALVE_COMMANDS, encode_joint_state(stamp, "", names, commands, [], [])),
-        ]
+        self.write(handles[topics.JOINT_STATES], stamp, encode_joint_state(stamp, "", list(self.actuators.values()), joints[0], joints[1], []))
+        self.write(handles[topics.SUPPLY_PRESSURE], stamp, encode_fluid_pressure(stamp, "supply", supply_pressure, self.variance))
+        self.write(handles[topics.VALVE_COMMANDS], stamp, encode_joint_state(stamp, "", names, commands, [], []))
         for actuator, p_a, p_b in zip(names, *pressures):
-            payloads.append((topics.pressure_a(actuator), encode_fluid_pressure(stamp, actuator, p_a, self.variance)))
-            payloads.append((topics.pressure_b(actuator), encode_fluid_pressure(stamp, actuator, p_b, self.variance)))
-        for topic, payload in payloads:
-            add(channels[topic], stamp, payload, stamp)
-            self._counts[topic] += 1
-        self.messages += len(payloads)
-        self._first = self._first if self._first is not None else stamp
-        self._last = stamp
+            self.write(handles[topics.pressure_a(actuator)], stamp, encode_fluid_pressure(stamp, actuator, p_a, self.variance))
+            self.write(handles[topics.pressure_b(actuator)], stamp, encode_fluid_pressure(stamp, actuator, p_b, self.variance))
 
-    def write(self, actuator: str, block: Samples) -> None:
-        """Write one actuator's block of samples; stamps (and bag log times) are sample times."""
+    def write_block(self, actuator: str, block: Samples) -> None:
+        """One actuator's block of samples; stamps (and bag log times) are sample times."""
+        handles = [self._handles[name] for name in sample_topics(actuator, mobile=self.mobile)]
         joint = self.actuators[actuator]
-        channels = self._channels
-        names = sample_topics(actuator, mobile=self.mobile)
-        ids = [channels[name] for name in names]
-        add = self._mcap.add_message
         for k in range(len(block.times)):
             stamp = int(round(block.times[k] * 1e9))
-            payloads = sample_payloads(block, k, stamp, actuator, joint, self.variance)
-            for channel, payload in zip(ids, payloads):
-                add(channel, stamp, payload, stamp)
-        n = len(block.times)
-        for name in names:
-            self._counts[name] += n
-        self.messages += len(names) * n
-        if n:
-            self._first = self._first if self._first is not None else int(round(block.times[0] * 1e9))
-            self._last = int(round(block.times[-1] * 1e9))
+            for handle, payload in zip(handles, sample_payloads(block, k, stamp, actuator, joint, self.variance)):
+                self.write(handle, stamp, payload)

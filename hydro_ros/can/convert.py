@@ -135,5 +135,5 @@ def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Ca
     variance = machine.sensors.pressure_noise_std ** 2
     with ContractBagWriter(out, actuators={slot.actuator: slot.joint}, pressure_variance=variance, mobile=slot.mobile) as writer:
         writer.custom_data["hydro_ros.source"] = str(log.name)
-        writer.write(slot.actuator, samples)
+        writer.write_block(slot.actuator, samples)
     return report

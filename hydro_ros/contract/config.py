@@ -63,6 +63,13 @@ def _read_merged(path: Path) -> dict[str, Any]:
         # values a tool fitted (hydro-ros fdi-fit) live in their own block at the end of the file
         fitted = raw.pop("fitted")
         raw = with_overrides(raw, fitted if isinstance(fitted, dict) else {})
+    if "commissioned" in raw:
+        # hydro-ros commission: the machine's identified model; the rest of the block says how it was found
+        commissioned = raw.pop("commissioned")
+        model = commissioned.get("model") if isinstance(commissioned, dict) else None
+        if not isinstance(model, dict):
+            raise ConfigError(f"config {path}: commissioned block without a model mapping")
+        raw = with_overrides(raw, model)
     return raw
 
 

@@ -15,6 +15,8 @@ SENSOR_STATUS_PREFIX = "hydro_ros/sensors/"  # + actuator: the health of its rea
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 FLUID_PRESSURE_TYPE = "sensor_msgs/msg/FluidPressure"
 TRUTH_KEY = "hydro_ros.truth"
+# sensor streams are reliable with a deep queue, so a replay of a 1 kHz bag loses nothing
+SENSOR_QUEUE_DEPTH = 1000
 
 
 def pressure_a(actuator: str) -> str:

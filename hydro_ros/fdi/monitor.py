@@ -69,6 +69,8 @@ class FdiMonitor:
         self._residual_mean = MovingAverage(self.window, 2 * n)
         self._pressure_mean = MovingAverage(self.window, 2 * n)
         self._command_mean = MovingAverage(self.window, n)
+        self._mask_pressure_mean = MovingAverage(max(int(round(self.settings.mask_average_s * self.sample_rate)), 1), n)
+        self.startup = int(round(self.settings.startup_s * self.sample_rate))
         self.isolators = [Isolator(a, table=self.generator.table, settle_s=self.settings.settle_s) for a in self.actuators]
         self.samples_seen = 0
         self._last_key = [None] * n
@@ -89,8 +91,8 @@ class FdiMonitor:
 
     @property
     def armed(self) -> bool:
-        """Whether a full window of data has been evaluated since the start, a reset or a time jump."""
-        return self.samples_seen >= self.window
+        """Whether a full window of data has been evaluated after the start-up since the start, a reset or a time jump."""
+        return self.samples_seen >= self.startup + self.window
 
     @property
     def confirmed(self) -> bool:
@@ -111,6 +113,7 @@ class FdiMonitor:
         self._residual_mean.reset()
         self._pressure_mean.reset()
         self._command_mean.reset()
+        self._mask_pressure_mean.reset()
         self.samples_seen = 0
 
     def reset(self) -> None:
@@ -132,7 +135,9 @@ class FdiMonitor:
         x = piston_position(theta, self._l1, self._l2, self._l3)
         return x, torque_arm(theta, self._l1, self._l2) * joint_velocity
 
-    def process(self, block: Samples) -> BlockResult:
+    def process(self, block: Samples, *, hold: bool = False) -> BlockResult:
+        """One block of samples. ``hold``: the input is known to be incomplete (overload); the filters and
+        means run on, but no crossing is taken as evidence, so no alarm is raised from such data."""
         n = len(block)
         n_act = len(self.actuators)
         supply = np.broadcast_to(np.asarray(block.supply_pressure, dtype=float).reshape(n, -1), (n, n_act))
@@ -156,9 +161,11 @@ class FdiMonitor:
         self.invalid_samples += int(np.count_nonzero(~valid))
         x, v = self.piston_motion(raw[:, :, 0], raw[:, :, 1])
         measured = raw[:, :, 4:6]
-        mask = ~valid | (measured[:, :, 1] < self.settings.mask_pressure_b) | (x < self.settings.mask_retracted)
         # means of the measured pressures and the command hold their last valid value across gaps
         held = self._hold_last(np.concatenate([measured, raw[:, :, 2:3]], axis=2), valid)
+        seen = self.samples_seen + np.arange(1, n + 1)
+        mask = (~valid | (self._mask_pressure_mean(held[:, :, 1]) < self.settings.mask_pressure_b)
+                | (x < self.settings.mask_retracted) | (seen <= self.startup)[:, None])
         mean_pressure = self._pressure_mean(held[:, :, :2].reshape(n, -1) / PRESSURE_UNIT).reshape(n, n_act, 2)
         mean_command = self._command_mean(held[:, :, 2])
         residual, operating_point = self.generator.residuals(
@@ -167,8 +174,10 @@ class FdiMonitor:
         mean_residual = self._residual_mean(residual.reshape(n, -1)).reshape(n, n_act, 2)
         threshold = self.generator.thresholds(mean_pressure, operating_point)
         code = crossing_code(mean_residual, threshold)
-        armed = (self.samples_seen + np.arange(1, n + 1)) >= self.window
+        armed = seen >= self.startup + self.window
         code[~armed] = 0
+        if hold:
+            code[:] = 0
         pa_gt_pb = mean_pressure[:, :, 0] > mean_pressure[:, :, 1]
         large = self.generator.large(mean_residual)
         s = self.settings

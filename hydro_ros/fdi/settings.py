@@ -31,6 +31,10 @@ class FdiSettings:
     residual: str = "posterior"  # which estimate p_hat is: a-posteriori (default) or a-priori
     mask_pressure_b: float = 2.0e5  # [Pa] residuals zeroed while p_B is below this (P-II "close to zero")
     mask_retracted: float = 2.0e-3  # [m] ... or while the piston is within this of full retraction (P-III)
+    mask_average_s: float = 0.05  # [s] p_B is averaged this long for the mask: 0.1 MPa sensor noise around a
+    # cavitating chamber otherwise lets every twentieth sample through, and those read the clipped transmitter (INFERRED)
+    startup_s: float = 1.0  # [s] residuals after a start or restart are left out this long while the filter
+    # forgets its initial state; detection arms one window after that (INFERRED)
     large_residual: float = 1.0  # [MPa] "Large" of Table 3: both |mean residuals| above this (INFERRED, tuned in
     # simulation: a spool stuck closed gives 1.5-1.8 MPa, a 40 % too small opening < 0.8 MPa, leaks < 0.2 MPa)
     settle_s: float = 1.0  # [s] a crossing pattern must hold this long before it narrows the cause

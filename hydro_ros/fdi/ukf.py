@@ -145,7 +145,6 @@ def ukf_run(
     dev = np.empty((N_SIGMA, N_X))
     gain = np.empty((N_X, N_Y))
     update = np.empty((N_X, N_X))
-    wm0 = weights[0]
     wc0 = weights[1]
     wi = weights[2]
     spread = weights[3]

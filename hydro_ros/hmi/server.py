@@ -7,16 +7,25 @@ Security by default, because the page can reach a machine that moves:
   of actions and of the websocket handshake must be this server), so another site open in the
   operator's browser cannot act through it;
 - inputs are validated: small JSON bodies only, a path and method must be in the served catalog;
-- a Content-Security-Policy that allows this origin's scripts and nothing else.
+- a Content-Security-Policy that allows this origin's scripts and nothing else;
+- the Host header must name this server (loopback names, the configured host, ``allowed_hosts``), so a
+  hostile site whose DNS name is re-bound to this address cannot read the machine's state;
+- what a request without the token can put on the page or in the log is clipped and printable, and
+  kept apart from the operator's actions (bounded, repeats counted, never pushing actions out);
+- failed token attempts are rate limited per client (``TOKEN_FAILURES`` in ``TOKEN_WINDOW_S``, then
+  429 until the window has passed), and every refusal is counted for the node's /diagnostics.
 Binding to localhost is the node's default (parameter ``host``).
 """
 
 from __future__ import annotations
 
 import asyncio
+import collections
 import hmac
 import json
 import re
+import time
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any, Awaitable, Callable, Protocol
@@ -24,7 +33,8 @@ from typing import Any, Awaitable, Callable, Protocol
 from aiohttp import WSMsgType, web
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.hmi.state import HmiState
+from hydro_ros.fdi.alarm_log import read_events
+from hydro_ros.hmi.state import HmiState, clip
 
 MAX_BODY_BYTES = 1024
 MAX_WEBSOCKETS = 16
@@ -37,9 +47,51 @@ SECURITY_HEADERS = {
     "Referrer-Policy": "no-referrer",
     "Cache-Control": "no-store",
 }
+LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
+ALARM_PAGE_MAX = 100
+TOKEN_FAILURES = 5  # wrong tokens a client may send per window before it is refused without a check
+TOKEN_WINDOW_S = 10.0
 STATIC_DIR = Path(str(resources.files("hydro_ros.hmi") / "static"))
 STATE_KEY = web.AppKey("state", HmiState)
 SETTINGS_KEY = web.AppKey("settings", dict)
+
+
+@dataclass
+class Guard:
+    """The server's refusals, counted for /diagnostics, and the per-client memory of failed tokens."""
+
+    allowed_hosts: frozenset[str]
+    counts: collections.Counter = field(default_factory=collections.Counter)
+    failures: dict[str, collections.deque] = field(default_factory=dict)
+    clock: Callable[[], float] = time.monotonic
+
+    def host_allowed(self, host_header: str) -> bool:
+        if host_header.startswith("["):  # [::1]:8080
+            host = host_header[1:host_header.find("]")] if "]" in host_header else ""
+        else:
+            host = host_header.rsplit(":", 1)[0] if host_header.count(":") == 1 else host_header
+        return host.lower() in self.allowed_hosts
+
+    def wait_s(self, client: str) -> float:
+        """Seconds until ``client`` may try a token again (0: now)."""
+        recent = self.failures.get(client)
+        if recent is None:
+            return 0.0
+        while recent and self.clock() - recent[0] > TOKEN_WINDOW_S:
+            recent.popleft()
+        if not recent:
+            del self.failures[client]
+            return 0.0
+        return TOKEN_WINDOW_S - (self.clock() - recent[0]) if len(recent) >= TOKEN_FAILURES else 0.0
+
+    def failed(self, client: str) -> None:
+        if len(self.failures) > 10_000:  # a flood of fresh addresses must not grow the memory without bound
+            self.failures.clear()
+        self.failures.setdefault(client, collections.deque(maxlen=TOKEN_FAILURES)).append(self.clock())
+        self.counts["token_failures"] += 1
+
+
+GUARD_KEY = web.AppKey("guard", Guard)
 
 
 class OperatorActions(Protocol):
@@ -51,21 +103,36 @@ class OperatorActions(Protocol):
 
 
 def create_app(state: HmiState, actions: OperatorActions, *, token: str, update_period_s: float,
-               log: Callable[[str], None]) -> web.Application:
+               log: Callable[[str], None], allowed_hosts: frozenset[str] = LOOPBACK_NAMES,
+               alarm_log: Path | None = None) -> web.Application:
+    """``allowed_hosts``: the names the Host header may carry (without port); loopback names are always in.
+    ``alarm_log``: fdi_node's alarm log, shown paged (read-only)."""
     if not update_period_s > 0:
         raise InputError(f"HMI update period {update_period_s}: must be > 0")
-    app = web.Application(client_max_size=MAX_BODY_BYTES)
+    app = web.Application(client_max_size=MAX_BODY_BYTES, middlewares=[_host_check])
+    app[GUARD_KEY] = Guard(frozenset(name.strip("[]").lower() for name in allowed_hosts) | LOOPBACK_NAMES)
     app[STATE_KEY] = state
-    app[SETTINGS_KEY] = {"token": token, "period": update_period_s, "log": log, "actions": actions, "sockets": set()}
+    app[SETTINGS_KEY] = {"token": token, "period": update_period_s, "log": log, "actions": actions, "sockets": set(),
+                         "alarm_log": alarm_log}
     app.on_response_prepare.append(_security_headers)
     app.on_shutdown.append(_close_websockets)
     app.router.add_get("/", _index)
     app.router.add_static("/static/", STATIC_DIR, follow_symlinks=False, show_index=False)
     app.router.add_get("/api/state", _state)
     app.router.add_get("/ws", _websocket)
+    app.router.add_get("/api/alarm_log", _alarm_log)
     app.router.add_post("/api/acknowledge", _acknowledge)
     app.router.add_post("/api/request", _request_path)
     return app
+
+
+@web.middleware
+async def _host_check(request: web.Request, handler: Callable[[web.Request], Awaitable[web.StreamResponse]]) -> web.StreamResponse:
+    guard = request.app[GUARD_KEY]
+    if not guard.host_allowed(request.host):
+        guard.counts["refused_hosts"] += 1
+        raise _error(web.HTTPMisdirectedRequest, f"host {clip(request.host, 64)!r} is not served here")
+    return await handler(request)
 
 
 async def _security_headers(_request: web.Request, response: web.StreamResponse) -> None:
@@ -102,10 +169,30 @@ def _with_settings(app: web.Application, view: dict[str, Any]) -> dict[str, Any]
     return view
 
 
+async def _alarm_log(request: web.Request) -> web.Response:
+    """One page of the alarm log, newest first: ``?offset=N&limit=M`` (M at most ALARM_PAGE_MAX)."""
+    path = request.app[SETTINGS_KEY]["alarm_log"]
+    if path is None:
+        raise _error(web.HTTPNotFound, "no alarm log configured (hmi parameter alarm_log)")
+    try:
+        offset = int(request.query.get("offset", "0"))
+        limit = int(request.query.get("limit", "20"))
+    except ValueError:
+        raise _error(web.HTTPBadRequest, "offset and limit: expected integers") from None
+    if not (0 <= offset and 1 <= limit <= ALARM_PAGE_MAX):
+        raise _error(web.HTTPBadRequest, f"offset >= 0 and 1 <= limit <= {ALARM_PAGE_MAX}")
+    try:
+        events, total = await asyncio.to_thread(read_events, path, offset=offset, limit=limit)
+    except InputError as exc:
+        raise _error(web.HTTPServiceUnavailable, str(exc)) from None
+    return web.json_response({"total": total, "offset": offset, "events": events})
+
+
 async def _websocket(request: web.Request) -> web.WebSocketResponse:
     settings = request.app[SETTINGS_KEY]
     if not _same_origin(request):
-        raise _error(web.HTTPForbidden, f"websocket from origin {request.headers.get('Origin')!r} refused")
+        request.app[GUARD_KEY].counts["refused_origins"] += 1
+        raise _error(web.HTTPForbidden, f"websocket from origin {clip(request.headers.get('Origin', ''), 64)!r} refused")
     if len(settings["sockets"]) >= MAX_WEBSOCKETS:
         raise _error(web.HTTPServiceUnavailable, f"too many HMI clients (at most {MAX_WEBSOCKETS})")
     ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=MAX_BODY_BYTES)
@@ -144,32 +231,46 @@ class _TooLarge(web.HTTPClientError):
 Refuse = Callable[[type[web.HTTPException], str], web.HTTPException]
 
 
-def _refuser(request: web.Request, action: str) -> Refuse:
-    """The HTTP error for a refused action, logged and listed on the page first."""
+def _refuser(request: web.Request, action: str, *, authenticated: bool = True) -> Refuse:
+    """The HTTP error for a refused action, logged (clipped) and listed on the page."""
     settings = request.app[SETTINGS_KEY]
     client = request.remote or "unknown"
 
     def refuse(status: type[web.HTTPException], reason: str) -> web.HTTPException:
+        reason = clip(reason)
+        request.app[GUARD_KEY].counts["refused_requests"] += 1
         settings["log"](f"operator action {action} from {client} refused: {reason}")
-        request.app[STATE_KEY].record_action(action, False, reason, client)
+        request.app[STATE_KEY].record_action(action, False, reason, client, authenticated=authenticated)
         return _error(status, reason)
 
     return refuse
 
 
-async def _authorised_body(request: web.Request, refuse: Refuse) -> dict[str, Any]:
-    """The JSON body of an action from a same-origin client holding the token, or an HTTP error."""
+async def _authorised_body(request: web.Request, action: str) -> tuple[dict[str, Any], Refuse]:
+    """The JSON body of an action from a same-origin client holding the token, and the refuser for what
+    follows; or an HTTP error."""
     settings = request.app[SETTINGS_KEY]
+    guard = request.app[GUARD_KEY]
+    refuse = _refuser(request, action, authenticated=False)
+    client = request.remote or "unknown"
     if not _same_origin(request):
+        guard.counts["refused_origins"] += 1
         raise refuse(web.HTTPForbidden, f"cross-origin request from {request.headers.get('Origin')!r}")
     if not settings["token"]:
         raise refuse(web.HTTPForbidden, "read-only HMI: no operator token is configured (parameter operator_token or "
                                         "HYDRO_ROS_HMI_TOKEN)")
+    wait = guard.wait_s(client)
+    if wait > 0:
+        guard.counts["rate_limited"] += 1
+        raise refuse(web.HTTPTooManyRequests, f"{TOKEN_FAILURES} wrong tokens within {TOKEN_WINDOW_S:g} s: "
+                                              f"try again in {wait:.0f} s")
     supplied = request.headers.get("Authorization", "")
     if not supplied.startswith("Bearer ") or not supplied[len("Bearer "):]:
         raise refuse(web.HTTPUnauthorized, "operator token required")
     if not hmac.compare_digest(supplied[len("Bearer "):].encode(), settings["token"].encode()):
+        guard.failed(client)
         raise refuse(web.HTTPUnauthorized, "operator token rejected")
+    refuse = _refuser(request, action)
     if request.content_type != "application/json":
         raise refuse(web.HTTPUnsupportedMediaType, f"content type {request.content_type!r}: expected application/json")
     try:
@@ -180,11 +281,11 @@ async def _authorised_body(request: web.Request, refuse: Refuse) -> dict[str, An
         raise refuse(web.HTTPBadRequest, "body: not JSON") from None
     if not isinstance(body, dict):
         raise refuse(web.HTTPBadRequest, "body: expected a JSON object")
-    return body
+    return body, refuse
 
 
 async def _acknowledge(request: web.Request) -> web.Response:
-    await _authorised_body(request, _refuser(request, "acknowledge"))
+    await _authorised_body(request, "acknowledge")
     state: HmiState = request.app[STATE_KEY]
     shown = state.unacknowledged()
     return await _perform(request, "acknowledge", request.app[SETTINGS_KEY]["actions"].acknowledge(),
@@ -192,8 +293,7 @@ async def _acknowledge(request: web.Request) -> web.Response:
 
 
 async def _request_path(request: web.Request) -> web.Response:
-    refuse = _refuser(request, "request_path")
-    body = await _authorised_body(request, refuse)
+    body, refuse = await _authorised_body(request, "request_path")
     path, method = body.get("path"), body.get("method")
     for name, value in (("path", path), ("method", method)):
         if not isinstance(value, str) or not IDENTIFIER.fullmatch(value):

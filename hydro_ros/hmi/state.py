@@ -26,6 +26,8 @@ HEALTHY_MESSAGES = ("ok", "stale", "not_monitored", "overloaded")  # fdi_node's 
 TILE_VALUES = ("pattern", "method", "first_detection_stamp_s", "stale_topics", "invalid_sensors")  # status values a tile shows
 MAX_ALARMS = 200
 MAX_ACTIONS = 50
+MAX_REFUSALS = 20  # refused requests without the token: their own short list, so they never push out operator actions
+MAX_DETAIL_CHARS = 160
 
 
 @dataclass(frozen=True)
@@ -78,6 +80,12 @@ class Residuals:
     reset_at: int = 0  # sequence when the window was last cleared
 
 
+def clip(text: str, limit: int = MAX_DETAIL_CHARS) -> str:
+    """Printable and bounded: what a request puts on the page or in the log."""
+    printable = "".join(ch if ch.isprintable() else "?" for ch in str(text)[: limit + 1])
+    return printable if len(printable) <= limit else printable[: limit - 3] + "..."
+
+
 class HmiState:
     def __init__(self, *, plot_window_s: float = 60.0, plot_period_s: float = 0.1, stale_timeout_s: float = 3.0,
                  clock: Callable[[], float] = time.time) -> None:
@@ -101,6 +109,7 @@ class HmiState:
         self.catalog_error = ""
         self.result: dict[str, Any] | None = None
         self.actions: deque[dict[str, Any]] = deque(maxlen=MAX_ACTIONS)
+        self.refusals: deque[dict[str, Any]] = deque(maxlen=MAX_REFUSALS)
 
     def expect(self, machine: str, actuators: list[str]) -> None:
         """Tiles for the configured actuators before their first status: a monitor that never starts shows."""
@@ -192,9 +201,20 @@ class HmiState:
             self.result["received_wall"] = self.clock()
 
     # -- operator actions (web server thread) ----------------------------------------------
-    def record_action(self, action: str, ok: bool, detail: str, client: str) -> None:
+    def record_action(self, action: str, ok: bool, detail: str, client: str, *, authenticated: bool = True) -> None:
+        """An operator action's outcome. A request refused before its token was checked goes to the
+        refusals, where a repeat of the newest (same client, action and reason) only counts up."""
+        entry = {"wall": self.clock(), "action": clip(action), "ok": ok, "detail": clip(detail), "client": clip(client, 64)}
         with self.lock:
-            self.actions.appendleft({"wall": self.clock(), "action": action, "ok": ok, "detail": detail, "client": client})
+            if authenticated:
+                self.actions.appendleft(entry)
+                return
+            newest = self.refusals[0] if self.refusals else None
+            if newest and all(newest[key] == entry[key] for key in ("action", "detail", "client")):
+                newest["count"] += 1
+                newest["wall"] = entry["wall"]
+            else:
+                self.refusals.appendleft(dict(entry, count=1))
 
     def unacknowledged(self) -> list[int]:
         """Ids of the active alarms nobody acknowledged yet (an acknowledgement applies to what was shown)."""
@@ -238,6 +258,7 @@ class HmiState:
             "catalog_error": self.catalog_error,
             "result": self.result,
             "actions": list(self.actions),
+            "refusals": [dict(entry) for entry in self.refusals],
         }
 
     def snapshot(self) -> tuple[dict[str, Any], int]:

@@ -23,6 +23,22 @@ def spool_acceleration(x_s: float, v_s: float, reference: float, omega_n: float,
 
 
 @njit(cache=True)
+def spool_positions(command: np.ndarray, omega_n: float, damping: float, dt: float, substeps: int) -> np.ndarray:
+    """The spool of eq. (15) driven by sampled commands from rest at the first; one position per sample."""
+    out = np.empty(command.shape[0])
+    x_s = command[0] if command.shape[0] else 0.0
+    v_s = 0.0
+    h = dt / substeps
+    for k in range(command.shape[0]):
+        for _ in range(substeps):
+            acceleration = spool_acceleration(x_s, v_s, command[k], omega_n, damping)
+            x_s += h * v_s
+            v_s += h * acceleration
+        out[k] = x_s
+    return out
+
+
+@njit(cache=True)
 def flow_coefficient(poly: np.ndarray, notch: int, x_s: float) -> float:
     """P-II Table 1: K_v(x_s) = c3 x^3 + c2 x^2 + c1 x + c0 [m^3/(s Pa^0.5)], x_s signed."""
     c3 = poly[notch, 0]

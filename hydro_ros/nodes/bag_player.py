@@ -8,76 +8,72 @@ then exits non-zero.
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 from typing import Iterator
 
 import rclpy
-from mcap.reader import NonSeekingReader, make_reader
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 
-from hydro_ros.bags.reader import mcap_files
+from hydro_ros.bags.mcap_scan import McapDamage, McapScanner
+from hydro_ros.bags.reader import bag_topics, mcap_files
 from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
-from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, message_class, run_node
+from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, message_class, relative, run_node
+from hydro_ros.nodes.parameters import Parameters, Spec
+
+PARAMETERS = {
+    "bag": Spec("", "bag directory (or one .mcap file) to play; a split bag is played whole"),
+    "rate": Spec(1.0, "[-] playback speed, bag seconds per wall second", 0.01, 100.0),
+    "loop": Spec(False, "start again at the end"),
+    "publish_clock": Spec(True, "publish /clock with each message's log time (for use_sim_time nodes)"),
+    "tick_period": Spec(0.005, "[s] wall time between publishing the messages due", 0.0005, 1.0),
+    # like `ros2 bag play --delay`: give subscribers time to match before the first message
+    "start_delay": Spec(1.0, "[s] wait before the first message", 0.0, 60.0),
+}
 
 
 class BagPlayer(Node):
     def __init__(self, bag: str | None = None, rate: float | None = None, loop: bool | None = None, clock: bool | None = None) -> None:
         super().__init__("bag_player")
-        self.declare_parameter("bag", bag or "")
-        self.declare_parameter("rate", 1.0 if rate is None else rate)
-        self.declare_parameter("loop", bool(loop))
-        self.declare_parameter("publish_clock", True if clock is None else clock)
-        self.declare_parameter("tick_period", 0.005)
-        # like `ros2 bag play --delay`: give subscribers time to match before the first message
-        self.declare_parameter("start_delay", 1.0)
-        self.path = Path(self.get_parameter("bag").value)
-        self.rate = float(self.get_parameter("rate").value)
-        if not (self.rate > 0 and math.isfinite(self.rate)):
-            raise InputError(f"parameter rate={self.rate}: must be > 0")
-        self.loop = bool(self.get_parameter("loop").value)
+        given = {"bag": bag, "rate": None if rate is None else float(rate), "loop": loop, "publish_clock": clock}
+        self.params = Parameters(self, PARAMETERS, defaults={name: value for name, value in given.items() if value is not None})
+        if not self.params["bag"]:
+            raise InputError("parameter bag: required (a bag directory or .mcap file)")
+        self.path = Path(self.params["bag"])
+        self.rate = self.params["rate"]
+        self.loop = self.params["loop"]
         self.errors: list[str] = []
         self.files = mcap_files(self.path, self.errors)
         for error in self.errors:
             self.get_logger().error(error)
         self.publishers_by_topic: dict[str, object] = {}
-        self.clock_pub = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.get_parameter("publish_clock").value else None
+        self.clock_pub = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.params["publish_clock"] else None
         self.finished = False
         self.published = 0
         self._advertise()
-        self._delay = float(self.get_parameter("start_delay").value)
+        self._delay = self.params["start_delay"]
         self._restart()
-        self.create_timer(float(self.get_parameter("tick_period").value), self._tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.create_timer(self.params["tick_period"], self._tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _messages(self) -> Iterator[tuple[str, str, int, bytes]]:
         for file in self.files:
             with file.open("rb") as stream:
+                scanner = McapScanner(stream)
                 try:
-                    for schema, channel, message in NonSeekingReader(stream, validate_crcs=True).iter_messages(log_time_order=False):
-                        yield channel.topic, schema.name if schema else "", message.log_time, message.data
-                except Exception as exc:  # noqa: BLE001 - damage ends this file's playback, not the node
-                    error = f"{file}: damaged after {self.published} messages ({type(exc).__name__}: {exc})"
-                    self.errors.append(error)
-                    self.get_logger().error(error)
+                    yield from scanner.iter_messages()
+                except McapDamage as exc:  # damage ends this file's playback, not the node
+                    scanner.skipped.append(f"damaged after {self.published} messages ({exc})")
+                for damage in scanner.skipped:
+                    self.errors.append(f"{file}: {damage}")
+                    self.get_logger().error(self.errors[-1])
 
     def _advertise(self) -> None:
-        """Create every publisher up front from the MCAP summary, when the file has one."""
-        for file in self.files:
-            try:
-                with file.open("rb") as stream:
-                    summary = make_reader(stream).get_summary()
-            except Exception:  # noqa: BLE001 - a damaged summary only means publishers are made lazily
-                continue
-            if summary is None:
-                continue
-            for channel in summary.channels.values():
-                schema = summary.schemas.get(channel.schema_id)
-                if schema is not None:
-                    self._publisher(channel.topic, schema.name)
+        """Create every publisher up front from the bag's metadata.yaml, where it lists the topics."""
+        for topic, type_name in bag_topics(self.path).items():
+            self._publisher(topic, type_name)
 
     def _restart(self) -> None:
         self._stream = self._messages()
@@ -89,7 +85,7 @@ class BagPlayer(Node):
     def _publisher(self, topic: str, type_name: str):
         pub = self.publishers_by_topic.get(topic)
         if pub is None:
-            pub = self.create_publisher(message_class(type_name), topic, SENSOR_QOS)
+            pub = self.create_publisher(message_class(type_name), relative(topic), SENSOR_QOS)
             self.publishers_by_topic[topic] = pub
         return pub
 

@@ -10,8 +10,14 @@ and length errors) with a bus status (`hydro_ros/can_bridge/bus`: connection, er
 unknown ids, reconnects). A lost bus is reopened with exponential back-off.
 
 `forward_commands` (off by default: it drives a machine) sends /hydraulics/valve_commands as
-VALVEn_REQUEST frames; the bridge then leaves /hydraulics/valve_commands to ROS and does not
-publish the applied commands it reads back.
+VALVEn_REQUEST frames while the node is active; the bridge then leaves /hydraulics/valve_commands
+to ROS and does not publish the applied commands it reads back. Deactivating (or shutting down)
+sends a neutral request to every valve.
+
+A lifecycle node (ros2_socketcan's habit): configure opens the bus, activate starts publishing and
+forwarding, deactivate stops them and sends the neutral requests, cleanup closes the bus.
+``autostart`` (default true) runs configure and activate at start, for machines without a
+lifecycle manager.
 """
 
 from __future__ import annotations
@@ -24,15 +30,19 @@ from typing import Any
 import can
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.subscription import Subscription
+from rclpy.timer import Timer
 from sensor_msgs.msg import FluidPressure, JointState
 
 from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
 from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_values
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
+from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.nodes.common import SENSOR_QOS, run_node
+from hydro_ros.nodes.common import SENSOR_QOS, relative, run_node
+from hydro_ros.nodes.parameters import Parameters, Spec
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 QUEUE_LIMIT = 200_000  # frames; beyond this the oldest are dropped and counted (the node is far behind)
@@ -98,44 +108,67 @@ class BusReader(threading.Thread):
                 return False
 
 
-class CanBridge(Node):
+PARAMETERS = {
+    "config": Spec(str(default_config_path("sam")), "machine config (YAML) whose sensors are on the bus", existing_file=True),
+    "dbc": Spec("", "DBC file of the bus; empty: the config's (config/machine_bus.dbc)", existing_file=True),
+    "interface": Spec("socketcan", "python-can interface (socketcan, pcan, kvaser, virtual, udp_multicast, ...)"),
+    "channel": Spec("can0", "channel of the interface"),
+    "bitrate": Spec(500000, "[bit/s] bus bit rate (not used by virtual and udp_multicast)", 10000, 1000000),
+    "hardware_filters": Spec(True, "let the interface pass only the DBC's sensor frames"),
+    "forward_commands": Spec(False, "while active, send /hydraulics/valve_commands as valve request frames (this drives "
+                                    "the machine); deactivating sends neutral requests"),
+    "autostart": Spec(True, "configure and activate at start; false: wait for a lifecycle manager"),
+    "process_period": Spec(0.01, "[s] period of decoding the received frames", 0.001, 1.0),
+    "diagnostics_period": Spec(1.0, "[s] period of /diagnostics", 0.05, 60.0),
+    "stale_cycles": Spec(50, "[cycles] a message missing this many DBC cycles is STALE", 1, 100000),
+    "reconnect_backoff": Spec([0.5, 10.0], "[s] first and longest wait before reopening a lost bus (doubling in between)"),
+}
+
+
+class CanBridge(LifecycleNode):
+    """A lifecycle node, like ros2_socketcan's: configure opens the bus, activate publishes (and forwards
+    valve commands), deactivate sends neutral valve requests, cleanup closes the bus."""
+
     def __init__(self) -> None:
         super().__init__("can_bridge")
-        self.declare_parameter("config", str(default_config_path("sam")))
-        self.declare_parameter("dbc", "")
-        self.declare_parameter("interface", "socketcan")
-        self.declare_parameter("channel", "can0")
-        self.declare_parameter("bitrate", 500000)
-        self.declare_parameter("hardware_filters", True)
-        self.declare_parameter("forward_commands", False)
-        self.declare_parameter("process_period", 0.01)
-        self.declare_parameter("diagnostics_period", 1.0)
-        self.declare_parameter("stale_cycles", 50)
-        self.declare_parameter("reconnect_backoff", [0.5, 10.0])
-        machine = load_machine_config(self.get_parameter("config").value)
-        self.codec = MachineBus(machine, self.get_parameter("dbc").value or None)
+        self.params = Parameters(self, PARAMETERS)
+        backoff = self.params["reconnect_backoff"]
+        if not 0 < backoff[0] <= backoff[1]:
+            raise InputError(f"parameter reconnect_backoff={backoff}: expected [first, longest] with 0 < first <= longest")
+        machine = load_machine_config(self.params["config"])
+        self.codec = MachineBus(machine, self.params["dbc"] or None)
         self.machine = machine.name
-        self.forward = bool(self.get_parameter("forward_commands").value)
-        interface = str(self.get_parameter("interface").value)
-        channel = str(self.get_parameter("channel").value)
-        kwargs: dict[str, Any] = {"interface": interface, "channel": channel}
+        self.forward = self.params["forward_commands"]
+        self.bus_name = f"{self.params['interface']}:{self.params['channel']}"
+        self.active = False
+        self.reader: BusReader | None = None
+        self._entities: list[Any] = []  # publishers, timers and the subscription of the configured state
+        self._request_counter = 0
+        if self.params["autostart"]:
+            self.trigger_configure()
+            self.trigger_activate()
+
+    # life cycle ----------------------------------------------------------------------------------
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        interface = self.params["interface"]
+        kwargs: dict[str, Any] = {"interface": interface, "channel": self.params["channel"]}
         if interface not in ("virtual", "udp_multicast"):
-            kwargs["bitrate"] = int(self.get_parameter("bitrate").value)
-        if self.get_parameter("hardware_filters").value:
+            kwargs["bitrate"] = self.params["bitrate"]
+        if self.params["hardware_filters"]:
             kwargs["can_filters"] = [{"can_id": frame_id, "can_mask": 0x7FF, "extended": False}
                                      for frame_id, m in self.codec.by_id.items() if m.name in self.codec.expected]
-        backoff = tuple(float(v) for v in self.get_parameter("reconnect_backoff").value)
+        backoff = self.params["reconnect_backoff"]
         self.reader = BusReader(lambda: can.Bus(**kwargs), (backoff[0], backoff[1]))
-        self.bus_name = f"{interface}:{channel}"
 
         mobile = any(slot.mobile for slot in self.codec.slots)
         types = topics.sensor_topics([s.actuator for s in self.codec.slots], mobile=mobile)
-        self.pubs = {name: self.create_publisher(JointState if kind == topics.JOINT_STATE_TYPE else FluidPressure, name, SENSOR_QOS)
+        self.pubs = {name: self.create_lifecycle_publisher(JointState if kind == topics.JOINT_STATE_TYPE else FluidPressure,
+                                                           relative(name), SENSOR_QOS)
                      for name, kind in types.items() if not (self.forward and name == topics.VALVE_COMMANDS)}
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.pub_diag = self.create_lifecycle_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
+        self._entities = [*self.pubs.values(), self.pub_diag]
         if self.forward:
-            self.create_subscription(JointState, topics.VALVE_COMMANDS, self._forward, SENSOR_QOS)
-            self._request_counter = 0
+            self._entities.append(self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._forward, SENSOR_QOS))
 
         self.assembler = CycleAssembler(self.codec.expected)
         self.counters = CounterCheck()
@@ -146,22 +179,70 @@ class CanBridge(Node):
         self._window_counts: collections.Counter = collections.Counter()
         self._rates: dict[str, float] = {}
         self.published_cycles = 0
-        self.stale_cycles = int(self.get_parameter("stale_cycles").value)
+        self.stale_cycles = self.params["stale_cycles"]
         self.started = time.monotonic()
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_timer(float(self.get_parameter("process_period").value), self._process, clock=steady)
-        self.create_timer(float(self.get_parameter("diagnostics_period").value), self._diagnose, clock=steady)
+        self._entities.append(self.create_timer(self.params["process_period"], self._process, clock=steady))
+        self._entities.append(self.create_timer(self.params["diagnostics_period"], self._diagnose, clock=steady))
         self.reader.start()
-        self.get_logger().info(f"bridging {self.bus_name} ({self.codec.dbc_path.name}) for {self.machine}; "
+        self.get_logger().info(f"bus {self.bus_name} open ({self.codec.dbc_path.name}) for {self.machine}; "
                                f"forward_commands={self.forward}")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = True
+        self.get_logger().info("active: publishing" + (" and forwarding valve commands" if self.forward else ""))
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop_safe()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close_bus()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop_safe()
+        self._close_bus()
+        return TransitionCallbackReturn.SUCCESS
 
     def destroy_node(self) -> None:
-        self.reader.stopping.set()
-        self.reader.join(timeout=2.0)
+        self._stop_safe()
+        self._close_bus()
         super().destroy_node()
+
+    def _stop_safe(self) -> None:
+        """Leave the active state; a bridge that forwarded commands leaves every valve neutral."""
+        if not self.active:
+            return
+        self.active = False
+        if self.forward and self.reader is not None:
+            sent = [self.reader.send(*self.codec.encode_request(slot.number, 0.0, self._request_counter)) for slot in self.codec.slots]
+            self._request_counter = (self._request_counter + 1) % 16
+            if all(sent):
+                self.get_logger().info("neutral valve requests sent")
+            else:
+                self.get_logger().error(f"neutral valve requests could not be sent on {self.bus_name} ({self.reader.last_error})")
+
+    def _close_bus(self) -> None:
+        if self.reader is not None:
+            self.reader.stopping.set()
+            self.reader.join(timeout=2.0)
+            self.reader = None
+        for entity in self._entities:
+            if isinstance(entity, Timer):
+                self.destroy_timer(entity)
+            elif isinstance(entity, Subscription):
+                self.destroy_subscription(entity)
+            else:
+                self.destroy_lifecycle_publisher(entity)
+        self._entities = []
 
     # frames -> topics ----------------------------------------------------------------------------
     def _process(self) -> None:
+        if self.reader is None:
+            return
         frames = self.reader.frames
         now = time.monotonic()
         for _ in range(len(frames)):
@@ -176,7 +257,8 @@ class CanBridge(Node):
             self.last_seen[name] = now
             self.counters(name, counter)
             for cycle in self.assembler.add(name, counter, values, int(round(message.timestamp * 1e9))):
-                self._publish(cycle)
+                if self.active:  # configured but inactive: the bus is read and checked, nothing is published
+                    self._publish(cycle)
 
     def _publish(self, cycle: Any) -> None:
         values = cycle_values(self.codec, cycle)
@@ -199,6 +281,8 @@ class CanBridge(Node):
         self.published_cycles += 1
 
     def _forward(self, msg: JointState) -> None:
+        if not self.active or self.reader is None:
+            return
         for slot in self.codec.slots:
             if slot.actuator in msg.name and len(msg.position) == len(msg.name):
                 command = msg.position[msg.name.index(slot.actuator)]
@@ -208,6 +292,8 @@ class CanBridge(Node):
 
     # health ------------------------------------------------------------------------------------
     def _diagnose(self) -> None:
+        if not self.active or self.reader is None:
+            return
         now = time.monotonic()
         elapsed = max(now - self._window_start, 1e-6)
         self._rates = {name: self._window_counts[name] / elapsed for name in self.codec.expected}

@@ -12,14 +12,16 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
 
-# 1 kHz sensor streams: reliable with a deep queue so a bag replay loses nothing.
-SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=topics.SENSOR_QUEUE_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
 # State that late joiners must see (halt, catalog, results).
 LATCHED_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
 )
+# the newest sample only, for a subscription that is never spun but taken from by a timer (rclpy's wait_for_message habit)
+LATEST_ONLY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 # /fdi/halt: latched, and re-published every HALT_PERIOD_S with an offered deadline, so a consumer that
 # asks for a deadline (or watches the heartbeat) can tell "no halt" from "monitor dead"

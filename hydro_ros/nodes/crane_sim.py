@@ -32,6 +32,7 @@ from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import load_crane
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
+from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.planning.dp import DpGrid, start_position
 from hydro_ros.planning.paths import path_from_config
 from hydro_ros.planning.serving import path_start_state
@@ -41,27 +42,37 @@ from hydro_ros.studies.execution import ClosedLoop, execution_from_rows, log_row
 MAX_CATCH_UP_S = 0.25
 
 
+PARAMETERS = {
+    "config": Spec(str(default_config_path("k70m")), "crane config (YAML, kind: crane)", existing_file=True),
+    "real_time_factor": Spec(1.0, "[-] simulated seconds per wall second", 0.01, 100.0),
+    "tick_period": Spec(0.01, "[s] wall time between simulation steps", 0.001, 1.0),
+    "seed": Spec(0, "seed of the sensor noise", 0),
+    "supply": Spec("cp", "pump: constant pressure or load sensing", choices=("cp", "ls")),
+    "initial_path": Spec("", "path id whose start the crane begins at; empty: the config's first path"),
+    "initial_extension": Spec(-1.0, "[m] telescope extension at the start; negative: the smallest feasible one", None, 10.0),
+    "trajectory_topic": Spec("joint_trajectory", "JointTrajectory input (trajectory_server's output_topic)"),
+    "start_tolerance": Spec(0.02, "[rad or m] a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
+                            read_only=False),
+    "publish_rate": Spec(50.0, "[Hz] rate of the sensor topics", 1.0, 1000.0),
+}
+
+
 class CraneSim(Node):
     """The simulated crane: the closed loop, its sensor publishers and its trajectory input."""
 
     def __init__(self) -> None:
         super().__init__("crane_sim")
-        config_path = str(self.declare_parameter("config", str(default_config_path("k70m"))).value)
-        real_time_factor = float(self.declare_parameter("real_time_factor", 1.0).value)
-        tick_period = float(self.declare_parameter("tick_period", 0.01).value)
-        seed = int(self.declare_parameter("seed", 0).value)
-        if not (real_time_factor > 0.0 and math.isfinite(real_time_factor)):
-            raise InputError(f"parameter real_time_factor={real_time_factor}: must be > 0")
-        if not (tick_period > 0.0 and math.isfinite(tick_period)):
-            raise InputError(f"parameter tick_period={tick_period}: must be > 0")
-        self.crane, config = load_crane(config_path)
+        self.params = Parameters(self, PARAMETERS, self._on_parameter)
+        real_time_factor = self.params["real_time_factor"]
+        seed = self.params["seed"]
+        self.crane, config = load_crane(self.params["config"])
         self.config = config
-        supply = str(self.declare_parameter("supply", "cp").value)
-        initial_path = str(self.declare_parameter("initial_path", next(iter(config["paths"]))).value)
-        initial_extension = float(self.declare_parameter("initial_extension", -1.0).value)
-        trajectory_topic = str(self.declare_parameter("trajectory_topic", "joint_trajectory").value)
-        self.start_tolerance = float(self.declare_parameter("start_tolerance", 0.02).value)
-        publish_rate = float(self.declare_parameter("publish_rate", 50.0).value)
+        supply = self.params["supply"]
+        initial_path = self.params["initial_path"] or next(iter(config["paths"]))
+        initial_extension = self.params["initial_extension"]
+        trajectory_topic = self.params["trajectory_topic"]
+        self.start_tolerance = self.params["start_tolerance"]
+        publish_rate = self.params["publish_rate"]
         if initial_path not in config["paths"]:
             raise InputError(f"parameter initial_path={initial_path!r}: not a path of {config['machine']} ({', '.join(config['paths'])})")
         if initial_extension < 0.0:
@@ -88,13 +99,20 @@ class CraneSim(Node):
         self.end_time = math.inf
         self.start_wall = time.monotonic()
         self.stamp_origin_ns = self.get_clock().now().nanoseconds
-        self.create_timer(tick_period, self._tick)
+        self.create_timer(self.params["tick_period"], self._tick)
         self.get_logger().info(
             f"crane {config['machine']} ({supply.upper()} pump) at the start of {initial_path!r}, "
             f"extension {initial_extension:.3f} m; trajectories on {trajectory_topic}"
         )
 
+    def _on_parameter(self, name: str, value: Any) -> None:
+        if name == "start_tolerance":
+            self.start_tolerance = value
+
     def _on_trajectory(self, msg: JointTrajectory) -> None:
+        if not msg.points:  # ros2_control's habit: an empty trajectory stops the one being executed
+            self._hold()
+            return
         try:
             trajectory = self._trajectory_data(msg)
         except InputError as exc:
@@ -105,6 +123,17 @@ class CraneSim(Node):
         self.rows = [log_row(self.loop)]
         self.end_time = self.loop.time + float(trajectory.time[-1]) + self.loop.settings["settle_time"]
         self.get_logger().info(f"executing a {trajectory.time[-1]:.1f} s trajectory of {len(trajectory.time)} points")
+
+    def _hold(self) -> None:
+        """Stop where the crane is: track its current joints, at rest."""
+        current = np.array(self.loop.plant.joint_motion().q)
+        positions = np.vstack([current, current])
+        self.loop.follow(JointTrajectoryData(self.names, np.array([0.0, 0.1]), positions, np.zeros_like(positions),
+                                             np.zeros_like(positions), np.zeros(2)))
+        if self.trajectory is not None:
+            self.trajectory = None
+            self._report({"ok": False, "cancelled": True, "error": "trajectory cancelled: holding the joints where they are"})
+        self.get_logger().info("empty trajectory: holding the current joints")
 
     def _trajectory_data(self, msg: JointTrajectory) -> JointTrajectoryData:
         missing = [name for name in self.names if name not in msg.joint_names]

@@ -31,6 +31,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from diagnostic_msgs.srv import SelfTest
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
@@ -41,41 +42,59 @@ from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.samples import PER_ACTUATOR
-from hydro_ros.fdi.monitor import OK, STALE, WARN, FdiMonitor
-from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, SENSOR_QOS, run_node
+from hydro_ros.fdi.alarm_log import AlarmLog
+from hydro_ros.fdi.monitor import ERROR, OK, STALE, WARN, FdiMonitor
+from hydro_ros.fdi.residuals import GENERATORS
+from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, SENSOR_QOS, relative, run_node
+from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
+ALARM_LOG_STATUS = "hydro_ros/alarm_log"
 MAX_PENDING_NS = 5_000_000_000  # samples waiting for a missing topic longer than this are given up
 DRAIN_MAX = 200  # messages of one topic taken per callback at most, so one topic cannot starve the timers
 OVERLOAD_WINDOW_S = 2.0  # [s] of wall time over which the share of incomplete samples is measured
 OVERLOAD_SHARE = 0.05  # more incomplete samples than this: the input outruns the node ("overloaded")
 
 
+PARAMETERS = {
+    "config": Spec(str(default_config_path("sam")), "machine config (YAML) whose actuators are monitored", existing_file=True),
+    "method": Spec("", "residual generator; empty: the config's fdi.method", choices=("", *GENERATORS)),
+    "process_period": Spec(0.02, "[s] period of aligning and filtering the queued samples", 0.001, 1.0),
+    "diagnostics_period": Spec(1.0, "[s] period of /diagnostics", 0.05, 60.0),
+    "residual_rate": Spec(50.0, "[Hz] rate of /fdi/residuals", 0.1, 1000.0),
+    "sync_window": Spec(0.05, "[s] how long a sample waits for all its topics before it counts as incomplete", 0.001, 1.0),
+    "stale_timeout": Spec(0.5, "[s] of wall time a sensor topic may be silent before its actuators are STALE", 0.01, 60.0,
+                          read_only=False),
+    "time_jump_threshold": Spec(1.0, "[s] a stamp this far from the time base is a jump (held off, then followed)", 0.01, 3600.0,
+                                read_only=False),
+    "alarm_log": Spec("", "SQLite file of the alarm log (every alarm raised, changed, cleared, acknowledged, reset); latched "
+                          "alarms in it come back after a restart; empty: no log"),
+    "reset_min_interval": Spec(5.0, "[s] at least this long between two accepted ~/reset calls", 0.0, 3600.0, read_only=False),
+}
+
+
 class FdiNode(Node):
     def __init__(self) -> None:
         super().__init__("fdi_node")
-        self.declare_parameter("config", str(default_config_path("sam")))
-        self.declare_parameter("method", "")
-        self.declare_parameter("process_period", 0.02)
-        self.declare_parameter("diagnostics_period", 1.0)
-        self.declare_parameter("residual_rate", 50.0)
-        self.declare_parameter("sync_window", 0.05)
-        self.declare_parameter("stale_timeout", 0.5)
-        self.declare_parameter("time_jump_threshold", 1.0)
-        self.declare_parameter("reset_min_interval", 5.0)
-        self.machine_config = load_machine_config(self.get_parameter("config").value)
-        method = str(self.get_parameter("method").value) or None
-        self.monitor = FdiMonitor(self.machine_config, method)
+        self.params = Parameters(self, PARAMETERS, self._on_parameter)
+        self.machine_config = load_machine_config(self.params["config"])
+        self.monitor = FdiMonitor(self.machine_config, self.params["method"] or None)
         self.machine = self.machine_config.name
-        self.stale_timeout = float(self.get_parameter("stale_timeout").value)
+        self.stale_timeout = self.params["stale_timeout"]
+        self.alarm_log = AlarmLog(self.params["alarm_log"], self.machine) if self.params["alarm_log"] else None
+        # latched alarms of the run before: shown (and a severe one halts) until acknowledged or reset
+        self.restored = {a.actuator: a for a in (self.alarm_log.latched() if self.alarm_log else []) if a.actuator in self.monitor.actuators}
+        self._logged_faults = {actuator: alarm.fault for actuator, alarm in self.restored.items()}
+        for alarm in self.restored.values():
+            self.get_logger().warning(f"{alarm.actuator}: {alarm.fault} latched before the restart (alarm log), until acknowledged")
         actuators = self.monitor.actuators
         self.mobile = self.monitor.generator.needs_mobile_pressures
         self.layout = SampleLayout(actuators, self.monitor.joints, mobile=self.mobile)
-        self.aligner = ContractAligner(self.layout, sync_window_ns=int(float(self.get_parameter("sync_window").value) * 1e9),
-                                       max_pending_ns=MAX_PENDING_NS,
-                                       jump_ns=int(float(self.get_parameter("time_jump_threshold").value) * 1e9))
-        self.reset_min_interval = float(self.get_parameter("reset_min_interval").value)
+        self.aligner = ContractAligner(self.layout, sync_window_ns=int(self.params["sync_window"] * 1e9), max_pending_ns=MAX_PENDING_NS,
+                                       jump_ns=int(self.params["time_jump_threshold"] * 1e9))
+        self.reset_min_interval = self.params["reset_min_interval"]
         self.last_reset = -math.inf
+        self._hold_until = -math.inf  # monotonic time until which detection holds (overload)
         self._jumps_seen = 0
         self._recent: deque[tuple[float, int, int]] = deque()  # (wall time, samples, incomplete) per processed block
         self.undecodable = 0
@@ -92,9 +111,9 @@ class FdiNode(Node):
                 self._subscribe_raw(FluidPressure, topics.actuator_pressure(actuator, quantity),
                                     lambda d, c=index(quantity, actuator): self.aligner.put_pressure(d, c))
 
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.pub_halt = self.create_publisher(Bool, topics.FDI_HALT, HALT_QOS)
-        self.pub_residuals = self.create_publisher(JointState, topics.FDI_RESIDUALS, 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
+        self.pub_halt = self.create_publisher(Bool, relative(topics.FDI_HALT), HALT_QOS)
+        self.pub_residuals = self.create_publisher(JointState, relative(topics.FDI_RESIDUALS), 10)
         self._residual_channels = topics.fdi_residual_channels(actuators, mobile=self.mobile)
         self.create_service(Trigger, "~/acknowledge", self._on_acknowledge)
         self.create_service(Trigger, "~/reset", self._on_reset)
@@ -105,12 +124,20 @@ class FdiNode(Node):
         self.samples = 0
         self.halt: bool | None = None
         self._levels: list[tuple[int, str]] = []
-        self._residual_interval_ns = int(1e9 / max(float(self.get_parameter("residual_rate").value), 1e-3))
+        self._residual_interval_ns = int(1e9 / self.params["residual_rate"])
         self._last_residual_ns = -(1 << 62)
-        self.create_timer(float(self.get_parameter("process_period").value), self._process, clock=self.steady)
-        self.create_timer(float(self.get_parameter("diagnostics_period").value), self._publish_diagnostics, clock=self.steady)
+        self.create_timer(self.params["process_period"], self._process, clock=self.steady)
+        self.create_timer(self.params["diagnostics_period"], self._publish_diagnostics, clock=self.steady)
         self.create_timer(HALT_PERIOD_S, self._publish_halt, clock=self.steady)
         self.get_logger().info(f"monitoring {', '.join(actuators)} of {self.machine} with the {self.monitor.method} method")
+
+    def _on_parameter(self, name: str, value: Any) -> None:
+        if name == "stale_timeout":
+            self.stale_timeout = value
+        elif name == "time_jump_threshold":
+            self.aligner.jump_ns = int(value * 1e9)
+        elif name == "reset_min_interval":
+            self.reset_min_interval = value
 
     def _subscribe_raw(self, msg_type: Any, topic: str, handler: Any) -> None:
         def consume(data: bytes) -> None:
@@ -132,7 +159,8 @@ class FdiNode(Node):
                         break
                     consume(taken[0])
 
-        subscription = self.create_subscription(msg_type, topic, callback, SENSOR_QOS, raw=True)
+        subscription = self.create_subscription(msg_type, relative(topic), callback, SENSOR_QOS, raw=True,
+                                                qos_overriding_options=QoSOverridingOptions.with_default_policies())
 
     # processing -------------------------------------------------------------------------------
     def _process(self) -> None:
@@ -150,7 +178,10 @@ class FdiNode(Node):
         if len(stamps) == 0:
             self._check_levels()
             return
-        result = self.monitor.process(self.layout.samples(stamps * 1e-9, rows))
+        if any(self._overloaded(i) for i in range(len(self.monitor.actuators))):
+            # no alarm from incomplete data: detection holds while overloaded and one window after
+            self._hold_until = now + self.monitor.settings.window_s
+        result = self.monitor.process(self.layout.samples(stamps * 1e-9, rows), hold=now < self._hold_until)
         self.samples += len(stamps)
         for alarm in result.alarms:
             self.get_logger().warning(f"{alarm.actuator}: {alarm.fault.value} (pattern {alarm.code}) at stamp {alarm.time_s:.3f} s")
@@ -198,6 +229,9 @@ class FdiNode(Node):
         status = self.monitor.status(index)
         if status.fault is not None:
             return status.level, status.message
+        restored = self.restored.get(self.monitor.actuators[index])
+        if restored is not None:
+            return restored.level, restored.fault
         if self._stale_topics(index):
             return STALE, "stale"
         if self._overloaded(index):
@@ -211,12 +245,37 @@ class FdiNode(Node):
         levels = [self._state(i) for i in range(len(self.monitor.actuators))]
         if levels != self._levels:
             self._levels = levels
+            self._log_alarms()
             self._publish_diagnostics()
             self._publish_halt()
 
+    def _latched_fault(self, index: int) -> str:
+        status = self.monitor.status(index)
+        if status.fault is not None:
+            return status.message
+        restored = self.restored.get(self.monitor.actuators[index])
+        return restored.fault if restored is not None else ""
+
+    def _log_alarms(self) -> None:
+        """Each actuator's latched fault against the last one logged: raised, changed or cleared."""
+        if self.alarm_log is None:
+            return
+        for i, actuator in enumerate(self.monitor.actuators):
+            before, now = self._logged_faults.get(actuator, ""), self._latched_fault(i)
+            if now == before:
+                continue
+            event = "cleared" if not now else "changed" if before else "raised"
+            status = self.monitor.status(i)
+            evidence = {"pattern": status.code, "mean_residual": self.monitor.last_mean_residual[i].round(5).tolist(),
+                        "threshold": self.monitor.last_threshold[i].round(5).tolist(), "before": before}
+            self.alarm_log.record(event, actuator, now or before, self._levels[i][0] if now else 0, stamp_s=status.detected_at,
+                                  evidence=evidence)
+            self._logged_faults[actuator] = now
+
     def _publish_halt(self) -> None:
-        """Heartbeat of the halt request; nothing while "no halt" is not confirmed (start, time jump, a crossing pending)."""
-        halt = self.monitor.halt
+        """Heartbeat of the halt request; nothing while "no halt" is not confirmed (start, time jump, a crossing pending).
+        A severe alarm restored from the log halts at once."""
+        halt = self.monitor.halt or any(alarm.level == ERROR for alarm in self.restored.values())
         if not halt and not self.monitor.confirmed:
             return
         if halt != self.halt and halt:
@@ -255,6 +314,8 @@ class FdiNode(Node):
                 "last_time_jump_s": f"{a.time_jumps[-1]:+.3f}" if a.time_jumps else "",
                 "off_time_base_dropped": str(a.off_base),
                 "incomplete_share": f"{self._incomplete_share():.3f}",
+                "detection_held": str(time.monotonic() < self._hold_until).lower(),
+                "restored_from_alarm_log": str(actuator in self.restored and status.fault is None).lower(),
             }
             out.append(DiagnosticStatus(level=bytes([level]), name=f"{topics.FDI_STATUS_PREFIX}{actuator}", message=message,
                                         hardware_id=self.machine,
@@ -264,6 +325,13 @@ class FdiNode(Node):
                 level=bytes([WARN if problems else OK]), name=f"{topics.SENSOR_STATUS_PREFIX}{actuator}", hardware_id=self.machine,
                 message="; ".join(f"{self._source(c, actuator)} {p}" for c, p in problems.items()) or "ok",
                 values=[KeyValue(key=self._source(c, actuator), value=p) for c, p in problems.items()]))
+        if self.alarm_log is not None:
+            log = self.alarm_log
+            out.append(DiagnosticStatus(
+                level=bytes([WARN if log.error else OK]), name=ALARM_LOG_STATUS, hardware_id=self.machine,
+                message=f"alarm log not written: {log.error}" if log.error else "ok",
+                values=[KeyValue(key="file", value=str(log.path)), KeyValue(key="failed_writes", value=str(log.failed_writes)),
+                        KeyValue(key="restored_alarms", value=str(len(self.restored)))]))
         return out
 
     def _source(self, channel: str, actuator: str) -> str:
@@ -285,9 +353,15 @@ class FdiNode(Node):
         response.message = message
         return response
 
+    def _forget_restored(self, event: str, detail: str) -> None:
+        self.restored.clear()
+        if self.alarm_log is not None:
+            self.alarm_log.record(event, "", evidence={"detail": detail})
+
     def _on_acknowledge(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         cleared = [f"{a}: {self.monitor.status(i).message}" for i, a in enumerate(self.monitor.actuators) if self.monitor.status(i).fault]
         self.monitor.acknowledge()
+        self._forget_restored("acknowledged", "; ".join(cleared))
         return self._answer(response, f"acknowledged: {'; '.join(cleared) or 'no latched alarm'}")
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
@@ -300,6 +374,7 @@ class FdiNode(Node):
         self.last_reset = time.monotonic()
         before = "; ".join(f"{a}: {message}" for a, (_, message) in zip(self.monitor.actuators, self._levels)) or "no status yet"
         self.monitor.reset()
+        self._forget_restored("reset", before)
         return self._answer(response, f"filters, averages and latches reset (before: {before}); detection re-arms after "
                                       f"{self.monitor.settings.window_s:g} s of data")
 

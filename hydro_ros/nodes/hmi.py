@@ -18,13 +18,13 @@ import ipaddress
 import json
 import os
 import threading
+from pathlib import Path
 from typing import Any
 
 import rclpy
 from aiohttp import web
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
@@ -33,13 +33,14 @@ from hydro_ros.bags.cdr import CdrError, decode_joint_state
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path, read_config
 from hydro_ros.contract.errors import InputError
-from hydro_ros.hmi.server import create_app
+from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.hmi.server import GUARD_KEY, create_app
 from hydro_ros.hmi.state import HmiState, StatusReport
-from hydro_ros.nodes.common import LATCHED_QOS, run_node
+from hydro_ros.nodes.common import LATCHED_QOS, LATEST_ONLY_QOS, relative, run_node
+from hydro_ros.nodes.foxglove_live import FoxgloveLive
+from hydro_ros.nodes.parameters import Parameters, Spec
 
 TOKEN_ENV = "HYDRO_ROS_HMI_TOKEN"
-# the page shows the newest joint state only: a shallow best-effort queue, nothing to catch up on
-LATEST_ONLY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
 class WebServerThread:
@@ -71,52 +72,120 @@ class WebServerThread:
         self.loop.close()
 
 
+PARAMETERS = {
+    "config": Spec(str(default_config_path("sam")), "machine config (YAML): its actuators get tiles before their first status",
+                   existing_file=True),
+    "host": Spec("127.0.0.1", "address the page listens on; beyond loopback only with a token on a trusted network"),
+    "port": Spec(8080, "TCP port of the page (0: any free port)", 0, 65535),
+    "operator_token": Spec("", "token for operator actions; prefer HYDRO_ROS_HMI_TOKEN in the environment, since anyone on "
+                               "the graph can read a parameter; empty and no variable: the page is read-only"),
+    "update_rate": Spec(5.0, "[Hz] page state pushes", 0.1, 50.0),
+    "plot_window": Spec(60.0, "[s] residual history on the page", 1.0, 3600.0),
+    "plot_rate": Spec(10.0, "[Hz] residual points kept per second", 0.1, 100.0),
+    "stale_timeout": Spec(3.0, "[s] an actuator without a status this long shows STALE", 0.1, 600.0),
+    "action_timeout": Spec(5.0, "[s] wait for fdi_node to answer an acknowledge", 0.1, 60.0),
+    "alarm_log": Spec("", "fdi_node's alarm log (its parameter alarm_log), shown paged on the page; empty: none"),
+    "allowed_hosts": Spec("", "comma-separated host names the page may be reached by besides loopback and host (the Host "
+                              "header is checked against DNS rebinding); e.g. the machine's name on the plant network"),
+    "foxglove_port": Spec(8765, "TCP port of the read-only Foxglove WebSocket server (0: any free port, -1: no server; "
+                                "needs the optional foxglove-sdk)", -1, 65535),
+    "foxglove_host": Spec("127.0.0.1", "address the Foxglove server listens on"),
+    "foxglove_rate": Spec(10.0, "[Hz] rate the 1 kHz sensor topics are sampled at for Foxglove", 0.1, 100.0),
+    "foxglove_tls_cert": Spec("", "PEM certificate for TLS on the Foxglove server (with foxglove_tls_key); empty: plain",
+                              existing_file=True),
+    "foxglove_tls_key": Spec("", "PEM private key of foxglove_tls_cert", existing_file=True),
+    "fdi_node": Spec("fdi_node", "name of the monitor node (relative: in this node's namespace)"),
+    "trajectory_server": Spec("trajectory_server", "name of the trajectory server node (relative: in this node's namespace)"),
+}
+
+
+HMI_STATUS = "hydro_ros/hmi"
+REFUSAL_COUNTS = ("refused_hosts", "refused_origins", "refused_requests", "token_failures", "rate_limited")
+OK, WARN = DiagnosticStatus.OK, DiagnosticStatus.WARN
+
+
 class HmiNode(Node):
     def __init__(self) -> None:
         super().__init__("hmi")
         # the monitored machine: its actuators get tiles before their first status (a crane config has none)
-        config = read_config(str(self.declare_parameter("config", str(default_config_path("sam"))).value), required=("machine",),
-                             nonempty="machine")
-        host = str(self.declare_parameter("host", "127.0.0.1").value)
-        port = int(self.declare_parameter("port", 8080).value)
-        token = str(self.declare_parameter("operator_token", "").value) or os.environ.get(TOKEN_ENV, "")
-        update_rate = float(self.declare_parameter("update_rate", 5.0).value)
-        plot_window = float(self.declare_parameter("plot_window", 60.0).value)
-        plot_rate = float(self.declare_parameter("plot_rate", 10.0).value)
-        stale_timeout = float(self.declare_parameter("stale_timeout", 3.0).value)
-        self.action_timeout = float(self.declare_parameter("action_timeout", 5.0).value)
-        fdi_node = str(self.declare_parameter("fdi_node", "/fdi_node").value).rstrip("/")
-        server = str(self.declare_parameter("trajectory_server", "/trajectory_server").value).rstrip("/")
-        for name, value in (("update_rate", update_rate), ("plot_rate", plot_rate), ("action_timeout", self.action_timeout)):
-            if not value > 0:
-                raise InputError(f"parameter {name}={value}: must be > 0")
-        if not 0 <= port <= 65535:
-            raise InputError(f"parameter port={port}: not a TCP port")
+        self.params = Parameters(self, PARAMETERS)
+        config = read_config(self.params["config"], required=("machine",), nonempty="machine")
+        host, port = self.params["host"], self.params["port"]
+        token = self.params["operator_token"] or os.environ.get(TOKEN_ENV, "")
+        update_rate, plot_rate = self.params["update_rate"], self.params["plot_rate"]
+        plot_window, stale_timeout = self.params["plot_window"], self.params["stale_timeout"]
+        self.action_timeout = self.params["action_timeout"]
+        fdi_node = self.params["fdi_node"].rstrip("/")
+        server = self.params["trajectory_server"].rstrip("/")
 
         self.state = HmiState(plot_window_s=plot_window, plot_period_s=1.0 / plot_rate, stale_timeout_s=stale_timeout)
         self.state.expect(str(config["machine"]), list(config.get("actuators") or {}))
-        self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 50)
-        self.create_subscription(JointState, topics.FDI_RESIDUALS, self._on_residuals, 50)
-        self.create_subscription(Bool, topics.FDI_HALT, lambda m: self.state.on_halt(bool(m.data)), LATCHED_QOS)
+        self.create_subscription(DiagnosticArray, relative(topics.DIAGNOSTICS), self._on_diagnostics, 50)
+        self.create_subscription(JointState, relative(topics.FDI_RESIDUALS), self._on_residuals, 50)
+        self.create_subscription(Bool, relative(topics.FDI_HALT), lambda m: self.state.on_halt(bool(m.data)), LATCHED_QOS)
         self.create_subscription(String, f"{server}/catalog", lambda m: self.state.on_catalog(m.data), LATCHED_QOS)
         self.create_subscription(String, f"{server}/result", lambda m: self.state.on_result(m.data), LATCHED_QOS)
         # /joint_states comes at 1 kHz and the page shows its newest sample: a node that is never spun holds a
         # depth-1 subscription, and the timer takes from it (as rclpy's wait_for_message does), so no callback
         # runs per message
-        self._sampler = rclpy.create_node("hmi_joint_state_sampler", context=self.context)
-        self._joint_states = self._sampler.create_subscription(JointState, topics.JOINT_STATES, lambda _: None, LATEST_ONLY_QOS,
+        self._sampler = rclpy.create_node("hmi_joint_state_sampler", namespace=self.get_namespace(), context=self.context)
+        self._joint_states = self._sampler.create_subscription(JointState, relative(topics.JOINT_STATES), lambda _: None, LATEST_ONLY_QOS,
                                                                raw=True)
         self.create_timer(1.0 / update_rate, self._sample_joint_state)
         self.acknowledge_client = self.create_client(Trigger, f"{fdi_node}/acknowledge")
         self.request_publisher = self.create_publisher(String, f"{server}/request", 10)
 
-        app = create_app(self.state, self, token=token, update_period_s=1.0 / update_rate, log=self.get_logger().info)
+        allowed = {name.strip() for name in self.params["allowed_hosts"].split(",") if name.strip()}
+        if not _is_wildcard(host):
+            allowed.add(host)
+        app = create_app(self.state, self, token=token, update_period_s=1.0 / update_rate, log=self.get_logger().info,
+                         allowed_hosts=frozenset(allowed), alarm_log=Path(self.params["alarm_log"]) if self.params["alarm_log"] else None)
+        self.guard = app[GUARD_KEY]
+        self.machine = str(config["machine"])
+        self.pub_diag = self.create_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
+        self.create_timer(1.0, self._publish_diagnostics)
         self.web = WebServerThread(app, host, port)
+        self.foxglove = self._start_foxglove(config)
         self.url = f"http://{host if ':' not in host else f'[{host}]'}:{self.web.port}/"
         access = "operator actions need the token" if token else f"read-only: no operator token, set {TOKEN_ENV}"
         self.get_logger().info(f"HMI on {self.url} ({access})")
         if not _is_loopback(host):
             self.get_logger().warning(f"HMI listens on {host}, beyond this machine: use a token and a trusted network")
+
+    def _start_foxglove(self, config: dict[str, Any]) -> FoxgloveLive | None:
+        """The Foxglove server, or None with the reason logged: the HMI page never depends on it."""
+        if self.params["foxglove_port"] < 0:
+            return None
+        try:
+            machine = load_machine_config(self.params["config"])
+            sensors = topics.sensor_topics(machine.actuator_names, mobile=machine.mobile)
+        except InputError:  # a crane config: its joints, supply and commands
+            sensors = topics.sensor_topics([])
+        try:
+            live = FoxgloveLive(self, self._sampler, sensors, host=self.params["foxglove_host"], port=self.params["foxglove_port"],
+                                rate_hz=self.params["foxglove_rate"], tls_cert=self.params["foxglove_tls_cert"],
+                                tls_key=self.params["foxglove_tls_key"])
+        except InputError as exc:
+            self.get_logger().warning(f"no Foxglove server: {exc}")
+            return None
+        except RuntimeError as exc:  # foxglove-sdk: the port is taken
+            self.get_logger().warning(f"no Foxglove server on {self.params['foxglove_host']}:{self.params['foxglove_port']}: {exc}")
+            return None
+        self.get_logger().info(f"Foxglove: ws://{self.params['foxglove_host']}:{live.port} (read-only, {len(live.channels)} topics)")
+        return live
+
+    def _publish_diagnostics(self) -> None:
+        counts = dict(self.guard.counts)
+        limited = sum(1 for client in list(self.guard.failures) if self.guard.wait_s(client) > 0)
+        level, message = (WARN, f"token guesses rate limited from {limited} client(s)") if limited else (OK, "ok")
+        values = {"url": self.url, **{key: str(counts.get(key, 0)) for key in REFUSAL_COUNTS}, "clients_rate_limited": str(limited),
+                  "foxglove_port": str(self.foxglove.port) if self.foxglove else "off",
+                  "foxglove_forwarded": str(self.foxglove.forwarded) if self.foxglove else "0"}
+        status = DiagnosticStatus(level=level, name=HMI_STATUS, message=message, hardware_id=self.machine,
+                                  values=[KeyValue(key=key, value=value) for key, value in values.items()])
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(array)
 
     # -- graph -> state ----------------------------------------------------------------------
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
@@ -165,6 +234,8 @@ class HmiNode(Node):
         return True, f"requested {path} ({method}) on {topic}; the answer appears under the catalog"
 
     def destroy_node(self) -> None:
+        if self.foxglove is not None:
+            self.foxglove.close()
         self.web.close()
         self._sampler.destroy_node()
         super().destroy_node()
@@ -177,6 +248,10 @@ def _settle(answered: asyncio.Future, future: Any) -> None:
         answered.set_exception(future.exception())
     else:
         answered.set_result(future.result())
+
+
+def _is_wildcard(host: str) -> bool:
+    return host in ("", "0.0.0.0", "::")
 
 
 def _is_loopback(host: str) -> bool:

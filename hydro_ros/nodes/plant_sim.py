@@ -16,9 +16,9 @@ import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import FluidPressure, JointState
 
@@ -27,45 +27,48 @@ from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path, read_config
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.contract.names import INJECTABLE, Injection
-from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, run_node
+from hydro_ros.contract.names import INJECTION_UNITS, Injection
+from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, relative, run_node
+from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.sim.scenario import Scenario, start
 
 COMMAND_TIMEOUT_S = 0.5  # a valve command older than this closes the valve (fail safe)
 MAX_CATCH_UP_S = 0.25  # simulate at most this much per tick; beyond it the node reports lag
 
 
+PARAMETERS = {
+    "config": Spec(str(default_config_path("sam")), "machine config (YAML) of the simulated machine (not a crane)", existing_file=True),
+    "seed": Spec(0, "seed of the operator's moves and the sensor noise", 0),
+    "excitation": Spec("operator", "where valve commands come from: the simulated operator, or /hydraulics/valve_commands",
+                       choices=("operator", "topic")),
+    "real_time_factor": Spec(1.0, "[-] simulated seconds per wall second", 0.01, 100.0),
+    "publish_clock": Spec(False, "publish /clock from the simulation time (stamps then start at 0)"),
+    "tick_period": Spec(0.01, "[s] wall time between simulation steps (each publishes the samples due)", 0.001, 1.0),
+    "can_interface": Spec("", "python-can interface that also carries the sensors as CAN frames (socketcan, udp_multicast); "
+                              "empty: none"),
+    "can_channel": Spec("", "channel of can_interface (can0, a multicast address)"),
+    **{f"fault.{name}": Spec(0.0, f"[{unit}] size of the fault or effect {name} from the moment it is set; 0: none",
+                             read_only=False) for name, unit in sorted(INJECTION_UNITS.items())},
+}
+
+
 class PlantSim(Node):
     def __init__(self) -> None:
         super().__init__("plant_sim")
-        self.declare_parameter("config", str(default_config_path("sam")))
-        self.declare_parameter("seed", 0)
-        self.declare_parameter("excitation", "operator")
-        self.declare_parameter("real_time_factor", 1.0)
-        self.declare_parameter("publish_clock", False)
-        self.declare_parameter("tick_period", 0.01)
-        self.declare_parameter("can_interface", "")  # e.g. socketcan / udp_multicast: also emit the sensors as CAN frames
-        self.declare_parameter("can_channel", "")
+        self.params = Parameters(self, PARAMETERS, self._on_parameter)
         self.can_bus = None
-        self.rtf = float(self.get_parameter("real_time_factor").value)
-        if not (self.rtf > 0.0 and math.isfinite(self.rtf)):
-            raise InputError(f"parameter real_time_factor={self.rtf}: must be > 0")
-        config_path = str(self.get_parameter("config").value)
+        self.rtf = self.params["real_time_factor"]
+        config_path = self.params["config"]
         if read_config(config_path, required=("machine",), nonempty="machine").get("kind") == "crane":
             raise InputError(f"parameter config={config_path}: a crane config; run crane_sim for a crane")
-        for name in sorted(INJECTABLE):
-            self.declare_parameter(f"fault.{name}", 0.0)
         self.machine = load_machine_config(config_path)
         self.actuator = self.machine.first.name
         self.joint = self.machine.first.joint
-        self.excitation = self.get_parameter("excitation").value
-        if self.excitation not in ("operator", "topic"):
-            raise InputError(f"parameter excitation={self.excitation!r}: expected 'operator' or 'topic'")
-        self.publish_clock = bool(self.get_parameter("publish_clock").value)
-        self.run = start(self.machine, Scenario(float("inf"), (), seed=int(self.get_parameter("seed").value), actuator=self.actuator))
+        self.excitation = self.params["excitation"]
+        self.publish_clock = self.params["publish_clock"]
+        self.run = start(self.machine, Scenario(float("inf"), (), seed=self.params["seed"], actuator=self.actuator))
         self.variance = self.machine.sensors.pressure_noise_std ** 2
         self._pending: dict[str, float] = {}
-        self.add_on_set_parameters_callback(self._on_parameters)
 
         # one publisher per sample topic, in sample_payloads' order; valve commands are only
         # published when the simulated operator makes them
@@ -73,46 +76,41 @@ class PlantSim(Node):
         types = topics.sensor_topics([self.actuator], mobile=mobile)
         self.publishers_in_order = [
             None if (name == topics.VALVE_COMMANDS and self.excitation != "operator")
-            else self.create_publisher(JointState if types[name] == topics.JOINT_STATE_TYPE else FluidPressure, name, SENSOR_QOS)
+            else self.create_publisher(JointState if types[name] == topics.JOINT_STATE_TYPE else FluidPressure, relative(name), SENSOR_QOS,
+                                       qos_overriding_options=QoSOverridingOptions.with_default_policies())
             for name in sample_topics(self.actuator, mobile=mobile)
         ]
         self.command = 0.0
         self.command_wall = -math.inf
         if self.excitation == "topic":
-            self.create_subscription(JointState, topics.VALVE_COMMANDS, self._on_command, SENSOR_QOS)
+            self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._on_command, SENSOR_QOS,
+                                     qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.publish_clock else None
-        interface = str(self.get_parameter("can_interface").value)
+        interface = self.params["can_interface"]
         if interface:
             import can
 
             from hydro_ros.can.codec import MachineBus
 
             self.can_codec = MachineBus(self.machine)
-            self.can_bus = can.Bus(interface=interface, channel=str(self.get_parameter("can_channel").value))
+            self.can_bus = can.Bus(interface=interface, channel=self.params["can_channel"])
             self.can_counter = 0
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
 
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.start_wall = time.monotonic()
         self.stamp_origin_ns = 0 if self.publish_clock else self.get_clock().now().nanoseconds
         self.lag_s = 0.0
         self.command_stale = False
-        self.create_timer(float(self.get_parameter("tick_period").value), self._tick, clock=self.steady)
+        self.create_timer(self.params["tick_period"], self._tick, clock=self.steady)
         self.create_timer(1.0, self._diagnose, clock=self.steady)
         self.get_logger().info(
             f"simulating {self.machine.name} ({self.actuator}) at {self.machine.sample_rate_hz:.0f} Hz, "
             f"x{self.rtf:g} real time, excitation={self.excitation}"
         )
 
-    def _on_parameters(self, params: list) -> SetParametersResult:
-        for param in params:
-            if not param.name.startswith("fault."):
-                continue
-            value = param.value
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
-                return SetParametersResult(successful=False, reason=f"{param.name}: value must be a finite number")
-            self._pending[param.name.removeprefix("fault.")] = float(value)
-        return SetParametersResult(successful=True)
+    def _on_parameter(self, name: str, value: float) -> None:
+        self._pending[name.removeprefix("fault.")] = value
 
     def _on_command(self, msg: JointState) -> None:
         if self.actuator in msg.name:

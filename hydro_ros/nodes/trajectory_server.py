@@ -2,9 +2,12 @@
 
 Topics (contract section 1, relative to the node, so ``/trajectory_server/...`` by default):
 ``~/catalog`` (latched String, JSON list of the stored paths and their solutions' energies),
-``~/request`` (String: a path id, or JSON ``{"path": ..., "method": ...}``), ``~/result`` (latched
-String, JSON ``{"path", "ok", "error", ...}`` answering every request) and ``~/trajectory`` (latched
-JointTrajectory, also published to ``output_topic`` when set).
+``~/request`` (String: a path id, or JSON ``{"path": ..., "method": ..., "id": ...}``, or
+``{"cancel": id}``), ``~/result`` (latched String, JSON ``{"path", "id", "ok", "error", ...}`` answering
+every request, the id echoed) and ``~/trajectory`` (latched JointTrajectory, also published to
+``output_topic`` when set, there volatile, in the form a ros2_control JointTrajectoryController
+takes on its ``~/joint_trajectory``). A cancel of the trajectory last served publishes an empty
+JointTrajectory, which such a controller (and crane_sim) takes as "stop the current one".
 
 A request is served from the manipulator's actual state: the latest ``/joint_states`` must be
 younger than ``joint_state_timeout``; when it differs from the stored start the stored DP policy
@@ -18,10 +21,13 @@ the server comes up before the first build and republishes the catalog when a bu
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 from builtin_interfaces.msg import Duration
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
@@ -30,35 +36,53 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
+from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.planning.database import DatabaseError, JointTrajectoryData, TrajectoryDatabase
 from hydro_ros.planning.problem import METHODS
 from hydro_ros.planning.serving import JointStateSample, Served, ServeError, TrajectoryService
 
 _MAX_REQUEST_CHARS = 256
+_REQUEST_ID = re.compile(r"[A-Za-z0-9_.\-]{0,64}")
+OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+
+
+PARAMETERS = {
+    "database": Spec("", "SQLite trajectory database (hydro-ros db build); required, may appear after start"),
+    "output_topic": Spec("", "also send the served JointTrajectory here (a controller's input); empty: only ~/trajectory"),
+    "config": Spec("", "crane config (YAML): serve only its machine's trajectories; empty: any", existing_file=True),
+    "method": Spec("dp_cp", "solution served when a request names none", choices=tuple(METHODS)),
+    "joint_state_timeout": Spec(0.5, "[s] a joint state older than this is not fresh enough to re-plan from", 0.01, 60.0,
+                                read_only=False),
+    "tip_tolerance": Spec(0.05, "[m] the measured tip may be this far from a stored start", 0.0, 10.0, read_only=False),
+    "poll_period": Spec(1.0, "[s] period of checking the database for new data", 0.05, 600.0),
+}
 
 
 class TrajectoryServer(Node):
     def __init__(self) -> None:
         super().__init__("trajectory_server")
-        self.database_path = str(self.declare_parameter("database", "").value)
-        self.output_topic = str(self.declare_parameter("output_topic", "").value)
-        self.config_path = str(self.declare_parameter("config", "").value)
-        self.default_method = str(self.declare_parameter("method", "dp_cp").value)
-        self.joint_state_timeout = float(self.declare_parameter("joint_state_timeout", 0.5).value)
-        self.tip_tolerance = float(self.declare_parameter("tip_tolerance", 0.05).value)
-        poll_period = float(self.declare_parameter("poll_period", 1.0).value)
+        self.params = Parameters(self, PARAMETERS, self._on_parameter)
+        self.database_path = self.params["database"]
+        self.output_topic = self.params["output_topic"]
+        self.config_path = self.params["config"]
+        self.default_method = self.params["method"]
+        self.joint_state_timeout = self.params["joint_state_timeout"]
+        self.tip_tolerance = self.params["tip_tolerance"]
         if not self.database_path:
             raise InputError("parameter database: not set (path of the SQLite file hydro-ros db build writes)")
-        if self.default_method not in METHODS:
-            raise InputError(f"parameter method {self.default_method!r}: unknown (known: {', '.join(METHODS)})")
         self.machine = self._machine_of_config()
 
         self.catalog_pub = self.create_publisher(String, "~/catalog", LATCHED_QOS)
         self.result_pub = self.create_publisher(String, "~/result", LATCHED_QOS)
         self.trajectory_pub = self.create_publisher(JointTrajectory, "~/trajectory", LATCHED_QOS)
-        self.output_pub = self.create_publisher(JointTrajectory, self.output_topic, LATCHED_QOS) if self.output_topic else None
+        # volatile, as a ros2_control JointTrajectoryController subscribes: a controller that (re)starts must
+        # never receive an old trajectory and move the machine
+        self.output_pub = self.create_publisher(JointTrajectory, self.output_topic, OUTPUT_QOS) if self.output_topic else None
+        self.served: tuple[str, str, list[str]] | None = None  # (request id, path, joints) of the trajectory last served
         self.create_subscription(String, "~/request", self._on_request, 10)
-        self.create_subscription(JointState, relative(topics.JOINT_STATES), self._on_joint_state, SENSOR_QOS)
+        self.create_subscription(JointState, relative(topics.JOINT_STATES), self._on_joint_state, SENSOR_QOS,
+                                 qos_overriding_options=QoSOverridingOptions.with_default_policies())
 
         self.service: TrajectoryService | None = None
         self.database_error = "not opened yet"
@@ -66,7 +90,13 @@ class TrajectoryServer(Node):
         self.joint_state: JointStateSample | None = None
         self.joint_state_time: Time | None = None
         self._poll()
-        self.create_timer(poll_period, self._poll)
+        self.create_timer(self.params["poll_period"], self._poll)
+
+    def _on_parameter(self, name: str, value: Any) -> None:
+        if name == "joint_state_timeout":
+            self.joint_state_timeout = value
+        elif name == "tip_tolerance":
+            self.tip_tolerance = value
 
     def _machine_of_config(self) -> str | None:
         if not self.config_path:
@@ -119,17 +149,25 @@ class TrajectoryServer(Node):
         self.joint_state = JointStateSample(list(msg.name), list(msg.position), list(msg.velocity))
         self.joint_state_time = self.get_clock().now()
 
-    def _parse_request(self, text: str) -> tuple[str, str]:
+    def _parse_request(self, text: str) -> dict[str, str]:
+        """``{"path", "method", "id"}`` or ``{"cancel": id}`` from a bare path id or a JSON object."""
         text = text.strip()
         if not text or len(text) > _MAX_REQUEST_CHARS:
-            raise ServeError(f"request {text[:40]!r}: expected a path id or JSON {{\"path\": ..., \"method\": ...}}")
-        if text.startswith("{"):
-            try:
-                request = json.loads(text)
-                return str(request["path"]), str(request.get("method", self.default_method))
-            except (json.JSONDecodeError, KeyError, TypeError):
-                raise ServeError(f"request {text[:40]!r}: JSON without a \"path\"") from None
-        return text, self.default_method
+            raise ServeError(f"request {text[:40]!r}: expected a path id or JSON {{\"path\": ..., \"method\": ..., \"id\": ...}}")
+        if not text.startswith("{"):
+            return {"path": text, "method": self.default_method, "id": ""}
+        try:
+            request = json.loads(text)
+        except json.JSONDecodeError:
+            raise ServeError(f"request {text[:40]!r}: not JSON") from None
+        if not isinstance(request, dict) or not ("path" in request or "cancel" in request):
+            raise ServeError(f"request {text[:40]!r}: JSON without a \"path\" (or \"cancel\")")
+        request_id = str(request.get("id", request.get("cancel", "")))
+        if not _REQUEST_ID.fullmatch(request_id):
+            raise ServeError(f"request id {request_id[:40]!r}: expected at most 64 of [A-Za-z0-9_.-]")
+        if "cancel" in request:
+            return {"cancel": request_id}
+        return {"path": str(request["path"]), "method": str(request.get("method", self.default_method)), "id": request_id}
 
     def _current_state(self) -> JointStateSample:
         if self.joint_state is None or self.joint_state_time is None:
@@ -141,27 +179,54 @@ class TrajectoryServer(Node):
 
     # -- requests ----------------------------------------------------------------------------
     def _on_request(self, msg: String) -> None:
-        path_id = msg.data.strip()[:_MAX_REQUEST_CHARS]
+        path_id, request_id = msg.data.strip()[:_MAX_REQUEST_CHARS], ""
         try:
-            path_id, method = self._parse_request(msg.data)
+            request = self._parse_request(msg.data)
+            if "cancel" in request:
+                self._cancel(request["cancel"])
+                return
+            path_id, request_id = request["path"], request["id"]
             if self.service is None:
                 self._poll()
             if self.service is None:
                 raise ServeError(self.database_error)
-            served = self.service.serve(path_id, method, self._current_state())
+            state = self._current_state()
+            if self.output_pub is not None and self.output_pub.get_subscription_count() == 0:
+                # volatile output: sent now or never, so never into the void
+                raise ServeError(f"output {self.output_pub.topic_name}: no subscriber yet (controller not running or not "
+                                 f"discovered); nothing sent")
+            served = self.service.serve(path_id, request["method"], state)
         except ServeError as exc:
-            self._answer({"path": path_id, "ok": False, "error": str(exc)})
+            self._answer({"path": path_id, "id": request_id, "ok": False, "error": str(exc)})
             return
         except DatabaseError as exc:  # damaged, replaced or locked under us: answer, reopen later
             self._drop_database(str(exc))
-            self._answer({"path": path_id, "ok": False, "error": str(exc)})
+            self._answer({"path": path_id, "id": request_id, "ok": False, "error": str(exc)})
             return
         self._publish_trajectory(served)
-        self._answer(served.result())
+        self.served = (request_id, path_id, list(served.trajectory.joint_names))
+        self._answer({**served.result(), "id": request_id})
+
+    def _cancel(self, request_id: str) -> None:
+        """Stop the trajectory served for ``request_id``: an empty JointTrajectory, which a ros2_control
+        JointTrajectoryController (and crane_sim) take as "stop the current one"."""
+        if self.served is None or self.served[0] != request_id or not request_id:
+            self._answer({"path": "", "id": request_id, "ok": False, "cancelled": False,
+                          "error": f"cancel {request_id!r}: not the trajectory being served (that is "
+                                   f"{self.served[0] if self.served else 'none'!r})"})
+            return
+        _, path_id, joint_names = self.served
+        stop = JointTrajectory(joint_names=joint_names)
+        stop.header.stamp = self.get_clock().now().to_msg()
+        self.trajectory_pub.publish(stop)
+        if self.output_pub is not None:
+            self.output_pub.publish(stop)
+        self.served = None
+        self._answer({"path": path_id, "id": request_id, "ok": True, "cancelled": True, "error": ""})
 
     def _answer(self, result: dict[str, Any]) -> None:
         if not result["ok"]:
-            self.get_logger().warning(f"request {result['path']!r}: {result['error']}")
+            self.get_logger().warning(f"request {result['path']!r} (id {result.get('id', '')!r}): {result['error']}")
         self.result_pub.publish(String(data=json.dumps(result)))
 
     def _publish_trajectory(self, served: Served) -> None:

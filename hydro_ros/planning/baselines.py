@@ -26,6 +26,7 @@ import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
 from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.extras import optional_module
 from hydro_ros.models.crane import Crane
 from hydro_ros.planning.paths import PathSamples, TipPath
 from hydro_ros.planning.trajectory import ExtensionTrajectory
@@ -100,7 +101,7 @@ def pseudo_inverse(
 
 
 def _casadi_math() -> SimpleNamespace:
-    import casadi as ca
+    ca = optional_module("casadi")
 
     return SimpleNamespace(
         cos=ca.cos, sin=ca.sin, atan2=ca.atan2, acos=ca.acos, sqrt=ca.sqrt, tanh=ca.tanh, clip_unit=lambda value: value
@@ -117,7 +118,7 @@ def direct_collocation(
     nodes: tuple[int, ...] = BOOTSTRAP_NODES,
 ) -> tuple[ExtensionTrajectory, dict[str, Any]]:
     """Minimum CP energy by trapezoidal direct collocation + IPOPT, bootstrapped over ``nodes``."""
-    import casadi as ca
+    ca = optional_module("casadi")
 
     xp = _casadi_math()
     h = crane.hydraulics

@@ -23,6 +23,7 @@ from typing import Any, Callable
 import numpy as np
 
 from hydro_ros.contract.errors import BuildError, InputError
+from hydro_ros.contract.extras import optional_module
 from hydro_ros.models.crane import Crane
 from hydro_ros.planning.database import TrajectoryDatabase, inputs_hash, pack_arrays
 from hydro_ros.planning.problem import METHODS, Problem, method_record, run_method
@@ -170,10 +171,9 @@ def build(
 
 def _executor(stack: ExitStack, scheduler: str | None, workers: int | None, n_units: int) -> tuple[Executor | None, str]:
     if scheduler:
-        from distributed import Client
-
+        distributed = optional_module("distributed")
         try:
-            client = stack.enter_context(Client(scheduler, timeout="10s"))
+            client = stack.enter_context(distributed.Client(scheduler, timeout="10s"))
         except (OSError, TimeoutError) as exc:
             raise InputError(f"--scheduler {scheduler}: no Dask scheduler answers ({exc})") from None
         return stack.enter_context(client.get_executor()), f"Dask scheduler {scheduler}"

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
@@ -82,3 +82,10 @@ def run_blocks(
         done += n
         if progress is not None:
             progress(n)
+
+
+def simulate(machine: Machine, scenario: Scenario) -> Samples:
+    """The whole scenario's measurements as one actuator's (n, 1) columns (the monitor's layout)."""
+    parts = [measured for _, _, measured in run_blocks(machine, scenario)]
+    return Samples(**{f.name: None if getattr(parts[0], f.name) is None else np.concatenate([getattr(p, f.name) for p in parts])
+                      for f in fields(Samples)}).as_columns()

@@ -57,7 +57,7 @@ from hydro_ros.models.sam import (
     SamModel,
     SamPlant,
 )
-from hydro_ros.models.valve import spool_acceleration, spool_opening
+from hydro_ros.models.valve import spool_opening, spool_positions
 from hydro_ros.studies.plots import plot_discrepancy
 
 SEGMENT_S = 2.0
@@ -259,17 +259,10 @@ def _bic(error: np.ndarray, parameters: int, sample_rate: float) -> float:
 
 
 @njit(cache=True)
-def _equation_error(piston, velocity, p_a, p_b, command, supply, params, poly, centre, dt, out):
-    """Per sample (Q_A model - A_A x' - V_A/B p_A', same for B) [L/min], spool driven by the command."""
-    spool = command[0]
-    rate = 0.0
-    h = dt / 10.0
+def _equation_error(piston, velocity, p_a, p_b, spool, supply, params, poly, centre, dt, out):
+    """Per sample (Q_A model - A_A x' - V_A/B p_A', same for B) [L/min] at the spool the command drives."""
     for k in range(piston.shape[0]):
-        for _ in range(10):  # eq. (15) sub-stepped: the spool is the only state integrated here
-            acceleration = spool_acceleration(spool, rate, command[k], params[SPOOL_OMEGA], params[SPOOL_DAMPING])
-            spool += h * rate
-            rate += h * acceleration
-        s = spool_opening(spool, 0.0, params[DEADZONE], 1.0, False)
+        s = spool_opening(spool[k], 0.0, params[DEADZONE], 1.0, False)
         dpa = (p_a[k] - p_a[k - 1]) / dt if k > 0 else 0.0
         dpb = (p_b[k] - p_b[k - 1]) / dt if k > 0 else 0.0
         out[k, 0], out[k, 1] = flow_balance(s, piston[k], velocity[k], p_a[k], p_b[k], dpa, dpb, supply[k], params, poly, centre)
@@ -286,8 +279,9 @@ def load_independent_error(machine: Machine, rec: Recording) -> np.ndarray:
     velocity = torque_arm(theta, p[MOUNT_L1], p[MOUNT_L2]) * rec.joint_rate
     out = np.empty((len(rec.times), 2))
     supply = np.full(len(rec.times), p[SUPPLY])
-    _equation_error(piston, velocity, rec.pressure_a, rec.pressure_b, rec.command, supply, p, model.poly, model.centre_leakage,
-                    1.0 / model.sample_rate, out)
+    dt = 1.0 / model.sample_rate
+    spool = spool_positions(np.asarray(rec.command, dtype=float), p[SPOOL_OMEGA], p[SPOOL_DAMPING], dt, 10)
+    _equation_error(piston, velocity, rec.pressure_a, rec.pressure_b, spool, supply, p, model.poly, model.centre_leakage, dt, out)
     return out
 
 

@@ -23,7 +23,8 @@ from hydro_ros.fdi.isolation import code_string
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.fdi.settings import FdiSettings
-from hydro_ros.sim.scenario import Scenario, run_blocks
+from hydro_ros.sim.scenario import Scenario, run_blocks, simulate
+from hydro_ros.studies.commissioning import threshold_excess
 
 # Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order
 # fit RMSE is 1-2 % of K_v, an identified valve on another day/temperature is worse: 5 %.
@@ -127,19 +128,10 @@ def calibrate_threshold_constant(machine: Machine, seeds: Iterable[int], duratio
     excess of a fault-free 5 s mean residual over the quadratic term, times a safety margin, over
     training seeds that the evaluation does not use.
     """
-    worst = 0.0
-    for seed in seeds:
-        monitor = FdiMonitor(machine)
-        c2 = monitor.settings.threshold_quadratic
-        skip = monitor.window
-        for _, result in _blocks(machine, Case(None, 0.0, seed, duration_s=duration_s), monitor):
-            armed = slice(max(skip, 0), None)
-            skip -= len(result.times)
-            mean_pressure_sq = (result.threshold[armed] - monitor.settings.threshold_constant) / c2
-            excess = np.abs(result.mean_residual[armed]) - c2 * mean_pressure_sq
-            if excess.size:
-                worst = max(worst, float(excess.max()))
-    return margin * worst
+    worst = max(threshold_excess(FdiMonitor(machine), simulate(mismatched_config(machine, seed),
+                                                               Scenario(duration_s, seed=seed, actuator=machine.first.name)))
+                for seed in seeds)
+    return margin * max(worst, 0.0)
 
 
 def run_case(machine: Machine, case: Case) -> Outcome:
@@ -258,12 +250,14 @@ def evaluate(machine: Machine, *, seeds: int = 5, calibration_seeds: int = 10, d
     free = [Case(None, 0.0, 200 + s, duration_s=fault_free_minutes * 60.0 / runs) for s in range(runs)]
     paper_free = [Case(None, 0.0, 200 + s, duration_s=fault_free_minutes * 60.0 / runs) for s in range(runs)]
     outcomes = run_cases(calibrated, cases + free, workers=workers, progress=progress)
-    paper = run_cases(machine, paper_free, workers=workers, progress=progress)
+    paper_c0 = FdiSettings().threshold_constant  # P-II's own, whatever the config ships
+    paper = run_cases(machine.with_overrides({"fdi": {"threshold_constant": paper_c0}}), paper_free, workers=workers, progress=progress)
     summary = summarise(outcomes[: len(cases)], outcomes[len(cases):])
     paper_hours = sum(o.monitored_s for o in paper) / 3600.0
     summary["threshold"] = {
         "calibrated_constant_mpa": c0,
-        "paper_constant_mpa": settings.threshold_constant,
+        "paper_constant_mpa": paper_c0,
+        "config_constant_mpa": settings.threshold_constant,
         "quadratic_per_mpa": settings.threshold_quadratic,
         "paper_threshold_false_alarms_per_hour": sum(o.crossing_episodes for o in paper) / paper_hours,
     }

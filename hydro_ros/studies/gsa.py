@@ -17,6 +17,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from hydro_ros.contract.extras import optional_module
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.models.chamber import leak_coefficient
@@ -82,8 +83,8 @@ def problem(space: dict[str, tuple[float, float]]) -> dict[str, Any]:
 def sobol_indices(machine: Machine, space: dict[str, tuple[float, float]], samples: int, *, workers: int = 2,
                   seed: int = 0, resamples: int = 200, progress: Callable[[int], None] | None = None) -> dict[str, Any]:
     """First- and total-order indices with 95 % bootstrap intervals, per output and instant."""
-    from SALib.analyze import sobol as analyze
-    from SALib.sample import sobol as sample
+    analyze = optional_module("SALib.analyze.sobol")
+    sample = optional_module("SALib.sample.sobol")
 
     spec = problem(space)
     matrix = sample.sample(spec, samples, calc_second_order=False, seed=seed)

@@ -190,3 +190,31 @@ def plot_dp_compare(result: dict, out: str | Path) -> Path:
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def plot_commissioning(report: dict, machine: Machine, out: str | Path) -> Path:
+    """Fitted against nominal flow coefficient per notch, and the threshold it gives."""
+    out = Path(out)
+    fig, axes = plt.subplots(len(report["identification"]), 5, figsize=(16, 3.2 * len(report["identification"])), squeeze=False)
+    for row, ident in zip(axes, report["identification"]):
+        nominal = machine.actuator(ident["actuator"]).valve.kv_poly
+        for ax, notch in zip(row, ("PA", "PB", "AT", "BT")):
+            sign = 1.0 if notch in ("PA", "BT") else -1.0
+            openings = np.linspace(0.02, 1.0, 100)
+            ax.plot(openings, np.polyval(nominal[notch], sign * openings) * 1e7, label="nominal")
+            ax.plot(openings, np.polyval(ident["kv_poly"][notch], sign * openings) * 1e7,
+                    label=f"commissioned (gain {ident['notch_gain'][notch]:.3f})")
+            ax.set_title(f"{ident['actuator']} {notch}")
+            ax.set_xlabel("opening |s| [-]")
+            ax.set_ylabel("K_v [1e-7 m^3/(s Pa^0.5)]")
+            ax.legend(fontsize=7)
+            ax.grid(alpha=0.3)
+        ax = row[4]
+        values = [report["nominal_threshold_constant_mpa"], report["worst_held_out_excess_mpa"], report["threshold_constant_mpa"]]
+        ax.bar(["c0 before", "worst held-out\nexcess", "c0 commissioned"], values, color=["0.6", "tab:orange", "tab:blue"])
+        ax.set_ylabel("[MPa]")
+        ax.set_title(f"threshold ({report['held_out_s']:.0f} s held out)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out

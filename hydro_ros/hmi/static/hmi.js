@@ -56,7 +56,7 @@ function render(message) {
   renderAlarms(message.alarms);
   renderCatalog(message);
   renderJoints(message);
-  renderActions(message.actions);
+  renderActions(message.actions, message.refusals || []);
   mergeResiduals(message.residuals);
   requestAnimationFrame(() => timed(window.hmiDrawMs, drawPlots));
 }
@@ -147,9 +147,11 @@ function renderJoints(message) {
   }
 }
 
-function renderActions(actions) {
+function renderActions(actions, refusals) {
   document.getElementById("actions").replaceChildren(...actions.map((a) => el("li", { class: a.ok ? "done" : "refused" },
     `${clockTime(a.wall)} ${a.action} from ${a.client}: ${a.ok ? "done" : "refused"}: ${a.detail}`)));
+  document.getElementById("refusals").replaceChildren(...refusals.map((r) => el("li", { class: "refused" },
+    `${clockTime(r.wall)} ${r.action} from ${r.client} refused${r.count > 1 ? ` (${r.count}x)` : ""}: ${r.detail}`)));
 }
 
 async function act(url, body) {
@@ -244,6 +246,35 @@ function drawChannel(canvas, rows, channel) {
   line(channel.residual, 1, "#1565c0", []);
 }
 
+const alarmLog = { offset: 0, limit: 20, total: 0 };
+
+async function loadAlarmLog() {
+  const range = document.getElementById("alarm-log-range");
+  let answer;
+  try {
+    const response = await fetch(`/api/alarm_log?offset=${alarmLog.offset}&limit=${alarmLog.limit}`);
+    answer = await response.json();
+    if (!response.ok) { range.textContent = answer.error; return; }
+  } catch (error) {
+    range.textContent = `not reachable (${error})`;
+    return;
+  }
+  alarmLog.total = answer.total;
+  const last = Math.min(alarmLog.offset + answer.events.length, answer.total);
+  range.textContent = answer.total ? `${alarmLog.offset + 1}-${last} of ${answer.total}, newest first` : "empty";
+  document.querySelector("#alarm-log tbody").replaceChildren(...answer.events.map((e) => el("tr", { "data-event": e.event },
+    el("td", {}, new Date(e.wall_time * 1000).toLocaleString()), el("td", {}, e.actuator || "(all)"), el("td", {}, e.event),
+    el("td", {}, e.fault), el("td", {}, ["", "WARN", "ERROR"][e.level] || ""))));
+  document.getElementById("alarm-log-newer").disabled = alarmLog.offset === 0;
+  document.getElementById("alarm-log-older").disabled = last >= answer.total;
+}
+
+document.getElementById("alarm-log-newer").addEventListener("click", () => {
+  alarmLog.offset = Math.max(0, alarmLog.offset - alarmLog.limit); loadAlarmLog();
+});
+document.getElementById("alarm-log-older").addEventListener("click", () => { alarmLog.offset += alarmLog.limit; loadAlarmLog(); });
+setInterval(loadAlarmLog, 5000);
+loadAlarmLog();
 document.getElementById("acknowledge").addEventListener("click", () => act("/api/acknowledge", {}));
 document.getElementById("operator").addEventListener("submit", (event) => event.preventDefault());
 connect();

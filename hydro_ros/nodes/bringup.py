@@ -1,0 +1,33 @@
+"""The nodes launch/machine.launch.py brings up on a machine, and the params file it reads for each.
+
+``hydro-ros params --config C`` writes that file from the nodes' own parameter tables, so every
+parameter appears with its unit, default and range, and the file cannot drift from the code
+(test/test_launch.py compares the shipped config/params/*.yaml with it).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from hydro_ros.nodes import can_bridge, fdi_node, hmi
+from hydro_ros.nodes.parameters import PACKAGE_SHARE, Spec, params_yaml
+
+BRINGUP: dict[str, dict[str, Spec]] = {
+    "can_bridge": can_bridge.PARAMETERS,
+    "fdi_node": fdi_node.PARAMETERS,
+    "hmi": hmi.PARAMETERS,
+}
+
+
+def machine_params(config: Path) -> str:
+    """The params file of the machine whose config is ``config`` (a file of the package's config/)."""
+    header = (
+        f"# Parameters of the hydro_ros nodes on the machine of {config.name}, for launch/machine.launch.py\n"
+        f"# (written by `hydro-ros params --config config/{config.name}`; edit the values, keep the keys).\n"
+        "# Each comment: what it is [unit] (default; range; read at start or settable while running).\n"
+        f"# {PACKAGE_SHARE} is expanded by the launch file; for `--params-file` write the path out.\n"
+        "# /**: the same values for these node names in any namespace (-r __ns:=/machine2).\n"
+    )
+    blocks = [params_yaml(name, specs, {"config": f"{PACKAGE_SHARE}/config/{config.name}"}).replace(f"{name}:\n", f"/**/{name}:\n", 1)
+              for name, specs in BRINGUP.items()]
+    return header + "\n".join(blocks)

@@ -1,0 +1,121 @@
+"""recorder: the contract topics of a running machine into a bag, for machines without the ros2 CLI.
+
+``hydro-ros record`` runs it. Each topic is subscribed with raw CDR (nothing is deserialised) and
+with the reliability its publishers offer, so a best-effort driver is recorded too; the publishers'
+QoS goes into the bag's ``offered_qos_profiles``. Log time is the message's header stamp (contract
+section 2). The bag is split by recording (wall) time, as ``ros2 bag record --max-bag-duration``
+does, since header stamps need not arrive in order across topics, and/or by size (bags/writer.py).
+Stopping with Ctrl-C or SIGTERM closes the open part and writes metadata.yaml.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import struct
+import time
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+from hydro_ros.bags.writer import BagWriter
+from hydro_ros.contract import topics
+from hydro_ros.contract.machine import Machine
+from hydro_ros.nodes.common import SENSOR_QOS, message_class, relative
+
+DISCOVERY_S = 2.0  # wait for publishers before subscribing, so their QoS is known
+
+
+def _offered(info: Any) -> Qos:
+    """rclpy's TopicEndpointInfo QoS as rosbags' Qos (the rmw enum values are the same numbers)."""
+    qos = info.qos_profile
+
+    def duration(value: Any) -> QosTime:
+        return QosTime(*divmod(int(value.nanoseconds), 1_000_000_000))
+
+    return Qos(QosHistory(int(qos.history)), int(qos.depth), QosReliability(int(qos.reliability)), QosDurability(int(qos.durability)),
+               duration(qos.deadline), duration(qos.lifespan), QosLiveliness(int(qos.liveliness)),
+               duration(qos.liveliness_lease_duration), bool(qos.avoid_ros_namespace_conventions))
+
+
+def header_stamp_ns(data: bytes) -> int:
+    """std_msgs/Header.stamp of a CDR message whose first field is the header (after the 4-byte encapsulation)."""
+    sec, nanosec = struct.unpack_from("<iI", data, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+class Recorder(Node):
+    def __init__(self, writer: BagWriter, wanted: dict[str, str]) -> None:
+        super().__init__("recorder")
+        self.writer = writer
+        self.wanted = wanted
+        self.counts: dict[str, int] = {}
+        self._handles: dict[str, int] = {}
+        self._subscribed: dict[str, Any] = {}
+
+    def subscribe_all(self) -> None:
+        for topic, type_name in self.wanted.items():
+            if topic in self._subscribed:
+                continue
+            name = self.resolve_topic_name(relative(topic))
+            offered = self.get_publishers_info_by_topic(name)
+            qos = SENSOR_QOS
+            if offered and all(info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for info in offered):
+                qos = QoSProfile(depth=SENSOR_QOS.depth, reliability=ReliabilityPolicy.BEST_EFFORT)
+            self._handles[topic] = self.writer.add_topic(topic, type_name, [_offered(info) for info in offered[:1]])
+            self.counts[topic] = 0
+            self._subscribed[topic] = self.create_subscription(
+                message_class(type_name), relative(topic), lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+
+    def _on_message(self, topic: str, data: bytes) -> None:
+        self.writer.write(self._handles[topic], header_stamp_ns(data), data)
+        self.counts[topic] += 1
+
+
+def _interrupt(*_: Any) -> None:
+    raise KeyboardInterrupt  # SIGTERM ends a recording as Ctrl-C does: the open part is closed
+
+
+def record(machine: Machine, out: Path, *, duration_s: float | None, split_duration_s: float | None,
+           split_size_bytes: int | None, outputs: bool, progress: Any = None) -> dict[str, Any]:
+    """Record until ``duration_s`` of wall time has passed (None: until Ctrl-C / SIGTERM)."""
+    wanted = topics.sensor_topics(machine.actuator_names, mobile=machine.mobile)
+    if outputs:
+        wanted.update({topics.DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray"})
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    rclpy.init()
+    began = time.monotonic()
+    try:
+        with BagWriter(out, split_size_bytes=split_size_bytes) as writer:
+            writer.custom_data["hydro_ros.recorded"] = f"{machine.name} ({machine.source})"
+            node = Recorder(writer, wanted)
+            try:
+                end = began + DISCOVERY_S
+                while time.monotonic() < end:
+                    rclpy.spin_once(node, timeout_sec=0.1)
+                node.subscribe_all()
+                started = time.monotonic()
+                stop = math.inf if duration_s is None else started + duration_s
+                next_split = math.inf if split_duration_s is None else started + split_duration_s
+                while rclpy.ok() and time.monotonic() < stop:
+                    rclpy.spin_once(node, timeout_sec=0.1)
+                    if time.monotonic() >= next_split:
+                        writer.split()
+                        next_split += split_duration_s
+                    if progress is not None:
+                        progress(writer.messages)
+            except KeyboardInterrupt:
+                pass
+            finally:
+                counts = dict(node.counts)
+                node.destroy_node()
+    finally:
+        if rclpy.ok():
+            rclpy.shutdown()
+        signal.signal(signal.SIGTERM, previous)
+    return {"bag": str(out), "files": writer.files, "messages": writer.messages, "topics": counts,
+            "seconds": round(time.monotonic() - began, 3)}
