@@ -31,6 +31,7 @@ setup(
             "fdi_node = hydro_ros.nodes.fdi_node:main",
             "can_bridge = hydro_ros.nodes.can_bridge:main",
             "trajectory_server = hydro_ros.nodes.trajectory_server:main",
+            "trajectory_executor = hydro_ros.nodes.trajectory_executor:main",
             "hmi = hydro_ros.nodes.hmi:main",
             "hydro-ros = hydro_ros.cli:main",
         ],

@@ -84,3 +84,27 @@ def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         return probe.getsockname()[1]
+
+
+def change_state(node: rclpy.node.Node, lifecycle_node: str, transition_id: int) -> bool:
+    """Ask a lifecycle node (its full name) for a transition; True when it succeeded."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+
+    client = node.create_client(ChangeState, f"{lifecycle_node}/change_state")
+    assert client.wait_for_service(20.0), f"{lifecycle_node}/change_state not offered"
+    future = client.call_async(ChangeState.Request(transition=Transition(id=transition_id)))
+    assert spin_until(node, future.done, 10)
+    node.destroy_client(client)
+    return future.result().success
+
+
+def lifecycle_state(node: rclpy.node.Node, lifecycle_node: str) -> str:
+    from lifecycle_msgs.srv import GetState
+
+    client = node.create_client(GetState, f"{lifecycle_node}/get_state")
+    assert client.wait_for_service(20.0), f"{lifecycle_node}/get_state not offered"
+    future = client.call_async(GetState.Request())
+    assert spin_until(node, future.done, 10)
+    node.destroy_client(client)
+    return future.result().current_state.label

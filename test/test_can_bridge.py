@@ -18,7 +18,7 @@ from hydro_ros.can.codec import MachineBus, crc8
 from hydro_ros.nodes.can_bridge import BusReader
 from hydro_ros.nodes.common import SENSOR_QOS
 from test.conftest import SAM_CONFIG
-from test.ros_graph import node_process, probe_node, spin_until
+from test.ros_graph import change_state, lifecycle_state, node_process, probe_node, spin_until
 
 # plant_sim's own topics are moved aside so everything the graph sees comes through the bus
 SIM_TOPICS_ASIDE = [arg for name in ("/joint_states", "/hydraulics/boom/pressure_a", "/hydraulics/boom/pressure_b",
@@ -190,29 +190,6 @@ def test_forward_commands_sends_valve_requests_and_drops_nan(ros_domain, sam_con
         listener.shutdown()
 
 
-def _change_state(node, transition_id: int) -> bool:
-    from lifecycle_msgs.msg import Transition
-    from lifecycle_msgs.srv import ChangeState
-
-    client = node.create_client(ChangeState, "/can_bridge/change_state")
-    assert client.wait_for_service(20.0)
-    future = client.call_async(ChangeState.Request(transition=Transition(id=transition_id)))
-    assert spin_until(node, future.done, 10)
-    node.destroy_client(client)
-    return future.result().success
-
-
-def _state(node) -> str:
-    from lifecycle_msgs.srv import GetState
-
-    client = node.create_client(GetState, "/can_bridge/get_state")
-    assert client.wait_for_service(20.0)
-    future = client.call_async(GetState.Request())
-    assert spin_until(node, future.done, 10)
-    node.destroy_client(client)
-    return future.result().current_state.label
-
-
 def test_lifecycle_opens_forwards_and_leaves_the_valves_neutral(ros_domain, sam_config):
     """configure opens the bus without driving anything; activate forwards; deactivate sends neutral requests."""
     from lifecycle_msgs.msg import Transition
@@ -237,23 +214,23 @@ def test_lifecycle_opens_forwards_and_leaves_the_valves_neutral(ros_domain, sam_
                           "-p", f"channel:={group}", "-p", "forward_commands:=true", "-p", "autostart:=false"), \
                 probe_node("probe") as node:
             publisher = node.create_publisher(JointState, "/hydraulics/valve_commands", SENSOR_QOS)
-            assert _state(node) == "unconfigured"
-            assert _change_state(node, Transition.TRANSITION_CONFIGURE)
-            assert _state(node) == "inactive"
+            assert lifecycle_state(node, "/can_bridge") == "unconfigured"
+            assert change_state(node, "/can_bridge", Transition.TRANSITION_CONFIGURE)
+            assert lifecycle_state(node, "/can_bridge") == "inactive"
             assert spin_until(node, lambda: publisher.get_subscription_count() > 0, 20)
             publisher.publish(JointState(name=["boom"], position=[0.25]))
             assert requests(1.5) == []  # inactive: the bus is open, nothing drives the valve
 
-            assert _change_state(node, Transition.TRANSITION_ACTIVATE)
+            assert change_state(node, "/can_bridge", Transition.TRANSITION_ACTIVATE)
             publisher.publish(JointState(name=["boom"], position=[0.25]))
             assert requests(1.5) == [pytest.approx(0.25, abs=1e-4)]
 
-            assert _change_state(node, Transition.TRANSITION_DEACTIVATE)
+            assert change_state(node, "/can_bridge", Transition.TRANSITION_DEACTIVATE)
             assert requests(1.0) == [0.0]  # the valve is left neutral
             publisher.publish(JointState(name=["boom"], position=[0.5]))
             assert requests(1.0) == []
 
-            assert _change_state(node, Transition.TRANSITION_CLEANUP)
-            assert _state(node) == "unconfigured"
+            assert change_state(node, "/can_bridge", Transition.TRANSITION_CLEANUP)
+            assert lifecycle_state(node, "/can_bridge") == "unconfigured"
     finally:
         listener.shutdown()

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from test.conftest import REPO
 
-EXECUTABLES = ("plant_sim", "crane_sim", "bag_player", "fdi_node", "can_bridge", "trajectory_server", "hmi")
+EXECUTABLES = ("plant_sim", "crane_sim", "bag_player", "fdi_node", "can_bridge", "trajectory_server", "trajectory_executor", "hmi")
 
 
 def test_colcon_build_installs_executables_in_the_ament_index(tmp_path):

@@ -10,10 +10,11 @@ import pytest
 from hydro_ros.bags.reader import read_bag
 from hydro_ros.cli import main as cli_main
 from hydro_ros.models.crane import Crane
+from hydro_ros.planning.controller import MotionController, controller_settings
 from hydro_ros.planning.problem import Problem, run_method
 from hydro_ros.planning.trajectory import joint_trajectory
 from hydro_ros.sim.crane import CranePlant
-from hydro_ros.studies.execution import MotionController, controller_settings, execute, iso9283_path_accuracy
+from hydro_ros.studies.execution import execute, iso9283_path_accuracy
 from test.conftest import K70M
 
 GRID = (120, 41, 41)

@@ -1,24 +1,27 @@
-"""trajectory_server on a real DDS graph: a client at some joint state requests paths."""
+"""trajectory_server and trajectory_executor on a real DDS graph: a client at some joint state requests paths, the\nexecutor drives the simulated crane."""
 
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
+from builtin_interfaces.msg import Duration
 from sensor_msgs.msg import JointState
-from std_msgs.msg import String
-from trajectory_msgs.msg import JointTrajectory
+from std_msgs.msg import Bool, String
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from hydro_ros.contract import topics
 from hydro_ros.models.crane import Crane
-from hydro_ros.nodes.common import LATCHED_QOS
+from hydro_ros.nodes.common import HALT_QOS, LATCHED_QOS
 from hydro_ros.planning.catalog import build, plan_units
 from hydro_ros.planning.database import TrajectoryDatabase
 from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE
+from hydro_ros.studies.execution import iso9283_path_accuracy
 from test.conftest import K70M
-from test.ros_graph import node_process, probe_node, spin_until
+from test.ros_graph import change_state, lifecycle_state, node_process, probe_node, spin_until
 
 
 @pytest.fixture(scope="module")
@@ -156,3 +159,135 @@ def test_served_trajectory_runs_on_the_simulated_crane(ros_domain, catalog_db):
     assert run["ok"] and run["supply"] == "cp"
     assert run["energy_J"] == pytest.approx(results[-1]["cp_energy_J"], rel=0.1)
     assert run["path_accuracy_iso9283_m"] < 0.2
+
+
+EXECUTOR_IN_CRANE = "/crane/trajectory_executor"
+
+
+def _crane_plant_and_executor(*executor_args: str):
+    """crane_sim as a plant only (its valves take /crane/hydraulics/valve_commands) and the executor driving it."""
+    return (
+        node_process("hydro_ros.nodes.crane_sim", "-r", "__ns:=/crane", "-p", f"config:={K70M}", "-p", "external_commands:=true",
+                     "-p", "publish_rate:=100.0", "-p", "initial_path:=horizontal", "-p", "initial_extension:=0.3"),
+        node_process("hydro_ros.nodes.trajectory_executor", "-r", "__ns:=/crane", "-p", f"config:={K70M}", *executor_args),
+    )
+
+
+def _watch_crane(node) -> dict[str, list]:
+    seen: dict[str, list] = {"joints": [], "commands": [], "status": []}
+    node.create_subscription(JointState, "/crane" + topics.JOINT_STATES,
+                             lambda m: seen["joints"].append((time.monotonic(), np.array(m.position))), 10)
+    node.create_subscription(JointState, "/crane" + topics.VALVE_COMMANDS,
+                             lambda m: seen["commands"].append((time.monotonic(), np.array(m.position))), 10)
+    node.create_subscription(String, f"{EXECUTOR_IN_CRANE}/status", lambda m: seen["status"].append(json.loads(m.data)), LATCHED_QOS)
+    return seen
+
+
+def test_the_executor_drives_the_crane_along_the_served_path_within_the_bench_accuracy(ros_domain, catalog_db):
+    """trajectory_server -> output_topic -> trajectory_executor -> valve commands -> the crane plant -> joint states."""
+    db_path, config = catalog_db
+    plant, executor = _crane_plant_and_executor()
+    with plant, executor, node_process("hydro_ros.nodes.trajectory_server", "-r", "__ns:=/crane", "-p", f"database:={db_path}",
+                                       "-p", "output_topic:=trajectory_executor/joint_trajectory"), probe_node("client") as node:
+        seen = _watch_crane(node)
+        served: list[JointTrajectory] = []
+        node.create_subscription(JointTrajectory, "/crane/trajectory_server/trajectory", served.append, LATCHED_QOS)
+        results: list[dict] = []
+        node.create_subscription(String, "/crane/trajectory_server/result", lambda m: results.append(json.loads(m.data)), LATCHED_QOS)
+        requests = node.create_publisher(String, "/crane/trajectory_server/request", 10)
+        assert spin_until(node, lambda: seen["joints"] and requests.get_subscription_count() > 0
+                          and seen["status"] and seen["status"][-1]["state"] == "idle", 30)
+        assert all(not command.any() for _, command in seen["commands"]), "an idle executor commands neutral"
+        for _ in range(20):  # until discovery has connected the joint states to the server and the server to the executor
+            count = len(results)
+            requests.publish(String(data="horizontal"))
+            assert spin_until(node, lambda: len(results) > count, 20)
+            if results[-1]["ok"] or not ("nothing received" in results[-1]["error"] or "no subscriber" in results[-1]["error"]):
+                break
+            spin_until(node, lambda: False, 0.5)
+        assert results[-1]["ok"], results[-1]
+        assert spin_until(node, lambda: any(s["state"] == "executing" for s in seen["status"]), 10), seen["status"]
+        began = time.monotonic()
+        assert spin_until(node, lambda: seen["status"][-1]["state"] == "idle", 40), seen["status"]
+        ended = time.monotonic()
+    crane = Crane(config)
+    commanded = np.array([p.positions for p in served[-1].points])
+    executed = np.array([q for t, q in seen["joints"] if began <= t <= ended])
+    accuracy = iso9283_path_accuracy(crane.forward(executed), crane.forward(commanded))
+    assert accuracy < 0.2  # the closed-loop bench's scale (P-VI Table 4: tenths of a metre on the K70M)
+    assert np.linalg.norm(crane.forward(executed[-1]) - crane.forward(commanded[-1])) < 0.1
+    moving = [command for t, command in seen["commands"] if began <= t <= ended]
+    assert np.abs(moving).max() > 0.5  # the valves were driven past their dead zone
+    assert not seen["commands"][-1][1].any()  # done: neutral
+
+
+def _move_from(joints: np.ndarray, names: list[str], extension_step: float, duration: float) -> JointTrajectory:
+    """A slow move of the telescope alone, from the measured joints."""
+    msg = JointTrajectory(joint_names=names)
+    for k, t in enumerate(np.linspace(0.0, duration, 21)):
+        point = JointTrajectoryPoint(positions=(joints + np.array([0.0, 0.0, 0.0, extension_step * k / 20])).tolist(),
+                                     velocities=[0.0, 0.0, 0.0, extension_step / duration])
+        point.time_from_start = Duration(sec=int(t), nanosec=int(round((t % 1.0) * 1e9)))
+        msg.points.append(point)
+    return msg
+
+
+def test_the_executor_refuses_bad_trajectories_and_stops_neutral_on_halt_and_on_deactivate(ros_domain, k70m):
+    from lifecycle_msgs.msg import Transition
+
+    names = config_joint_names(k70m)
+    plant, executor = _crane_plant_and_executor("-p", "joint_state_timeout:=0.5")
+    with plant, executor as executor_process, probe_node("client") as node:
+        seen = _watch_crane(node)
+        trajectories = node.create_publisher(JointTrajectory, f"{EXECUTOR_IN_CRANE}/joint_trajectory", 10)
+        halt = node.create_publisher(Bool, "/crane" + topics.FDI_HALT, HALT_QOS)
+        assert spin_until(node, lambda: seen["joints"] and trajectories.get_subscription_count() > 0
+                          and seen["status"] and seen["status"][-1]["state"] == "idle", 30)
+
+        def send(msg: JointTrajectory) -> dict:
+            count = len(seen["status"])
+            trajectories.publish(msg)
+            assert spin_until(node, lambda: len(seen["status"]) > count, 10)
+            return seen["status"][-1]
+
+        joints = seen["joints"][-1][1]
+        far = send(_move_from(joints + np.array([0.0, 0.1, 0.0, 0.0]), names, 0.1, 5.0))
+        assert far["state"] == "refused" and "starts 0.100" in far["reason"]
+        beyond = send(_move_from(joints, names, 5.0, 5.0))  # past the telescope's stroke
+        assert beyond["state"] == "refused" and "extension" in beyond["reason"]
+        too_fast = send(_move_from(joints, names, 0.5, 0.5))
+        assert too_fast["state"] == "refused" and "m/s, limit" in too_fast["reason"]
+
+        # halt: neutral at once, and nothing new until it clears
+        assert send(_move_from(seen["joints"][-1][1], names, 0.3, 6.0))["state"] == "executing"
+        assert spin_until(node, lambda: np.abs(seen["commands"][-1][1]).max() > 0.5, 5)
+        halt.publish(Bool(data=True))
+        asked = time.monotonic()
+        assert spin_until(node, lambda: seen["status"][-1]["state"] == "stopped", 5)
+        assert seen["status"][-1]["reason"] == "halt requested on /fdi/halt"
+        spin_until(node, lambda: False, 0.3)
+        assert all(not command.any() for t, command in seen["commands"] if t > asked + 0.1)
+        refused = send(_move_from(seen["joints"][-1][1], names, 0.3, 6.0))
+        assert refused["state"] == "refused" and "halt" in refused["reason"]
+        halt.publish(Bool(data=False))
+        spin_until(node, lambda: False, 0.3)
+
+        # deactivate mid-move: neutral commands, then silence
+        assert send(_move_from(seen["joints"][-1][1], names, 0.3, 6.0))["state"] == "executing"
+        assert spin_until(node, lambda: np.abs(seen["commands"][-1][1]).max() > 0.5, 5)
+        assert change_state(node, EXECUTOR_IN_CRANE, Transition.TRANSITION_DEACTIVATE)
+        assert lifecycle_state(node, EXECUTOR_IN_CRANE) == "inactive"
+        assert not seen["commands"][-1][1].any()
+        count = len(seen["commands"])
+        spin_until(node, lambda: False, 0.5)
+        assert len(seen["commands"]) == count, "an inactive executor sends nothing"
+        assert seen["status"][-1]["state"] == "inactive"
+
+        # SIGTERM mid-move (a process manager stopping it): its last words are neutral commands
+        assert change_state(node, EXECUTOR_IN_CRANE, Transition.TRANSITION_ACTIVATE)
+        assert send(_move_from(seen["joints"][-1][1], names, 0.3, 6.0))["state"] == "executing"
+        assert spin_until(node, lambda: np.abs(seen["commands"][-1][1]).max() > 0.5, 5)
+        executor_process.terminate()
+        executor_process.wait(timeout=10)
+        spin_until(node, lambda: False, 0.5)
+        assert not seen["commands"][-1][1].any()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 from typing import Any, Callable
 
@@ -11,6 +12,7 @@ from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 
 from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
@@ -43,9 +45,19 @@ def message_class(type_name: str) -> Any:
     return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
 
-def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None:
-    """Init, spin, shut down cleanly; Ctrl-C exits without a traceback."""
-    rclpy.init(args=args)
+def run_node(factory: Callable[[], Node], args: list[str] | None = None, *, last_words: bool = False) -> None:
+    """Init, spin, shut down cleanly; Ctrl-C exits without a traceback.
+
+    ``last_words``: a node that must still publish as it goes (neutral valve commands) handles SIGINT and
+    SIGTERM itself. rclpy's own handlers shut the context down first, after which nothing can be sent;
+    here the signal ends the spin and the node is destroyed while its publishers still work.
+    """
+    if last_words:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        signal.signal(signal.SIGTERM, _interrupt)
+        signal.signal(signal.SIGINT, _interrupt)
+    else:
+        rclpy.init(args=args)
     node = None
     try:
         try:
@@ -61,3 +73,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt

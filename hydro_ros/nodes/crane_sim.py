@@ -11,6 +11,10 @@ a trajectory is done (after the controller's settle time), its measures as JSON 
 ``~/execution``: pump energy, ISO 9283 path accuracy, tracking errors. Topic names are relative,
 so ``-r __ns:=/crane`` puts a crane beside another machine on one graph (the contract's names
 without a namespace).
+
+With ``external_commands`` the crane is a plant only, as a real one is to ``trajectory_executor``: it
+applies the valve commands it receives on /hydraulics/valve_commands (neutral when none is younger
+than ``command_timeout``) and publishes its sensors; it takes no trajectory and reports no execution.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import load_crane
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.planning.controller import CylinderReference
 from hydro_ros.planning.dp import DpGrid, start_position
 from hydro_ros.planning.paths import path_from_config
 from hydro_ros.planning.serving import path_start_state
@@ -54,6 +59,10 @@ PARAMETERS = {
     "start_tolerance": Spec(0.02, "[rad or m] a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
                             read_only=False),
     "publish_rate": Spec(50.0, "[Hz] rate of the sensor topics", 1.0, 1000.0),
+    "external_commands": Spec(False, "take the valve commands from /hydraulics/valve_commands (an outside controller, e.g. "
+                                     "trajectory_executor) instead of following trajectories itself"),
+    "command_timeout": Spec(0.1, "[s wall] with external_commands, valves go neutral when no command is this fresh",
+                            0.001, 10.0),
 }
 
 
@@ -84,7 +93,15 @@ class CraneSim(Node):
         self.names = list(self.crane.names)
         # relative names: /joint_states etc. by default, /<ns>/joint_states for a machine in a namespace
         self.pub_joints = self.create_publisher(JointState, relative(topics.JOINT_STATES), SENSOR_QOS)
-        self.pub_commands = self.create_publisher(JointState, relative(topics.VALVE_COMMANDS), SENSOR_QOS)
+        self.external = self.params["external_commands"]
+        self.command_timeout = self.params["command_timeout"]
+        self.external_command = np.zeros(len(self.names))
+        self.external_command_time = -math.inf
+        if self.external:  # the valve commands are the outside controller's topic, not this node's
+            self.pub_commands = None
+            self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._on_valve_commands, SENSOR_QOS)
+        else:
+            self.pub_commands = self.create_publisher(JointState, relative(topics.VALVE_COMMANDS), SENSOR_QOS)
         self.pub_supply = self.create_publisher(FluidPressure, relative(topics.SUPPLY_PRESSURE), SENSOR_QOS)
         self.pub_pressures = [
             (self.create_publisher(FluidPressure, relative(topics.pressure_a(name)), SENSOR_QOS),
@@ -92,7 +109,8 @@ class CraneSim(Node):
             for name in self.names
         ]
         self.pub_execution = self.create_publisher(String, "~/execution", LATCHED_QOS)
-        self.create_subscription(JointTrajectory, trajectory_topic, self._on_trajectory, 10)
+        if not self.external:
+            self.create_subscription(JointTrajectory, trajectory_topic, self._on_trajectory, 10)
         self.publish_every = max(int(round(1.0 / (publish_rate * self.loop.plant.dt))), 1)
         self.trajectory: JointTrajectoryData | None = None
         self.rows: list[tuple] = []
@@ -102,7 +120,8 @@ class CraneSim(Node):
         self.create_timer(self.params["tick_period"], self._tick)
         self.get_logger().info(
             f"crane {config['machine']} ({supply.upper()} pump) at the start of {initial_path!r}, "
-            f"extension {initial_extension:.3f} m; trajectories on {trajectory_topic}"
+            f"extension {initial_extension:.3f} m; "
+            + (f"valve commands on {topics.VALVE_COMMANDS}" if self.external else f"trajectories on {trajectory_topic}")
         )
 
     def _on_parameter(self, name: str, value: Any) -> None:
@@ -124,12 +143,16 @@ class CraneSim(Node):
         self.end_time = self.loop.time + float(trajectory.time[-1]) + self.loop.settings["settle_time"]
         self.get_logger().info(f"executing a {trajectory.time[-1]:.1f} s trajectory of {len(trajectory.time)} points")
 
+    def _on_valve_commands(self, msg: JointState) -> None:
+        """An outside controller's commands, by cylinder name; a missing or non-finite one is neutral."""
+        by_name = dict(zip(msg.name, msg.position))
+        command = np.array([by_name.get(name, 0.0) for name in self.names], dtype=float)
+        self.external_command = np.clip(np.nan_to_num(command, nan=0.0, posinf=0.0, neginf=0.0), -1.0, 1.0)
+        self.external_command_time = time.monotonic()
+
     def _hold(self) -> None:
         """Stop where the crane is: track its current joints, at rest."""
-        current = np.array(self.loop.plant.joint_motion().q)
-        positions = np.vstack([current, current])
-        self.loop.follow(JointTrajectoryData(self.names, np.array([0.0, 0.1]), positions, np.zeros_like(positions),
-                                             np.zeros_like(positions), np.zeros(2)))
+        self.loop.reference = CylinderReference.hold(self.crane, np.array(self.loop.plant.joint_motion().q))
         if self.trajectory is not None:
             self.trajectory = None
             self._report({"ok": False, "cancelled": True, "error": "trajectory cancelled: holding the joints where they are"})
@@ -160,8 +183,12 @@ class CraneSim(Node):
         loop = self.loop
         target = (time.monotonic() - self.start_wall) * self.rtf
         steps = min(int((target - loop.time) / loop.plant.dt), int(MAX_CATCH_UP_S / loop.plant.dt))
+        command = None
+        if self.external:
+            fresh = time.monotonic() - self.external_command_time <= self.command_timeout
+            command = self.external_command if fresh else np.zeros(len(self.names))
         for _ in range(max(steps, 0)):
-            loop.advance()
+            loop.advance(command)
             if loop.steps % self.publish_every == 0:
                 self._publish()
                 if self.trajectory is not None:
@@ -181,9 +208,10 @@ class CraneSim(Node):
         joints = JointState(name=self.names, position=[float(q) for q in motion.q], velocity=[float(v) for v in motion.qd])
         joints.header.stamp = stamp
         self.pub_joints.publish(joints)
-        commands = JointState(name=self.names, position=loop.command.tolist())
-        commands.header.stamp = stamp
-        self.pub_commands.publish(commands)
+        if self.pub_commands is not None:
+            commands = JointState(name=self.names, position=loop.command.tolist())
+            commands.header.stamp = stamp
+            self.pub_commands.publish(commands)
         self.pub_supply.publish(_pressure(stamp, "supply", s.supply_pressure))
         for (pub_a, pub_b), name, p_a, p_b in zip(self.pub_pressures, self.names, s.pressure_a, s.pressure_b):
             pub_a.publish(_pressure(stamp, name, p_a))

@@ -11,7 +11,8 @@ JointTrajectory, which such a controller (and crane_sim) takes as "stop the curr
 
 A request is served from the manipulator's actual state: the latest ``/joint_states`` must be
 younger than ``joint_state_timeout``; when it differs from the stored start the stored DP policy
-runs forward from it (``hydro_ros.planning.serving``). Every failure (unknown path or method, no or
+runs forward from it (``hydro_ros.planning.serving``); the tables are loaded and the forward pass
+compiled when the database opens or changes, before the catalog is published. Every failure (unknown path or method, no or
 stale joint state, a start the path cannot be run from, a missing, locked or corrupt database)
 is answered on ``~/result`` with ``ok: false`` and a one-line error; nothing is published on
 ``~/trajectory`` then. The database is opened lazily and re-checked every ``poll_period``, so
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from typing import Any
 
 from builtin_interfaces.msg import Duration
@@ -124,6 +126,10 @@ class TrajectoryServer(Node):
             version = self.service.db.data_version()
             if version != self.data_version:
                 self.data_version = version
+                began = time.perf_counter()
+                prepared = self.service.prepare()
+                self.get_logger().info(f"re-planning ready for {', '.join(prepared) or 'no DP solution'} "
+                                       f"({time.perf_counter() - began:.1f} s)")
                 self._publish_catalog(self._catalog())
         except DatabaseError as exc:  # the file was replaced or damaged under us: reopen on the next poll
             self._drop_database(str(exc))

@@ -36,7 +36,7 @@ from hydro_ros.models.crane import Crane
 from hydro_ros.models.crane_hydraulics import cylinder_table, driven_pressure, total_pump_flow
 from hydro_ros.planning.costs import Cost, stage_power
 from hydro_ros.planning.paths import PathSamples
-from hydro_ros.planning.trajectory import ExtensionTrajectory
+from hydro_ros.planning.trajectory import ExtensionTrajectory, crane_motion
 
 INFEASIBLE = 1.0e15  # cost-to-go of states with no admissible continuation
 _FEASIBLE_BELOW = 1.0e12  # any interpolation weight on an infeasible node shows above this
@@ -268,6 +268,79 @@ def _cost_to_go_at(cost_next: np.ndarray, ic: int, wc: float, y: float) -> float
     )
 
 
+@njit(cache=True)
+def _add_samples_around(samples: np.ndarray, count: int, position: float, first: int, last: int) -> int:
+    """Append the control samples next to fractional sample index ``position`` (a breakpoint), within [first, last]."""
+    if not (position == position) or position < first - 2.0 or position > last + 2.0:  # NaN or far outside
+        return count
+    for m in range(int(math.floor(position - 1e-9)), int(math.floor(position + 1e-9)) + 2):
+        if first <= m <= last:
+            samples[count] = m
+            count += 1
+    return count
+
+
+@njit(cache=True)
+def _breakpoint_samples(
+    mode: int,
+    first: int,
+    last: int,
+    y_first: float,
+    y_per_control: float,
+    u_first: float,
+    u_step: float,
+    force_offset: np.ndarray,
+    force_slope: np.ndarray,
+    velocity: np.ndarray,
+    table: np.ndarray,
+    hydraulics: np.ndarray,
+    samples: np.ndarray,
+    lines: np.ndarray,
+) -> int:
+    """Into ``samples``, the control samples (sorted, may repeat; their count returned) among which the minimum of stage cost + interpolated cost-to-go
+    over [first, last] lies: both are piecewise linear in u, so the sum is linear between breakpoints and its
+    minimum over the samples sits at a window end or next to a breakpoint. Breakpoints: the next velocity
+    nodes (J_{k+1} is linear between them), each cylinder force's zero (a driven chamber switches on or
+    off), and for the LS cost each crossing of two cylinders' driven-pressure lines (the max switches).
+    A few dozen samples instead of every admissible control (151 on P-VI's grid), the same minimum."""
+    n = force_offset.shape[0]
+    samples[0] = first
+    samples[1] = last
+    count = 2
+    y_last = y_first + (last - first) * y_per_control
+    for node in range(int(math.ceil(min(y_first, y_last))), int(math.floor(max(y_first, y_last))) + 1):
+        count = _add_samples_around(samples, count, first + (node - y_first) / y_per_control, first, last)
+    line_offset, line_slope = lines[0], lines[1]  # driven pressure where cylinder c drives, affine in u
+    line_offset[:] = 0.0
+    line_slope[:] = 0.0
+    for c in range(n):
+        if force_slope[c] != 0.0:
+            count = _add_samples_around(samples, count, (-force_offset[c] / force_slope[c] - u_first) / u_step, first, last)
+        if mode == 1 and abs(velocity[c]) > hydraulics[2]:
+            sign = 1.0 if velocity[c] > 0.0 else -1.0
+            at_one = driven_pressure(sign, velocity[c], table[c, 0], table[c, 1], table[c, 2], hydraulics[0], hydraulics[1], hydraulics[2])
+            at_two = driven_pressure(
+                2.0 * sign, velocity[c], table[c, 0], table[c, 1], table[c, 2], hydraulics[0], hydraulics[1], hydraulics[2]
+            )
+            gain = sign * (at_two - at_one)  # d p / d F on the driving side
+            line_offset[c] = at_one - gain * sign + gain * force_offset[c]
+            line_slope[c] = gain * force_slope[c]
+    if mode == 1:
+        for a in range(n):
+            for b in range(a + 1, n):
+                if line_slope[a] != line_slope[b]:
+                    crossing = (line_offset[b] - line_offset[a]) / (line_slope[a] - line_slope[b])
+                    count = _add_samples_around(samples, count, (crossing - u_first) / u_step, first, last)
+    for a in range(1, count):  # insertion sort: a few dozen, mostly in order already
+        value = samples[a]
+        b = a - 1
+        while b >= 0 and samples[b] > value:
+            samples[b + 1] = samples[b]
+            b -= 1
+        samples[b + 1] = value
+    return count
+
+
 @njit(parallel=True, cache=True)
 def _bellman_step(
     cost_next: np.ndarray,
@@ -303,7 +376,10 @@ def _bellman_step(
     slack = EDGE_SLACK * ts * v_step / c_step
     cost = np.full((n_c, n_v), INFEASIBLE)
     policy = np.full((n_c, n_v), np.nan, dtype=np.float32)
+    capacity = 2 + 3 * (int(abs(y_per_control) * controls.shape[0]) + 2) + 3 * acc_offset.shape[0] * (acc_offset.shape[0] + 1) // 2
     for i in prange(n_c):
+        samples = np.empty(capacity, np.int64)  # the breakpoint samples and pressure lines of each state of this row
+        lines = np.empty((2, acc_offset.shape[0]))
         for j in range(n_v):
             if not admissible[i, j]:
                 continue
@@ -344,10 +420,19 @@ def _bellman_step(
                 if best_m >= 0:
                     best += ts * base_cost[i, j]
             else:
-                f_offset = force_offset[:, i, j].copy()
-                f_slope = force_slope[:, i, j].copy()
-                cyl_velocity = velocity[:, i, j].copy()
-                for m in range(first, last + 1):
+                f_offset = force_offset[:, i, j]
+                f_slope = force_slope[:, i, j]
+                cyl_velocity = velocity[:, i, j]
+                count = _breakpoint_samples(
+                    mode, first, last, y_first, y_per_control, controls[0], u_step, f_offset, f_slope, cyl_velocity, table,
+                    hydraulics, samples, lines,
+                )
+                previous = -1
+                for index in range(count):
+                    m = samples[index]
+                    if m == previous:
+                        continue
+                    previous = m
                     u = controls[m]
                     stage = _stage_power_at(
                         mode, 0.0, flow[i, j], f_offset, f_slope, cyl_velocity, table, hydraulics, u
@@ -417,7 +502,7 @@ class DpSolution:
             wc = _snap(x - ic)
             candidates = [u for u in grid.controls if low <= u <= high] + [low, high, min(max(-v[k] / ts, low), high)]
             guided = _interpolate_policy(self.policy[k], self.cost_to_go[k], grid.positions[k], grid.velocities, c[k], v[k])
-            if guided is not None:
+            if not math.isnan(guided):
                 candidates.append(min(max(guided, low), high))
             options = np.array(candidates)
             candidates = list(options[self._leads_on(k, c[k] + ts * v[k], v[k] + ts * options)])
@@ -439,6 +524,25 @@ class DpSolution:
         return ExtensionTrajectory(c, v, a, ts)
 
 
+    def follow(self, start_position: float, start_velocity: float = 0.0) -> ExtensionTrajectory:
+        """The fast forward pass for re-planning on line: P-VI's interpolated policy (compiled, well under a
+        millisecond), checked in one vectorised pass against every position, velocity and acceleration
+        limit at the exact states. Where it would leave the admissible set (a fast path riding a limit,
+        P-VI vertical) or runs out of feasible nodes, ``forward``'s search takes over."""
+        ts = float(self.samples.time[1] - self.samples.time[0])
+        c, v, a, reached = _follow_policy(
+            self.policy, self.cost_to_go, self.grid.positions, self.grid.velocities, self.grid.controls,
+            float(start_position), float(start_velocity), ts,
+        )
+        if reached == self.samples.stages:
+            trajectory = ExtensionTrajectory(c, v, a, ts)
+            with np.errstate(invalid="ignore"):
+                checks = self.crane.limit_checks(crane_motion(self.crane, self.samples, trajectory))
+            applied = checks["acceleration"][:-1].all() or not self.acceleration_limits  # a_N is never applied
+            if checks["position"].all() and checks["velocity"].all() and applied:
+                return trajectory
+        return self.forward(start_position, start_velocity)
+
     def _leads_on(self, k: int, c_next: float, v_next: np.ndarray) -> np.ndarray:
         """Which next states are admissible at stage k+1 and move on to an admissible position at k+2
         (c'' = c' + T_s v' does not depend on the control chosen at k+1: a dead end shows here first)."""
@@ -454,20 +558,49 @@ def _hydraulics(crane: Crane) -> np.ndarray:
     return np.array([h["compensator_drop"], h["tank_pressure"], h["drive_threshold"], h["ls_margin"], h["efficiency"]])
 
 
+@njit(cache=True)
 def _interpolate_policy(
     policy: np.ndarray, cost: np.ndarray, positions: np.ndarray, velocities: np.ndarray, c: float, v: float
-) -> float | None:
-    x = np.interp(c, positions, np.arange(len(positions)))
-    y = np.interp(v, velocities, np.arange(len(velocities)))
-    i = min(int(x), len(positions) - 2)
-    j = min(int(y), len(velocities) - 2)
+) -> float:
+    """Bilinear interpolation of one stage's policy at (c, v) over its feasible nodes; NaN where none is."""
+    x = np.interp(c, positions, np.arange(positions.shape[0]).astype(np.float64))
+    y = np.interp(v, velocities, np.arange(velocities.shape[0]).astype(np.float64))
+    i = min(int(x), positions.shape[0] - 2)
+    j = min(int(y), velocities.shape[0] - 2)
     wc, wv = x - i, y - j
-    total = weight_sum = 0.0
-    for di, dj, weight in ((0, 0, (1 - wc) * (1 - wv)), (0, 1, (1 - wc) * wv), (1, 0, wc * (1 - wv)), (1, 1, wc * wv)):
-        if weight > 0.0 and cost[i + di, j + dj] < _FEASIBLE_BELOW:
-            total += weight * float(policy[i + di, j + dj])
-            weight_sum += weight
-    return total / weight_sum if weight_sum > 0.0 else None
+    total = 0.0
+    weight_sum = 0.0
+    for di in range(2):
+        for dj in range(2):
+            weight = (wc if di else 1.0 - wc) * (wv if dj else 1.0 - wv)
+            if weight > 0.0 and cost[i + di, j + dj] < _FEASIBLE_BELOW:
+                total += weight * policy[i + di, j + dj]
+                weight_sum += weight
+    return total / weight_sum if weight_sum > 0.0 else np.nan
+
+
+@njit(cache=True)
+def _follow_policy(
+    policy: np.ndarray, cost_to_go: np.ndarray, positions: np.ndarray, velocities: np.ndarray, controls: np.ndarray,
+    c0: float, v0: float, ts: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """P-VI's forward phase: the policy interpolated at each state, kept within the control and velocity
+    grids; returns c, v, a and the stage reached (< N where no feasible node surrounds the state)."""
+    n = policy.shape[0]
+    c = np.zeros(n + 1)
+    v = np.zeros(n + 1)
+    a = np.zeros(n + 1)
+    c[0] = c0
+    v[0] = v0
+    for k in range(n):
+        u = _interpolate_policy(policy[k], cost_to_go[k], positions[k], velocities, c[k], v[k])
+        if np.isnan(u):
+            return c, v, a, k
+        u = min(max(u, controls[0], (velocities[0] - v[k]) / ts), controls[-1], (velocities[-1] - v[k]) / ts)
+        a[k] = u
+        c[k + 1] = c[k] + ts * v[k]
+        v[k + 1] = v[k] + ts * u
+    return c, v, a, n
 
 
 def solve(

@@ -26,15 +26,14 @@ import numpy as np
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane, Motion
-from hydro_ros.models.crane_hydraulics import pump_flow
+from hydro_ros.models.crane_hydraulics import VALVE_TABLE_DEFAULTS, pump_flow
 
 PLANT_DEFAULTS = {
-    "valve_dead_zone": 0.53,
+    **VALVE_TABLE_DEFAULTS,
     "valve_dead_zone_spread": 0.02,
     "valve_gain_spread": 0.05,
     "valve_delay": 0.15,
     "spool_time_constant": 0.03,
-    "full_command_velocity_factor": 1.25,
     "motion_time_constant": 0.05,
     "payload": 200.0,
     "coulomb_friction": 1500.0,

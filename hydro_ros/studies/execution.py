@@ -1,12 +1,6 @@
-"""Execute a joint trajectory on the simulated crane with the P-VI Appendix A controller and measure
-it as P-VI's field tests did: pump output energy and the ISO 9283 path accuracy of the tip (Table 4).
-
-Controller (one per cylinder, eqs. A1-A2): the desired cylinder velocity plus a P term on the
-position error, through the inverse of the valve's static dead-zone table (DZI). Tracking and
-regulation modes (L11659-L11666), INFERRED reading of dp.md section 10: outside the position band
-eps_p the controller regulates; inside it, a desired velocity below eps_v leaves the valve closed
-so that numerically small references do not move the cylinder and raise the LS pressure. K_p,
-eps_p, eps_v and the rate are NOT GIVEN: ``controller:`` in the crane config holds our choices.
+"""Execute a joint trajectory on the simulated crane with the P-VI Appendix A controller
+(``hydro_ros.planning.controller``) and measure it as P-VI's field tests did: pump output energy and
+the ISO 9283 path accuracy of the tip (Table 4).
 """
 
 from __future__ import annotations
@@ -20,46 +14,11 @@ from scipy.spatial import cKDTree
 
 from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.models.crane import Crane
+from hydro_ros.planning.controller import CylinderReference, MotionController, controller_settings
 from hydro_ros.planning.database import JointTrajectoryData
 from hydro_ros.sim.crane import CranePlant
 
-CONTROLLER_DEFAULTS = {
-    "rate": 100.0,  # Hz
-    "position_gain": 2.0,  # 1/s
-    "position_deadband": 0.005,  # m
-    "velocity_deadband": 0.002,  # m/s
-    "settle_time": 1.0,  # s the final reference is held after the trajectory
-    "log_rate": 100.0,  # Hz of the recorded signals
-}
 _PATH_DENSITY = 20  # commanded-path points per trajectory sample for the ISO 9283 nearest-point search
-
-
-def controller_settings(config: dict[str, Any]) -> dict[str, float]:
-    settings = dict(CONTROLLER_DEFAULTS)
-    settings.update({key: float(value) for key, value in (config.get("controller") or {}).items()})
-    return settings
-
-
-class MotionController:
-    """P-VI Appendix A: I = DZI(v_d + K_p e) with tracking / regulation switching, per cylinder."""
-
-    def __init__(self, settings: dict[str, float], dead_zone: float, full_velocity: np.ndarray) -> None:
-        self.gain = settings["position_gain"]
-        self.position_band = settings["position_deadband"]
-        self.velocity_band = settings["velocity_deadband"]
-        self.dead_zone = dead_zone
-        self.full_velocity = full_velocity
-
-    def inverse_table(self, velocity: np.ndarray) -> np.ndarray:
-        """DZI: the command whose steady-state velocity is ``velocity`` (the nominal table, eq. A1)."""
-        fraction = np.clip(np.abs(velocity) / self.full_velocity, 0.0, 1.0)
-        return np.where(velocity == 0.0, 0.0, np.sign(velocity) * (self.dead_zone + (1.0 - self.dead_zone) * fraction))
-
-    def command(self, position_ref: np.ndarray, velocity_ref: np.ndarray, position: np.ndarray) -> np.ndarray:
-        error = position_ref - position
-        command = self.inverse_table(velocity_ref + self.gain * error)
-        idle = (np.abs(error) <= self.position_band) & (np.abs(velocity_ref) < self.velocity_band)
-        return np.where(idle, 0.0, command)
 
 
 @dataclass
@@ -81,13 +40,6 @@ class Execution:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
-def cylinder_reference(crane: Crane, trajectory: JointTrajectoryData) -> tuple[np.ndarray, np.ndarray]:
-    """Cylinder strokes and velocities (k x cylinder) of a joint trajectory."""
-    strokes = np.stack([c.stroke(trajectory.positions[:, i]) for i, c in enumerate(crane.cylinders)], axis=-1)
-    velocities = np.stack([c.arm(trajectory.positions[:, i])[0] * trajectory.velocities[:, i] for i, c in enumerate(crane.cylinders)], axis=-1)
-    return strokes, velocities
-
-
 def iso9283_path_accuracy(actual: np.ndarray, commanded: np.ndarray) -> float:
     """Largest distance from an actual tip point to the commanded path (ISO 9283 AT_p, not time-synchronised)."""
     fine = np.linspace(0.0, len(commanded) - 1.0, (len(commanded) - 1) * _PATH_DENSITY + 1)
@@ -102,13 +54,11 @@ class ClosedLoop:
     def __init__(self, config: dict[str, Any], supply: str, start: np.ndarray, *, seed: int = 0) -> None:
         self.settings = controller_settings(config)
         self.plant = CranePlant(config, supply, start, seed=seed)
-        self.controller = MotionController(self.settings, self.plant.settings["valve_dead_zone"], self.plant.nominal_full_velocity)
+        self.controller = MotionController.for_crane(self.plant.crane, config)
         self.control_every = max(int(round(1.0 / (self.settings["rate"] * self.plant.dt))), 1)
         self.steps = 0
         self.command = np.zeros(len(self.plant.crane.cylinders))
-        self.t_ref = np.array([0.0])
-        self.strokes_ref = self.plant.state.stroke[None, :].copy()
-        self.velocities_ref = np.zeros_like(self.strokes_ref)
+        self.reference = CylinderReference.hold(self.plant.crane, np.array(self.plant.joint_motion().q))
         self.started = 0.0
 
     @property
@@ -117,17 +67,16 @@ class ClosedLoop:
 
     def follow(self, trajectory: JointTrajectoryData) -> None:
         """Track ``trajectory`` from now on (its t = 0 is the current time)."""
-        self.strokes_ref, self.velocities_ref = cylinder_reference(self.plant.crane, trajectory)
-        self.t_ref = trajectory.time
+        self.reference = CylinderReference(self.plant.crane, trajectory)
         self.started = self.time
 
-    def advance(self) -> None:
-        if self.steps % self.control_every == 0:
-            t = self.time - self.started
-            columns = range(self.strokes_ref.shape[1])
-            reference = np.array([np.interp(t, self.t_ref, self.strokes_ref[:, i]) for i in columns])
-            velocity = np.array([np.interp(t, self.t_ref, self.velocities_ref[:, i], right=0.0) for i in columns])
-            self.command = self.controller.command(reference, velocity, self.plant.state.stroke)
+    def advance(self, command: np.ndarray | None = None) -> None:
+        """One plant step; ``command`` (valve commands of an outside controller) replaces this loop's own."""
+        if command is not None:
+            self.command = command
+        elif self.steps % self.control_every == 0:
+            stroke, velocity = self.reference.at(self.time - self.started)
+            self.command = self.controller.command(stroke, velocity, self.plant.state.stroke)
         self.plant.step(self.command)
         self.steps += 1
 

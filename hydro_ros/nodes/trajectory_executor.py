@@ -1,0 +1,293 @@
+"""trajectory_executor: the P-VI Appendix A motion controller of a real crane, as a node.
+
+It takes a JointTrajectory on ``~/joint_trajectory`` (the form a ros2_control
+JointTrajectoryController takes; trajectory_server's ``output_topic``) and the crane's
+``/joint_states``, and sends ``/hydraulics/valve_commands`` (JointState: one name per cylinder,
+position = valve command in [-1, 1]) at ``rate`` (``hydro_ros.planning.controller``). After the last
+point it regulates to it for the controller's settle time, then idles. While it idles, and whenever
+it stops, every valve is commanded neutral: a hydraulic crane holds its load on closed valves.
+
+A lifecycle node (ros2_control's habit): configure reads the crane config; activate starts the
+control loop; deactivate, shutdown and destruction send neutral commands first, and so does the
+process on SIGINT or SIGTERM (it handles them itself, so its publisher still works). ``autostart``
+(default true) configures and activates at start for machines without a lifecycle manager.
+
+It stops (neutral, the trajectory dropped, the reason on ``~/status``) on:
+- ``/fdi/halt`` true (and, with ``require_monitor``, when the monitor's halt heartbeat is missing);
+  a new trajectory is refused until the halt is cleared;
+- a joint state older than ``joint_state_timeout`` (a controller that cannot see the machine must not
+  move it);
+- an empty trajectory (ros2_control's "stop the current one").
+A trajectory is refused when it lacks a joint, has non-finite values or non-increasing times, leaves a
+joint's position range or a cylinder's velocity limit, or starts farther than ``start_tolerance``
+from the measured joints.
+
+``~/status`` (latched String, JSON): ``state`` (inactive, idle, executing, holding, stopped, refused),
+``reason`` and, for a trajectory, its ``points`` and ``duration_s``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.subscription import Subscription
+from rclpy.time import Time
+from rclpy.timer import Timer
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, String
+from trajectory_msgs.msg import JointTrajectory
+
+from hydro_ros.contract import topics
+from hydro_ros.contract.config import default_config_path
+from hydro_ros.contract.errors import InputError
+from hydro_ros.models.crane import Crane, load_crane
+from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, LATCHED_QOS, SENSOR_QOS, relative, run_node
+from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.planning.controller import CylinderReference, MotionController, controller_settings
+from hydro_ros.planning.trajectory import LIMIT_TOLERANCE, JointTrajectoryData
+
+PARAMETERS = {
+    "config": Spec(str(default_config_path("k70m")), "crane config (YAML, kind: crane): joints, limits, valve table, controller",
+                   existing_file=True),
+    "autostart": Spec(True, "configure and activate at start; false: wait for a lifecycle manager"),
+    "rate": Spec(0.0, "[Hz] control rate; 0: the config's controller.rate (100 Hz)", 0.0, 1000.0),
+    "joint_state_timeout": Spec(0.1, "[s] a joint state older than this stops the crane", 0.005, 5.0, read_only=False),
+    "start_tolerance": Spec(0.02, "[rad or m] a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
+                            read_only=False),
+    "require_monitor": Spec(False, "execute only while the condition monitor's /fdi/halt heartbeat is alive"),
+}
+
+
+class TrajectoryExecutor(LifecycleNode):
+    def __init__(self) -> None:
+        super().__init__("trajectory_executor")
+        self.params = Parameters(self, PARAMETERS, self._on_parameter)
+        self.joint_state_timeout = self.params["joint_state_timeout"]
+        self.start_tolerance = self.params["start_tolerance"]
+        self.require_monitor = self.params["require_monitor"]
+        self.crane: Crane | None = None
+        self.active = False
+        self._entities: list[Any] = []
+        self.joints: np.ndarray | None = None
+        self.joints_time: Time | None = None
+        self.halted = False
+        self.halt_time: Time | None = None
+        self.reference: CylinderReference | None = None
+        self.started: Time | None = None
+        self.holding_until = math.inf
+        self.state = "inactive"
+        self.status_pub = self.create_publisher(String, "~/status", LATCHED_QOS)
+        self._say("inactive", "not configured")
+        if self.params["autostart"]:
+            self.trigger_configure()
+            self.trigger_activate()
+
+    def _on_parameter(self, name: str, value: Any) -> None:
+        if name == "joint_state_timeout":
+            self.joint_state_timeout = value
+        elif name == "start_tolerance":
+            self.start_tolerance = value
+
+    # life cycle ----------------------------------------------------------------------------------
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            self.crane, config = load_crane(self.params["config"])
+        except InputError as exc:
+            self.get_logger().error(str(exc))
+            return TransitionCallbackReturn.FAILURE
+        self.controller = MotionController.for_crane(self.crane, config)
+        self.settle_time = controller_settings(config)["settle_time"]
+        rate = self.params["rate"] or controller_settings(config)["rate"]
+        self.names = list(self.crane.names)
+        self.command_pub = self.create_lifecycle_publisher(JointState, relative(topics.VALVE_COMMANDS), SENSOR_QOS)
+        self._entities = [
+            self.command_pub,
+            self.create_subscription(JointState, relative(topics.JOINT_STATES), self._on_joint_state, SENSOR_QOS),
+            self.create_subscription(Bool, relative(topics.FDI_HALT), self._on_halt, HALT_QOS),
+            self.create_subscription(JointTrajectory, "~/joint_trajectory", self._on_trajectory, 10),
+            self.create_timer(1.0 / rate, self._control),
+        ]
+        self.get_logger().info(f"crane {config['machine']}: cylinders {', '.join(self.names)}, control at {rate:g} Hz")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = True
+        self._say("idle", "active: waiting for a trajectory")
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop("inactive", "deactivated")
+        self.active = False
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self.active:
+            self._stop("inactive", "shut down")
+            self.active = False
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def destroy_node(self) -> None:
+        if self.active:
+            self._stop("inactive", "node destroyed")
+            self.active = False
+        self._release()
+        super().destroy_node()
+
+    def _release(self) -> None:
+        for entity in self._entities:
+            if isinstance(entity, Timer):
+                self.destroy_timer(entity)
+            elif isinstance(entity, Subscription):
+                self.destroy_subscription(entity)
+            else:
+                self.destroy_lifecycle_publisher(entity)
+        self._entities = []
+
+    # inputs --------------------------------------------------------------------------------------
+    def _on_joint_state(self, msg: JointState) -> None:
+        by_name = dict(zip(msg.name, msg.position))
+        if all(name in by_name for name in self.names):
+            positions = np.array([by_name[name] for name in self.names], dtype=float)
+            if np.isfinite(positions).all():
+                self.joints = positions
+                self.joints_time = self.get_clock().now()
+
+    def _on_halt(self, msg: Bool) -> None:
+        self.halt_time = self.get_clock().now()
+        if msg.data and not self.halted and self.reference is not None:
+            self._stop("stopped", "halt requested on /fdi/halt")
+        self.halted = bool(msg.data)
+
+    def _on_trajectory(self, msg: JointTrajectory) -> None:
+        if not msg.points:
+            if self.reference is not None:
+                self._stop("stopped", "empty trajectory: stop")
+            return
+        try:
+            trajectory = self._checked(msg)
+        except InputError as exc:
+            self._say("refused", str(exc))
+            self.get_logger().warning(str(exc))
+            return
+        assert self.crane is not None
+        self.reference = CylinderReference(self.crane, trajectory)
+        self.started = self.get_clock().now()
+        self.holding_until = self.reference.duration + self.settle_time
+        self._say("executing", "", points=len(trajectory.time), duration_s=self.reference.duration)
+
+    def _checked(self, msg: JointTrajectory) -> JointTrajectoryData:
+        assert self.crane is not None
+        if not self.active:
+            raise InputError("trajectory: refused, the executor is not active")
+        why_not = self._why_not_move()
+        if why_not:
+            raise InputError(f"trajectory: refused, {why_not}")
+        missing = [name for name in self.names if name not in msg.joint_names]
+        if missing:
+            raise InputError(f"trajectory: joint(s) {', '.join(missing)} missing (has {', '.join(msg.joint_names) or 'none'})")
+        order = [list(msg.joint_names).index(name) for name in self.names]
+        times = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points])
+        try:
+            positions = np.array([[p.positions[i] for i in order] for p in msg.points], dtype=float)
+            velocities = np.array([[p.velocities[i] if len(p.velocities) else 0.0 for i in order] for p in msg.points], dtype=float)
+        except IndexError:
+            raise InputError("trajectory: a point has fewer positions or velocities than joint names") from None
+        if not (np.isfinite(positions).all() and np.isfinite(velocities).all()):
+            raise InputError("trajectory: non-finite position or velocity")
+        if len(times) > 1 and np.any(np.diff(times) <= 0.0):
+            raise InputError("trajectory: time_from_start not increasing")
+        data = JointTrajectoryData(self.names, times, positions, velocities, np.zeros_like(positions), np.zeros(len(times)))
+        for i, cylinder in enumerate(self.crane.cylinders):
+            span = (cylinder.q_max - cylinder.q_min) * LIMIT_TOLERANCE
+            low, high = positions[:, i].min(), positions[:, i].max()
+            if low < cylinder.q_min - span or high > cylinder.q_max + span:
+                raise InputError(f"trajectory: joint {cylinder.name} leaves [{cylinder.q_min:.3f}, {cylinder.q_max:.3f}] "
+                                 f"(reaches {low:.3f} .. {high:.3f})")
+        speeds = np.abs(CylinderReference(self.crane, data).velocities).max(axis=0)
+        for cylinder, speed in zip(self.crane.cylinders, speeds):
+            if speed > cylinder.velocity_max * (1.0 + LIMIT_TOLERANCE):
+                raise InputError(f"trajectory: cylinder {cylinder.name} at {speed:.3f} m/s, limit {cylinder.velocity_max:.3f} m/s")
+        gap = float(np.abs(positions[0] - self.joints).max())
+        if gap > self.start_tolerance:
+            raise InputError(f"trajectory: starts {gap:.3f} rad/m from the measured joints (start_tolerance {self.start_tolerance})")
+        return data
+
+    # control -------------------------------------------------------------------------------------
+    def _why_not_move(self) -> str:
+        now = self.get_clock().now()
+        if self.joints is None or self.joints_time is None:
+            return f"no joint state on {topics.JOINT_STATES}"
+        age = (now - self.joints_time).nanoseconds * 1e-9
+        if age > self.joint_state_timeout:
+            return f"joint state stale ({age:.2f} s old, joint_state_timeout {self.joint_state_timeout} s)"
+        if self.halted:
+            return "halt requested on /fdi/halt"
+        if self.require_monitor:
+            if self.halt_time is None:
+                return "no condition monitor heartbeat on /fdi/halt (require_monitor)"
+            silent = (now - self.halt_time).nanoseconds * 1e-9
+            if silent > 3 * HALT_PERIOD_S:
+                return f"condition monitor silent for {silent:.1f} s (require_monitor)"
+        return ""
+
+    def _control(self) -> None:
+        if not self.active:
+            return
+        if self.reference is None:
+            self._send(np.zeros(len(self.names)))
+            return
+        why_not = self._why_not_move()
+        if why_not:
+            self._stop("stopped", why_not)
+            return
+        assert self.started is not None and self.crane is not None and self.joints is not None
+        t = (self.get_clock().now() - self.started).nanoseconds * 1e-9
+        if t > self.holding_until:
+            self.reference = None
+            self._send(np.zeros(len(self.names)))
+            self._say("idle", "trajectory done")
+            return
+        if t > self.reference.duration and self.state == "executing":
+            self._say("holding", "at the last point for the settle time")
+        stroke_ref, velocity_ref = self.reference.at(t)
+        strokes = np.array([cylinder.stroke(q) for cylinder, q in zip(self.crane.cylinders, self.joints)])
+        self._send(np.clip(self.controller.command(stroke_ref, velocity_ref, strokes), -1.0, 1.0))
+
+    def _stop(self, state: str, reason: str) -> None:
+        """Drop the trajectory and command every valve neutral now."""
+        self.reference = None
+        if self.active:
+            self._send(np.zeros(len(self.names)))
+        self._say(state, reason)
+        if state == "stopped":
+            self.get_logger().warning(f"stopped: {reason}")
+        else:  # rclpy's logger refuses two severities from one call site
+            self.get_logger().info(f"{state}: {reason}")
+
+    def _send(self, commands: np.ndarray) -> None:
+        msg = JointState(name=self.names, position=[float(c) for c in commands])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self.command_pub.publish(msg)
+
+    def _say(self, state: str, reason: str, **extra: Any) -> None:
+        if state == self.state and not extra and state != "refused":
+            return
+        self.state = state
+        self.status_pub.publish(String(data=json.dumps({"state": state, "reason": reason, **extra})))
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node(TrajectoryExecutor, args, last_words=True)
+
+
+if __name__ == "__main__":
+    main()
