@@ -10,7 +10,7 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
-from hydro_ros.bags.cdr import decode_fluid_pressure, decode_joint_state, encode_fluid_pressure, encode_joint_state
+from hydro_ros.bags.cdr import decode_fluid_pressure, decode_joint_state, encode_fluid_pressure, encode_joint_state, encode_joint_trajectory
 from hydro_ros.bags.reader import BagError, mcap_files, read_bag
 from hydro_ros.bags.writer import TYPESTORE, BagExistsError, ContractBagWriter
 from hydro_ros.contract import topics
@@ -42,6 +42,16 @@ def test_cdr_matches_rosbags_serialiser():
     assert TYPESTORE.serialize_cdr(msg, js.__msgtype__).tobytes() == ours
     assert decode_joint_state(ours) == (1_000_000_002, ["a", "joint_b"], (1.5, -2.0), (0.25, 0.5))
     assert decode_fluid_pressure(encode_fluid_pressure(5, "x", 1.0, 2.0)) == (5, 1.0, 2.0)
+    jt, point = TYPESTORE.types["trajectory_msgs/msg/JointTrajectory"], TYPESTORE.types["trajectory_msgs/msg/JointTrajectoryPoint"]
+    duration = TYPESTORE.types["builtin_interfaces/msg/Duration"]
+    rng = np.random.default_rng(1)
+    rows = [rng.normal(size=(3, 4)) for _ in range(3)]  # positions, velocities, accelerations of 3 points
+    times_ns = [0, 50_000_000, 1_500_000_007]
+    msg = jt(header=header(stamp=stamp(sec=3, nanosec=4), frame_id="base"), joint_names=["base", "lift", "tilt", "ext"],
+             points=[point(positions=rows[0][k], velocities=rows[1][k], accelerations=rows[2][k], effort=np.array([], dtype=float),
+                           time_from_start=duration(sec=t // 1_000_000_000, nanosec=t % 1_000_000_000)) for k, t in enumerate(times_ns)])
+    ours = encode_joint_trajectory(3_000_000_004, "base", ["base", "lift", "tilt", "ext"], times_ns, *rows)
+    assert TYPESTORE.serialize_cdr(msg, jt.__msgtype__).tobytes() == ours
 
 
 def test_bag_is_readable_by_rosbags_with_contract_types(leak_bag, sam_config):

@@ -26,20 +26,21 @@ import re
 import time
 from typing import Any
 
-from builtin_interfaces.msg import Duration
+import numpy as np
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from trajectory_msgs.msg import JointTrajectory
 
+from hydro_ros.bags.cdr import encode_joint_trajectory
 from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
-from hydro_ros.planning.database import DatabaseError, JointTrajectoryData, TrajectoryDatabase
+from hydro_ros.planning.database import DatabaseError, TrajectoryDatabase
 from hydro_ros.planning.problem import METHODS
 from hydro_ros.planning.serving import JointStateSample, Served, ServeError, TrajectoryService
 
@@ -236,25 +237,14 @@ class TrajectoryServer(Node):
         self.result_pub.publish(String(data=json.dumps(result)))
 
     def _publish_trajectory(self, served: Served) -> None:
-        msg = trajectory_message(served.trajectory)
-        msg.header.stamp = self.get_clock().now().to_msg()
-        self.trajectory_pub.publish(msg)
+        """The trajectory as CDR bytes, encoded once for both topics (rclpy's own conversion costs ~5 ms each)."""
+        data = served.trajectory
+        raw = encode_joint_trajectory(self.get_clock().now().nanoseconds, "", list(data.joint_names),
+                                      np.round(np.asarray(data.time) * 1e9).astype(np.int64), data.positions, data.velocities,
+                                      data.accelerations)
+        self.trajectory_pub.publish(raw)
         if self.output_pub is not None:
-            self.output_pub.publish(msg)
-
-
-def trajectory_message(data: JointTrajectoryData) -> JointTrajectory:
-    msg = JointTrajectory()
-    msg.joint_names = list(data.joint_names)
-    for k, t in enumerate(data.time):
-        point = JointTrajectoryPoint()
-        point.positions = data.positions[k].tolist()
-        point.velocities = data.velocities[k].tolist()
-        point.accelerations = data.accelerations[k].tolist()
-        seconds, nanoseconds = divmod(int(round(float(t) * 1e9)), 1_000_000_000)
-        point.time_from_start = Duration(sec=seconds, nanosec=nanoseconds)
-        msg.points.append(point)
-    return msg
+            self.output_pub.publish(raw)
 
 
 def main(args: list[str] | None = None) -> None:

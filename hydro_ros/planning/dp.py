@@ -537,7 +537,7 @@ class DpSolution:
         if reached == self.samples.stages:
             trajectory = ExtensionTrajectory(c, v, a, ts)
             with np.errstate(invalid="ignore"):
-                checks = self.crane.limit_checks(crane_motion(self.crane, self.samples, trajectory))
+                checks = self.crane.limit_checks(crane_motion(self.crane, self.samples, trajectory, forces=False))
             applied = checks["acceleration"][:-1].all() or not self.acceleration_limits  # a_N is never applied
             if checks["position"].all() and checks["velocity"].all() and applied:
                 return trajectory

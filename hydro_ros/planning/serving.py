@@ -89,6 +89,8 @@ class TrajectoryService:
         self.tip_tolerance = tip_tolerance
         self._contexts: OrderedDict[tuple[str, str, str], _Context] = OrderedDict()
         self._cache_size = cache_size
+        self._solutions: dict[tuple[str, str], StoredSolution] = {}
+        self._version: int | None = None
 
     def catalog(self) -> list[dict[str, Any]]:
         return self.db.catalog()
@@ -97,10 +99,7 @@ class TrajectoryService:
         began = time.perf_counter()
         if method not in METHODS:
             raise ServeError(f"method {method!r}: unknown (known: {', '.join(METHODS)})")
-        try:
-            stored = self.db.solution(path_id, method)
-        except KeyError as exc:
-            raise ServeError(str(exc.args[0])) from None
+        stored = self._solution(path_id, method)
         if current is None:
             return Served(path_id, method, stored.trajectory, stored.record, False, time.perf_counter() - began)
         q, qd = self._ordered(stored.trajectory.joint_names, current)
@@ -116,11 +115,27 @@ class TrajectoryService:
         prepared = []
         for entry in self.db.catalog():
             for method in entry["solutions"]:
-                stored = self.db.solution(entry["path"], method, entry["machine"])
+                stored = self._solution(entry["path"], method)
                 if stored.has_policy and len(prepared) < self._cache_size:
                     self._dp_solution(self._context(stored), stored).follow(stored.start_position)
                     prepared.append(f"{entry['path']}/{method}")
         return prepared
+
+    def _solution(self, path_id: str, method: str) -> StoredSolution:
+        """The stored solution, read once per database content: a build that changes the file (SQLite's
+        data_version) drops everything read or loaded from it before."""
+        version = self.db.data_version()
+        if version != self._version:
+            self._version = version
+            self._solutions.clear()
+            self._contexts.clear()
+        key = (path_id, method)
+        if key not in self._solutions:
+            try:
+                self._solutions[key] = self.db.solution(path_id, method)
+            except KeyError as exc:
+                raise ServeError(str(exc.args[0])) from None
+        return self._solutions[key]
 
     def _ordered(self, names: list[str], current: JointStateSample) -> tuple[np.ndarray, np.ndarray]:
         index = {name: i for i, name in enumerate(current.names)}

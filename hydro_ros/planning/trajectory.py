@@ -54,7 +54,7 @@ class ExtensionTrajectory:
         return ExtensionTrajectory.from_positions(smooth, self.sample_time, final_velocity=0.0)
 
 
-def crane_motion(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory) -> Motion:
+def crane_motion(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory, *, forces: bool = True) -> Motion:
     """Joint and cylinder motion of every sample (vectorised over k)."""
     return crane.motion(
         tuple(samples.position.T),
@@ -63,6 +63,7 @@ def crane_motion(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajec
         trajectory.position,
         trajectory.velocity,
         trajectory.acceleration,
+        forces=forces,
     )
 
 
@@ -113,7 +114,7 @@ class JointTrajectoryData:
 
 def joint_trajectory(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory) -> JointTrajectoryData:
     """Every joint along the path: the extension as planned, the others by inverse kinematics."""
-    motion = crane_motion(crane, samples, trajectory)
+    motion = crane_motion(crane, samples, trajectory, forces=False)
     return JointTrajectoryData(
         joint_names=list(crane.names),
         time=samples.time,
