@@ -99,33 +99,78 @@ def convergence(out_dir: Path) -> dict:
 
 
 def comparisons(out_dir: Path) -> dict:
-    cases = {"k70m": ("horizontal", "vertical", "half_cycle"), "crane3dof": ("triangle",)}
+    # P-VI's second initial configuration (App. D, Figs. A4-A6): the middle of the feasible extension window
+    cases = [("k70m", path, start) for start in ("smallest", "middle") for path in ("horizontal", "vertical", "half_cycle")]
+    cases.append(("crane3dof", "triangle", "smallest"))
     summary = {}
-    for machine, paths in cases.items():
-        for path in paths:
-            target = out_dir / f"dp_compare_{machine}_{path}.json"
-            began = time.perf_counter()
-            subprocess.run(
-                [sys.executable, "-m", "hydro_ros.cli", "dp", "compare", "--config", f"config/{machine}.yaml", "--path", path,
-                 "--json", str(target), "--all-methods", "--quiet"],
-                check=True,
-            )
-            result = json.loads(target.read_text())
-            summary[f"{machine}/{path}"] = {
-                "seconds": time.perf_counter() - began,
-                "relative_cp": {m: round(r["relative_cp"], 4) for m, r in result["methods"].items()},
-                "relative_ls": {m: round(r["relative_ls"], 4) for m, r in result["methods"].items()},
-                "limits_ok": {m: r["limits_ok"] for m, r in result["methods"].items()},
-            }
+    for machine, path, start in cases:
+        suffix = "" if start == "smallest" else f"_{start}"
+        target = out_dir / f"dp_compare_{machine}_{path}{suffix}.json"
+        began = time.perf_counter()
+        subprocess.run(
+            [sys.executable, "-m", "hydro_ros.cli", "dp", "compare", "--config", f"config/{machine}.yaml", "--path", path,
+             "--json", str(target), "--all-methods", "--quiet", "--start", start],
+            check=True,
+        )
+        result = json.loads(target.read_text())
+        summary[f"{machine}/{path}{suffix}"] = {
+            "seconds": time.perf_counter() - began,
+            "start_position_m": result["start_position_m"],
+            "relative_cp": {m: round(r["relative_cp"], 4) for m, r in result["methods"].items()},
+            "relative_ls": {m: round(r["relative_ls"], 4) for m, r in result["methods"].items()},
+            "limits_ok": {m: r["limits_ok"] for m, r in result["methods"].items()},
+        }
     return summary
+
+
+def window_study() -> dict:
+    """Why the vertical path's saving vanishes on our geometry: what bounds the feasible extension window along
+    each K70M path, and the energy of following its lower edge, its middle and its upper edge (filtered at 5 Hz)."""
+    import numpy as np
+
+    from hydro_ros.contract.config import default_config_path
+    from hydro_ros.models.crane import load_crane
+    from hydro_ros.planning.dp import extension_windows
+    from hydro_ros.planning.paths import path_from_config
+    from hydro_ros.planning.trajectory import ExtensionTrajectory, evaluate
+
+    crane, config = load_crane(default_config_path("k70m"))
+    study = {}
+    for path in ("horizontal", "vertical", "half_cycle"):
+        samples = path_from_config(config, path).sample(config["dp"]["sample_time"])
+        window = extension_windows(crane, samples)
+        tips, rest = tuple(samples.position[:, i] for i in range(3)), (0.0,) * 3
+        row: dict = {"window_width_m": {"min": float(np.min(window[:, 1] - window[:, 0])),
+                                        "max": float(np.max(window[:, 1] - window[:, 0]))}}
+        for end, label in ((0, "lower"), (1, "upper")):
+            motion = crane.motion(tips, rest, rest, window[:, end], 0.0 * window[:, end], 0.0 * window[:, end], forces=False)
+            row[f"{label}_edge_set_by"] = {c.name: int(np.sum((np.abs(q - c.q_min) < 1e-3) | (np.abs(q - c.q_max) < 1e-3)))
+                                          for c, q in zip(crane.cylinders, motion.q)}
+        for label, profile in (("lower", window[:, 0]), ("middle", window.mean(axis=1)), ("upper", window[:, 1])):
+            trajectory = ExtensionTrajectory.from_positions(profile, float(samples.time[1])).filtered(float(config["dp"]["filter_cutoff"]))
+            result = evaluate(crane, samples, trajectory)
+            row[f"follow_{label}_edge"] = {"cp_energy_J": result["cp_energy_J"], "ls_energy_J": result["ls_energy_J"],
+                                           "limits": result["limits"]}
+        row["samples"] = int(samples.stages + 1)
+        study[path] = row
+        print(f"window {path}: {json.dumps(row)}", flush=True)
+    return study
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", default="bench/dp.json")
+    parser.add_argument("--parts", default="solver,convergence,compare,window",
+                        help="comma-separated parts to run; the others are kept from an existing --out")
     args = parser.parse_args()
     out = Path(args.out)
-    results = {"solver": solver_speed(), "convergence": convergence(out.parent), "compare": comparisons(out.parent)}
+    parts = {"solver": solver_speed, "convergence": lambda: convergence(out.parent), "compare": lambda: comparisons(out.parent),
+             "window": window_study}
+    unknown = set(args.parts.split(",")) - set(parts)
+    if unknown:
+        parser.error(f"--parts: unknown {', '.join(sorted(unknown))} (known: {', '.join(parts)})")
+    results = json.loads(out.read_text()) if out.exists() and args.parts != ",".join(parts) else {}
+    results.update({name: run() for name, run in parts.items() if name in args.parts.split(",")})
     results["bench_process_peak_rss_MB"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     out.write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps(results["solver"], indent=2))

@@ -25,10 +25,11 @@ from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
 from hydro_ros.planning.catalog import build, plan_units  # noqa: E402
 from hydro_ros.planning.database import TrajectoryDatabase  # noqa: E402
+from hydro_ros.planning.problem import CONTRACT_METHODS  # noqa: E402
 from hydro_ros.planning.serving import path_start_state  # noqa: E402
 from hydro_ros.studies.execution import execute  # noqa: E402
 
-METHODS = ("dp_cp", "dp_ls", "pinv_actuator", "pinv_joint")
+METHODS = ("dp_cp", "dp_ls", "pinv_actuator", "pinv_joint")  # of the throughput builds
 THROUGHPUT_GRID = (178, 51, 76)  # half the P-VI grid per axis: three builds stay within minutes
 
 
@@ -54,7 +55,7 @@ def throughput(config: dict, workdir: Path) -> dict:
 
 
 def full_catalog(config: dict, path: Path) -> dict:
-    units = plan_units(config, methods=METHODS)
+    units = plan_units(config, methods=CONTRACT_METHODS)  # every method, so all are executed in closed loop
     with TrajectoryDatabase(path, writable=True) as db:
         report = build(db, units)
     began = time.perf_counter()
@@ -131,7 +132,7 @@ def executions(config: dict, db_path: Path, out_dir: Path) -> dict:
 
     rows = {}
     with TrajectoryDatabase(db_path) as db:
-        jobs = [(p, m, s) for p in config["paths"] for m in METHODS for s in ("cp", "ls")]
+        jobs = [(p, m, s) for p in config["paths"] for m in CONTRACT_METHODS for s in ("cp", "ls")]
         for path_id, method, supply in tqdm(jobs, desc="closed-loop runs", unit="run"):
             stored = db.solution(path_id, method)
             summary = execute(config, stored.trajectory, supply, seed=1).summary
@@ -157,10 +158,10 @@ def _plot(rows: dict, target: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=False)
-    width = 0.8 / len(METHODS)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.5), sharey=False)
+    width = 0.8 / len(CONTRACT_METHODS)
     for ax, supply in zip(axes, ("cp", "ls")):
-        for j, method in enumerate(METHODS):
+        for j, method in enumerate(CONTRACT_METHODS):
             values = [rows[p][method][supply]["executed_J"] / 1e3 for p in rows]
             ax.bar(np.arange(len(rows)) + j * width, values, width, label=method)
         ax.set_xticks(np.arange(len(rows)) + 0.4 - width / 2, list(rows))

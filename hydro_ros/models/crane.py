@@ -274,12 +274,17 @@ class Crane:
 
     # -- dynamics --------------------------------------------------------------------------
     def cylinder_forces(self, motion: Motion) -> list[Any]:
-        """Cylinder forces F = R^-1 (M(q) q'' + G(q) + F_f) of point masses (P-VI eq. 16; Coriolis omitted)."""
+        """Cylinder forces F = R^-1 (M(q) q'' + G(q) + F_f) of point masses (P-VI eq. 16; Coriolis omitted).
+
+        The masses sum into M (3 x 3) and G on the joint positions' shape; only M q'' is evaluated on the
+        states' shape (the DP evaluates a grid of velocities and two controls per position).
+        """
         lift, tilt, q_e = motion.q[-3], motion.q[-2], motion.q[-1]
-        lift_dd, tilt_dd, ext_dd = motion.qdd[-3], motion.qdd[-2], motion.qdd[-1]
+        qdd = motion.qdd[-3:]
         phi = lift + tilt
         cp, sp = np.cos(phi), np.sin(phi)
-        torque = [0.0, 0.0, 0.0]
+        inertia: list[list[Any]] = [[0.0] * 3 for _ in range(3)]
+        gravity: list[Any] = [0.0, 0.0, 0.0]
         for mass in self.masses:
             if mass.link == "lift":
                 columns = [(-mass.s * np.sin(lift), mass.s * np.cos(lift)), (0.0, 0.0), (0.0, 0.0)]
@@ -292,10 +297,11 @@ class Crane:
                     (w_r, w_h),
                     (cp, sp) if mass.moves_with_extension else (0.0, 0.0),
                 ]
-            acc_r = columns[0][0] * lift_dd + columns[1][0] * tilt_dd + columns[2][0] * ext_dd
-            acc_h = columns[0][1] * lift_dd + columns[1][1] * tilt_dd + columns[2][1] * ext_dd + self.gravity
             for j, (d_r, d_h) in enumerate(columns):
-                torque[j] = torque[j] + mass.mass * (d_r * acc_r + d_h * acc_h)
+                gravity[j] = gravity[j] + mass.mass * self.gravity * d_h
+                for k, (e_r, e_h) in enumerate(columns):
+                    inertia[j][k] = inertia[j][k] + mass.mass * (d_r * e_r + d_h * e_h)
+        torque = [gravity[j] + inertia[j][0] * qdd[0] + inertia[j][1] * qdd[1] + inertia[j][2] * qdd[2] for j in range(3)]
         torque[2] = torque[2] + self.extension_friction(q_e, motion.qd[-1])
         forces = []
         planar = self.cylinders[-3:]
@@ -304,7 +310,7 @@ class Crane:
             forces.append(tau / arm)  # F v = tau qdot for either sign of the arm
         if self.base_rotation:
             base = self.cylinders[0]
-            forces.insert(0, np.zeros_like(np.asarray(lift_dd)) + (base.constant_force or 0.0))
+            forces.insert(0, np.zeros_like(np.asarray(qdd[0])) + (base.constant_force or 0.0))
         return forces
 
     def extension_friction(self, q_e: Any, qd_e: Any) -> Any:

@@ -19,7 +19,14 @@ Why it is fast (dp.md 6.2, "implementation notes"):
   all controls, and the admissible controls of a state form one interval of the control grid;
 - c' does not depend on u, so the position interpolation is shared by all controls, and the
   next velocities v + T_s u fall in a window of a few velocity cells.
-The numba kernel loops over states in parallel and over the admissible controls only.
+The numba kernel loops over states in parallel and over the admissible controls only; of those, it
+evaluates only the samples next to a breakpoint of the piecewise-linear stage cost and cost-to-go
+(``_breakpoint_samples``), which finds the same minimum as all of them (the LS cost: 25 s -> 4.5 s
+on P-VI's grid).
+
+The forward pass comes twice: ``forward`` searches the admissible controls at each exact state
+(offline planning), ``follow`` interpolates the stored policy in compiled code and checks the
+result in one vectorised pass (re-planning on line, under a millisecond).
 """
 
 from __future__ import annotations
@@ -314,23 +321,32 @@ def _breakpoint_samples(
     line_offset[:] = 0.0
     line_slope[:] = 0.0
     for c in range(n):
-        if force_slope[c] != 0.0:
+        drives = velocity[c] != 0.0  # the actuator cost: max(F v, 0) kinks where F = 0
+        if mode == 1:
+            drives = False
+            if abs(velocity[c]) > hydraulics[2]:
+                sign = 1.0 if velocity[c] > 0.0 else -1.0
+                at_one = driven_pressure(
+                    sign, velocity[c], table[c, 0], table[c, 1], table[c, 2], hydraulics[0], hydraulics[1], hydraulics[2]
+                )
+                at_two = driven_pressure(
+                    2.0 * sign, velocity[c], table[c, 0], table[c, 1], table[c, 2], hydraulics[0], hydraulics[1], hydraulics[2]
+                )
+                drives = at_one > 0.0 or at_two > 0.0  # not a single-acting cylinder lowering to tank
+                gain = sign * (at_two - at_one)  # d p / d F on the driving side
+                line_offset[c] = at_one - gain * sign + gain * force_offset[c]
+                line_slope[c] = gain * force_slope[c]
+        if drives and force_slope[c] != 0.0:
             count = _add_samples_around(samples, count, (-force_offset[c] / force_slope[c] - u_first) / u_step, first, last)
-        if mode == 1 and abs(velocity[c]) > hydraulics[2]:
-            sign = 1.0 if velocity[c] > 0.0 else -1.0
-            at_one = driven_pressure(sign, velocity[c], table[c, 0], table[c, 1], table[c, 2], hydraulics[0], hydraulics[1], hydraulics[2])
-            at_two = driven_pressure(
-                2.0 * sign, velocity[c], table[c, 0], table[c, 1], table[c, 2], hydraulics[0], hydraulics[1], hydraulics[2]
-            )
-            gain = sign * (at_two - at_one)  # d p / d F on the driving side
-            line_offset[c] = at_one - gain * sign + gain * force_offset[c]
-            line_slope[c] = gain * force_slope[c]
     if mode == 1:
         for a in range(n):
             for b in range(a + 1, n):
                 if line_slope[a] != line_slope[b]:
                     crossing = (line_offset[b] - line_offset[a]) / (line_slope[a] - line_slope[b])
-                    count = _add_samples_around(samples, count, (crossing - u_first) / u_step, first, last)
+                    # a kink of the max only where both cylinders drive (force and velocity of one sign)
+                    if ((force_offset[a] + force_slope[a] * crossing) * velocity[a] > 0.0
+                            and (force_offset[b] + force_slope[b] * crossing) * velocity[b] > 0.0):
+                        count = _add_samples_around(samples, count, (crossing - u_first) / u_step, first, last)
     for a in range(1, count):  # insertion sort: a few dozen, mostly in order already
         value = samples[a]
         b = a - 1
