@@ -31,8 +31,6 @@ import can
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from rclpy.subscription import Subscription
-from rclpy.timer import Timer
 from sensor_msgs.msg import FluidPressure, JointState
 
 from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
@@ -41,7 +39,7 @@ from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.nodes.common import SENSOR_QOS, relative, run_node
+from hydro_ros.nodes.common import SENSOR_QOS, destroy_entities, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
@@ -230,14 +228,7 @@ class CanBridge(LifecycleNode):
             self.reader.stopping.set()
             self.reader.join(timeout=2.0)
             self.reader = None
-        for entity in self._entities:
-            if isinstance(entity, Timer):
-                self.destroy_timer(entity)
-            elif isinstance(entity, Subscription):
-                self.destroy_subscription(entity)
-            else:
-                self.destroy_lifecycle_publisher(entity)
-        self._entities = []
+        destroy_entities(self, self._entities)
 
     # frames -> topics ----------------------------------------------------------------------------
     def _process(self) -> None:

@@ -13,6 +13,8 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.subscription import Subscription
+from rclpy.timer import Timer
 
 from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
@@ -77,3 +79,15 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None, *, last
 
 def _interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
+
+
+def destroy_entities(node: Any, entities: list[Any]) -> None:
+    """Destroy what a lifecycle node created in configure: timers, subscriptions, lifecycle publishers."""
+    for entity in entities:
+        if isinstance(entity, Timer):
+            node.destroy_timer(entity)
+        elif isinstance(entity, Subscription):
+            node.destroy_subscription(entity)
+        else:
+            node.destroy_lifecycle_publisher(entity)
+    entities.clear()

@@ -34,9 +34,7 @@ from typing import Any
 
 import numpy as np
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from rclpy.subscription import Subscription
 from rclpy.time import Time
-from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 from trajectory_msgs.msg import JointTrajectory
@@ -45,7 +43,7 @@ from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane, load_crane
-from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, LATCHED_QOS, SENSOR_QOS, relative, run_node
+from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, LATCHED_QOS, SENSOR_QOS, destroy_entities, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.planning.controller import CylinderReference, MotionController, controller_settings
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE, JointTrajectoryData
@@ -143,14 +141,7 @@ class TrajectoryExecutor(LifecycleNode):
         super().destroy_node()
 
     def _release(self) -> None:
-        for entity in self._entities:
-            if isinstance(entity, Timer):
-                self.destroy_timer(entity)
-            elif isinstance(entity, Subscription):
-                self.destroy_subscription(entity)
-            else:
-                self.destroy_lifecycle_publisher(entity)
-        self._entities = []
+        destroy_entities(self, self._entities)
 
     # inputs --------------------------------------------------------------------------------------
     def _on_joint_state(self, msg: JointState) -> None:

@@ -252,7 +252,7 @@ def threshold_excess(monitor: FdiMonitor, samples: Samples) -> float:
     """The largest armed 5 s mean residual above the quadratic term of eq. (25) [MPa] on fault-free samples."""
     settings = monitor.settings
     run = run_monitor(monitor, samples)
-    armed = slice(monitor.window, None)
+    armed = slice(monitor.startup + monitor.window, None)  # where the monitor itself arms
     mean_pressure_sq = (run.threshold[armed] - settings.threshold_constant) / settings.threshold_quadratic
     excess = np.abs(run.residual_mean[armed]) - settings.threshold_quadratic * mean_pressure_sq
     excess = excess[np.isfinite(excess)]
