@@ -117,7 +117,10 @@ class TrajectoryService:
             for method in entry["solutions"]:
                 stored = self._solution(entry["path"], method)
                 if stored.has_policy and len(prepared) < self._cache_size:
-                    self._dp_solution(self._context(stored), stored).follow(stored.start_position)
+                    try:
+                        self._dp_solution(self._context(stored), stored).follow(stored.start_position)
+                    except InfeasibleStart:  # tables that do not fit their own start: a request gets the error
+                        continue
                     prepared.append(f"{entry['path']}/{method}")
         return prepared
 
