@@ -174,7 +174,7 @@ def test_a_dead_monitor_goes_quiet_and_a_restarted_one_says_nothing_until_armed(
         client = AsyncParameterClient(node, "plant_sim")
         assert client.wait_for_services(10.0)
         future = client.set_parameters([Parameter("fault.spool_stuck_closed", value=1.0)])
-        assert spin_until(node, future.done, 10)
+        assert spin_until(node, future.done, 30)
         with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}") as first:
             assert spin_until(node, lambda: any(h for _, h in halts), 60), "no halt from the first monitor"
             first.send_signal(signal.SIGKILL)

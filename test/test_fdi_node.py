@@ -260,6 +260,7 @@ def test_alarm_log_round_trip_a_killed_monitor_restores_its_latched_alarm(ros_do
                 assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message == "external_leakage_a", 50)
                 monitor.kill()  # no shutdown path runs
                 monitor.wait(10)
+                spin_until(node, lambda: False, 0.5)  # take what the dead monitor sent before it died off the queue
 
         out = tmp_path / "alarms.json"
         exported = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "alarms", "export", "--db", str(log), "--json", str(out)],
@@ -273,9 +274,11 @@ def test_alarm_log_round_trip_a_killed_monitor_restores_its_latched_alarm(ros_do
         with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"alarm_log:={log}"), \
                 node_process("hydro_ros.nodes.hmi", "-p", f"config:={SAM_CONFIG}", "-p", f"port:={port}", "-p", f"alarm_log:={log}"):
             # no machine is running now: only the log can say what was latched
-            assert spin_until(node, lambda: any(s.message == "external_leakage_a" for s in _fdi_statuses(diags)), 30)
-            restored = next(s for s in _fdi_statuses(diags) if s.message == "external_leakage_a")
-            assert {v.key: v.value for v in restored.values}["restored_from_alarm_log"] == "true"
+            def restored() -> bool:
+                return any(s.message == "external_leakage_a" and {v.key: v.value for v in s.values}.get("restored_from_alarm_log") == "true"
+                           for s in _fdi_statuses(diags))
+
+            assert spin_until(node, restored, 30)
 
             def page(path: str) -> dict:
                 with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=5) as answer:
