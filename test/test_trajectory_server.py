@@ -146,19 +146,25 @@ def test_served_trajectory_runs_on_the_simulated_crane(ros_domain, catalog_db):
         node.create_subscription(JointState, "/crane" + topics.JOINT_STATES, states.append, 10)
         requests = node.create_publisher(String, "/crane/trajectory_server/request", 10)
         assert spin_until(node, lambda: states and requests.get_subscription_count() > 0, 30)
-        for _ in range(20):  # until discovery has connected the crane's joint states to the server
-            count = len(results)
-            requests.publish(String(data="horizontal"))
-            assert spin_until(node, lambda: len(results) > count, 20)
-            if results[-1]["ok"] or not ("nothing received" in results[-1]["error"] or "no subscriber" in results[-1]["error"]):
-                break
-            spin_until(node, lambda: False, 0.5)
+        _request_until_discovered(node, requests, results)
         assert results[-1]["ok"] and results[-1]["replanned"], results[-1]
         assert spin_until(node, lambda: executions, 30)
     run = executions[-1]
     assert run["ok"] and run["supply"] == "cp"
     assert run["energy_J"] == pytest.approx(results[-1]["cp_energy_J"], rel=0.1)
     assert run["path_accuracy_iso9283_m"] < 0.2
+
+
+def _request_until_discovered(node, requests, results: list[dict]) -> None:
+    """Request the horizontal path until discovery has connected the joint states to the server (and the server to
+    its output's subscriber): the answers before that say so ("nothing received", "no subscriber")."""
+    for _ in range(20):
+        count = len(results)
+        requests.publish(String(data="horizontal"))
+        assert spin_until(node, lambda: len(results) > count, 20)
+        if results[-1]["ok"] or not ("nothing received" in results[-1]["error"] or "no subscriber" in results[-1]["error"]):
+            return
+        spin_until(node, lambda: False, 0.5)
 
 
 EXECUTOR_IN_CRANE = "/crane/trajectory_executor"
@@ -198,13 +204,7 @@ def test_the_executor_drives_the_crane_along_the_served_path_within_the_bench_ac
         assert spin_until(node, lambda: seen["joints"] and requests.get_subscription_count() > 0
                           and seen["status"] and seen["status"][-1]["state"] == "idle", 30)
         assert all(not command.any() for _, command in seen["commands"]), "an idle executor commands neutral"
-        for _ in range(20):  # until discovery has connected the joint states to the server and the server to the executor
-            count = len(results)
-            requests.publish(String(data="horizontal"))
-            assert spin_until(node, lambda: len(results) > count, 20)
-            if results[-1]["ok"] or not ("nothing received" in results[-1]["error"] or "no subscriber" in results[-1]["error"]):
-                break
-            spin_until(node, lambda: False, 0.5)
+        _request_until_discovered(node, requests, results)
         assert results[-1]["ok"], results[-1]
         assert spin_until(node, lambda: any(s["state"] == "executing" for s in seen["status"]), 10), seen["status"]
         began = time.monotonic()
