@@ -15,14 +15,17 @@ Why it is fast (dp.md 6.2, "implementation notes"):
 - the IK, the cylinder velocities and the u-independent stage costs are evaluated once per state
   (N_c x N_v), not per state and control;
 - every cylinder acceleration and force is affine in u (q'' is affine in the extension
-  acceleration; the dynamics are linear in q''), so two IK evaluations (u = 0, 1) give them for
-  all controls, and the admissible controls of a state form one interval of the control grid;
+  acceleration; the dynamics are linear in q''), with a slope that depends on the position alone
+  (J^-1 and M(q)): one evaluation per state at u = 0 and two per position (u = 0, 1 at rest) give
+  them for all controls, and the admissible controls of a state form one interval of the control grid;
 - c' does not depend on u, so the position interpolation is shared by all controls, and the
   next velocities v + T_s u fall in a window of a few velocity cells.
-The numba kernel loops over states in parallel and over the admissible controls only; of those, it
-evaluates only the samples next to a breakpoint of the piecewise-linear stage cost and cost-to-go
-(``_breakpoint_samples``), which finds the same minimum as all of them (the LS cost: 25 s -> 4.5 s
-on P-VI's grid).
+The numba kernel loops over states in parallel (rows in small chunks: their admissible states
+differ) and over the admissible controls only; of those, it evaluates only the samples next to a
+breakpoint of the piecewise-linear stage cost and cost-to-go (``_breakpoint_samples``), which finds
+the same minimum as all of them. For the LS cost each driving cylinder's pressure is one line in u
+over an interval (``_pressure_lines``: driven_pressure is affine in the force on each side), so a
+sample costs a few multiplications (the LS cost on P-VI's grid: 25 s -> under 3 s).
 
 The forward pass comes twice: ``forward`` searches the admissible controls at each exact state
 (offline planning), ``follow`` interpolates the stored policy in compiled code and checks the
@@ -35,7 +38,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, parallel_chunksize, prange
 from tqdm import tqdm
 
 from hydro_ros.contract.errors import InputError
@@ -135,8 +138,8 @@ class StageTerms:
     admissible: np.ndarray  # joint positions, IK and cylinder velocities within limits
     base_cost: np.ndarray  # u-independent stage power (W or m^2/s^2)
     flow: np.ndarray  # pump flow Q_p (m^3/s)
-    acc_offset: np.ndarray  # cylinder accelerations a_i = acc_offset + acc_slope u, (n_cyl, ...)
-    acc_slope: np.ndarray
+    acc_offset: np.ndarray  # cylinder accelerations a_i = acc_offset + acc_slope u, (n_cyl, *states)
+    acc_slope: np.ndarray  # (n_cyl, *positions): the slopes depend on the position alone
     force_offset: np.ndarray  # cylinder forces F_i = force_offset + force_slope u
     force_slope: np.ndarray
     velocity: np.ndarray  # cylinder velocities (n_cyl, ...)
@@ -151,35 +154,43 @@ def _stage_terms(crane: Crane, samples: PathSamples, k: int, c: np.ndarray, v: n
     tip, tip_vel, tip_acc = samples.at(k)
     c, v = np.asarray(c, dtype=float), np.asarray(v, dtype=float)
     shape = np.broadcast_shapes(c.shape, v.shape)
-    # u = 0 and u = 1 side by side on a leading axis; the position-level IK runs once per position
-    # when c varies along its own axis (a column) and v along another (a row)
-    control = np.array([0.0, 1.0]).reshape((2,) + (1,) * len(shape))
-    motion = crane.motion(tip, tip_vel, tip_acc, c, v, control, forces=cost.depends_on_control)
+    forces = cost.depends_on_control
+    motion = crane.motion(tip, tip_vel, tip_acc, c, v, 0.0, forces=forces)
+    # d/du of every cylinder acceleration and force is J^-1 and M(q) at the position alone, so the
+    # slopes come from u = 0 and u = 1 at rest on the positions' own shape, not on every velocity
+    control = np.array([0.0, 1.0]).reshape((2,) + (1,) * c.ndim)
+    unit = crane.motion(tip, tip_vel, tip_acc, c, np.zeros_like(c), control, forces=forces)
 
-    def per_cylinder(values: list[np.ndarray]) -> np.ndarray:
-        return np.stack([np.broadcast_to(value, (2, *shape)) for value in values])
+    def offsets(values: list[np.ndarray]) -> np.ndarray:
+        return np.stack([np.broadcast_to(value, shape) for value in values])
+
+    def slopes(values: list[np.ndarray]) -> np.ndarray:
+        return np.stack([np.broadcast_to(value[1] - value[0], c.shape) for value in np.broadcast_arrays(*values, control)[:-1]])
 
     checks = crane.limit_checks(motion)
-    acc = per_cylinder(motion.a)
-    velocity = per_cylinder(motion.v)[:, 0]
-    admissible = np.broadcast_to(checks["position"] & checks["velocity"], (2, *shape))[0] & np.isfinite(acc).all(axis=(0, 1))
-    flow = np.broadcast_to(total_pump_flow(crane, motion), (2, *shape))[0]
-    if cost.depends_on_control:
-        force = per_cylinder(motion.force)
-        force_offset, force_slope = force[:, 0], force[:, 1] - force[:, 0]
+    acc, acc_slope = offsets(motion.a), slopes(unit.a)
+    velocity = offsets(motion.v)
+    admissible = (
+        np.broadcast_to(checks["position"] & checks["velocity"], shape)
+        & np.isfinite(acc).all(axis=0)
+        & np.isfinite(acc_slope).all(axis=0)
+    )
+    flow = np.broadcast_to(total_pump_flow(crane, motion), shape)
+    if forces:
+        force_offset, force_slope = offsets(motion.force), slopes(unit.force)
         base_cost = np.zeros(shape)
     else:
-        force_offset = force_slope = np.zeros((1, *shape))
-        base_cost = np.broadcast_to(stage_power(cost, crane, motion), (2, *shape))[0]
+        force_offset, force_slope = np.zeros((1, *shape)), np.zeros((1, *c.shape))
+        base_cost = np.broadcast_to(stage_power(cost, crane, motion), shape)
     return StageTerms(
         admissible=admissible,
         base_cost=np.where(admissible, base_cost, 0.0),
         flow=np.where(admissible, flow, 0.0),
-        acc_offset=np.nan_to_num(acc[:, 0]),
-        acc_slope=np.nan_to_num(acc[:, 1] - acc[:, 0]),
-        force_offset=np.nan_to_num(force_offset),
-        force_slope=np.nan_to_num(force_slope),
-        velocity=np.nan_to_num(velocity),
+        acc_offset=np.nan_to_num(acc, copy=False),
+        acc_slope=np.nan_to_num(acc_slope, copy=False),
+        force_offset=np.nan_to_num(force_offset, copy=False),
+        force_slope=np.nan_to_num(force_slope, copy=False),
+        velocity=np.nan_to_num(velocity, copy=False),
     )
 
 
@@ -299,17 +310,19 @@ def _breakpoint_samples(
     force_offset: np.ndarray,
     force_slope: np.ndarray,
     velocity: np.ndarray,
-    table: np.ndarray,
-    hydraulics: np.ndarray,
+    pressure_lines: np.ndarray,
+    drive_threshold: float,
     samples: np.ndarray,
     lines: np.ndarray,
 ) -> int:
-    """Into ``samples``, the control samples (sorted, may repeat; their count returned) among which the minimum of stage cost + interpolated cost-to-go
+    """Into ``samples``, the control samples (unordered, may repeat; their count returned) among which the minimum of stage cost + interpolated cost-to-go
     over [first, last] lies: both are piecewise linear in u, so the sum is linear between breakpoints and its
     minimum over the samples sits at a window end or next to a breakpoint. Breakpoints: the next velocity
     nodes (J_{k+1} is linear between them), each cylinder force's zero (a driven chamber switches on or
     off), and for the LS cost each crossing of two cylinders' driven-pressure lines (the max switches).
-    A few dozen samples instead of every admissible control (151 on P-VI's grid), the same minimum."""
+    A few dozen samples instead of every admissible control (151 on P-VI's grid), the same minimum.
+    For the LS cost, ``lines`` receives the driving cylinders' pressure lines, which ``_highest_driven_pressure``
+    evaluates at the samples."""
     n = force_offset.shape[0]
     samples[0] = first
     samples[1] = last
@@ -317,44 +330,51 @@ def _breakpoint_samples(
     y_last = y_first + (last - first) * y_per_control
     for node in range(int(math.ceil(min(y_first, y_last))), int(math.floor(max(y_first, y_last))) + 1):
         count = _add_samples_around(samples, count, first + (node - y_first) / y_per_control, first, last)
-    line_offset, line_slope = lines[0], lines[1]  # driven pressure where cylinder c drives, affine in u
-    line_offset[:] = 0.0
-    line_slope[:] = 0.0
+    # for the LS cost, row by row: each driving cylinder's pressure line (offset, slope in u) and the
+    # interval of u (low, high) in which its force and velocity have one sign, so that it drives
+    drivers = 0
     for c in range(n):
         drives = velocity[c] != 0.0  # the actuator cost: max(F v, 0) kinks where F = 0
         if mode == 1:
-            drives = False
-            if abs(velocity[c]) > hydraulics[2]:
-                sign = 1.0 if velocity[c] > 0.0 else -1.0
-                at_one = driven_pressure(
-                    sign, velocity[c], table[c, 0], table[c, 1], table[c, 2], hydraulics[0], hydraulics[1], hydraulics[2]
-                )
-                at_two = driven_pressure(
-                    2.0 * sign, velocity[c], table[c, 0], table[c, 1], table[c, 2], hydraulics[0], hydraulics[1], hydraulics[2]
-                )
-                drives = at_one > 0.0 or at_two > 0.0  # not a single-acting cylinder lowering to tank
-                gain = sign * (at_two - at_one)  # d p / d F on the driving side
-                line_offset[c] = at_one - gain * sign + gain * force_offset[c]
-                line_slope[c] = gain * force_slope[c]
+            side = 0 if velocity[c] > 0.0 else 1
+            gain = pressure_lines[c, side, 1]
+            # beyond the drive threshold, and not a single-acting cylinder lowering to tank
+            drives = abs(velocity[c]) > drive_threshold and gain != 0.0
+            if drives:
+                lines[0, drivers] = pressure_lines[c, side, 0] + gain * force_offset[c]
+                lines[1, drivers] = gain * force_slope[c]
+                lines[2, drivers], lines[3, drivers] = -math.inf, math.inf
+                if force_slope[c] * velocity[c] > 0.0:
+                    lines[2, drivers] = -force_offset[c] / force_slope[c]
+                elif force_slope[c] * velocity[c] < 0.0:
+                    lines[3, drivers] = -force_offset[c] / force_slope[c]
+                elif force_offset[c] * velocity[c] <= 0.0:
+                    drives = False
+                if drives:
+                    drivers += 1
         if drives and force_slope[c] != 0.0:
             count = _add_samples_around(samples, count, (-force_offset[c] / force_slope[c] - u_first) / u_step, first, last)
-    if mode == 1:
-        for a in range(n):
-            for b in range(a + 1, n):
-                if line_slope[a] != line_slope[b]:
-                    crossing = (line_offset[b] - line_offset[a]) / (line_slope[a] - line_slope[b])
-                    # a kink of the max only where both cylinders drive (force and velocity of one sign)
-                    if ((force_offset[a] + force_slope[a] * crossing) * velocity[a] > 0.0
-                            and (force_offset[b] + force_slope[b] * crossing) * velocity[b] > 0.0):
-                        count = _add_samples_around(samples, count, (crossing - u_first) / u_step, first, last)
-    for a in range(1, count):  # insertion sort: a few dozen, mostly in order already
-        value = samples[a]
-        b = a - 1
-        while b >= 0 and samples[b] > value:
-            samples[b + 1] = samples[b]
-            b -= 1
-        samples[b + 1] = value
+    for a in range(drivers):
+        for b in range(a + 1, drivers):
+            if lines[1, a] != lines[1, b]:
+                crossing = (lines[0, b] - lines[0, a]) / (lines[1, a] - lines[1, b])
+                # a kink of the max only where both cylinders drive
+                if lines[2, a] < crossing < lines[3, a] and lines[2, b] < crossing < lines[3, b]:
+                    count = _add_samples_around(samples, count, (crossing - u_first) / u_step, first, last)
+    lines[2, drivers:] = math.inf  # no further driving cylinder: an empty interval ends the rows
     return count
+
+
+@njit(cache=True)
+def _highest_driven_pressure(lines: np.ndarray, u: float) -> float:
+    """max over cylinders of ``driven_pressure`` at control u, from the rows ``_breakpoint_samples`` wrote."""
+    highest = 0.0
+    for c in range(lines.shape[1]):
+        if lines[2, c] == math.inf:
+            break
+        if lines[2, c] < u < lines[3, c]:
+            highest = max(highest, lines[0, c] + lines[1, c] * u)
+    return highest
 
 
 @njit(parallel=True, cache=True)
@@ -377,6 +397,7 @@ def _bellman_step(
     velocity: np.ndarray,
     table: np.ndarray,
     hydraulics: np.ndarray,
+    pressure_lines: np.ndarray,
     accel_limits: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     n_c, n_v = admissible.shape
@@ -395,7 +416,8 @@ def _bellman_step(
     capacity = 2 + 3 * (int(abs(y_per_control) * controls.shape[0]) + 2) + 3 * acc_offset.shape[0] * (acc_offset.shape[0] + 1) // 2
     for i in prange(n_c):
         samples = np.empty(capacity, np.int64)  # the breakpoint samples and pressure lines of each state of this row
-        lines = np.empty((2, acc_offset.shape[0]))
+        lines = np.empty((4, acc_offset.shape[0]))
+        row = np.empty(n_v)
         for j in range(n_v):
             if not admissible[i, j]:
                 continue
@@ -407,7 +429,7 @@ def _bellman_step(
             ic = min(max(int(math.floor(x)), 0), n_c - 2)
             wc = _snap(x - ic)
             low, high = _control_window(
-                acc_offset[:, i, j], acc_slope[:, i, j], acc_max, v, velocities[0], velocities[-1], controls, ts, accel_limits
+                acc_offset[:, i, j], acc_slope[:, i, 0], acc_max, v, velocities[0], velocities[-1], controls, ts, accel_limits
             )
             if low > high:
                 continue
@@ -437,24 +459,31 @@ def _bellman_step(
                     best += ts * base_cost[i, j]
             else:
                 f_offset = force_offset[:, i, j]
-                f_slope = force_slope[:, i, j]
+                f_slope = force_slope[:, i, 0]
                 cyl_velocity = velocity[:, i, j]
                 count = _breakpoint_samples(
-                    mode, first, last, y_first, y_per_control, controls[0], u_step, f_offset, f_slope, cyl_velocity, table,
-                    hydraulics, samples, lines,
+                    mode, first, last, y_first, y_per_control, controls[0], u_step, f_offset, f_slope, cyl_velocity,
+                    pressure_lines, hydraulics[2], samples, lines,
                 )
-                previous = -1
+                # J_{k+1} interpolated in position once for the velocity nodes this state's controls reach
+                y_low = min(y_first, y_first + (last - first) * y_per_control)
+                j_low = min(max(int(math.floor(y_low)), 0), n_v - 2)
+                j_high = min(max(int(math.floor(y_low + abs((last - first) * y_per_control))), 0), n_v - 2) + 1
+                for jv in range(j_low, j_high + 1):
+                    row[jv - j_low] = (1.0 - wc) * cost_next[ic, jv] + wc * cost_next[ic + 1, jv]
+                scale = ts * flow[i, j] / hydraulics[4]
                 for index in range(count):
                     m = samples[index]
-                    if m == previous:
-                        continue
-                    previous = m
                     u = controls[m]
-                    stage = _stage_power_at(
-                        mode, 0.0, flow[i, j], f_offset, f_slope, cyl_velocity, table, hydraulics, u
-                    )
-                    total = ts * stage + _cost_to_go_at(cost_next, ic, wc, y_first + (m - first) * y_per_control)
-                    if total < best:
+                    if mode == 1:
+                        stage = (_highest_driven_pressure(lines, u) + hydraulics[3]) * scale
+                    else:
+                        stage = ts * _stage_power_at(mode, 0.0, flow[i, j], f_offset, f_slope, cyl_velocity, table, hydraulics, u)
+                    y = y_first + (m - first) * y_per_control
+                    jv = min(max(int(math.floor(y)), j_low), j_high - 1)
+                    wv = _snap(y - jv)
+                    total = stage + (1.0 - wv) * row[jv - j_low] + wv * row[jv + 1 - j_low]
+                    if total < best or (total == best and m < best_m):  # of equal costs the smallest control, as in order
                         best = total
                         best_m = m
             if best_m >= 0:
@@ -569,6 +598,21 @@ class DpSolution:
         return ok
 
 
+def _pressure_lines(table: np.ndarray, hydraulics: np.ndarray) -> np.ndarray:
+    """(n_cyl, 2, 2): per cylinder, extending and retracting, the intercept and gain of ``driven_pressure``
+    = intercept + gain F, which holds wherever the cylinder drives (F v > 0 beyond the drive threshold);
+    0 and 0 for a side that never drives (a single-acting cylinder lowering to tank)."""
+    lines = np.zeros((len(table), 2, 2))
+    speed = 2.0 * hydraulics[2] + 1e-3
+    for side, sign in enumerate((1.0, -1.0)):
+        at_one, at_two = (
+            driven_pressure(force * sign, speed * sign, table[:, 0], table[:, 1], table[:, 2], *hydraulics[:3]) for force in (1.0, 2.0)
+        )
+        gain = sign * (at_two - at_one)
+        lines[:, side] = np.stack([at_one - gain * sign, gain], axis=1)
+    return lines
+
+
 def _hydraulics(crane: Crane) -> np.ndarray:
     h = crane.hydraulics
     return np.array([h["compensator_drop"], h["tank_pressure"], h["drive_threshold"], h["ls_margin"], h["efficiency"]])
@@ -640,14 +684,17 @@ def solve(
     cost_to_go[n] = terminal_cost(crane, samples, grid)
     table = cylinder_table(crane)
     hydraulics = _hydraulics(crane)
+    pressure_lines = _pressure_lines(table, hydraulics)
     mode = _MODES.get(cost, 0)
-    for k in tqdm(range(n - 1, -1, -1), desc=f"DP {cost.value} backward", unit="stage", disable=not progress):
-        terms = stage_terms(crane, samples, k, grid.positions[k][:, None], v, cost)
-        cost_to_go[k], policy[k] = _bellman_step(
-            cost_to_go[k + 1], grid.positions[k], grid.positions[k + 1], grid.velocities, grid.controls, ts, mode,
-            terms.admissible, terms.base_cost, terms.flow, terms.acc_offset, terms.acc_slope, table[:, 5],
-            terms.force_offset, terms.force_slope, terms.velocity, table, hydraulics, acceleration_limits,
-        )
+    # rows differ in their admissible states (up to 58:42 between halves), so the threads take them in small chunks
+    with parallel_chunksize(8):
+        for k in tqdm(range(n - 1, -1, -1), desc=f"DP {cost.value} backward", unit="stage", disable=not progress):
+            terms = stage_terms(crane, samples, k, grid.positions[k][:, None], v, cost)
+            cost_to_go[k], policy[k] = _bellman_step(
+                cost_to_go[k + 1], grid.positions[k], grid.positions[k + 1], grid.velocities, grid.controls, ts, mode,
+                terms.admissible, terms.base_cost, terms.flow, terms.acc_offset, terms.acc_slope, table[:, 5],
+                terms.force_offset, terms.force_slope, terms.velocity, table, hydraulics, pressure_lines, acceleration_limits,
+            )
     return DpSolution(crane, samples, grid, cost, acceleration_limits, cost_to_go, policy)
 
 
