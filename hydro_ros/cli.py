@@ -198,12 +198,12 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.bags.reader import read_bag
-    from hydro_ros.studies.discrepancy import EFFECT_RANGES, run
+    from hydro_ros.studies.discrepancy import progress_steps, run
 
     machine = load_machine_config(args.config)
     data = read_bag(args.bag)
     out = Path(args.out)
-    with tqdm(total=2 + 2 * len(EFFECT_RANGES), unit="fit", desc="discrepancy", disable=args.quiet) as bar:
+    with tqdm(total=progress_steps(), unit="fit", desc="discrepancy", disable=args.quiet) as bar:
         report = run(data, machine, out, progress=bar.update)
         bar.update(bar.total - bar.n)
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")

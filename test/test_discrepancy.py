@@ -19,14 +19,16 @@ PLANT_MISMATCH = 0.4  # of fdi-eval's model mismatch
 SEED = 3
 
 
-def plant_config(config, effect=None, value=0.0, seed=SEED):
-    """The plant's config: 40 % of fdi-eval's mismatch drawn for ``seed`` and (maybe) one effect the model lacks."""
-    return mismatched_config(config, seed, PLANT_MISMATCH).with_overrides({"effects": {effect: value}} if effect else {})
+def plant_config(config, effect=None, value=0.0, seed=SEED, forms=None, also=None):
+    """The plant's config: 40 % of fdi-eval's mismatch drawn for ``seed`` and (maybe) effects the model lacks:
+    ``effect`` at ``value``, the effects ``also`` holds, in ``forms`` (names.EFFECT_FORMS) where given."""
+    effects = ({effect: value} if effect else {}) | (also or {})
+    return mismatched_config(config, seed, PLANT_MISMATCH).with_overrides({"effects": effects, "effect_forms": forms or {}})
 
 
-def hidden_effect_bag(config, path, effect=None, value=0.0, seed=SEED, duration=40.0):
-    """The plant carries the mismatch, sensor noise and (maybe) one effect the model lacks."""
-    plant = plant_config(config, effect, value, seed)
+def hidden_effect_bag(config, path, effect=None, value=0.0, seed=SEED, duration=40.0, forms=None, also=None):
+    """The plant carries the mismatch, sensor noise and (maybe) effects the model lacks."""
+    plant = plant_config(config, effect, value, seed, forms, also)
     with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
         for _, _, block in run_blocks(plant, Scenario(duration, [], seed=seed)):
             writer.write_block("boom", block)
@@ -101,3 +103,27 @@ def test_joint_refinement_recovers_what_calibration_absorbed(sam_config, tmp_pat
     separate, joint = report["joint_fit"]["separate_effects"]["entrained_air"], report["effects"][0]["parameters"]["value"]
     assert abs(joint - 0.03) < 0.5 * abs(separate - 0.03) and joint == pytest.approx(0.03, rel=0.15)
     assert report["validation_gap"]["after"] < 0.85 * report["validation_gap"]["before"]
+
+
+@pytest.mark.parametrize(("effects", "forms"), [
+    ({"valve_deadzone": 0.08}, {"valve_deadzone": "overlap"}),  # a plain dead band: was named valve_flow_gain
+    ({"external_leakage_a": 2.0, "coulomb_friction": 3000.0}, {"external_leakage_a": "laminar"}),
+])
+def test_discrepancy_names_variant_forms_and_pairs_by_family(sam_config, tmp_path, effects, forms):
+    from hydro_ros.bags.reader import read_bag
+    from hydro_ros.contract.names import EFFECT_FORMS
+    from hydro_ros.studies.discrepancy import run
+
+    bag = hidden_effect_bag(sam_config, tmp_path / "bag", duration=60.0, forms=forms, also=effects)
+    report = run(read_bag(bag), load_machine_config(SAM_CONFIG), tmp_path / "out")
+    named = {e["name"]: e["parameters"] for e in report["effects"]}
+    assert set(named) == set(effects), report["selection"]["steps"]
+    for name, value in effects.items():
+        assert named[name]["value"] == pytest.approx(value, rel=0.25)
+        assert named[name].get("form") == forms.get(name, next(iter(EFFECT_FORMS[name])) if name in EFFECT_FORMS else None)
+    assert report["validation_gap"]["after"] <= 0.5 * report["validation_gap"]["before"]
+    steps = report["selection"]["steps"]
+    assert [s["added"] for s in steps if s.get("kept")] == list(named)
+    assert all(s["held_out_gap_after"] < s["held_out_gap_before"] for s in steps if s.get("kept"))
+    model = load_machine_config(tmp_path / "out" / "model.yaml")
+    assert dict(model.effect_forms) == {n: p["form"] for n, p in named.items() if "form" in p}

@@ -172,3 +172,48 @@ def test_natural_frequency_within_seed_maximum_over_the_upper_stroke(sam_config)
     assert max(upper) <= 4.5
     lower = [hydraulic_natural_frequency(model, x) for x in np.linspace(0.0, 0.32, 9)]
     assert max(lower) < 6.5
+
+
+def test_each_effect_form_acts_as_its_physics_says(sam_config):
+    """names.EFFECT_FORMS in the model: a laminar leak flows as much as an orifice at 10 MPa and in proportion
+    below it; a plain overlap opens 1 - overlap at full travel; a lag reaches 63 % after its time constant;
+    Stribeck friction raises the breakaway level only."""
+    from hydro_ros.models.sam import COULOMB, STATIC
+    from hydro_ros.models.valve import spool_opening
+
+    def model(effect, value, form=None):
+        forms = {"effect_forms": {effect: form}} if form else {}
+        return SamModel(sam_config.with_overrides({"effects": {effect: value}, **forms}))
+
+    state = np.array([[2.5e6, 1.0e7, 0.0, 0.0, 0.1, 0.0, 0.0]])  # p_A 2.5 MPa, p_B 10 MPa (over tank ~0)
+    orifice, laminar = model("external_leakage_b", 1.0), model("external_leakage_b", 1.0, "laminar")
+    flows = [valve_and_leak_flows(state, m.base[None, :], m.poly, m.centre_leakage)[0] * 60000.0 for m in (orifice, laminar)]
+    tank = sam_config.tank_pressure
+    assert flows[0][4] == pytest.approx(np.sqrt((1.0e7 - tank) / 1.0e7), rel=1e-9)
+    assert flows[1][4] == pytest.approx((1.0e7 - tank) / 1.0e7, rel=1e-9)
+    internal = model("internal_leakage", 1.0, "laminar")
+    assert valve_and_leak_flows(state, internal.base[None, :], internal.poly, internal.centre_leakage)[0][2] * 60000.0 == pytest.approx(-0.75)
+
+    assert spool_opening(1.0, 0.0, 0.1, 1.0, False) == pytest.approx(1.0)
+    assert spool_opening(1.0, 0.0, 0.1, 1.0, False, False) == pytest.approx(0.9)
+    assert spool_opening(0.5, 0.0, 0.1, 1.0, False, False) == pytest.approx(0.4)
+
+    lagged, transported = SamPlant(model("valve_delay", 0.05, "lag")), SamPlant(model("valve_delay", 0.05))
+    step = np.full(100, 0.3)
+    spool_lag = lagged.advance(100, commands=step)[1][:, 2]
+    spool_transport = transported.advance(100, commands=step)[1][:, 2]
+    assert abs(spool_transport[40]) < 1e-6 < spool_lag[10]  # the lag starts at once, the transport after 50 ms
+    assert 0.3 * 0.45 < spool_lag[49] < 0.3 * 0.7  # 1 - 1/e of the step after one time constant (the spool's own lag added)
+
+    nominal, stribeck, coulomb = SamModel(sam_config), model("coulomb_friction", 500.0, "stribeck"), model("coulomb_friction", 500.0)
+    assert stribeck.base[STATIC] == nominal.base[STATIC] + 500.0 and stribeck.base[COULOMB] == nominal.base[COULOMB]
+    assert coulomb.base[COULOMB] == nominal.base[COULOMB] + 500.0
+
+
+@pytest.mark.parametrize(("forms", "message"), [({"valve_deadzone": "sticky"}, "effect_forms.valve_deadzone 'sticky': expected rescaled or overlap"),
+                                                ({"payload_mass": "heavy"}, "effect_forms.payload_mass: no effect with forms")])
+def test_an_unknown_effect_form_is_refused_by_name(sam_config, forms, message):
+    from hydro_ros.contract.config import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        sam_config.with_overrides({"effect_forms": forms})

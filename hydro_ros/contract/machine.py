@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from hydro_ros.contract.config import ConfigError, read_config, with_overrides
+from hydro_ros.contract.names import EFFECT_FORMS
 
 NOTCHES = ("PA", "PB", "AT", "BT")
 VALVE_TYPES = ("proportional", "mobile")
@@ -284,6 +285,8 @@ class Machine:
     excitation: Excitation
     effects: Mapping[str, float]
     """physical effects present from t = 0 (written by ``hydro-ros discrepancy``), contract effect names"""
+    effect_forms: Mapping[str, str]
+    """the physical form of an effect where it is not its family's first (``names.EFFECT_FORMS``)"""
     fdi: Mapping[str, Any]
     """the ``fdi:`` section; :class:`hydro_ros.fdi.settings.FdiSettings` types it with the method it tunes"""
     dbc: str
@@ -378,10 +381,20 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
             max_command=excitation.number("max_command", defaults.max_command),
         ),
         effects=dict({str(name): effects.number(name) for name in effects.node}),
+        effect_forms=_effect_forms(top.section("effect_forms", optional=True)),
         fdi=dict(dict(top.section("fdi", optional=True).node)),
         dbc=can.text("dbc", "machine_bus.dbc"),
         mapping=dict(config),
     )
+
+
+def _effect_forms(section: _Section) -> dict[str, str]:
+    forms = {}
+    for name in section.node:
+        if str(name) not in EFFECT_FORMS:
+            raise ConfigError(f"config {section.source}: {section._name(name)}: no effect with forms (those with: {', '.join(EFFECT_FORMS)})")
+        forms[str(name)] = _choice(section, name, tuple(EFFECT_FORMS[str(name)]), next(iter(EFFECT_FORMS[str(name)])))
+    return forms
 
 
 def _choice(section: _Section, name: str, allowed: tuple[str, ...], default: str) -> str:

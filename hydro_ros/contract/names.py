@@ -91,6 +91,21 @@ INJECTION_UNITS: dict[str, str] = {
 INJECTABLE = frozenset(INJECTION_UNITS)
 
 
+# The physical forms an effect of the vocabulary takes on a real machine; the first is the form a bare
+# `effects:` entry has. A config picks another in `effect_forms:`, and `hydro-ros discrepancy` reports
+# which form fits (the effect is named by its family, the contract name).
+EFFECT_FORMS: dict[str, dict[str, str]] = {
+    "valve_deadzone": {"rescaled": "overlap, the rest of the travel rescaled so full travel opens fully",
+                       "overlap": "plain overlap: the opening is the travel beyond it, full travel opens 1 - overlap"},
+    "internal_leakage": {"orifice": "flow with the square root of the pressure drop", "laminar": "flow in proportion to the drop"},
+    "external_leakage_a": {"orifice": "flow with the square root of the pressure drop", "laminar": "flow in proportion to the drop"},
+    "external_leakage_b": {"orifice": "flow with the square root of the pressure drop", "laminar": "flow in proportion to the drop"},
+    "valve_delay": {"transport": "the command arrives VALUE s late", "lag": "first-order lag of time constant VALUE s"},
+    "coulomb_friction": {"coulomb": "sliding and breakaway friction both rise by VALUE",
+                         "stribeck": "breakaway friction rises by VALUE and fades above the Stribeck velocity"},
+}
+
+
 @dataclass(frozen=True)
 class Injection:
     """One fault or effect switched on at ``onset_s``, reaching ``value`` after ``ramp_s``."""

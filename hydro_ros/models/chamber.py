@@ -43,10 +43,13 @@ def leak_coefficient(flow_l_min_at_10mpa: float) -> float:
 
 
 @njit(cache=True)
-def leak_flow(coefficient: float, dp: float, laminar_band: float) -> float:
-    """Eqs. (41)-(43) in signed-root form so a reversed pressure drop reverses the leak."""
+def leak_flow(coefficient: float, dp: float, laminar_band: float, laminar: bool = False) -> float:
+    """Eqs. (41)-(43) in signed-root form so a reversed pressure drop reverses the leak; ``laminar``: the
+    same flow at the reference drop, in proportion to the drop (a long narrow gap rather than an orifice)."""
     if coefficient == 0.0:
         return 0.0
+    if laminar:
+        return coefficient * dp / math.sqrt(LEAK_REFERENCE_DROP)
     if abs(dp) < laminar_band:
         return coefficient * dp / math.sqrt(laminar_band)
     return coefficient * math.copysign(math.sqrt(abs(dp)), dp)

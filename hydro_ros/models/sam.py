@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
+from scipy.signal import lfilter
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, Machine
@@ -61,8 +62,9 @@ DELAY_BUFFER = 4096  # samples of valve-command history kept for the valve_delay
     OFFSET, OPENING_GAIN, FLOW_GAIN, STUCK, DEADZONE, DELAY_SAMPLES,
     STOP_LOWER, STOP_UPPER, STOP_STIFFNESS, STOP_DAMPING, CAVITATION, GRAVITY,
     VALVE_MOBILE, COMP_DROP, COMP_LOCKED, PILOT_MAX,
+    DEADZONE_PLAIN, LAMINAR_INTERNAL, LAMINAR_EXTERNAL_A, LAMINAR_EXTERNAL_B, LAG_SAMPLES,
     N_PARAMS,
-) = range(50)
+) = range(55)
 
 
 @njit(cache=True)
@@ -81,13 +83,13 @@ def _rhs(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centr
     v = y[5]
     z = y[6]
     # valve (eqs. 10-15)
-    s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5)
+    s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5, p[DEADZONE_PLAIN] < 0.5)
     q_a, q_b = chamber_valve_flows(s, p_a, p_b, metering_supply(s, p_a, p_b, p), p[TANK], poly, centre, p[LAMINAR_BAND], p[FLOW_GAIN])
     # cylinder leakages (eqs. 41-43)
     band = p[LAMINAR_BAND]
-    q_int = leak_flow(p[K_INTERNAL], p_a - p_b, band)
-    q_ext_a = leak_flow(p[K_EXTERNAL_A], p_a - p[TANK], band)
-    q_ext_b = leak_flow(p[K_EXTERNAL_B], p_b - p[TANK], band)
+    q_int = leak_flow(p[K_INTERNAL], p_a - p_b, band, p[LAMINAR_INTERNAL] > 0.5)
+    q_ext_a = leak_flow(p[K_EXTERNAL_A], p_a - p[TANK], band, p[LAMINAR_EXTERNAL_A] > 0.5)
+    q_ext_b = leak_flow(p[K_EXTERNAL_B], p_b - p[TANK], band, p[LAMINAR_EXTERNAL_B] > 0.5)
     # chambers (eqs. 8-9 with P-II eq. 19)
     volume_a = p[V0_A] + p[AREA_A] * x
     volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - x)
@@ -165,6 +167,7 @@ def _integrate_samples(
     max_command: float,
     delay_buffer: np.ndarray,
     delay_position: int,
+    lag_state: np.ndarray,
     sample_time: float,
     substeps: int,
     states_out: np.ndarray,
@@ -185,10 +188,43 @@ def _integrate_samples(
         delay_buffer[delay_position % size] = u
         applied = delay_buffer[(delay_position - int(p[DELAY_SAMPLES])) % size]
         delay_position += 1
+        if p[LAG_SAMPLES] > 0.0:
+            lag_state[0] += (applied - lag_state[0]) * (1.0 - math.exp(-1.0 / p[LAG_SAMPLES]))
+            applied = lag_state[0]
+        else:
+            lag_state[0] = applied  # a lag switched on later starts from the command
         for _ in range(substeps):
             _rk4(y, applied, p, poly, centre, h, work)
         states_out[k] = y
     return delay_position
+
+
+@njit(parallel=True, cache=True)
+def _integrate_segments(
+    starts: np.ndarray,
+    params: np.ndarray,
+    poly: np.ndarray,
+    centre: np.ndarray,
+    commands: np.ndarray,
+    firsts: np.ndarray,
+    ends: np.ndarray,
+    histories: np.ndarray,
+    lags: np.ndarray,
+    sample_time: float,
+    substeps: int,
+    states_out: np.ndarray,
+) -> None:
+    for segment in prange(starts.shape[0]):
+        first, end = firsts[segment], ends[segment]
+        y = starts[segment].copy()
+        applied = np.empty(end - first)
+        _integrate_samples(
+            # max_command 1.0: the command range, as SamPlant's
+            y, params[first:end], poly, centre, commands[first:end], commands[first:end], False, 0.0, 1.0,
+            histories[segment].copy(), 0, lags[segment:segment + 1].copy(), sample_time, substeps, states_out[first:end], applied,
+        )
+        if not np.all(np.isfinite(states_out[first:end])):
+            states_out[first:end] = np.nan  # a diverged segment, not a crash
 
 
 @njit(cache=True)
@@ -198,14 +234,14 @@ def valve_and_leak_flows(states: np.ndarray, params: np.ndarray, poly: np.ndarra
     for k in range(states.shape[0]):
         y = states[k]
         p = params[k]
-        s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5)
+        s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5, p[DEADZONE_PLAIN] < 0.5)
         q_a, q_b = chamber_valve_flows(s, y[0], y[1], metering_supply(s, y[0], y[1], p), p[TANK], poly, centre,
                                        p[LAMINAR_BAND], p[FLOW_GAIN])
         out[k, 0] = q_a
         out[k, 1] = q_b
-        out[k, 2] = leak_flow(p[K_INTERNAL], y[0] - y[1], p[LAMINAR_BAND])
-        out[k, 3] = leak_flow(p[K_EXTERNAL_A], y[0] - p[TANK], p[LAMINAR_BAND])
-        out[k, 4] = leak_flow(p[K_EXTERNAL_B], y[1] - p[TANK], p[LAMINAR_BAND])
+        out[k, 2] = leak_flow(p[K_INTERNAL], y[0] - y[1], p[LAMINAR_BAND], p[LAMINAR_INTERNAL] > 0.5)
+        out[k, 3] = leak_flow(p[K_EXTERNAL_A], y[0] - p[TANK], p[LAMINAR_BAND], p[LAMINAR_EXTERNAL_A] > 0.5)
+        out[k, 4] = leak_flow(p[K_EXTERNAL_B], y[1] - p[TANK], p[LAMINAR_BAND], p[LAMINAR_EXTERNAL_B] > 0.5)
     return out
 
 
@@ -216,19 +252,24 @@ def compensator_pressures(states: np.ndarray, params: np.ndarray) -> np.ndarray:
     for k in range(states.shape[0]):
         y = states[k]
         p = params[k]
-        s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5)
+        s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5, p[DEADZONE_PLAIN] < 0.5)
         out[k] = metering_supply(s, y[0], y[1], p)
     return out
 
 
-def _apply(params: np.ndarray, name: str, level: np.ndarray, sample_rate: float) -> None:
-    """Add one injection's level (per row of ``params``) to the parameter matrix."""
+def _apply(params: np.ndarray, name: str, level: np.ndarray, sample_rate: float, form: str | None = None) -> None:
+    """Add one injection's level (per row of ``params``) to the parameter matrix, in ``form``
+    (``names.EFFECT_FORMS``; None: the family's first)."""
+    laminar = float(form == "laminar")
     if name in ("external_leakage_a", "external_leakage_ab"):
         params[:, K_EXTERNAL_A] += leak_coefficient(1.0) * level
+        params[:, LAMINAR_EXTERNAL_A] = laminar
     if name in ("external_leakage_b", "external_leakage_ab"):
         params[:, K_EXTERNAL_B] += leak_coefficient(1.0) * level
+        params[:, LAMINAR_EXTERNAL_B] = laminar
     if name == "internal_leakage":
         params[:, K_INTERNAL] += leak_coefficient(1.0) * level
+        params[:, LAMINAR_INTERNAL] = laminar
     elif name == "spool_too_small_opening":
         params[:, OPENING_GAIN] *= 1.0 - level
     elif name == "spool_too_large_opening":
@@ -247,6 +288,9 @@ def _apply(params: np.ndarray, name: str, level: np.ndarray, sample_rate: float)
         params[:, COMP_DROP] *= 1.0 - level
     elif name == "valve_deadzone":
         params[:, DEADZONE] += level
+        params[:, DEADZONE_PLAIN] = float(form == "overlap")
+    elif name == "valve_delay" and form == "lag":
+        params[:, LAG_SAMPLES] += level * sample_rate
     elif name == "valve_delay":
         params[:, DELAY_SAMPLES] += np.round(level * sample_rate)
     elif name == "valve_flow_gain":
@@ -254,8 +298,9 @@ def _apply(params: np.ndarray, name: str, level: np.ndarray, sample_rate: float)
     elif name == "entrained_air":
         params[:, AIR_FRACTION] += level
     elif name == "coulomb_friction":
-        params[:, COULOMB] += level
         params[:, STATIC] += level
+        if form != "stribeck":
+            params[:, COULOMB] += level
     elif name == "viscous_friction":
         params[:, VISCOUS] += level
     elif name == "payload_mass":
@@ -342,7 +387,7 @@ class SamModel:
         for name, value in self.effects.items():
             Injection(name, value)  # validates the name
             if name not in SENSOR_INJECTIONS:
-                _apply(p.reshape(1, -1), name, np.array([value]), self.sample_rate)
+                _apply(p.reshape(1, -1), name, np.array([value]), self.sample_rate, machine.effect_forms.get(name))
         self.base = p
         self.poly = np.array([valve.kv_poly[notch] for notch in NOTCHES], dtype=float)
         self.centre_leakage = np.array([valve.centre_leakage[notch] for notch in NOTCHES], dtype=float)
@@ -426,6 +471,41 @@ class SamModel:
         return np.array([p_a, p_b, 0.0, 0.0, x, 0.0, 0.0])
 
 
+def lagged_command(params: np.ndarray, history: np.ndarray) -> float:
+    """Where a valve_delay lag has brought the command after ``history`` (oldest first) passed the transport delay."""
+    arrived = history[:len(history) - int(params[DELAY_SAMPLES])]
+    if not len(arrived):
+        return 0.0
+    if params[LAG_SAMPLES] <= 0.0:
+        return float(arrived[-1])
+    keep = math.exp(-1.0 / params[LAG_SAMPLES])
+    return float(lfilter([1.0 - keep], [1.0, -keep], arrived, zi=[keep * arrived[0]])[0][-1])
+
+
+def simulate_segments(
+    model: SamModel, starts: np.ndarray, commands: np.ndarray, firsts: np.ndarray, ends: np.ndarray, histories: np.ndarray
+) -> np.ndarray:
+    """Open-loop simulations of segments [first, end) of one recording's commands, each from its own start
+    state, in parallel (multiple shooting).
+
+    starts (S, 7) are the states at ``firsts``; histories (S, DELAY_BUFFER) the commands before each
+    start, oldest first. Returns the states (n, 7) after each sample: NaN outside the segments and in a
+    diverged one.
+    """
+    params = model.parameter_matrix(np.zeros(1))[0]  # validates delay and dead zone once
+    commands = np.ascontiguousarray(commands, dtype=float)
+    if not np.all(np.isfinite(commands)):
+        raise InputError("valve commands contain NaN or inf")
+    lags = np.array([lagged_command(params, history) for history in histories])
+    states = np.full((len(commands), N_STATES), np.nan)
+    _integrate_segments(
+        np.ascontiguousarray(starts, dtype=float), np.broadcast_to(params, (len(commands), N_PARAMS)), model.poly, model.centre_leakage,
+        commands, np.asarray(firsts, dtype=np.int64), np.asarray(ends, dtype=np.int64), np.ascontiguousarray(histories, dtype=float), lags,
+        1.0 / model.sample_rate, model.substeps, states,
+    )
+    return states
+
+
 def injection_levels(injection: Injection, times: np.ndarray) -> np.ndarray:
     """Vectorised :meth:`Injection.level` over sample times."""
     times = np.asarray(times, dtype=float)
@@ -461,12 +541,14 @@ class SamPlant:
         self.max_command = max_command
         self._delay_buffer = np.zeros(DELAY_BUFFER)
         self._delay_position = 0
+        self._lag_state = np.zeros(1)
 
     def prime_command_history(self, commands: np.ndarray) -> None:
         """Commands applied before now, oldest first: what a valve delay replays at the start."""
         history = np.asarray(commands, dtype=float)[-DELAY_BUFFER:]
         slots = (self._delay_position - len(history) + np.arange(len(history))) % DELAY_BUFFER
         self._delay_buffer[slots] = history
+        self._lag_state[0] = lagged_command(self.model.base, history)
 
     @property
     def sample_time(self) -> float:
@@ -511,6 +593,7 @@ class SamPlant:
             self.max_command,
             self._delay_buffer,
             self._delay_position,
+            self._lag_state,
             self.sample_time,
             self.model.substeps,
             states,

@@ -57,11 +57,12 @@ def signed_root(dp: float, laminar_band: float) -> float:
 
 
 @njit(cache=True)
-def spool_opening(x_s: float, offset: float, deadzone: float, opening_gain: float, stuck: bool) -> float:
+def spool_opening(x_s: float, offset: float, deadzone: float, opening_gain: float, stuck: bool, rescaled: bool = True) -> float:
     """Signed effective opening s in [-1.5, 1.5] seen by the notches.
 
     offset shifts the spool (eqs. 10-11, s = x_s + offset); deadzone is a spool overlap that
-    keeps the notches closed for |s| < deadzone and rescales so full travel still opens fully;
+    keeps the notches closed for |s| < deadzone and, ``rescaled``, rescales so full travel still
+    opens fully (else full travel opens 1 - deadzone, a plain overlap);
     opening_gain < 1 / > 1 emulates a spool jammed to a too small / too large opening
     (P-II section 4.2); a stuck spool sits at centre.
     """
@@ -69,7 +70,7 @@ def spool_opening(x_s: float, offset: float, deadzone: float, opening_gain: floa
         return 0.0
     s = x_s + offset
     if deadzone > 0.0:
-        magnitude = max(abs(s) - deadzone, 0.0) / (1.0 - deadzone)
+        magnitude = max(abs(s) - deadzone, 0.0) / (1.0 - deadzone if rescaled else 1.0)
         s = math.copysign(magnitude, s)
     s = opening_gain * min(max(s, -1.0), 1.0)
     return s
