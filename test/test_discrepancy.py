@@ -127,3 +127,7 @@ def test_discrepancy_names_variant_forms_and_pairs_by_family(sam_config, tmp_pat
     assert all(s["held_out_gap_after"] < s["held_out_gap_before"] for s in steps if s.get("kept"))
     model = load_machine_config(tmp_path / "out" / "model.yaml")
     assert dict(model.effect_forms) == {n: p["form"] for n, p in named.items() if "form" in p}
+    page = (tmp_path / "out" / "report.html").read_text()
+    # one self-contained page: both plots inlined, nothing fetched from elsewhere, every named effect on it
+    assert page.count('src="data:image/png;base64,') == 2 and "http" not in page.replace("http-equiv", "")
+    assert all(name in page for name in named)

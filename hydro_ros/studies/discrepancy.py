@@ -36,6 +36,8 @@ noise -, piston position per 1 mm) and its RMS is the gap.
 
 from __future__ import annotations
 
+import base64
+import html
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -69,7 +71,7 @@ from hydro_ros.models.sam import (
     simulate_segments,
 )
 from hydro_ros.models.valve import spool_opening, spool_positions
-from hydro_ros.studies.plots import plot_discrepancy
+from hydro_ros.studies.plots import plot_discrepancy, plot_gap_localisation
 
 SEGMENT_S = 2.0
 # RK4 step of the workflow's simulations: 0.25 ms, where a machine config asks for 0.1 ms (10 per 1 kHz
@@ -504,7 +506,9 @@ def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], No
     labels = {f"{name} ({forms[name]})" if name in forms else name: value for name, value in named.items()}
     plot = plot_discrepancy(validation, machine, before=before_validation, after=after_validation, effects=labels,
                             out=out / "validation.png", scales=SCALES)
-    return {
+    validation_localisation = {"before": localise(validation, before_validation), "after": localise(validation, after_validation)}
+    where = plot_gap_localisation(validation_localisation["before"], validation_localisation["after"], out / "localisation.png")
+    report = {
         "effects": [{"name": name, "parameters": {"value": value} | ({"form": forms[name]} if name in forms else {})}
                     for name, value in named.items()],
         "gap": {"metric": "rms of the 0.1 s mean error of 2 s segment simulations; p_A, p_B per 0.1 MPa, position per 1 mm",
@@ -516,9 +520,61 @@ def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], No
         "selection": {"steps": selection["steps"], "backward": selection["backward"], "dropped": selection["dropped"]},
         "localisation": {"forward": localise(fit, before_fit),
                          "load_independent_l_min": localise(fit, load_independent_error(_with(machine, {}, calibration), fit),
-                                                            ("q_a", "q_b"))},
+                                                            ("q_a", "q_b")),
+                         "validation": validation_localisation},
         "fit_s": float(fit.times[-1] - fit.times[0]), "validation_s": float(validation.times[-1] - validation.times[0]),
-        "plots": [str(plot)],
+        "plots": [str(plot), str(where)],
         "bag_errors": list(data.errors),
         "partial": not data.complete,  # computed on what could be read, not on the whole recording
     }
+    report["html"] = str(write_html(report, data.path, out / "report.html"))
+    return report
+
+
+def write_html(report: dict[str, Any], bag: Path | str, out: Path) -> Path:
+    """One self-contained page (plots inlined) of what the workflow found, for a person rather than a program."""
+
+    def cell(value: Any) -> str:
+        if isinstance(value, float):
+            return f"{value:.4g}"
+        return html.escape("-" if value is None else str(value))
+
+    def table(header: list[str], rows: list[list[Any]]) -> str:
+        head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+        body = "".join("<tr>" + "".join(f"<td>{cell(v)}</td>" for v in row) + "</tr>" for row in rows)
+        return f"<table><tr>{head}</tr>{body}</table>"
+
+    def image(path: str) -> str:
+        encoded = base64.b64encode(Path(path).read_bytes()).decode()
+        return f'<img alt="{html.escape(Path(path).name)}" src="data:image/png;base64,{encoded}">'
+
+    effects = [[e["name"], e["parameters"].get("form"), e["parameters"]["value"]] for e in report["effects"]]
+    steps = []
+    for number, step in enumerate(report["selection"]["steps"], start=1):
+        tried = ", ".join(f"{c['name']}{' (' + c['form'] + ')' if c['form'] else ''}: BIC -{c['bic_gain']:.0f}, {c['reduction']:.0%}"
+                          for c in step["candidates"])
+        steps.append([number, step.get("added", "none significant"), step.get("form"), step.get("separate_value"),
+                      (step.get("joint_values") or {}).get(step.get("added")), step["held_out_gap_before"], step.get("held_out_gap_after"),
+                      step.get("kept"), tried])
+    local = report["localisation"]["validation"]
+    regimes = [[name, *(local[when]["by_regime"][name].get(channel) for when in ("before", "after") for channel in ("p_a", "p_b", "position"))]
+               for name in local["before"]["by_regime"]]
+    gap = report["validation_gap"]
+    page = f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>hydro-ros discrepancy: {html.escape(str(bag))}</title>
+<style>body{{font-family:sans-serif;max-width:1200px;margin:auto}}table{{border-collapse:collapse;margin:1em 0}}
+td,th{{border:1px solid #999;padding:3px 6px;font-size:13px;vertical-align:top}}img{{max-width:100%}}</style></head><body>
+<h1>Model discrepancy of {html.escape(str(bag))}</h1>
+<p>Validation gap (last {report['validation_s']:.0f} s, no value fitted on it) {gap['before']:.3g} &rarr; {gap['after']:.3g}
+(uncalibrated {report['uncalibrated_validation_gap']:.3g}); fitted on the first {report['fit_s']:.0f} s.
+{html.escape(report['gap']['metric'])}.</p>
+<h2>Named effects</h2>{table(["effect (family)", "form", "value"], effects) if effects else "<p>none: the data show no significant missing effect</p>"}
+<h2>Selection path</h2>{table(["step", "added", "form", "fitted alone", "fitted jointly", "held-out gap before", "after", "kept",
+                              "candidates re-fitted on all segments"], steps)}
+<p>Backward check: {html.escape(", ".join(f"{r['effect']} (BIC +{r['bic_gain']:.0f} without it: {'kept' if r['kept'] else 'dropped'})"
+                                         for r in report["selection"]["backward"]) or "one effect or none, nothing to check")}.</p>
+<h2>Where the gap sits (validation part)</h2>{image(report["plots"][1])}
+{table(["regime", "p_A before", "p_B before", "position before", "p_A after", "p_B after", "position after"], regimes)}
+<h2>Measured and simulated</h2>{image(report["plots"][0])}
+</body></html>"""
+    out.write_text(page)
+    return out

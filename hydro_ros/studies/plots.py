@@ -168,6 +168,33 @@ def plot_discrepancy(rec, machine: Machine, *, before: np.ndarray, after: np.nda
     return out
 
 
+def plot_gap_localisation(before: dict, after: dict, out: str | Path) -> Path:
+    """Where the validation gap sits before and after the named effects: per 5 s window and per regime
+    (``discrepancy.localise`` of each, channels combined as the RMS over them)."""
+    out = Path(out)
+    fig, (by_time, by_regime) = plt.subplots(1, 2, figsize=(12, 4), gridspec_kw={"width_ratios": [3, 2]})
+    for label, local in (("before", before), ("after", after)):
+        by_time.step([w["t_s"] for w in local["by_time"]], [w["rms"] for w in local["by_time"]], where="post", label=label)
+    by_time.set_xlabel("validation time [s] (5 s windows)")
+    by_time.set_ylabel("gap (RMS of the 0.1 s mean error)")
+    by_time.legend()
+    by_time.grid(alpha=0.3)
+    regimes = [name for name, channels in before["by_regime"].items() if all(v is not None for v in channels.values())]
+
+    def combined(local: dict, name: str) -> float:
+        return float(np.sqrt(np.mean(np.square(list(local["by_regime"][name].values())))))
+
+    x = np.arange(len(regimes))
+    by_regime.bar(x - 0.2, [combined(before, r) for r in regimes], 0.4, label="before")
+    by_regime.bar(x + 0.2, [combined(after, r) for r in regimes], 0.4, label="after")
+    by_regime.set_xticks(x, [r.replace("_", " ") for r in regimes], rotation=30, ha="right")
+    by_regime.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
 def plot_dp_compare(result: dict, out: str | Path) -> Path:
     """Bar chart of CP and LS energy per method, like P-VI Figs. 10-12 (a)."""
     methods = sorted(result["methods"], key=lambda name: result["methods"][name]["cp_energy_J"])
