@@ -205,6 +205,11 @@ def test_each_effect_form_acts_as_its_physics_says(sam_config):
     assert abs(spool_transport[40]) < 1e-6 < spool_lag[10]  # the lag starts at once, the transport after 50 ms
     assert 0.3 * 0.45 < spool_lag[49] < 0.3 * 0.7  # 1 - 1/e of the step after one time constant (the spool's own lag added)
 
+    # a fault injected on top of an effect in another form keeps that form (the leak grows, still laminar)
+    grown = laminar.parameter_matrix(np.array([0.0, 2.0]), [Injection("external_leakage_b", 1.0, onset_s=1.0)])
+    grown_flows = valve_and_leak_flows(np.repeat(state, 2, axis=0), grown, laminar.poly, laminar.centre_leakage) * 60000.0
+    assert grown_flows[1][4] == pytest.approx(2.0 * (1.0e7 - tank) / 1.0e7, rel=1e-9)
+
     nominal, stribeck, coulomb = SamModel(sam_config), model("coulomb_friction", 500.0, "stribeck"), model("coulomb_friction", 500.0)
     assert stribeck.base[STATIC] == nominal.base[STATIC] + 500.0 and stribeck.base[COULOMB] == nominal.base[COULOMB]
     assert coulomb.base[COULOMB] == nominal.base[COULOMB] + 500.0

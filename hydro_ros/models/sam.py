@@ -259,17 +259,19 @@ def compensator_pressures(states: np.ndarray, params: np.ndarray) -> np.ndarray:
 
 def _apply(params: np.ndarray, name: str, level: np.ndarray, sample_rate: float, form: str | None = None) -> None:
     """Add one injection's level (per row of ``params``) to the parameter matrix, in ``form``
-    (``names.EFFECT_FORMS``; None: the family's first)."""
-    laminar = float(form == "laminar")
+    (``names.EFFECT_FORMS``; None: the form the parameters have, which is the family's first unless an
+    effect of the config chose another: a fault injected on top of such an effect keeps its form)."""
+    if form is not None:
+        for slot, form_name, family in ((LAMINAR_EXTERNAL_A, "laminar", "external_leakage_a"), (LAMINAR_EXTERNAL_B, "laminar", "external_leakage_b"),
+                                        (LAMINAR_INTERNAL, "laminar", "internal_leakage"), (DEADZONE_PLAIN, "overlap", "valve_deadzone")):
+            if name == family:
+                params[:, slot] = float(form == form_name)
     if name in ("external_leakage_a", "external_leakage_ab"):
         params[:, K_EXTERNAL_A] += leak_coefficient(1.0) * level
-        params[:, LAMINAR_EXTERNAL_A] = laminar
     if name in ("external_leakage_b", "external_leakage_ab"):
         params[:, K_EXTERNAL_B] += leak_coefficient(1.0) * level
-        params[:, LAMINAR_EXTERNAL_B] = laminar
     if name == "internal_leakage":
         params[:, K_INTERNAL] += leak_coefficient(1.0) * level
-        params[:, LAMINAR_INTERNAL] = laminar
     elif name == "spool_too_small_opening":
         params[:, OPENING_GAIN] *= 1.0 - level
     elif name == "spool_too_large_opening":
@@ -288,7 +290,6 @@ def _apply(params: np.ndarray, name: str, level: np.ndarray, sample_rate: float,
         params[:, COMP_DROP] *= 1.0 - level
     elif name == "valve_deadzone":
         params[:, DEADZONE] += level
-        params[:, DEADZONE_PLAIN] = float(form == "overlap")
     elif name == "valve_delay" and form == "lag":
         params[:, LAG_SAMPLES] += level * sample_rate
     elif name == "valve_delay":

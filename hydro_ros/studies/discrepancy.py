@@ -17,7 +17,7 @@ noise -, piston position per 1 mm) and its RMS is the gap.
 3. name, by forward selection (``select``): each effect of the contract vocabulary, in each of its
    physical forms (names.EFFECT_FORMS: a dead zone with or without rescaling, an orifice or a
    laminar leak, a transport delay or a lag, Coulomb or Stribeck friction), is fitted as a
-   one-parameter extension on the fit data - screened on a quarter of the segments, the best three
+   one-parameter extension on the fit data - screened on a quarter of the segments, the best two
    families fitted again on all - and scored with the Bayesian information criterion on an
    effective sample count (one independent sample per 0.1 s, INFERRED). An effect is significant
    if it lowers BIC by more than 10 and the squared error by at least 30 % (60 % on top of others);
@@ -360,7 +360,7 @@ class Candidate:
 
 
 SCREEN_EVERY = 4  # candidates are screened on every fourth 2 s segment of the fit data,
-SCREEN_KEEP = 3  # and the families of the best three fitted again on all of it and scored
+SCREEN_KEEP = 2  # and every form of the best two families fitted again on all of it and scored
 MAX_EFFECTS = 3
 HELD_OUT_GAIN = 0.05  # an effect added must lower the held-out gap by 5 %, or selection stops
 
@@ -394,7 +394,7 @@ def fit_effects(machine: Machine, calibration: dict[str, float], rec: Recording,
     for name, form in candidate_effects(named):
         low, high = EFFECT_RANGES[name]
         result = minimize_scalar(lambda value, name=name, form=form: gap(error_with(name, form, value, SCREEN_EVERY)), bounds=(low, high),
-                                 method="bounded", options={"maxiter": 12, "xatol": 2e-3 * (high - low)})
+                                 method="bounded", options={"maxiter": 10, "xatol": 2e-3 * (high - low)})
         screened.append({"name": name, "form": form, "value": float(result.x), "screen_gap": float(result.fun)})
         if progress is not None:
             progress(1)
@@ -551,7 +551,7 @@ def write_html(report: dict[str, Any], bag: Path | str, out: Path) -> Path:
     effects = [[e["name"], e["parameters"].get("form"), e["parameters"]["value"]] for e in report["effects"]]
     steps = []
     for number, step in enumerate(report["selection"]["steps"], start=1):
-        tried = ", ".join(f"{c['name']}{' (' + c['form'] + ')' if c['form'] else ''}: BIC -{c['bic_gain']:.0f}, {c['reduction']:.0%}"
+        tried = ", ".join(f"{c['name']}{' (' + c['form'] + ')' if c['form'] else ''}: BIC {-c['bic_gain']:+.0f}, gap² {-c['reduction']:+.0%}"
                           for c in step["candidates"])
         steps.append([number, step.get("added", "none significant"), step.get("form"), step.get("separate_value"),
                       (step.get("joint_values") or {}).get(step.get("added")), step["held_out_gap_before"], step.get("held_out_gap_after"),
