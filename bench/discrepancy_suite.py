@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from hydro_ros.bags.reader import BagData, read_bag  # noqa: E402
 from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E402
-from hydro_ros.contract.names import EFFECT_FORMS  # noqa: E402
+from hydro_ros.contract.names import first_form  # noqa: E402
 from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, run, simulate  # noqa: E402
 from test.test_discrepancy import hidden_effect_bag, plant_config  # noqa: E402
 
@@ -58,7 +58,7 @@ def floor(config: Machine, data: BagData, effects: dict[str, float], forms: dict
 
 
 def _form(name: str, forms: dict[str, str]) -> str | None:
-    return forms.get(name, next(iter(EFFECT_FORMS[name]))) if name in EFFECT_FORMS else None
+    return forms.get(name, first_form(name))
 
 
 EXAMPLE = ({"valve_delay": 0.1, "valve_deadzone": 0.08}, {})  # its report.html is kept as bench/discrepancy_example.html

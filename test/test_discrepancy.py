@@ -111,7 +111,7 @@ def test_joint_refinement_recovers_what_calibration_absorbed(sam_config, tmp_pat
 ])
 def test_discrepancy_names_variant_forms_and_pairs_by_family(sam_config, tmp_path, effects, forms):
     from hydro_ros.bags.reader import read_bag
-    from hydro_ros.contract.names import EFFECT_FORMS
+    from hydro_ros.contract.names import first_form
     from hydro_ros.studies.discrepancy import run
 
     bag = hidden_effect_bag(sam_config, tmp_path / "bag", duration=60.0, forms=forms, also=effects)
@@ -120,7 +120,7 @@ def test_discrepancy_names_variant_forms_and_pairs_by_family(sam_config, tmp_pat
     assert set(named) == set(effects), report["selection"]["steps"]
     for name, value in effects.items():
         assert named[name]["value"] == pytest.approx(value, rel=0.25)
-        assert named[name].get("form") == forms.get(name, next(iter(EFFECT_FORMS[name])) if name in EFFECT_FORMS else None)
+        assert named[name].get("form") == forms.get(name, first_form(name))
     assert report["validation_gap"]["after"] <= 0.5 * report["validation_gap"]["before"]
     steps = report["selection"]["steps"]
     assert [s["added"] for s in steps if s.get("kept")] == list(named)

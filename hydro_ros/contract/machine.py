@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from hydro_ros.contract.config import ConfigError, read_config, with_overrides
-from hydro_ros.contract.names import EFFECT_FORMS
+from hydro_ros.contract.names import EFFECT_FORMS, first_form
 
 NOTCHES = ("PA", "PB", "AT", "BT")
 VALVE_TYPES = ("proportional", "mobile")
@@ -393,7 +393,7 @@ def _effect_forms(section: _Section) -> dict[str, str]:
     for name in section.node:
         if str(name) not in EFFECT_FORMS:
             raise ConfigError(f"config {section.source}: {section._name(name)}: no effect with forms (those with: {', '.join(EFFECT_FORMS)})")
-        forms[str(name)] = _choice(section, name, tuple(EFFECT_FORMS[str(name)]), next(iter(EFFECT_FORMS[str(name)])))
+        forms[str(name)] = _choice(section, name, tuple(EFFECT_FORMS[str(name)]), first_form(str(name)))
     return forms
 
 

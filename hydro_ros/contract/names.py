@@ -106,6 +106,11 @@ EFFECT_FORMS: dict[str, dict[str, str]] = {
 }
 
 
+def first_form(effect: str) -> str | None:
+    """The form a bare ``effects:`` entry has; None for an effect with one form."""
+    return next(iter(EFFECT_FORMS[effect])) if effect in EFFECT_FORMS else None
+
+
 @dataclass(frozen=True)
 class Injection:
     """One fault or effect switched on at ``onset_s``, reaching ``value`` after ``ramp_s``."""

@@ -52,7 +52,7 @@ from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.reader import BagData
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
-from hydro_ros.contract.names import EFFECT_FORMS, Effect
+from hydro_ros.contract.names import EFFECT_FORMS, Effect, first_form
 from hydro_ros.fdi.parity import flow_balance
 from hydro_ros.models.kinematics import piston_position, torque_arm
 from hydro_ros.models.sam import (
@@ -371,8 +371,9 @@ def candidate_effects(named: dict[str, float]) -> list[tuple[str, str | None]]:
 
 
 def progress_steps() -> int:
-    """Progress units of one run: calibration, and per selection step the screened candidates, the re-fits and the joint fit."""
-    return 1 + MAX_EFFECTS * (len(candidate_effects({})) + SCREEN_KEEP + 1)
+    """Progress units of one run at most: calibration, and per selection step the screened candidates, the re-fits
+    (every form of SCREEN_KEEP families) and the joint fit."""
+    return 1 + MAX_EFFECTS * (len(candidate_effects({})) + SCREEN_KEEP * max(map(len, EFFECT_FORMS.values())) + 1)
 
 
 def fit_effects(machine: Machine, calibration: dict[str, float], rec: Recording, named: dict[str, float], forms: dict[str, str],
@@ -462,9 +463,8 @@ def select(machine: Machine, calibration: dict[str, float], fit: Recording, held
             trial_forms = {**forms, best.name: form.form} if form.form else dict(forms)
             trial_joint, trial_named = refine(machine, joint, {**named, best.name: form.value}, trial_forms, fit)
             error = simulate(_with(machine, trial_named, trial_joint, trial_forms), fit)
-            first_form = form.form is None or form.form == next(iter(EFFECT_FORMS[best.name]))
-            trials.append((_bic(error, len(named) + 1, rate) - (BIC_MARGIN if first_form else 0.0), gap(error), form, trial_forms,
-                           trial_joint, trial_named))
+            bic = _bic(error, len(named) + 1, rate) - (BIC_MARGIN if form.form == first_form(best.name) else 0.0)
+            trials.append((bic, gap(error), form, trial_forms, trial_joint, trial_named))
         _, fit_gap, chosen, trial_forms, trial_joint, trial_named = min(trials, key=lambda trial: trial[0])
         if progress is not None:
             progress(1)
