@@ -148,8 +148,9 @@ def cmd_commission(args: argparse.Namespace) -> int:
         gains = ", ".join(f"{n} {g:.3f}" for n, g in fit["notch_gain"].items())
         print(f"{actuator}: notch gains {gains}; flow error {fit['rms_flow_error_l_min']['nominal']:.3f} -> "
               f"{fit['rms_flow_error_l_min']['commissioned']:.3f} L/min")
-    print(f"threshold c0 {block['model']['fdi']['threshold_constant']:.4f} MPa (config had "
-          f"{report['nominal_threshold_constant_mpa']:.4f}); written to {out}")
+    threshold = report["threshold"]
+    print(f"threshold {threshold['parameter']} {threshold['value']:.4g} (config had {threshold['before']:.4g}; "
+          f"{threshold['form']}); written to {out}")
     return 0
 
 

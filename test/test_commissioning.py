@@ -16,6 +16,7 @@ from hydro_ros.contract.names import Injection
 from hydro_ros.contract.samples import Samples
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import run_monitor
+from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, simulate
 from hydro_ros.studies.commissioning import Recording, commission, flow_regression, identify
@@ -67,7 +68,7 @@ def test_commissioning_recovers_each_notch_the_bulk_modulus_and_the_centre_leaka
     assert ident["rms_error_l_min"]["commissioned"] < 0.5 * ident["rms_error_l_min"]["nominal"]
     # the threshold is sharper than the paper's and comes from the held-out data
     c0 = block["model"]["fdi"]["threshold_constant"]
-    assert 0.0 < c0 < 0.012 and c0 == pytest.approx(2.0 * report["worst_held_out_excess_mpa"])
+    assert 0.0 < c0 < 0.012 and c0 == pytest.approx(2.0 * report["threshold"]["reached"], )
 
 
 def test_after_commissioning_a_small_leak_is_isolated_and_payload_steps_raise_no_alarm(sam_config, commissioned):
@@ -82,6 +83,30 @@ def test_after_commissioning_a_small_leak_is_isolated_and_payload_steps_raise_no
     run = run_monitor(FdiMonitor(machine), _samples(plant, 21, 60.0, [Injection("external_leakage_b", 0.4, 20.0)]))
     named = [a for a in run.alarms if a.fault is not None and a.fault.value != "unisolated"]
     assert run.alarms and run.alarms[0].time_s > 20.0 and named and named[0].fault.value == "external_leakage_b"
+
+
+def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_and_p_iv_thresholds(sam_config):
+    """The parity method's machine: spool from the pilot pressures, notches fed by the compensator; thresholds
+    per operating point from the recordings, sharper than fdi-fit's from simulated plants, and still quiet."""
+    mobile = load_machine_config(REPO / "config" / "sam_mobile.yaml")
+    plant, _, _ = _plant(mobile)
+    block, report = commission(mobile, [Recording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2, 3)])
+    (ident,) = report["identification"]
+    for notch, factor in NOTCH_FACTORS.items():
+        assert ident["notch_gain"][notch] == pytest.approx(factor, rel=0.02), notch
+    assert ident["oil_bulk_modulus"] == pytest.approx(plant.first.fluid.oil_bulk_modulus, rel=0.1)
+    fitted = block["model"]["fdi"]["parity_thresholds"]
+    assert "threshold_constant" not in block["model"]["fdi"]
+    assert fitted["factor"] == pytest.approx(2.0 * report["threshold"]["reached"])
+    machine = mobile.with_overrides(block["model"])
+    shipped, commissioned = (FdiSettings.from_machine(m).parity_thresholds for m in (mobile, machine))
+    openings = np.array([[0.01], [0.1], [0.5]])
+    assert np.all(commissioned(openings) < shipped(openings))
+    run = run_monitor(FdiMonitor(machine), _samples(plant, 11, 120.0, PAYLOAD_STEPS))
+    assert run.alarms == [], [a.to_json() for a in run.alarms]
+    run = run_monitor(FdiMonitor(machine), _samples(plant, 21, 60.0, [Injection("external_leakage_a", 0.4, 20.0)]))
+    named = [a for a in run.alarms if a.fault is not None and a.fault.value != "unisolated"]
+    assert run.alarms and run.alarms[0].time_s > 20.0 and named and named[0].fault.value == "external_leakage_a"
 
 
 def test_commissioning_refuses_a_leaking_machine_and_a_recording_without_retracting_moves(sam_config):
@@ -120,7 +145,7 @@ def test_commission_cli_writes_a_config_the_monitor_loads_and_refuses_what_it_ca
 
     other = tmp_path / "other.yaml"
     other.write_text(f"extends: {config}\nactuators:\n  boom:\n    joint: stick_joint\n")
-    for name, variant in (("another layout", other), ("a mobile valve", REPO / "config" / "sam_mobile.yaml")):
+    for name, variant in (("another layout", other), ("a mobile valve without pilot pressures", REPO / "config" / "sam_mobile.yaml")):
         refused = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "commission", *bags, "--config", str(variant),
                                   "--out", str(tmp_path / "refused.yaml"), "--quiet"], capture_output=True, text=True, timeout=120)
         assert refused.returncode == 1 and len(refused.stderr.strip().splitlines()) == 1, (name, refused.stderr)

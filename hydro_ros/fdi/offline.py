@@ -28,6 +28,7 @@ class FdiRun:
     threshold: np.ndarray  # (n, A, 2) MPa
     code: np.ndarray  # (n, A)
     alarms: list[Alarm]
+    operating_point: np.ndarray | None = None  # (n, A) parity: 5 s mean opening
     data: BagData | None = None
 
     def to_json(self) -> dict[str, Any]:
@@ -71,6 +72,7 @@ def run_monitor(monitor: FdiMonitor, samples: Samples, progress: Callable[[int],
         threshold=np.concatenate([r.threshold for r in results]),
         code=np.concatenate([r.code for r in results]),
         alarms=[alarm for r in results for alarm in r.alarms],
+        operating_point=None if results[0].operating_point is None else np.concatenate([r.operating_point for r in results]),
     )
 
 

@@ -134,6 +134,33 @@ class ParityThresholds:
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"fdi.parity_thresholds: malformed ({exc})") from None
 
+    @classmethod
+    def from_statistics(cls, residual: np.ndarray, opening: np.ndarray, edges: tuple[float, ...], factor: float,
+                        minimum: int = 100) -> "ParityThresholds":
+        """Mean and spread of fault-free 5 s mean residuals (n, 2) per bin of the mean opening (n,).
+
+        A bin with fewer than ``minimum`` samples (an operating point the data never reached) borrows
+        the spread of all of them.
+        """
+        bins = np.clip(np.searchsorted(edges, opening, side="right") - 1, 0, len(edges) - 2)
+        mean, std = [], []
+        for b in range(len(edges) - 1):
+            chosen = residual[bins == b] if np.count_nonzero(bins == b) >= minimum else residual
+            mean.append(tuple(float(v) for v in chosen.mean(axis=0)))
+            std.append(tuple(float(v) for v in chosen.std(axis=0)))
+        return cls(tuple(edges), tuple(mean), tuple(std), factor)
+
+    @classmethod
+    def probe(cls) -> dict[str, Any]:
+        """Config of thresholds nothing crosses: a monitor that only records its residuals."""
+        return {"edges": [0.0, 1.5], "mean": [[0.0, 0.0]], "std": [[1.0, 1.0]], "factor": 1e12}
+
+    def factor_reached(self, residual: np.ndarray, opening: np.ndarray) -> float:
+        """The largest factor c the 5 s mean residuals (n, 2) at mean openings (n,) reach: |r| = |mu| + c sigma."""
+        index = np.clip(np.searchsorted(self.edges, opening, side="right") - 1, 0, len(self.mean) - 1)
+        reached = (np.abs(residual) - np.abs(np.asarray(self.mean))[index]) / np.asarray(self.std)[index]
+        return float(reached.max(initial=0.0))
+
     def to_config(self) -> dict[str, Any]:
         return {"edges": list(self.edges), "mean": [list(m) for m in self.mean], "std": [list(s) for s in self.std],
                 "factor": self.factor}

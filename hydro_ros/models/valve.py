@@ -77,6 +77,15 @@ def spool_opening(x_s: float, offset: float, deadzone: float, opening_gain: floa
 
 
 @njit(cache=True)
+def spool_openings(x_s: np.ndarray, deadzone: float, rescaled: bool) -> np.ndarray:
+    """spool_opening of a healthy spool per sample (identification regressors)."""
+    out = np.empty(x_s.shape[0])
+    for k in range(x_s.shape[0]):
+        out[k] = spool_opening(x_s[k], 0.0, deadzone, 1.0, False, rescaled)
+    return out
+
+
+@njit(cache=True)
 def chamber_valve_flows(
     s: float,
     p_a: float,

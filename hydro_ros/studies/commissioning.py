@@ -19,17 +19,27 @@ model's laws change there.
 A recording that holds a leak must not be absorbed into the valve: turbulent leak terms of chamber
 A, chamber B and across the piston are fitted beside the valve, and a leak above LEAK_LIMIT refuses
 the recording. The fitted model then runs the monitor over the held-out last third of every
-recording and P-II's adaptive threshold c0 + c2 p^2 (eq. 25) gets the c0 that keeps every armed
-5 s mean residual below it with a margin: zero crossings on the held-out data is the budget.
-P-IV's per-operating-point statistical form belongs to the parity method on mobile valves, which
-``hydro-ros fdi-fit`` fits; commissioning those from recordings is not built yet.
+recording, and the threshold's free factor is set so that it keeps every armed 5 s mean residual
+below it with a margin: zero crossings on the held-out data is the budget. The threshold's form is
+the method's own, because each is what the thesis validated with its residual:
+
+- proportional valve, UKF method: P-II's adaptive c0 + c2 p^2 (eq. 25), c0 fitted, c2 kept. Its
+  residual is a pressure error whose spread grows with the load pressure, which the p^2 term
+  follows; a per-opening table would have to learn that growth from two minutes of data.
+- pressure-compensated mobile valve, parity method: P-IV's statistical form, |mu| + c sigma per
+  bin of the 5 s mean opening. Its residual is a flow error whose bias and spread follow the
+  opening (the notch polynomial's error scales with the flow), not the pressure. mu and sigma come
+  from the identified part of the recordings, c from the held-out part. The spool is then the one
+  the pilot pressures drive, and the notches are fed by the measured compensator pressure. The
+  signature table stays the config's (built by simulation, ``hydro-ros fdi-fit``): which residual
+  a fault moves is the fault's physics, not this machine's tolerances.
 """
 
 from __future__ import annotations
 
 import datetime
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -44,18 +54,23 @@ from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.samples import Samples
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import run_monitor
+from hydro_ros.fdi.parity import ParityThresholds
+from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.chamber import leak_coefficient
 from hydro_ros.models.kinematics import piston_position
 from hydro_ros.models.sam import (
     AREA_A,
     AREA_B,
     CAVITATION,
+    DEADZONE,
+    DEADZONE_PLAIN,
     HOSE_MODULUS,
     HOSE_VOLUME,
     MOUNT_L1,
     MOUNT_L2,
     MOUNT_L3,
     OIL_MODULUS,
+    PILOT_MAX,
     SPOOL_DAMPING,
     SPOOL_OMEGA,
     STOP_LOWER,
@@ -67,7 +82,7 @@ from hydro_ros.models.sam import (
     V0_B,
     SamModel,
 )
-from hydro_ros.models.valve import CENTRE_BAND, spool_positions
+from hydro_ros.models.valve import CENTRE_BAND, spool_openings, spool_positions
 
 FILTER_HZ = 8.0  # zero-phase low-pass of motion, pressures and regressors: far below the 1 kHz noise, above the boom's motion
 SEGMENT_MIN_S = 2.0  # a stretch of complete samples shorter than this is not used (the filter's edges)
@@ -81,6 +96,7 @@ MIN_HELD_OUT_S = 30.0
 THRESHOLD_MARGIN = 2.0  # c0 = margin x the worst held-out excess: an hour holds 30x the 24 windows of 2 min held
 # out, and the largest of 720 Gaussian 5 s means is ~1.6x the largest of 24; times the evaluation's 1.25
 LEAK_LIMIT = 0.15  # [L/min at 10 MPa] a fitted leak above this refuses the recording (fault-free fits stay below ~0.05)
+PARITY_OPENING_EDGES = (0.0, 0.02, 0.06, 0.15, 0.3, 1.5)  # the 5 s mean opening's bins (as fdi-fit's)
 LEAKS = ("external_leakage_a", "external_leakage_b", "internal_leakage")
 COLUMNS = ([f"{notch}_c{3 - k}" for notch in NOTCHES for k in range(4)] + ["oil_compliance", "hose_capacitance"]
            + [f"{notch}_centre" for notch in NOTCHES] + list(LEAKS))
@@ -126,11 +142,21 @@ def flow_regression(model: SamModel, samples: Samples, column: int = 0) -> FlowR
     def low_pass(x: np.ndarray) -> np.ndarray:
         return filtfilt(b, a, x, axis=0)
 
-    signals = np.stack([np.asarray(samples.joint_position).reshape(len(samples), -1)[:, column],
-                        np.asarray(samples.pressure_a).reshape(len(samples), -1)[:, column],
-                        np.asarray(samples.pressure_b).reshape(len(samples), -1)[:, column],
-                        np.asarray(samples.valve_command).reshape(len(samples), -1)[:, column],
-                        np.asarray(samples.supply_pressure).reshape(len(samples))], axis=1)
+    def channel(values: np.ndarray | None) -> np.ndarray:
+        return np.asarray(values, dtype=float).reshape(len(samples), -1)[:, column]
+
+    if model.mobile_valve:
+        if not samples.mobile:
+            raise InputError(f"actuator {model.actuator}: a mobile valve is identified from its pilot and compensator "
+                             "pressures, and the recording has none")
+        # the pilot pressures are what drives the main spool, the compensator's pressure is what feeds its notches
+        drive = (channel(samples.pilot_pressure_1) - channel(samples.pilot_pressure_2)) / p[PILOT_MAX]
+        feed = channel(samples.compensator_pressure)
+    else:
+        drive = channel(samples.valve_command)
+        feed = np.asarray(samples.supply_pressure, dtype=float).reshape(len(samples))
+    signals = np.stack([channel(samples.joint_position), channel(samples.pressure_a), channel(samples.pressure_b), drive, feed],
+                       axis=1)
     parts = []
     for part in _segments(np.all(np.isfinite(signals), axis=1), int(SEGMENT_MIN_S * rate)):
         joint, p_a_raw, p_b_raw, command, supply_raw = signals[part].T
@@ -139,7 +165,8 @@ def flow_regression(model: SamModel, samples: Samples, column: int = 0) -> FlowR
         velocity = np.gradient(x, dt)
         p_a, p_b, supply = low_pass(p_a_raw), low_pass(p_b_raw), low_pass(supply_raw)
         rate_a, rate_b = np.gradient(p_a, dt), np.gradient(p_b, dt)
-        spool = np.clip(spool_positions(command, p[SPOOL_OMEGA], p[SPOOL_DAMPING], dt, model.substeps), -1.0, 1.0)
+        spool = spool_openings(spool_positions(command, p[SPOOL_OMEGA], p[SPOOL_DAMPING], dt, model.substeps),
+                               p[DEADZONE], p[DEADZONE_PLAIN] < 0.5)
         opening = np.abs(spool)
         powers = np.stack([spool ** 3, spool ** 2, spool, np.ones_like(spool)], axis=1)
         extending, retracting = spool > 0.0, spool < 0.0
@@ -259,6 +286,53 @@ def threshold_excess(monitor: FdiMonitor, samples: Samples) -> float:
     return float(excess.max()) if excess.size else 0.0
 
 
+def adaptive_threshold(machine: Machine, held_out: Sequence[Samples], progress: Callable[[str], None] | None) -> dict[str, Any]:
+    """P-II's c0 + c2 p^2 (UKF method): c0 = margin x the worst held-out excess over the quadratic term."""
+    worst = 0.0
+    for samples in held_out:
+        worst = max(worst, threshold_excess(FdiMonitor(machine), samples))
+        if progress:
+            progress("threshold")
+    c0 = THRESHOLD_MARGIN * worst
+    return {"fdi": {"threshold_constant": c0}, "form": "P-II eq. (25) c0 + c2 p^2, c0 fitted", "parameter": "c0 [MPa]",
+            "before": FdiMonitor(machine).settings.threshold_constant, "reached": worst, "value": c0,
+            "margin": THRESHOLD_MARGIN, "budget": "no crossing on the held-out data"}
+
+
+def armed_parity_residuals(machine: Machine, samples: Samples) -> tuple[np.ndarray, np.ndarray]:
+    """Armed 5 s mean parity residuals (n, 2) [L/min] and mean openings (n,) of every actuator, thresholds ignored."""
+    monitor = FdiMonitor(machine.with_overrides({"fdi": {"parity_thresholds": ParityThresholds.probe()}}), "parity")
+    run = run_monitor(monitor, samples)
+    armed = slice(monitor.startup + monitor.window, None)
+    residual = run.residual_mean[armed].reshape(-1, 2)
+    opening = run.operating_point[armed].reshape(-1)
+    keep = np.all(np.isfinite(residual), axis=1) & np.isfinite(opening)
+    return residual[keep], opening[keep]
+
+
+def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequence[Samples],
+                     progress: Callable[[str], None] | None) -> dict[str, Any]:
+    """P-IV's statistical form (parity method): |mu| + c sigma per bin of the 5 s mean opening.
+
+    mu and sigma per operating point come from the commissioned model's residuals on the part of the
+    recordings it was identified on; c = margin x the largest factor the held-out part reaches.
+    """
+    parts = [armed_parity_residuals(machine, samples) for samples in fitted]
+    statistics = ParityThresholds.from_statistics(np.concatenate([r for r, _ in parts]), np.concatenate([o for _, o in parts]),
+                                                  PARITY_OPENING_EDGES, 1.0)
+    reached = 0.0
+    for samples in held_out:
+        reached = max(reached, statistics.factor_reached(*armed_parity_residuals(machine, samples)))
+        if progress:
+            progress("threshold")
+    thresholds = replace(statistics, factor=THRESHOLD_MARGIN * reached)
+    before = FdiSettings.from_machine(machine).parity_thresholds
+    return {"fdi": {"parity_thresholds": thresholds.to_config()},
+            "form": "P-IV statistical, per operating point: |mu| + c sigma per bin of the 5 s mean opening",
+            "parameter": "c [-]", "before": before.factor if before else None, "reached": reached,
+            "value": thresholds.factor, "margin": THRESHOLD_MARGIN, "budget": "no crossing on the held-out data"}
+
+
 @dataclass
 class Recording:
     name: str
@@ -267,7 +341,7 @@ class Recording:
 
 def load_recordings(bags: Sequence[str | Path], machine: Machine) -> list[Recording]:
     """Every bag's samples for the machine's actuators; a bag from another layout or a damaged bag is refused by name."""
-    layout = SampleLayout(machine.actuator_names, [a.joint for a in machine.actuators])
+    layout = SampleLayout(machine.actuator_names, [a.joint for a in machine.actuators], mobile=machine.mobile)
     out = []
     for bag in bags:
         data = read_bag(bag)
@@ -280,9 +354,6 @@ def load_recordings(bags: Sequence[str | Path], machine: Machine) -> list[Record
 def commission(machine: Machine, recordings: Sequence[Recording],
                progress: Callable[[str], None] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
     """(the config's ``commissioned`` block, the report) from fault-free recordings of ``machine``."""
-    if machine.mobile:
-        raise InputError(f"config {machine.source}: mobile valves (parity method) are fitted by hydro-ros fdi-fit; "
-                         "commissioning them from recordings is not built yet")
     if not recordings:
         raise InputError("commission: no recordings given")
     splits = [int(round((1.0 - HELD_OUT_SHARE) * len(r.samples))) for r in recordings]
@@ -303,13 +374,12 @@ def commission(machine: Machine, recordings: Sequence[Recording],
     if held_out_s < MIN_HELD_OUT_S:
         raise InputError(f"commission: {held_out_s:.0f} s held out for the threshold (the last third of each recording); "
                          f"record at least {3 * MIN_HELD_OUT_S:.0f} s of normal operation")
-    worst = 0.0
-    for samples in held_out:
-        worst = max(worst, threshold_excess(FdiMonitor(model_only), samples))
-        if progress:
-            progress("threshold")
-    c0 = THRESHOLD_MARGIN * worst
-    overrides["fdi"] = {"threshold_constant": c0}
+    if machine.mobile:
+        fitted_parts = [r.samples.slice(slice(0, split)) for r, split in zip(recordings, splits)]
+        threshold = parity_threshold(model_only, fitted_parts, held_out, progress)
+    else:
+        threshold = adaptive_threshold(model_only, held_out, progress)
+    overrides["fdi"] = threshold.pop("fdi")
     block = {
         "model": overrides,
         "date": datetime.date.today().isoformat(),
@@ -320,12 +390,9 @@ def commission(machine: Machine, recordings: Sequence[Recording],
                              "notch_gain": {n: round(g, 4) for n, g in i.notch_gain.items()},
                              "leaks_l_min_at_10mpa": {n: round(v, 4) for n, v in i.leaks_l_min.items()}}
                 for i in identified},
-        "threshold": {"form": "P-II eq. (25) c0 + c2 p^2, c0 fitted", "worst_held_out_excess_mpa": round(worst, 5),
-                      "margin": THRESHOLD_MARGIN, "budget": "no crossing on the held-out data"},
+        "threshold": {key: value for key, value in threshold.items() if key != "before"},
     }
-    report = {"identification": [i.__dict__ for i in identified], "threshold_constant_mpa": c0,
-              "nominal_threshold_constant_mpa": FdiMonitor(machine).settings.threshold_constant,
-              "worst_held_out_excess_mpa": worst, "held_out_s": held_out_s, "block": block}
+    report = {"identification": [i.__dict__ for i in identified], "threshold": threshold, "held_out_s": held_out_s, "block": block}
     return block, report
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
@@ -24,7 +24,7 @@ from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.sim.scenario import Scenario, run_blocks, simulate
-from hydro_ros.studies.commissioning import threshold_excess
+from hydro_ros.studies.commissioning import PARITY_OPENING_EDGES, threshold_excess
 
 # Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order
 # fit RMSE is 1-2 % of K_v, an identified valve on another day/temperature is worse: 5 %.
@@ -320,14 +320,12 @@ PARITY_FAULTS = (
     ("main_spool_locking", 1.0), ("main_spool_erosion", 0.3), ("compensator_spool_locking", 1.0),
     ("compensator_spool_erosion", 0.5), ("pilot_pressure_spool_offset", 0.05),
 )
-OPENING_EDGES = (0.0, 0.02, 0.06, 0.15, 0.3, 1.5)
 THRESHOLD_FACTORS = (2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 14.0)
-_UNBOUNDED = {"edges": [0.0, 1.5], "mean": [[0.0, 0.0]], "std": [[1.0, 1.0]], "factor": 1e12}
 
 
 def _parity_records(machine: Machine, case: Case) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Armed (mean residual (n, 2), mean opening (n,), mean command (n,), times (n,)) of one run."""
-    probe = machine.with_overrides({"fdi": {"parity_thresholds": _UNBOUNDED, "parity_signatures": []}})
+    probe = machine.with_overrides({"fdi": {"parity_thresholds": ParityThresholds.probe(), "parity_signatures": []}})
     monitor = FdiMonitor(probe, "parity")
     parts = [(r.mean_residual[:, 0], r.operating_point[:, 0], r.mean_command[:, 0], r.times) for _, r in _blocks(probe, case, monitor)]
     residual, opening, command, times = (np.concatenate([p[i] for p in parts]) for i in range(4))
@@ -345,19 +343,12 @@ def fit_parity_thresholds(machine: Machine, train: Iterable[int], held_out: Iter
     train_runs = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s)) for seed in train]
     residual = np.concatenate([r[0] for r in train_runs])
     opening = np.concatenate([r[1] for r in train_runs])
-    bins = np.clip(np.searchsorted(OPENING_EDGES, opening, side="right") - 1, 0, len(OPENING_EDGES) - 2)
-    mean, std = [], []
-    for b in range(len(OPENING_EDGES) - 1):
-        chosen = residual[bins == b]
-        if len(chosen) < 100:  # an operating point the training data never reached: borrow the widest bin's spread
-            chosen = residual
-        mean.append(tuple(float(v) for v in chosen.mean(axis=0)))
-        std.append(tuple(float(v) for v in chosen.std(axis=0)))
+    statistics = ParityThresholds.from_statistics(residual, opening, PARITY_OPENING_EDGES, THRESHOLD_FACTORS[-1])
     held = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s)) for seed in held_out]
     hours = sum(len(r[3]) for r in held) / machine.sample_rate_hz / 3600.0
     report: dict[str, Any] = {"held_out_hours": hours, "tried": {}}
     for factor in THRESHOLD_FACTORS:
-        thresholds = ParityThresholds(OPENING_EDGES, tuple(mean), tuple(std), factor)
+        thresholds = replace(statistics, factor=factor)
         episodes = sum(_crossing_episodes(r[0], r[1], thresholds) for r in held)
         report["tried"][factor] = episodes / hours
         if episodes / hours <= target_per_hour:
@@ -365,7 +356,7 @@ def fit_parity_thresholds(machine: Machine, train: Iterable[int], held_out: Iter
             report["false_alarms_per_hour"] = episodes / hours
             return thresholds, report
     report["factor"] = THRESHOLD_FACTORS[-1]
-    return ParityThresholds(OPENING_EDGES, tuple(mean), tuple(std), THRESHOLD_FACTORS[-1]), report
+    return statistics, report
 
 
 def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seeds: Iterable[int], *,

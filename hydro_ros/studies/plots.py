@@ -237,9 +237,11 @@ def plot_commissioning(report: dict, machine: Machine, out: str | Path) -> Path:
             ax.legend(fontsize=7)
             ax.grid(alpha=0.3)
         ax = row[4]
-        values = [report["nominal_threshold_constant_mpa"], report["worst_held_out_excess_mpa"], report["threshold_constant_mpa"]]
-        ax.bar(["c0 before", "worst held-out\nexcess", "c0 commissioned"], values, color=["0.6", "tab:orange", "tab:blue"])
-        ax.set_ylabel("[MPa]")
+        threshold = report["threshold"]
+        name, unit = threshold["parameter"].split(" ", 1)
+        ax.bar([f"{name} before", "worst held-out", f"{name} commissioned"],
+               [threshold["before"] or 0.0, threshold["reached"], threshold["value"]], color=["0.6", "tab:orange", "tab:blue"])
+        ax.set_ylabel(unit)
         ax.set_title(f"threshold ({report['held_out_s']:.0f} s held out)")
     fig.tight_layout()
     fig.savefig(out, dpi=100)
