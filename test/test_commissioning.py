@@ -17,9 +17,10 @@ from hydro_ros.contract.samples import Samples
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import run_monitor
 from hydro_ros.fdi.settings import FdiSettings
+from hydro_ros.models.identification import flow_regression
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, simulate
-from hydro_ros.studies.commissioning import Recording, commission, flow_regression, identify
+from hydro_ros.studies.commissioning import Recording, commission, identify
 from hydro_ros.studies.fdi_evaluation import mismatched_config
 from test.conftest import REPO
 

@@ -1,20 +1,10 @@
 """Commissioning (``hydro-ros commission``): the monitor's model identified from one machine's own
 fault-free recordings, and its threshold fitted to them.
 
-Identification is P-II's reduced model written as a linear regression. Per chamber, continuity
-
-    A_A x' = Q_PA(s, p_S - p_A) + Q_AT(s, p_A - p_T) - (V_A / B_o + V_h / B_h) p_A'
-
-holds at every sample whatever the load, the friction or the payload (load-independent, as the
-monitor). Each notch's flow is P-II's form K_v(s) |s| sqrt(dp) with K_v a cubic in s, so all
-sixteen polynomial coefficients, the oil compliance 1/B_o, the hose capacitance V_h/B_h and the
-four centre-leakage coefficients enter linearly: one least-squares solve over every recording, no
-simulation. Motion and pressures are low-passed without phase (filtfilt) and the same filter is applied to every regressor, so the
-differentiated pressures carry no sensor noise into the fit; the spool follows the command through
-the valve's own second-order model (the SAM measures no spool). Inside the centre band the notches'
-laminar centre leakage (P-I eqs. 13-14) takes their place, and pressure relaxation after each stop
-identifies it. Samples near the end stops or with a chamber near cavitation are left out: the
-model's laws change there.
+Identification is P-II's reduced model written as a linear regression
+(``hydro_ros.models.identification``, the same rows the discrepancy workflow calibrates on): every
+notch's flow-coefficient polynomial, the oil compliance, the hose capacitance and the centre
+leakage, whatever the load, the friction or the payload (load-independent, as the monitor).
 
 A recording that holds a leak must not be absorbed into the valve: turbulent leak terms of chamber
 A, chamber B and across the piston are fitted beside the valve, and a leak above LEAK_LIMIT refuses
@@ -45,7 +35,6 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 import yaml
-from scipy.signal import butter, filtfilt
 
 from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.reader import read_bag
@@ -57,38 +46,22 @@ from hydro_ros.fdi.offline import run_monitor
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.chamber import leak_coefficient
-from hydro_ros.models.kinematics import piston_position
-from hydro_ros.models.sam import (
-    AREA_A,
-    AREA_B,
-    CAVITATION,
-    DEADZONE,
-    DEADZONE_PLAIN,
-    HOSE_MODULUS,
-    HOSE_VOLUME,
-    MOUNT_L1,
-    MOUNT_L2,
-    MOUNT_L3,
-    OIL_MODULUS,
-    PILOT_MAX,
-    SPOOL_DAMPING,
-    SPOOL_OMEGA,
-    STOP_LOWER,
-    STOP_UPPER,
-    STROKE,
-    TANK,
-    THETA_OFFSET,
-    V0_A,
-    V0_B,
-    SamModel,
+from hydro_ros.models.identification import (
+    CENTRE,
+    COLUMNS,
+    HOSE_CAPACITANCE,
+    LEAKS,
+    OIL_COMPLIANCE,
+    OPEN,
+    VALVE_AND_FLUID,
+    FlowRegression,
+    flow_regression,
+    least_squares,
+    nominal_coefficients,
+    rms_flow_error,
 )
-from hydro_ros.models.valve import CENTRE_BAND, spool_openings, spool_positions
+from hydro_ros.models.sam import HOSE_VOLUME, SamModel
 
-FILTER_HZ = 8.0  # zero-phase low-pass of motion, pressures and regressors: far below the 1 kHz noise, above the boom's motion
-SEGMENT_MIN_S = 2.0  # a stretch of complete samples shorter than this is not used (the filter's edges)
-STOP_MARGIN = 5.0e-3  # [m] samples this close to an end stop are left out (the stop's force, not the valve, moves the piston)
-PRESSURE_FLOOR = 5.0e5  # [Pa] ... and those with a chamber below this (near cavitation the chamber law changes)
-OPEN = 0.1  # a notch counts as open beyond this opening
 MIN_OPEN_S = 3.0  # [s] each notch must be seen open this long ...
 MIN_OPENING = 0.3  # ... and opened at least this far, or the recordings cannot identify it
 HELD_OUT_SHARE = 1.0 / 3.0  # the last third of each recording fits the threshold, never the model
@@ -97,120 +70,8 @@ THRESHOLD_MARGIN = 2.0  # c0 = margin x the worst held-out excess: an hour holds
 # out, and the largest of 720 Gaussian 5 s means is ~1.6x the largest of 24; times the evaluation's 1.25
 LEAK_LIMIT = 0.15  # [L/min at 10 MPa] a fitted leak above this refuses the recording (fault-free fits stay below ~0.05)
 PARITY_OPENING_EDGES = (0.0, 0.02, 0.06, 0.15, 0.3, 1.5)  # the 5 s mean opening's bins (as fdi-fit's)
-LEAKS = ("external_leakage_a", "external_leakage_b", "internal_leakage")
-COLUMNS = ([f"{notch}_c{3 - k}" for notch in NOTCHES for k in range(4)] + ["oil_compliance", "hose_capacitance"]
-           + [f"{notch}_centre" for notch in NOTCHES] + list(LEAKS))
-VALVE_AND_FLUID = len(COLUMNS) - len(LEAKS)
 MOTION_HINT = {"PA": "extending moves (positive valve command)", "BT": "extending moves (positive valve command)",
                "PB": "retracting moves (negative valve command)", "AT": "retracting moves (negative valve command)"}
-
-
-@dataclass
-class FlowRegression:
-    """Rows of the continuity equations of one actuator over some recordings, and what they saw."""
-
-    regressors: np.ndarray  # (rows, len(COLUMNS)), filtered
-    flows: np.ndarray  # (rows,) A x' per row [m^3/s], filtered
-    open_s: dict[str, float]  # per notch: seconds seen open beyond OPEN
-    widest: dict[str, float]  # per notch: largest opening seen
-    seconds: float
-
-    @classmethod
-    def concatenate(cls, parts: Sequence["FlowRegression"]) -> "FlowRegression":
-        return cls(np.vstack([p.regressors for p in parts]), np.concatenate([p.flows for p in parts]),
-                   {n: sum(p.open_s[n] for p in parts) for n in NOTCHES},
-                   {n: max(p.widest[n] for p in parts) for n in NOTCHES}, sum(p.seconds for p in parts))
-
-
-def _segments(valid: np.ndarray, minimum: int) -> list[slice]:
-    """Contiguous runs of valid samples at least ``minimum`` long."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], valid.astype(np.int8), [0]])))
-    return [slice(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a >= minimum]
-
-
-def _signed_root(dp: np.ndarray) -> np.ndarray:
-    return np.sign(dp) * np.sqrt(np.abs(dp))
-
-
-def flow_regression(model: SamModel, samples: Samples, column: int = 0) -> FlowRegression:
-    """The continuity rows of one actuator (column ``column`` of ``samples``) over its complete stretches."""
-    p = model.base
-    rate = model.sample_rate
-    dt = 1.0 / rate
-    b, a = butter(2, FILTER_HZ / (rate / 2.0))
-
-    def low_pass(x: np.ndarray) -> np.ndarray:
-        return filtfilt(b, a, x, axis=0)
-
-    def channel(values: np.ndarray | None) -> np.ndarray:
-        return np.asarray(values, dtype=float).reshape(len(samples), -1)[:, column]
-
-    if model.mobile_valve:
-        if not samples.mobile:
-            raise InputError(f"actuator {model.actuator}: a mobile valve is identified from its pilot and compensator "
-                             "pressures, and the recording has none")
-        # the pilot pressures are what drives the main spool, the compensator's pressure is what feeds its notches
-        drive = (channel(samples.pilot_pressure_1) - channel(samples.pilot_pressure_2)) / p[PILOT_MAX]
-        feed = channel(samples.compensator_pressure)
-    else:
-        drive = channel(samples.valve_command)
-        feed = np.asarray(samples.supply_pressure, dtype=float).reshape(len(samples))
-    signals = np.stack([channel(samples.joint_position), channel(samples.pressure_a), channel(samples.pressure_b), drive, feed],
-                       axis=1)
-    parts = []
-    for part in _segments(np.all(np.isfinite(signals), axis=1), int(SEGMENT_MIN_S * rate)):
-        joint, p_a_raw, p_b_raw, command, supply_raw = signals[part].T
-        theta = joint + p[THETA_OFFSET]
-        x = low_pass(piston_position(theta, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3]))
-        velocity = np.gradient(x, dt)
-        p_a, p_b, supply = low_pass(p_a_raw), low_pass(p_b_raw), low_pass(supply_raw)
-        rate_a, rate_b = np.gradient(p_a, dt), np.gradient(p_b, dt)
-        spool = spool_openings(spool_positions(command, p[SPOOL_OMEGA], p[SPOOL_DAMPING], dt, model.substeps),
-                               p[DEADZONE], p[DEADZONE_PLAIN] < 0.5)
-        opening = np.abs(spool)
-        powers = np.stack([spool ** 3, spool ** 2, spool, np.ones_like(spool)], axis=1)
-        extending, retracting = spool > 0.0, spool < 0.0
-        zero = np.zeros_like(powers)
-        pa_notch = powers * (extending * opening * _signed_root(supply - p_a))[:, None]
-        at_notch = -powers * (retracting * opening * _signed_root(p_a - p[TANK]))[:, None]
-        pb_notch = powers * (retracting * opening * _signed_root(supply - p_b))[:, None]
-        bt_notch = -powers * (extending * opening * _signed_root(p_b - p[TANK]))[:, None]
-        volume_a = p[V0_A] + p[AREA_A] * x
-        volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - x)
-        across = _signed_root(p_a - p_b)
-        centre = (opening < CENTRE_BAND).astype(float)
-        nothing = np.zeros_like(x)
-        chamber_a = np.hstack([pa_notch, zero, at_notch, zero, np.stack(
-            [-volume_a * rate_a, -rate_a, centre * (supply - p_a), nothing, -centre * (p_a - p[TANK]), nothing,
-             -_signed_root(p_a), nothing, -across], axis=1)])
-        chamber_b = np.hstack([zero, pb_notch, zero, bt_notch, np.stack(
-            [-volume_b * rate_b, -rate_b, nothing, centre * (supply - p_b), nothing, -centre * (p_b - p[TANK]),
-             nothing, -_signed_root(p_b), across], axis=1)])
-        keep = ((np.minimum(p_a, p_b) > PRESSURE_FLOOR + max(p[CAVITATION], 0.0))
-                & (x > p[STOP_LOWER] + STOP_MARGIN) & (x < p[STOP_UPPER] - STOP_MARGIN))
-        regressors = np.vstack([low_pass(chamber_a)[keep], low_pass(chamber_b)[keep]])
-        flows = np.concatenate([low_pass(p[AREA_A] * velocity)[keep], low_pass(-p[AREA_B] * velocity)[keep]])
-        seen = {"PA": extending, "BT": extending, "PB": retracting, "AT": retracting}
-        parts.append(FlowRegression(regressors, flows,
-                                    {n: float(np.count_nonzero(keep & seen[n] & (opening > OPEN))) * dt for n in NOTCHES},
-                                    {n: float(opening[keep & seen[n]].max(initial=0.0)) for n in NOTCHES},
-                                    len(x) * dt))
-    if not parts:
-        return FlowRegression(np.empty((0, len(COLUMNS))), np.empty(0), dict.fromkeys(NOTCHES, 0.0),
-                              dict.fromkeys(NOTCHES, 0.0), 0.0)
-    return FlowRegression.concatenate(parts)
-
-
-def _least_squares(regression: FlowRegression, columns: list[int]) -> tuple[np.ndarray, float]:
-    """Coefficients of the chosen columns (others zero) and the RMS equation error [L/min]."""
-    design = regression.regressors[:, columns]
-    scale = np.abs(design).max(axis=0)
-    scale[scale == 0.0] = 1.0
-    solution, *_ = np.linalg.lstsq(design / scale, regression.flows, rcond=None)
-    coefficients = np.zeros(len(COLUMNS))
-    coefficients[columns] = solution / scale
-    error = regression.flows - regression.regressors @ coefficients
-    return coefficients, float(np.sqrt(np.mean(error ** 2)) * 60000.0)
 
 
 @dataclass
@@ -243,7 +104,7 @@ def identify(model: SamModel, regression: FlowRegression, source: str) -> Identi
                          f"{regression.open_s[notch]:.1f} s, at most {regression.widest[notch]:.2f} of full opening "
                          f"(needs {MIN_OPEN_S:g} s beyond {OPEN:g} and {MIN_OPENING:g}); record {MOTION_HINT[notch]}")
     valve_and_fluid = list(range(VALVE_AND_FLUID))
-    with_leaks, _ = _least_squares(regression, list(range(len(COLUMNS))))
+    with_leaks, _ = least_squares(regression, list(range(len(COLUMNS))))
     unit = leak_coefficient(1.0)
     leaks = {name: float(with_leaks[COLUMNS.index(name)] / unit) for name in LEAKS}
     leaking = {name: value for name, value in leaks.items() if value > LEAK_LIMIT}
@@ -251,27 +112,22 @@ def identify(model: SamModel, regression: FlowRegression, source: str) -> Identi
         name, value = max(leaking.items(), key=lambda item: item[1])
         raise InputError(f"{source}: actuator {model.actuator} loses oil: {name} of {value:.2f} L/min at 10 MPa fits the "
                          f"recordings (limit {LEAK_LIMIT:g}); commissioning needs a fault-free machine: repair it, then record")
-    fitted, error = _least_squares(regression, valve_and_fluid)
-    nominal = np.zeros(len(COLUMNS))
-    nominal[:16] = model.poly.reshape(-1)
+    fitted, error = least_squares(regression, valve_and_fluid)
+    nominal_error = rms_flow_error(regression, nominal_coefficients(model))
     p = model.base
-    nominal[16] = 1.0 / p[OIL_MODULUS]
-    nominal[17] = p[HOSE_VOLUME] / p[HOSE_MODULUS]
-    nominal[18:22] = model.centre_leakage
-    nominal_error = float(np.sqrt(np.mean((regression.flows - regression.regressors @ nominal) ** 2)) * 60000.0)
     poly = {n: [float(c) for c in fitted[4 * i:4 * i + 4]] for i, n in enumerate(NOTCHES)}
     gain = {}
     for i, n in enumerate(NOTCHES):
         sign = 1.0 if n in ("PA", "BT") else -1.0
         openings = sign * np.linspace(OPEN, regression.widest[n], 50)
         gain[n] = float(np.mean(np.polyval(poly[n], openings) / np.polyval(model.poly[i], openings)))
-    centre = {n: float(c) for n, c in zip(NOTCHES, fitted[18:22])}
-    if not (fitted[16] > 0.0 and fitted[17] > 0.0) or min(gain.values()) <= 0.0 or min(centre.values()) < 0.0:
+    centre = {n: float(c) for n, c in zip(NOTCHES, fitted[CENTRE])}
+    if not (fitted[OIL_COMPLIANCE] > 0.0 and fitted[HOSE_CAPACITANCE] > 0.0) or min(gain.values()) <= 0.0 or min(centre.values()) < 0.0:
         raise InputError(f"{source}: actuator {model.actuator}: the recordings give a non-physical fit "
-                         f"(oil compliance {fitted[16]:.3g}, hose capacitance {fitted[17]:.3g}, centre leakage "
+                         f"(oil compliance {fitted[OIL_COMPLIANCE]:.3g}, hose capacitance {fitted[HOSE_CAPACITANCE]:.3g}, centre leakage "
                          f"{', '.join(f'{n} {c:.3g}' for n, c in centre.items())}, notch gains "
                          f"{', '.join(f'{n} {g:.2f}' for n, g in gain.items())}); is this the machine of the config?")
-    return Identification(model.actuator, poly, centre, float(1.0 / fitted[16]), float(p[HOSE_VOLUME] / fitted[17]), leaks, gain,
+    return Identification(model.actuator, poly, centre, float(1.0 / fitted[OIL_COMPLIANCE]), float(p[HOSE_VOLUME] / fitted[HOSE_CAPACITANCE]), leaks, gain,
                           {"nominal": nominal_error, "commissioned": error}, dict(regression.open_s), regression.seconds)
 
 

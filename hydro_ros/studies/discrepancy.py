@@ -54,6 +54,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import EFFECT_FORMS, Effect, first_form
 from hydro_ros.fdi.parity import flow_balance
+from hydro_ros.models.identification import SEGMENT_MIN_S, FlowRegression, group_calibration, stretch_rows
 from hydro_ros.models.kinematics import piston_position, torque_arm
 from hydro_ros.models.sam import (
     DEADZONE,
@@ -118,6 +119,7 @@ class Recording:
     pressure_a: np.ndarray
     pressure_b: np.ndarray
     command: np.ndarray
+    supply: np.ndarray
     earlier_commands: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     def part(self, part: slice) -> "Recording":
@@ -131,12 +133,21 @@ class Recording:
         held = np.full(max(DELAY_BUFFER - len(known), 0), known[0] if len(known) else self.command[0])
         return np.concatenate([held, known])
 
+    def flow_regression(self, model: SamModel) -> FlowRegression:
+        """The load-independent continuity rows (models.identification) over the recording's gapless stretches."""
+        gapless = np.concatenate([[True], np.diff(self.times) < 1.5 / model.sample_rate])
+        starts = np.flatnonzero(~gapless)
+        bounds = np.concatenate([[0], starts, [len(self.times)]])
+        return FlowRegression.concatenate([
+            stretch_rows(model, self.joint[a:b], self.pressure_a[a:b], self.pressure_b[a:b], self.command[a:b], self.supply[a:b])
+            for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= SEGMENT_MIN_S * model.sample_rate])
+
     @classmethod
     def from_bag(cls, data: BagData, machine: Machine) -> "Recording":
         actuator = machine.first
         samples = data.samples(SampleLayout([actuator.name], [actuator.joint]))
         signals = tuple(getattr(samples, quantity)[:, 0] for quantity in
-                        ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command"))
+                        ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command")) + (samples.supply_pressure,)
         good = np.all(np.isfinite(np.stack(signals)), axis=0)
         if good.sum() < 0.9 * len(good):
             raise InputError(f"bag {data.path}: {np.count_nonzero(~good)} of {len(good)} samples incomplete")
@@ -219,16 +230,15 @@ def _calibration_coordinates(calibration: dict[str, float]) -> list[float]:
 
 
 def calibrate(machine: Machine, rec: Recording) -> dict[str, float]:
-    """Supply- and return-notch flow gains within +-5 % and bulk-modulus factor within +-30 % (ordinary calibration error)."""
-
-    def cost(z: np.ndarray) -> float:
-        return gap(simulate(_with(machine, {}, _calibration(z)), rec))
-
-    start = np.zeros(len(CALIBRATION_TOLERANCE))
-    simplex = np.vstack([start, 0.6 * np.eye(len(start))])  # steps of ~3 % flow and ~17 % bulk modulus
-    result = minimize(cost, start, method="Nelder-Mead",
-                      options={"maxfev": 45, "xatol": 0.05, "fatol": 1e-3, "initial_simplex": simplex})
-    return _calibration(result.x)
+    """Supply- and return-notch flow gains within +-5 % and the bulk-modulus factor within +-30 % (ordinary calibration
+    error), fitted to the load-independent continuity rows that commissioning identifies on: no simulation, and a
+    load-side effect (friction, payload) cannot pull the valve's calibration."""
+    model = SamModel(machine)
+    regression = rec.flow_regression(model)
+    if not len(regression.flows):
+        raise InputError(f"discrepancy: no stretch of {SEGMENT_MIN_S:g} s of complete samples to calibrate on")
+    groups = {group: tuple(n for n in NOTCH_GROUP if NOTCH_GROUP[n] == group) for group in ("supply", "return")}
+    return group_calibration(model, regression, groups, CALIBRATION_TOLERANCE["bulk_factor"], CALIBRATION_TOLERANCE["supply_flow_gain"])
 
 
 def refine(machine: Machine, calibration: dict[str, float], named: dict[str, float], forms: dict[str, str], rec: Recording,

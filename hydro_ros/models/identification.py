@@ -1,0 +1,231 @@
+"""Identification of a valve-controlled cylinder's flow model from recordings, load-independently.
+
+Per chamber, continuity
+
+    A_A x' = Q_PA(s, p_S - p_A) + Q_AT(s, p_A - p_T) - (V_A / B_o + V_h / B_h) p_A'
+
+holds at every sample whatever the load, the friction or the payload (P-II's reduced model, the
+monitor's). Each notch's flow is P-II's form K_v(s) |s| sqrt(dp) with K_v a cubic in s, so all
+sixteen polynomial coefficients, the oil compliance 1/B_o, the hose capacitance V_h/B_h and the
+four centre-leakage coefficients enter linearly: the rows of one least-squares problem, no
+simulation. Motion and pressures are low-passed without phase (filtfilt) and the same filter is
+applied to every regressor, so the differentiated pressures carry no sensor noise into the fit.
+The spool follows its drive through the valve's own second-order model (the SAM measures no spool;
+a mobile valve's drive is its pilot pressures) and opens through the valve's dead zone. Inside the
+centre band the notches' laminar centre leakage (P-I eqs. 13-14) takes their place, and pressure
+relaxation after each stop identifies it. Samples near the end stops or with a chamber near
+cavitation are left out: the model's laws change there. Turbulent leak columns of chamber A,
+chamber B and across the piston let a fit tell a leak from the valve.
+
+Two users, one set of rows: commissioning (``hydro_ros.studies.commissioning``) fits every column;
+the discrepancy workflow's calibration fits one gain per notch group and the oil's bulk modulus
+within their tolerance (``group_calibration``), so an effect is left for the effect to explain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import lsq_linear
+from scipy.signal import butter, filtfilt
+
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.machine import NOTCHES
+from hydro_ros.contract.samples import Samples
+from hydro_ros.models.kinematics import piston_position
+from hydro_ros.models.sam import (
+    AREA_A,
+    AREA_B,
+    CAVITATION,
+    DEADZONE,
+    DEADZONE_PLAIN,
+    HOSE_MODULUS,
+    HOSE_VOLUME,
+    MOUNT_L1,
+    MOUNT_L2,
+    MOUNT_L3,
+    OIL_MODULUS,
+    PILOT_MAX,
+    SPOOL_DAMPING,
+    SPOOL_OMEGA,
+    STOP_LOWER,
+    STOP_UPPER,
+    STROKE,
+    TANK,
+    THETA_OFFSET,
+    V0_A,
+    V0_B,
+    SamModel,
+)
+from hydro_ros.models.valve import CENTRE_BAND, spool_openings, spool_positions
+
+FILTER_HZ = 8.0  # zero-phase low-pass of motion, pressures and regressors: far below the 1 kHz noise, above the boom's motion
+SEGMENT_MIN_S = 2.0  # a stretch of complete samples shorter than this is not used (the filter's edges)
+STOP_MARGIN = 5.0e-3  # [m] samples this close to an end stop are left out (the stop's force, not the valve, moves the piston)
+PRESSURE_FLOOR = 5.0e5  # [Pa] ... and those with a chamber below this (near cavitation the chamber law changes)
+OPEN = 0.1  # a notch counts as open beyond this opening
+LEAKS = ("external_leakage_a", "external_leakage_b", "internal_leakage")
+COLUMNS = ([f"{notch}_c{3 - k}" for notch in NOTCHES for k in range(4)] + ["oil_compliance", "hose_capacitance"]
+           + [f"{notch}_centre" for notch in NOTCHES] + list(LEAKS))
+VALVE_AND_FLUID = len(COLUMNS) - len(LEAKS)
+OIL_COMPLIANCE, HOSE_CAPACITANCE = COLUMNS.index("oil_compliance"), COLUMNS.index("hose_capacitance")
+CENTRE = slice(COLUMNS.index("PA_centre"), COLUMNS.index("PA_centre") + len(NOTCHES))
+
+
+@dataclass
+class FlowRegression:
+    """Rows of the continuity equations of one actuator over some recordings, and what they saw."""
+
+    regressors: np.ndarray  # (rows, len(COLUMNS)), filtered
+    flows: np.ndarray  # (rows,) A x' per row [m^3/s], filtered
+    open_s: dict[str, float]  # per notch: seconds seen open beyond OPEN
+    widest: dict[str, float]  # per notch: largest opening seen
+    seconds: float
+
+    @classmethod
+    def concatenate(cls, parts: Sequence["FlowRegression"]) -> "FlowRegression":
+        if not parts:
+            return cls(np.empty((0, len(COLUMNS))), np.empty(0), dict.fromkeys(NOTCHES, 0.0), dict.fromkeys(NOTCHES, 0.0), 0.0)
+        return cls(np.vstack([p.regressors for p in parts]), np.concatenate([p.flows for p in parts]),
+                   {n: sum(p.open_s[n] for p in parts) for n in NOTCHES},
+                   {n: max(p.widest[n] for p in parts) for n in NOTCHES}, sum(p.seconds for p in parts))
+
+
+def stretches(valid: np.ndarray, minimum: int) -> list[slice]:
+    """Contiguous runs of valid samples at least ``minimum`` long."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], valid.astype(np.int8), [0]])))
+    return [slice(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a >= minimum]
+
+
+def _signed_root(dp: np.ndarray) -> np.ndarray:
+    return np.sign(dp) * np.sqrt(np.abs(dp))
+
+
+def stretch_rows(model: SamModel, joint: np.ndarray, p_a: np.ndarray, p_b: np.ndarray, drive: np.ndarray,
+                 feed: np.ndarray) -> FlowRegression:
+    """The continuity rows of one contiguous stretch of samples at the model's rate.
+
+    ``drive`` is what moves the spool (the valve command, or a mobile valve's pilot pressures over
+    their maximum), ``feed`` the pressure upstream of the metering notches (supply or compensator).
+    """
+    p = model.base
+    dt = 1.0 / model.sample_rate
+    b, a = butter(2, FILTER_HZ / (model.sample_rate / 2.0))
+
+    def low_pass(x: np.ndarray) -> np.ndarray:
+        return filtfilt(b, a, x, axis=0)
+
+    x = low_pass(piston_position(joint + p[THETA_OFFSET], p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3]))
+    velocity = np.gradient(x, dt)
+    p_a, p_b, supply = low_pass(p_a), low_pass(p_b), low_pass(feed)
+    rate_a, rate_b = np.gradient(p_a, dt), np.gradient(p_b, dt)
+    spool = spool_openings(spool_positions(np.ascontiguousarray(drive, dtype=float), p[SPOOL_OMEGA], p[SPOOL_DAMPING], dt,
+                                           model.substeps), p[DEADZONE], p[DEADZONE_PLAIN] < 0.5)
+    opening = np.abs(spool)
+    powers = np.stack([spool ** 3, spool ** 2, spool, np.ones_like(spool)], axis=1)
+    extending, retracting = spool > 0.0, spool < 0.0
+    zero = np.zeros_like(powers)
+    pa_notch = powers * (extending * opening * _signed_root(supply - p_a))[:, None]
+    at_notch = -powers * (retracting * opening * _signed_root(p_a - p[TANK]))[:, None]
+    pb_notch = powers * (retracting * opening * _signed_root(supply - p_b))[:, None]
+    bt_notch = -powers * (extending * opening * _signed_root(p_b - p[TANK]))[:, None]
+    volume_a = p[V0_A] + p[AREA_A] * x
+    volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - x)
+    across = _signed_root(p_a - p_b)
+    centre = (opening < CENTRE_BAND).astype(float)
+    nothing = np.zeros_like(x)
+    chamber_a = np.hstack([pa_notch, zero, at_notch, zero, np.stack(
+        [-volume_a * rate_a, -rate_a, centre * (supply - p_a), nothing, -centre * (p_a - p[TANK]), nothing,
+         -_signed_root(p_a), nothing, -across], axis=1)])
+    chamber_b = np.hstack([zero, pb_notch, zero, bt_notch, np.stack(
+        [-volume_b * rate_b, -rate_b, nothing, centre * (supply - p_b), nothing, -centre * (p_b - p[TANK]),
+         nothing, -_signed_root(p_b), across], axis=1)])
+    keep = ((np.minimum(p_a, p_b) > PRESSURE_FLOOR + max(p[CAVITATION], 0.0))
+            & (x > p[STOP_LOWER] + STOP_MARGIN) & (x < p[STOP_UPPER] - STOP_MARGIN))
+    seen = {"PA": extending, "BT": extending, "PB": retracting, "AT": retracting}
+    return FlowRegression(np.vstack([low_pass(chamber_a)[keep], low_pass(chamber_b)[keep]]),
+                          np.concatenate([low_pass(p[AREA_A] * velocity)[keep], low_pass(-p[AREA_B] * velocity)[keep]]),
+                          {n: float(np.count_nonzero(keep & seen[n] & (opening > OPEN))) * dt for n in NOTCHES},
+                          {n: float(opening[keep & seen[n]].max(initial=0.0)) for n in NOTCHES}, len(x) * dt)
+
+
+def flow_regression(model: SamModel, samples: Samples, column: int = 0) -> FlowRegression:
+    """The continuity rows of one actuator (column ``column`` of ``samples``) over its complete stretches."""
+    p = model.base
+
+    def channel(values: np.ndarray | None) -> np.ndarray:
+        return np.asarray(values, dtype=float).reshape(len(samples), -1)[:, column]
+
+    if model.mobile_valve:
+        if not samples.mobile:
+            raise InputError(f"actuator {model.actuator}: a mobile valve is identified from its pilot and compensator "
+                             "pressures, and the recording has none")
+        # the pilot pressures are what drives the main spool, the compensator's pressure is what feeds its notches
+        drive = (channel(samples.pilot_pressure_1) - channel(samples.pilot_pressure_2)) / p[PILOT_MAX]
+        feed = channel(samples.compensator_pressure)
+    else:
+        drive = channel(samples.valve_command)
+        feed = np.asarray(samples.supply_pressure, dtype=float).reshape(len(samples))
+    signals = np.stack([channel(samples.joint_position), channel(samples.pressure_a), channel(samples.pressure_b), drive, feed],
+                       axis=1)
+    return FlowRegression.concatenate([stretch_rows(model, *signals[part].T) for part in
+                                       stretches(np.all(np.isfinite(signals), axis=1), int(SEGMENT_MIN_S * model.sample_rate))])
+
+
+def nominal_coefficients(model: SamModel) -> np.ndarray:
+    """The model's own values of the valve and fluid columns (leaks zero)."""
+    p = model.base
+    coefficients = np.zeros(len(COLUMNS))
+    coefficients[:4 * len(NOTCHES)] = model.poly.reshape(-1)
+    coefficients[OIL_COMPLIANCE] = 1.0 / p[OIL_MODULUS]
+    coefficients[HOSE_CAPACITANCE] = p[HOSE_VOLUME] / p[HOSE_MODULUS]
+    coefficients[CENTRE] = model.centre_leakage
+    return coefficients
+
+
+def rms_flow_error(regression: FlowRegression, coefficients: np.ndarray) -> float:
+    """RMS equation error [L/min] of the rows with these coefficients."""
+    return float(np.sqrt(np.mean((regression.flows - regression.regressors @ coefficients) ** 2)) * 60000.0)
+
+
+def least_squares(regression: FlowRegression, columns: list[int]) -> tuple[np.ndarray, float]:
+    """Coefficients of the chosen columns (others zero) and the RMS equation error [L/min]."""
+    design = regression.regressors[:, columns]
+    scale = np.abs(design).max(axis=0)
+    scale[scale == 0.0] = 1.0
+    solution, *_ = np.linalg.lstsq(design / scale, regression.flows, rcond=None)
+    coefficients = np.zeros(len(COLUMNS))
+    coefficients[columns] = solution / scale
+    return coefficients, rms_flow_error(regression, coefficients)
+
+
+def group_calibration(model: SamModel, regression: FlowRegression, groups: dict[str, tuple[str, ...]],
+                      bulk_tolerance: float, gain_tolerance: float) -> dict[str, float]:
+    """One flow gain per group of notches and the oil bulk-modulus factor, the rest nominal, each within its tolerance.
+
+    The nominal polynomials scaled per group, the oil compliance and what stays nominal (hose, centre
+    leakage) make three columns of one linear fit; a value beyond its tolerance is held at the bound
+    and the others fitted again (a bounded linear least-squares problem).
+    """
+    nominal = nominal_coefficients(model)
+    design, names = [], []
+    for group, notches in groups.items():
+        column = np.zeros(len(COLUMNS))
+        for notch in notches:
+            k = NOTCHES.index(notch)
+            column[4 * k:4 * k + 4] = nominal[4 * k:4 * k + 4]
+        design.append(regression.regressors @ column)
+        names.append(f"{group}_flow_gain")
+    fixed = nominal.copy()
+    fixed[:4 * len(NOTCHES)] = 0.0
+    fixed[OIL_COMPLIANCE] = 0.0
+    design.append(regression.regressors[:, OIL_COMPLIANCE] * nominal[OIL_COMPLIANCE])
+    target = regression.flows - regression.regressors @ fixed
+    matrix = np.stack(design, axis=1)
+    # factors 1 + z: gains within +-gain_tolerance, the compliance factor 1/bulk_factor within the bulk tolerance
+    low = np.array([1.0 - gain_tolerance] * len(names) + [1.0 / (1.0 + bulk_tolerance)])
+    high = np.array([1.0 + gain_tolerance] * len(names) + [1.0 / (1.0 - bulk_tolerance)])
+    solution = lsq_linear(matrix, target, bounds=(low, high)).x
+    return {**dict(zip(names, (float(v) for v in solution[:-1]))), "bulk_factor": float(1.0 / solution[-1])}
