@@ -39,6 +39,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/trajectories.py --out bench/trajectories.json
 	$(PY) bench/hmi.py --out bench/hmi.json
 	$(PY) bench/commissioning.py --out bench/commissioning.json
+	$(PY) bench/commissioning.py --config config/sam_mobile.yaml --out bench/commissioning_mobile.json
 
 bags: setup
 	$(PY) scripts/make_sample_bags.py --out bags

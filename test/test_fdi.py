@@ -167,3 +167,17 @@ def test_the_shipped_config_stays_quiet_on_a_machine_it_has_never_seen(sam_confi
     monitor = FdiMonitor(sam_config)
     alarms = [a for block in blocks for a in monitor.process(block).alarms]
     assert monitor.armed and alarms == [], [a.to_json() for a in alarms]
+
+
+def test_an_internal_leak_from_b_to_a_is_isolated_by_table_3_row_4(sam_config):
+    """Row 4 (A up, B down with p_B > p_A) needs a cylinder that pulls: the SAM's load moved to the other side of
+    the pivot (left_mass 0, right_mass 300 kg) keeps p_B above p_A, and the leak then flows from B to A. The
+    monitor is load-independent, so the shipped model serves this machine unchanged."""
+    pulling = sam_config.with_overrides({"actuators": {"boom": {"load": {"left_mass": 0.0, "right_mass": 300.0}}}})
+    blocks = [m.as_columns() for _, _, m in run_blocks(pulling, Scenario(60.0, [Injection("internal_leakage", 2.0, 20.0)], seed=2))]
+    assert all(np.median(b.pressure_b - b.pressure_a) > 0.0 for b in blocks)
+    monitor = FdiMonitor(sam_config)
+    alarms = [a for block in blocks for a in monitor.process(block).alarms]
+    named = [a for a in alarms if a.fault is not None and a.fault.value != "unisolated"]
+    assert alarms and alarms[0].time_s > 20.0 and named and named[0].fault == Fault.INTERNAL_LEAKAGE, [a.to_json() for a in alarms]
+    assert monitor.status(0).code == "1001"  # A up, B down
