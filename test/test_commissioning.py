@@ -20,7 +20,7 @@ from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.identification import flow_regression
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, simulate
-from hydro_ros.studies.commissioning import Recording, commission, identify
+from hydro_ros.studies.commissioning import PARITY_MARGIN, Recording, commission, identify
 from hydro_ros.studies.fdi_evaluation import mismatched_config
 from test.conftest import REPO
 
@@ -88,7 +88,8 @@ def test_after_commissioning_a_small_leak_is_isolated_and_payload_steps_raise_no
 
 def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_and_p_iv_thresholds(sam_config):
     """The parity method's machine: spool from the pilot pressures, notches fed by the compensator; thresholds
-    per operating point from the recordings, sharper than fdi-fit's from simulated plants, and still quiet."""
+    per operating point from the recordings, sharper on the whole than fdi-fit's from simulated plants, and
+    still quiet through payload steps the recordings did not hold."""
     mobile = load_machine_config(REPO / "config" / "sam_mobile.yaml")
     plant, _, _ = _plant(mobile)
     block, report = commission(mobile, [Recording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2, 3)])
@@ -98,11 +99,11 @@ def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_an
     assert ident["oil_bulk_modulus"] == pytest.approx(plant.first.fluid.oil_bulk_modulus, rel=0.1)
     fitted = block["model"]["fdi"]["parity_thresholds"]
     assert "threshold_constant" not in block["model"]["fdi"]
-    assert fitted["factor"] == pytest.approx(2.0 * report["threshold"]["reached"])
+    assert fitted["factor"] == pytest.approx(PARITY_MARGIN * report["threshold"]["reached"])
     machine = mobile.with_overrides(block["model"])
     shipped, commissioned = (FdiSettings.from_machine(m).parity_thresholds for m in (mobile, machine))
-    openings = np.array([[0.01], [0.1], [0.5]])
-    assert np.all(commissioned(openings) < shipped(openings))
+    openings = np.linspace(0.0, 1.0, 101)[:, None]
+    assert commissioned(openings).mean() < 0.8 * shipped(openings).mean()
     run = run_monitor(FdiMonitor(machine), _samples(plant, 11, 120.0, PAYLOAD_STEPS))
     assert run.alarms == [], [a.to_json() for a in run.alarms]
     run = run_monitor(FdiMonitor(machine), _samples(plant, 21, 60.0, [Injection("external_leakage_a", 0.4, 20.0)]))

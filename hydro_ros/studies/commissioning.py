@@ -70,6 +70,9 @@ THRESHOLD_MARGIN = 2.0  # c0 = margin x the worst held-out excess: an hour holds
 # out, and the largest of 720 Gaussian 5 s means is ~1.6x the largest of 24; times the evaluation's 1.25
 LEAK_LIMIT = 0.15  # [L/min at 10 MPa] a fitted leak above this refuses the recording (fault-free fits stay below ~0.05)
 PARITY_OPENING_EDGES = (0.0, 0.02, 0.06, 0.15, 0.3, 1.5)  # the 5 s mean opening's bins (as fdi-fit's)
+PARITY_MARGIN = 3.0  # c = margin x the largest held-out factor. The bins follow the opening, not the load pressure
+# that the return notch's flow error grows with: on 6 plants commissioned without payload, 300 kg steps reached
+# 1.0-2.6x the held-out factor (bench/commissioning_mobile.json), and 2.0 gave 3 false alarms per hour
 MOTION_HINT = {"PA": "extending moves (positive valve command)", "BT": "extending moves (positive valve command)",
                "PB": "retracting moves (negative valve command)", "AT": "retracting moves (negative valve command)"}
 
@@ -181,12 +184,12 @@ def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequ
         reached = max(reached, statistics.factor_reached(*armed_parity_residuals(machine, samples)))
         if progress:
             progress("threshold")
-    thresholds = replace(statistics, factor=THRESHOLD_MARGIN * reached)
+    thresholds = replace(statistics, factor=PARITY_MARGIN * reached)
     before = FdiSettings.from_machine(machine).parity_thresholds
     return {"fdi": {"parity_thresholds": thresholds.to_config()},
             "form": "P-IV statistical, per operating point: |mu| + c sigma per bin of the 5 s mean opening",
             "parameter": "c [-]", "before": before.factor if before else None, "reached": reached,
-            "value": thresholds.factor, "margin": THRESHOLD_MARGIN, "budget": "no crossing on the held-out data"}
+            "value": thresholds.factor, "margin": PARITY_MARGIN, "budget": "no crossing on the held-out data"}
 
 
 @dataclass

@@ -10,7 +10,8 @@ noise -, piston position per 1 mm) and its RMS is the gap.
 
 1. calibrate: flow coefficients (one gain for the supply notches P-A, P-B, one for the return
    notches A-T, B-T) and oil bulk modulus, within the tolerance of an identified valve
-   (flow +-5 %, bulk modulus +-30 %), on the first 60 % of the data;
+   (flow +-5 %, bulk modulus +-30 %), on the first 60 % of the data: a bounded linear fit to the
+   load-independent continuity rows commissioning identifies on (models.identification);
 2. localise: the error by channel, by regime (extending, retracting, at rest; pressure level;
    position) and in 5 s windows, for the forward simulation and for the load-independent one
    (the reduced model of P-II driven by the measured motion);
