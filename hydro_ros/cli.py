@@ -149,7 +149,8 @@ def cmd_commission(args: argparse.Namespace) -> int:
         print(f"{actuator}: notch gains {gains}; flow error {fit['rms_flow_error_l_min']['nominal']:.3f} -> "
               f"{fit['rms_flow_error_l_min']['commissioned']:.3f} L/min")
     threshold = report["threshold"]
-    print(f"threshold {threshold['parameter']} {threshold['value']:.4g} (config had {threshold['before']:.4g}; "
+    before = "none" if threshold["before"] is None else f"{threshold['before']:.4g}"
+    print(f"threshold {threshold['parameter']} {threshold['value']:.4g} (config had {before}; "
           f"{threshold['form']}); written to {out}")
     return 0
 
