@@ -22,6 +22,9 @@ from hydro_ros.contract.names import EFFECT_FORMS, first_form
 NOTCHES = ("PA", "PB", "AT", "BT")
 VALVE_TYPES = ("proportional", "mobile")
 _REQUIRED = ("machine", "sample_rate_hz", "actuators", "supply_pressure", "tank_pressure", "sensors")
+# what the machine config holds for the monitor and the simulators, beside the name (a crane config also has its
+# planner's keys: joints, masses, hydraulics, dp, paths)
+MONITOR_KEYS = frozenset(_REQUIRED[1:]) | {"simulation", "excitation", "effects", "effect_forms", "can", "fdi"}
 
 
 class _Section:
@@ -86,7 +89,8 @@ class Cylinder:
 
 @dataclass(frozen=True)
 class Mount:
-    """Cylinder length = sqrt(l1^2 + l2^2 - 2 l1 l2 cos(theta)), x = length - l3 (P-I eq. 3)."""
+    """How the piston follows the joint. ``triangle``: cylinder length = sqrt(l1^2 + l2^2 - 2 l1 l2 cos(theta)),
+    x = length - l3 (P-I eq. 3), theta = sign joint + theta_offset; ``linear``: x = ratio (joint + theta_offset)."""
 
     l1: float
     """[m] upper cylinder joint to boom joint"""
@@ -95,7 +99,13 @@ class Mount:
     l3: float
     """[m] cylinder length at x = 0"""
     theta_offset: float
-    """[rad] theta = joint position + theta_offset"""
+    """[rad] theta = sign joint position + theta_offset (linear: [joint unit] added to the joint)"""
+    kind: str = "triangle"
+    """``triangle`` (a cylinder between two links) or ``linear`` (a telescope, a rack)"""
+    sign: float = 1.0
+    """+1: the triangle opens as the joint opens; -1: as it closes (P-VI's tilt)"""
+    ratio: float = 1.0
+    """linear: [m per joint unit]"""
 
 
 @dataclass(frozen=True)
@@ -299,6 +309,11 @@ class Machine:
         return [a.name for a in self.actuators]
 
     @property
+    def crane(self) -> bool:
+        """A crane config (``kind: crane``): its cylinders carry the crane's links and masses, not a SAM boom."""
+        return self.mapping.get("kind") == "crane"
+
+    @property
     def first(self) -> Actuator:
         """The actuator of a one-actuator machine (the SAM), or the first of several."""
         return self.actuators[0]
@@ -337,7 +352,8 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
     actuators = top.section("actuators")
     if not actuators.node:
         raise ConfigError(f"config {source}: no actuators")
-    parsed = tuple(_actuator(actuators.section(name), str(name), index) for index, name in enumerate(actuators.node, start=1))
+    crane = config.get("kind") == "crane"  # a crane's cylinders carry its links and masses (joints:, masses:), not a boom
+    parsed = tuple(_actuator(actuators.section(name), str(name), index, crane) for index, name in enumerate(actuators.node, start=1))
     sensors = top.section("sensors")
     simulation = top.section("simulation", optional=True)
     excitation = top.section("excitation", optional=True)
@@ -404,9 +420,9 @@ def _choice(section: _Section, name: str, allowed: tuple[str, ...], default: str
     return value
 
 
-def _actuator(section: _Section, name: str, index: int) -> Actuator:
+def _actuator(section: _Section, name: str, index: int, crane: bool = False) -> Actuator:
     cylinder, mount, valve = section.section("cylinder"), section.section("mount"), section.section("valve")
-    fluid, friction, load = section.section("fluid"), section.section("friction"), section.section("load")
+    fluid, friction = section.section("fluid"), section.section("friction")
     valve_type = _choice(valve, "type", VALVE_TYPES, "proportional")
     mobile = valve_type == "mobile"
     kv_poly, leakage = valve.section("kv_poly"), valve.section("centre_leakage")
@@ -415,7 +431,7 @@ def _actuator(section: _Section, name: str, index: int) -> Actuator:
         joint=section.text("joint"),
         can_slot=int(section.number("can_slot", index)),
         cylinder=Cylinder(*(cylinder.number(k) for k in ("piston_diameter", "rod_diameter", "stroke", "dead_volume_a", "dead_volume_b"))),
-        mount=Mount(*(mount.number(k) for k in ("l1", "l2", "l3", "theta_offset"))),
+        mount=_mount(mount),
         valve=Valve(
             type=valve_type,
             natural_frequency=valve.number("natural_frequency"),
@@ -431,8 +447,22 @@ def _actuator(section: _Section, name: str, index: int) -> Actuator:
         ),
         fluid=Fluid(*(fluid.number(k) for k in ("oil_bulk_modulus", "hose_bulk_modulus", "hose_volume"))),
         friction=Friction(*(friction.number(k) for k in ("viscous", "static", "coulomb", "stribeck_velocity", "bristle_stiffness"))),
-        load=Load(*(load.number(k) for k in ("boom_mass", "boom_length", "boom_cog_distance", "left_mass", "right_mass", "load_distance"))),
+        load=Load(0.0, 1.0, 0.0, 0.0, 0.0, 1.0) if crane else _load(section.section("load")),
     )
+
+
+def _load(section: _Section) -> Load:
+    return Load(*(section.number(k) for k in ("boom_mass", "boom_length", "boom_cog_distance", "left_mass", "right_mass", "load_distance")))
+
+
+def _mount(section: _Section) -> Mount:
+    kind = _choice(section, "kind", ("triangle", "linear"), "triangle")
+    if kind == "linear":
+        return Mount(0.0, 0.0, 0.0, section.number("theta_offset"), kind, 1.0, section.number("ratio"))
+    sign = section.number("sign", 1.0)
+    if sign not in (1.0, -1.0):
+        raise ConfigError(f"config {section.source}: {section._name('sign')} = {sign:g}: expected 1 or -1")
+    return Mount(*(section.number(k) for k in ("l1", "l2", "l3", "theta_offset")), kind, sign)
 
 
 def _mems(section: _Section) -> Mems:

@@ -22,8 +22,7 @@ from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Alarm, Isolator,
 from hydro_ros.fdi.residuals import BlockInput, MovingAverage, generator_for
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.fdi.ukf import PRESSURE_UNIT
-from hydro_ros.models.kinematics import piston_position, torque_arm
-from hydro_ros.models.sam import MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET, SamModel
+from hydro_ros.models.sam import SamModel
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3  # diagnostic_msgs/DiagnosticStatus levels
 SUPPLY = CHANNELS.index("supply_pressure")
@@ -69,7 +68,7 @@ class FdiMonitor:
         self._residual_mean = MovingAverage(self.window, 2 * n)
         self._pressure_mean = MovingAverage(self.window, 2 * n)
         self._command_mean = MovingAverage(self.window, n)
-        self._mask_pressure_mean = MovingAverage(max(int(round(self.settings.mask_average_s * self.sample_rate)), 1), n)
+        self._mask_pressure_mean = MovingAverage(max(int(round(self.settings.mask_average_s * self.sample_rate)), 1), 2 * n)
         self.startup = int(round(self.settings.startup_s * self.sample_rate))
         self.isolators = [Isolator(a, table=self.generator.table, settle_s=self.settings.settle_s) for a in self.actuators]
         self.samples_seen = 0
@@ -82,8 +81,6 @@ class FdiMonitor:
         self.supply_substituted = 0
         self.nominal_supply = machine.supply_pressure
         self.health = SensorHealth(machine, 9 if self.generator.needs_mobile_pressures else 6, self.sample_rate)
-        geometry = np.stack([m.base[[MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET]] for m in self.models])
-        self._l1, self._l2, self._l3, self._offset = geometry.T
 
     @property
     def method(self) -> str:
@@ -130,10 +127,13 @@ class FdiMonitor:
             self._last_key[i] = None
 
     def piston_motion(self, joint_position: np.ndarray, joint_velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Eqs. (3)-(4): measured joint angle and rate -> piston position and velocity."""
-        theta = joint_position + self._offset
-        x = piston_position(theta, self._l1, self._l2, self._l3)
-        return x, torque_arm(theta, self._l1, self._l2) * joint_velocity
+        """Eqs. (3)-(4): measured joint positions and rates (n, A) -> piston positions and velocities, each by its mount."""
+        x = np.empty_like(joint_position)
+        v = np.empty_like(joint_position)
+        for a, model in enumerate(self.models):
+            x[:, a] = model.piston_from_joint(joint_position[:, a])
+            v[:, a] = model.piston_velocity(joint_position[:, a], joint_velocity[:, a])
+        return x, v
 
     def process(self, block: Samples, *, hold: bool = False) -> BlockResult:
         """One block of samples. ``hold``: the input is known to be incomplete (overload); the filters and
@@ -164,7 +164,8 @@ class FdiMonitor:
         # means of the measured pressures and the command hold their last valid value across gaps
         held = self._hold_last(np.concatenate([measured, raw[:, :, 2:3]], axis=2), valid)
         seen = self.samples_seen + np.arange(1, n + 1)
-        mask = (~valid | (self._mask_pressure_mean(held[:, :, 1]) < self.settings.mask_pressure_b)
+        lowest = self._mask_pressure_mean(held[:, :, :2].reshape(n, -1)).reshape(n, n_act, 2).min(axis=2)
+        mask = (~valid | (lowest < self.settings.mask_pressure)
                 | (x < self.settings.mask_retracted) | (seen <= self.startup)[:, None])
         mean_pressure = self._pressure_mean(held[:, :, :2].reshape(n, -1) / PRESSURE_UNIT).reshape(n, n_act, 2)
         mean_command = self._command_mean(held[:, :, 2])

@@ -144,7 +144,8 @@ class ParityResiduals(ResidualGenerator):
             raise InputError("fdi method parity: needs pressure-compensated mobile valves (valve.type: mobile) and their "
                              "pilot pressures; this machine has neither")
         if settings.parity_thresholds is None:
-            raise InputError("fdi method parity: the config has no fdi.parity_thresholds (fit them with hydro-ros fdi-fit --write)")
+            raise InputError("fdi method parity: the config has no fdi.parity_thresholds (fit them with hydro-ros fdi-fit --write, "
+                             "or hydro-ros commission on the machine's recordings)")
         self.generator = ParityGenerator(models)
         self._opening_mean = MovingAverage(window, len(models))
 

@@ -29,9 +29,10 @@ class FdiSettings:
     threshold_constant: float = 0.012  # [MPa] c0 of eq. (25); P-III: 0.015 encoder, 0.023 MEMS
     threshold_quadratic: float = 4.0e-4  # [1/MPa] c2 of eq. (25)
     residual: str = "posterior"  # which estimate p_hat is: a-posteriori (default) or a-priori
-    mask_pressure_b: float = 2.0e5  # [Pa] residuals zeroed while p_B is below this (P-II "close to zero")
+    mask_pressure: float = 2.0e5  # [Pa] residuals zeroed while either chamber is below this: P-II's p_B "close to
+    # zero" of a lowered boom, and the p_A of a cylinder that pulls (a crane's tilt); the chamber law changes at cavitation
     mask_retracted: float = 2.0e-3  # [m] ... or while the piston is within this of full retraction (P-III)
-    mask_average_s: float = 0.05  # [s] p_B is averaged this long for the mask: 0.1 MPa sensor noise around a
+    mask_average_s: float = 0.05  # [s] the chambers are averaged this long for the mask: 0.1 MPa sensor noise around a
     # cavitating chamber otherwise lets every twentieth sample through, and those read the clipped transmitter (INFERRED)
     startup_s: float = 1.0  # [s] residuals after a start or restart are left out this long while the filter
     # forgets its initial state; detection arms one window after that (INFERRED)

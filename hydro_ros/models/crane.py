@@ -281,6 +281,21 @@ class Crane:
         """
         lift, tilt, q_e = motion.q[-3], motion.q[-2], motion.q[-1]
         qdd = motion.qdd[-3:]
+        inertia, gravity = self.planar_inertia_gravity(lift, tilt, q_e)
+        torque = [gravity[j] + inertia[j][0] * qdd[0] + inertia[j][1] * qdd[1] + inertia[j][2] * qdd[2] for j in range(3)]
+        torque[2] = torque[2] + self.extension_friction(q_e, motion.qd[-1])
+        forces = []
+        planar = self.cylinders[-3:]
+        for cylinder, qi, tau in zip(planar, motion.q[-3:], torque):
+            arm, _ = cylinder.arm(qi)
+            forces.append(tau / arm)  # F v = tau qdot for either sign of the arm
+        if self.base_rotation:
+            base = self.cylinders[0]
+            forces.insert(0, np.zeros_like(np.asarray(qdd[0])) + (base.constant_force or 0.0))
+        return forces
+
+    def planar_inertia_gravity(self, lift: Any, tilt: Any, q_e: Any) -> tuple[list[list[Any]], list[Any]]:
+        """M (3 x 3) and G (3) of the point masses in the lift, tilt and extension joints (P-VI eq. 16)."""
         phi = lift + tilt
         cp, sp = np.cos(phi), np.sin(phi)
         inertia: list[list[Any]] = [[0.0] * 3 for _ in range(3)]
@@ -301,17 +316,7 @@ class Crane:
                 gravity[j] = gravity[j] + mass.mass * self.gravity * d_h
                 for k, (e_r, e_h) in enumerate(columns):
                     inertia[j][k] = inertia[j][k] + mass.mass * (d_r * e_r + d_h * e_h)
-        torque = [gravity[j] + inertia[j][0] * qdd[0] + inertia[j][1] * qdd[1] + inertia[j][2] * qdd[2] for j in range(3)]
-        torque[2] = torque[2] + self.extension_friction(q_e, motion.qd[-1])
-        forces = []
-        planar = self.cylinders[-3:]
-        for cylinder, qi, tau in zip(planar, motion.q[-3:], torque):
-            arm, _ = cylinder.arm(qi)
-            forces.append(tau / arm)  # F v = tau qdot for either sign of the arm
-        if self.base_rotation:
-            base = self.cylinders[0]
-            forces.insert(0, np.zeros_like(np.asarray(qdd[0])) + (base.constant_force or 0.0))
-        return forces
+        return inertia, gravity
 
     def extension_friction(self, q_e: Any, qd_e: Any) -> Any:
         """P-VI eqs. A3-A4: tanh(K qdot4) times a level that ramps by one coulomb per metre over each step."""

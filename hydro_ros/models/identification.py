@@ -34,7 +34,6 @@ from scipy.signal import butter, filtfilt
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES
 from hydro_ros.contract.samples import Samples
-from hydro_ros.models.kinematics import piston_position
 from hydro_ros.models.sam import (
     AREA_A,
     AREA_B,
@@ -43,9 +42,6 @@ from hydro_ros.models.sam import (
     DEADZONE_PLAIN,
     HOSE_MODULUS,
     HOSE_VOLUME,
-    MOUNT_L1,
-    MOUNT_L2,
-    MOUNT_L3,
     OIL_MODULUS,
     PILOT_MAX,
     SPOOL_DAMPING,
@@ -54,7 +50,6 @@ from hydro_ros.models.sam import (
     STOP_UPPER,
     STROKE,
     TANK,
-    THETA_OFFSET,
     V0_A,
     V0_B,
     SamModel,
@@ -117,7 +112,7 @@ def stretch_rows(model: SamModel, joint: np.ndarray, p_a: np.ndarray, p_b: np.nd
     def low_pass(x: np.ndarray) -> np.ndarray:
         return filtfilt(b, a, x, axis=0)
 
-    x = low_pass(piston_position(joint + p[THETA_OFFSET], p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3]))
+    x = low_pass(model.piston_from_joint(np.ascontiguousarray(joint, dtype=float)))
     velocity = np.gradient(x, dt)
     p_a, p_b, supply = low_pass(p_a), low_pass(p_b), low_pass(feed)
     rate_a, rate_b = np.gradient(p_a, dt), np.gradient(p_b, dt)

@@ -1,7 +1,8 @@
-"""Cylinder mount kinematics of the SAM boom: P-I eqs. (3)-(5).
+"""Cylinder mount kinematics: P-I eqs. (3)-(5) of the SAM boom, and the mounts of a crane's cylinders.
 
 Scalar or array arguments (numba compiles each). theta is the triangle angle at the boom joint between the two cylinder mounts; the joint
-position reported on /joint_states is theta - theta_offset (INFERRED mapping, config/sam.yaml).
+position reported on /joint_states is theta - theta_offset (INFERRED mapping, config/sam.yaml). A crane's cylinder may open its
+triangle as the joint closes (sign -1, P-VI's tilt), or move linearly with the joint (a telescope: x = ratio (joint + offset)).
 """
 
 from __future__ import annotations
@@ -43,3 +44,31 @@ def triangle_angle(x: float, l1: float, l2: float, l3: float) -> float:
     length = x + l3
     cosine = (l1 * l1 + l2 * l2 - length * length) / (2.0 * l1 * l2)
     return math.acos(min(1.0, max(-1.0, cosine)))
+
+
+TRIANGLE, LINEAR = 0, 1
+MOUNT_KINDS = ("triangle", "linear")
+
+
+@njit(cache=True)
+def mount_piston(joint, kind, l1, l2, l3, offset, sign, ratio):
+    """Piston position at a joint position: eq. (3) at theta = sign joint + offset, or ratio (joint + offset) if linear."""
+    if kind == LINEAR:
+        return ratio * (joint + offset)
+    return piston_position(sign * joint + offset, l1, l2, l3)
+
+
+@njit(cache=True)
+def mount_arm(joint, kind, l1, l2, l3, offset, sign, ratio):
+    """dx/d(joint) at a joint position: eq. (5) with the mount's sign, or the ratio if linear."""
+    if kind == LINEAR:
+        return ratio + 0.0 * joint
+    return sign * torque_arm(sign * joint + offset, l1, l2)
+
+
+@njit(cache=True)
+def mount_joint(x, kind, l1, l2, l3, offset, sign, ratio):
+    """Inverse of mount_piston (a triangle on 0 < theta < pi)."""
+    if kind == LINEAR:
+        return x / ratio - offset
+    return sign * (triangle_angle(x, l1, l2, l3) - offset)

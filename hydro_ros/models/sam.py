@@ -34,7 +34,10 @@ from hydro_ros.contract.names import Injection
 from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient, leak_flow
 from hydro_ros.models.friction import bristle_rate, friction_force, stribeck_curve
 from hydro_ros.models.kinematics import (
-    piston_position,
+    MOUNT_KINDS,
+    mount_arm,
+    mount_joint,
+    mount_piston,
     torque_arm,
     torque_arm_derivative,
     triangle_angle,
@@ -63,8 +66,9 @@ DELAY_BUFFER = 4096  # samples of valve-command history kept for the valve_delay
     STOP_LOWER, STOP_UPPER, STOP_STIFFNESS, STOP_DAMPING, CAVITATION, GRAVITY,
     VALVE_MOBILE, COMP_DROP, COMP_LOCKED, PILOT_MAX,
     DEADZONE_PLAIN, LAMINAR_INTERNAL, LAMINAR_EXTERNAL_A, LAMINAR_EXTERNAL_B, LAG_SAMPLES,
+    MOUNT_KIND, MOUNT_SIGN, MOUNT_RATIO,
     N_PARAMS,
-) = range(55)
+) = range(58)
 
 
 @njit(cache=True)
@@ -76,12 +80,12 @@ def metering_supply(s: float, p_a: float, p_b: float, p: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def _rhs(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centre: np.ndarray, dy: np.ndarray) -> None:
+def hydraulic_rates(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centre: np.ndarray, dy: np.ndarray) -> None:
+    """dy[0:4]: the chambers' pressure rates and the spool's, for the piston motion y[4], y[5] whatever moves it."""
     p_a = y[0]
     p_b = y[1]
     x = y[4]
     v = y[5]
-    z = y[6]
     # valve (eqs. 10-15)
     s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5, p[DEADZONE_PLAIN] < 0.5)
     q_a, q_b = chamber_valve_flows(s, p_a, p_b, metering_supply(s, p_a, p_b, p), p[TANK], poly, centre, p[LAMINAR_BAND], p[FLOW_GAIN])
@@ -100,6 +104,26 @@ def _rhs(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centr
     # spool (eq. 15)
     dy[2] = y[3]
     dy[3] = spool_acceleration(y[2], y[3], reference, p[SPOOL_OMEGA], p[SPOOL_DAMPING])
+
+
+@njit(cache=True)
+def end_stop_force(x: float, v: float, p: np.ndarray) -> float:
+    """Penalty force of the end stops on the piston [N]."""
+    if x < p[STOP_LOWER]:
+        return max(p[STOP_STIFFNESS] * (p[STOP_LOWER] - x) - p[STOP_DAMPING] * v, 0.0)
+    if x > p[STOP_UPPER]:
+        return min(p[STOP_STIFFNESS] * (p[STOP_UPPER] - x) - p[STOP_DAMPING] * v, 0.0)
+    return 0.0
+
+
+@njit(cache=True)
+def _rhs(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centre: np.ndarray, dy: np.ndarray) -> None:
+    hydraulic_rates(y, reference, p, poly, centre, dy)
+    p_a = y[0]
+    p_b = y[1]
+    x = y[4]
+    v = y[5]
+    z = y[6]
     # boom (eqs. 7, 16, 20, 21)
     theta = triangle_angle(x, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
     arm = torque_arm(theta, p[MOUNT_L1], p[MOUNT_L2])
@@ -117,12 +141,7 @@ def _rhs(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centr
     z_rate = bristle_rate(v, z, p[BRISTLE], g)
     bristle_damping = 2.0 * math.sqrt(p[BRISTLE] * reduced_mass)
     friction = friction_force(v, z, z_rate, p[BRISTLE], bristle_damping, p[VISCOUS])
-    stop = 0.0
-    if x < p[STOP_LOWER]:
-        stop = max(p[STOP_STIFFNESS] * (p[STOP_LOWER] - x) - p[STOP_DAMPING] * v, 0.0)
-    elif x > p[STOP_UPPER]:
-        stop = min(p[STOP_STIFFNESS] * (p[STOP_UPPER] - x) - p[STOP_DAMPING] * v, 0.0)
-    force = p_a * p[AREA_A] - p_b * p[AREA_B] - friction + stop
+    force = p_a * p[AREA_A] - p_b * p[AREA_B] - friction + end_stop_force(x, v, p)
     dy[4] = v
     dy[5] = (force - gravity_torque / arm) / reduced_mass + arm_rate * v * v / (arm * arm)
     dy[6] = z_rate
@@ -349,6 +368,7 @@ class SamModel:
         p[V0_B] = cyl.dead_volume_b
         p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3] = mount.l1, mount.l2, mount.l3
         p[THETA_OFFSET] = mount.theta_offset
+        p[MOUNT_KIND], p[MOUNT_SIGN], p[MOUNT_RATIO] = MOUNT_KINDS.index(mount.kind), mount.sign, mount.ratio
         p[SPOOL_OMEGA] = valve.natural_frequency
         p[SPOOL_DAMPING] = valve.damping
         p[LAMINAR_BAND] = valve.laminar_band
@@ -412,19 +432,25 @@ class SamModel:
             raise InputError("valve_deadzone must be < 1 (fraction of spool travel)")
         return params
 
-    def joint_from_piston(self, x: np.ndarray | float) -> np.ndarray:
+    @property
+    def mount(self) -> tuple[float, ...]:
+        """The mount's parameters in the order of kinematics.mount_piston / mount_arm / mount_joint."""
         p = self.base
-        xs = np.atleast_1d(np.asarray(x, dtype=float))
-        theta = np.array([triangle_angle(v, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3]) for v in xs])
-        return theta - p[THETA_OFFSET]
+        return (int(p[MOUNT_KIND]), p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3], p[THETA_OFFSET], p[MOUNT_SIGN], p[MOUNT_RATIO])
 
-    def piston_from_joint(self, joint: float) -> float:
-        p = self.base
-        return piston_position(joint + p[THETA_OFFSET], p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
+    def joint_from_piston(self, x: np.ndarray | float) -> np.ndarray:
+        return np.array([mount_joint(v, *self.mount) for v in np.atleast_1d(np.asarray(x, dtype=float))])
+
+    def piston_from_joint(self, joint: np.ndarray | float) -> np.ndarray | float:
+        return mount_piston(joint, *self.mount)
+
+    def piston_velocity(self, joint: np.ndarray | float, joint_velocity: np.ndarray | float) -> np.ndarray | float:
+        """Eq. (4): the piston's velocity at a joint position and rate."""
+        return mount_arm(joint, *self.mount) * joint_velocity
 
     def torque_arm_at(self, x: float) -> float:
-        p = self.base
-        return torque_arm(triangle_angle(x, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3]), p[MOUNT_L1], p[MOUNT_L2])
+        """dx/d(joint) at piston position x."""
+        return float(mount_arm(mount_joint(x, *self.mount), *self.mount))
 
     def inertia(self, payload: float = 0.0) -> float:
         p = self.base
@@ -533,6 +559,9 @@ class SamPlant:
         operator_gain: float = 4.0,
         max_command: float = 1.0,
     ) -> None:
+        if model.machine.crane:
+            raise InputError(f"config {model.machine.source}: actuator {model.actuator} is a crane's cylinder, moved by the crane's "
+                             "dynamics (hydro_ros.sim.crane_cylinders), not by a SAM boom; this simulator runs SAM-type machines")
         self.model = model
         self.injections: list[Injection] = list(injections)
         joint0 = model.machine.simulation.initial_joint_position if initial_joint is None else initial_joint

@@ -22,6 +22,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from hydro_ros.contract.errors import DatabaseError
+from hydro_ros.contract.machine import MONITOR_KEYS
 from hydro_ros.planning.trajectory import JointTrajectoryData
 
 SCHEMA_VERSION = 2  # 2: DP position nodes span each stage's feasible window (dp.DpGrid)
@@ -75,8 +76,8 @@ class StoredSolution:
 
 
 def inputs_hash(config: dict[str, Any], path_id: str, method: str, grid: tuple[int, int, int]) -> str:
-    """What a solution depends on; the config's own file path is not part of it."""
-    relevant = {key: value for key, value in config.items() if not key.startswith("_") and key != "paths"}
+    """What a solution depends on; the config's own file path and the monitor's keys are not part of it."""
+    relevant = {key: value for key, value in config.items() if not key.startswith("_") and key != "paths" and key not in MONITOR_KEYS}
     payload = json.dumps([relevant, config["paths"][path_id], path_id, method, list(grid)], sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 

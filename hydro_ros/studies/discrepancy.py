@@ -56,19 +56,14 @@ from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import EFFECT_FORMS, Effect, first_form
 from hydro_ros.fdi.parity import flow_balance
 from hydro_ros.models.identification import SEGMENT_MIN_S, FlowRegression, group_calibration, stretch_rows
-from hydro_ros.models.kinematics import piston_position, torque_arm
 from hydro_ros.models.sam import (
     DEADZONE,
     DEADZONE_PLAIN,
     DELAY_BUFFER,
-    MOUNT_L1,
-    MOUNT_L2,
-    MOUNT_L3,
     N_STATES,
     SPOOL_DAMPING,
     SPOOL_OMEGA,
     SUPPLY,
-    THETA_OFFSET,
     SamModel,
     simulate_segments,
 )
@@ -160,10 +155,8 @@ def simulate(machine: Machine, rec: Recording, every: int = 1) -> np.ndarray:
     of every that many-th segment only (the rows of the others left out), for screening."""
     model = SamModel(machine)
     model.substeps = max(1, math.ceil(1.0 / (model.sample_rate * SIMULATION_STEP_S) - 1e-9))
-    p = model.base
-    theta = rec.joint + p[THETA_OFFSET]
-    piston = piston_position(theta, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
-    velocity = torque_arm(theta, p[MOUNT_L1], p[MOUNT_L2]) * rec.joint_rate
+    piston = model.piston_from_joint(rec.joint)
+    velocity = model.piston_velocity(rec.joint, rec.joint_rate)
     bias = np.array([model.effects.get("pressure_sensor_bias_a", 0.0), model.effects.get("pressure_sensor_bias_b", 0.0)])
     segment = int(round(SEGMENT_S * model.sample_rate))
     firsts = np.arange(0, len(rec.times), segment * every)
@@ -302,9 +295,8 @@ def load_independent_error(machine: Machine, rec: Recording) -> np.ndarray:
     a valve, leak or bulk-modulus matter, and what appears only in the forward simulation is load-side."""
     model = SamModel(machine)
     p = model.base
-    theta = rec.joint + p[THETA_OFFSET]
-    piston = piston_position(theta, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
-    velocity = torque_arm(theta, p[MOUNT_L1], p[MOUNT_L2]) * rec.joint_rate
+    piston = model.piston_from_joint(rec.joint)
+    velocity = model.piston_velocity(rec.joint, rec.joint_rate)
     out = np.empty((len(rec.times), 2))
     supply = np.full(len(rec.times), p[SUPPLY])
     dt = 1.0 / model.sample_rate

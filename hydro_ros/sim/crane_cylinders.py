@@ -1,0 +1,253 @@
+"""The crane's cylinders with their valves and chambers: the plant the per-cylinder monitor is tested on.
+
+The lift, tilt and extension cylinders each have the SAM model's valve and chambers
+(``models.sam.hydraulic_rates``: the pressure-compensated mobile valve, leaks, effective bulk
+modulus), and their pistons move the crane's joints through its rigid-body dynamics,
+
+    M(q) q'' = R(q) (F_hydraulic - F_friction + F_stop) - G(q) - tau_extension_friction,
+
+with P-VI's point masses (eq. 16, Coriolis omitted as there) and R the mounts' torque arms. M and
+G are evaluated once per sensor sample and held over its RK4 substeps (they change little in
+1 ms). A cylinder's friction is viscous plus a smoothed Coulomb force; the extension's is the
+crane model's own (P-VI eqs. A3-A4).
+
+The base rotation is held still and not monitored: its rack-and-pinion plungers are
+non-differential, and P-VI replaced their force by an identified constant, so the thesis gives no
+load or valve model for it.
+
+The operator moves each joint to random targets in closed loop (``OperatorReference`` per joint,
+within 80 % of its range); the moves overlap, so one joint moves fast while another holds. The
+sensors are the SAM's (``SensorModel`` per cylinder).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+from numba import njit
+
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.machine import Machine
+from hydro_ros.contract.names import Injection
+from hydro_ros.contract.samples import PER_ACTUATOR, Samples
+from hydro_ros.models.crane import Crane, PointMass
+from hydro_ros.models.kinematics import mount_arm, mount_piston
+from hydro_ros.models.sam import (
+    AREA_A,
+    AREA_B,
+    CAVITATION,
+    COULOMB,
+    MOUNT_KIND,
+    MOUNT_L1,
+    MOUNT_L2,
+    MOUNT_L3,
+    MOUNT_RATIO,
+    MOUNT_SIGN,
+    N_STATES,
+    THETA_OFFSET,
+    VISCOUS,
+    SamModel,
+    end_stop_force,
+    hydraulic_rates,
+    injection_levels,
+)
+from hydro_ros.sim.excitation import OperatorReference
+from hydro_ros.sim.sensors import SensorModel
+
+FRICTION_VELOCITY = 0.005  # [m/s] tanh smoothing of the Coulomb force's sign (as the closed-loop crane plant)
+OPERATOR_SHARE = 0.8  # the operator's targets lie within this share of each joint's range, about its middle
+BLOCK = 1000  # samples per measured block
+MOUNT_AGREEMENT = 1e-3  # [m] the machine config's mount must give the crane config's stroke to this
+
+
+@njit(cache=True)
+def _mount(p: np.ndarray) -> tuple:
+    return int(p[MOUNT_KIND]), p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3], p[THETA_OFFSET], p[MOUNT_SIGN], p[MOUNT_RATIO]
+
+
+@njit(cache=True)
+def _rates(state, commands, params, poly, centre, inverse_mass, bias, rates, y, dy):
+    """state = [4 hydraulic states per cylinder..., q..., q'...]; rates the same layout."""
+    n = commands.shape[0]
+    torque = np.empty(n)
+    for i in range(n):
+        p = params[i]
+        q, qd = state[4 * n + i], state[5 * n + i]
+        kind, l1, l2, l3, offset, sign, ratio = _mount(p)
+        x = mount_piston(q, kind, l1, l2, l3, offset, sign, ratio)
+        arm = mount_arm(q, kind, l1, l2, l3, offset, sign, ratio)
+        v = arm * qd
+        for j in range(4):
+            y[j] = state[4 * i + j]
+        y[4], y[5], y[6] = x, v, 0.0
+        hydraulic_rates(y, commands[i], p, poly[i], centre[i], dy)
+        for j in range(4):
+            rates[4 * i + j] = dy[j]
+        force = (y[0] * p[AREA_A] - y[1] * p[AREA_B] - p[VISCOUS] * v - p[COULOMB] * math.tanh(v / FRICTION_VELOCITY)
+                 + end_stop_force(x, v, p))
+        torque[i] = arm * force
+    for i in range(n):
+        rates[4 * n + i] = state[5 * n + i]
+        acceleration = 0.0
+        for j in range(n):
+            acceleration += inverse_mass[i, j] * (torque[j] - bias[j])
+        rates[5 * n + i] = acceleration
+
+
+@njit(cache=True)
+def _sample(state, commands, params, poly, centre, inverse_mass, bias, h, substeps):
+    """RK4 over one sensor sample with M and G held."""
+    size = state.shape[0]
+    n = commands.shape[0]
+    k = np.empty((4, size))
+    trial = np.empty(size)
+    y = np.empty(N_STATES)
+    dy = np.empty(N_STATES)
+    for _ in range(substeps):
+        _rates(state, commands, params, poly, centre, inverse_mass, bias, k[0], y, dy)
+        for stage, weight in ((1, 0.5), (2, 0.5), (3, 1.0)):
+            for j in range(size):
+                trial[j] = state[j] + weight * h * k[stage - 1, j]
+            _rates(trial, commands, params, poly, centre, inverse_mass, bias, k[stage], y, dy)
+        for j in range(size):
+            state[j] += h / 6.0 * (k[0, j] + 2.0 * k[1, j] + 2.0 * k[2, j] + k[3, j])
+        for i in range(n):
+            floor = params[i, CAVITATION]
+            for j in (4 * i, 4 * i + 1):
+                if state[j] < floor:
+                    state[j] = floor
+
+
+@dataclass
+class CraneRun:
+    """What one run asks of the plant: its length, the operator's seed, faults per cylinder, payload steps."""
+
+    duration_s: float
+    seed: int = 0
+    faults: dict[str, list[Injection]] = field(default_factory=dict)  # actuator -> its injections
+    payload: list[Injection] = field(default_factory=list)  # payload_mass steps at the tip [kg]
+
+
+class CraneCylinders:
+    """The crane of a machine config with ``kind: crane`` and an actuator for each of its planar joints."""
+
+    def __init__(self, machine: Machine, crane_config: dict[str, Any], run: CraneRun, start: Sequence[float] | None = None) -> None:
+        self.machine = machine
+        self.crane = Crane(crane_config)
+        planar = self.crane.cylinders[-3:]
+        by_joint = {a.joint: a for a in machine.actuators}
+        missing = [c.name for c in planar if c.name not in by_joint]
+        if missing or len(machine.actuators) != len(planar):
+            raise InputError(f"config {machine.source}: the crane's planar joints {', '.join(c.name for c in planar)} need one actuator "
+                             f"each (missing: {', '.join(missing) or 'none'}; actuators: {', '.join(machine.actuator_names)})")
+        unknown = [name for name in run.faults if name not in machine.actuator_names]
+        if unknown:
+            raise InputError(f"fault on {', '.join(unknown)}: no such actuator (actuators: {', '.join(machine.actuator_names)})")
+        self.models = [SamModel(machine, by_joint[c.name].name) for c in planar]
+        for cylinder, model in zip(planar, self.models):
+            span = np.linspace(cylinder.q_min, cylinder.q_max, 50)
+            gap = np.max(np.abs(model.piston_from_joint(span) - cylinder.stroke(span)))
+            if gap > MOUNT_AGREEMENT:
+                raise InputError(f"config {machine.source}: actuator {model.actuator}'s mount differs from joint {cylinder.name}'s "
+                                 f"cylinder mapping by {gap * 1000:.1f} mm; one crane, one geometry")
+        self.run = run
+        self.dt = 1.0 / machine.sample_rate_hz
+        self.substeps = self.models[0].substeps
+        rng = np.random.default_rng(run.seed)
+        middle = [0.5 * (c.q_min + c.q_max) for c in planar]
+        start = middle if start is None else list(start)
+        excitation = machine.excitation
+        self.operators = [
+            OperatorReference(replace(excitation, joint_range=(m - 0.5 * OPERATOR_SHARE * (c.q_max - c.q_min),
+                                                               m + 0.5 * OPERATOR_SHARE * (c.q_max - c.q_min))),
+                              rng, q0, machine.sample_rate_hz)
+            for c, m, q0 in zip(planar, middle, start)]
+        self.sensors = [SensorModel(model, rng, run.faults.get(model.actuator, ())) for model in self.models]
+        # extending the cylinder closes the tilt joint: the operator's lever follows the joint, not the cylinder
+        self.direction = np.sign([float(m.piston_velocity(q0, 1.0)) for m, q0 in zip(self.models, start)])
+        self.planar = planar
+        self.state = np.zeros(6 * len(planar))
+        n = len(planar)
+        self.state[4 * n:5 * n] = start
+        self.state[:4 * n].reshape(n, 4)[:, :2] = self._holding_pressures()
+        self.poly = np.stack([m.poly for m in self.models])
+        self.centre = np.stack([m.centre_leakage for m in self.models])
+        self.crane.masses.append(PointMass("payload", "boom", self.crane.extension_base, True, 0.0))  # at the tip
+
+    def _holding_pressures(self) -> np.ndarray:
+        """Chamber pressures that hold the crane at rest in its start pose (the loaded side carries the load)."""
+        n = len(self.planar)
+        q = self.state[4 * n:5 * n]
+        _, gravity = self.crane.planar_inertia_gravity(*q)
+        out = np.zeros((n, 2))
+        for i, (model, qi, tau) in enumerate(zip(self.models, q, gravity)):
+            force = tau / float(model.piston_velocity(qi, 1.0))
+            p = model.base
+            out[i] = (max(force, 0.0) / p[AREA_A] + 1e5, max(-force, 0.0) / p[AREA_B] + 1e5)
+        return out
+
+    def _dynamics(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        inertia, gravity = self.crane.planar_inertia_gravity(*q)
+        bias = np.asarray(gravity, dtype=float)
+        bias[2] += float(self.crane.extension_friction(q[2], qd[2]))
+        return np.linalg.inv(np.asarray(inertia, dtype=float)), bias
+
+    def blocks(self) -> Iterator[tuple[np.ndarray, Samples]]:
+        """(true states (n, A, 7), measured samples (n, A)) block by block."""
+        n_total = int(round(self.run.duration_s * self.machine.sample_rate_hz))
+        n = len(self.planar)
+        gain, ceiling = self.machine.excitation.gain, self.machine.excitation.max_command
+        for first in range(0, n_total, BLOCK):
+            times = (first + np.arange(min(BLOCK, n_total - first))) * self.dt
+            references = np.stack([op.next(len(times)) for op in self.operators], axis=1)
+            params = np.stack([m.parameter_matrix(times, self.run.faults.get(m.actuator, ())) for m in self.models], axis=1)
+            payload = sum((injection_levels(step, times) for step in self.run.payload), np.zeros(len(times)))
+            states = np.empty((len(times), n, N_STATES))
+            commands = np.empty((len(times), n))
+            h = self.dt / self.substeps
+            for k in range(len(times)):
+                q, qd = self.state[4 * n:5 * n], self.state[5 * n:]
+                commands[k] = np.clip(gain * self.direction * (references[k] - q), -ceiling, ceiling)
+                if payload[k] != self.crane.masses[-1].mass:
+                    self.crane.masses[-1] = replace(self.crane.masses[-1], mass=float(payload[k]))
+                inverse_mass, bias = self._dynamics(q, qd)
+                _sample(self.state, commands[k], np.ascontiguousarray(params[k]), self.poly, self.centre, inverse_mass, bias, h,
+                        self.substeps)
+                states[k] = self._cylinder_states()
+            if not np.all(np.isfinite(states)):
+                raise InputError(f"crane simulation diverged at t = {times[0]:.2f} s (check the valve sizes and end stops of {self.machine.source})")
+            measured = [sensor.measure(times, states[:, i], commands[:, i]) for i, sensor in enumerate(self.sensors)]
+            yield states, combine(measured)
+
+    def _cylinder_states(self) -> np.ndarray:
+        n = len(self.planar)
+        out = np.zeros((n, N_STATES))
+        for i, model in enumerate(self.models):
+            q, qd = self.state[4 * n + i], self.state[5 * n + i]
+            out[i, :4] = self.state[4 * i:4 * i + 4]
+            out[i, 4] = model.piston_from_joint(q)
+            out[i, 5] = model.piston_velocity(q, qd)
+        return out
+
+
+def combine(per_actuator: Sequence[Samples]) -> Samples:
+    """One actuator's samples each -> (n, A) columns; the machine-wide channels from the first."""
+    first = per_actuator[0]
+    out = {}
+    for f in fields(Samples):
+        values = getattr(first, f.name)
+        if values is None or f.name not in PER_ACTUATOR:
+            out[f.name] = values
+        else:
+            out[f.name] = np.stack([np.asarray(getattr(s, f.name)).reshape(len(first)) for s in per_actuator], axis=1)
+    return Samples(**out)
+
+
+def simulate_crane(machine: Machine, crane_config: dict[str, Any], run: CraneRun) -> Samples:
+    """The whole run's measurements, (n, A)."""
+    parts = [measured for _, measured in CraneCylinders(machine, crane_config, run).blocks()]
+    return Samples(**{f.name: None if getattr(parts[0], f.name) is None else np.concatenate([getattr(p, f.name) for p in parts])
+                      for f in fields(Samples)})
