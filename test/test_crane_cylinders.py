@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
+from hydro_ros.bags.align import SampleLayout
+from hydro_ros.bags.reader import read_bag
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import Injection
@@ -13,7 +18,7 @@ from hydro_ros.fdi.offline import run_monitor
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.models.crane import load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
-from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun, simulate_crane
+from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun
 from hydro_ros.sim.scenario import Scenario, simulate
 from test.conftest import K70M
 
@@ -44,23 +49,38 @@ def test_one_k70m_config_gives_the_planner_and_the_monitor_the_same_cylinders(cr
         simulate(machine, Scenario(1.0))
 
 
-def test_a_leak_shows_in_the_residual_of_its_own_cylinder_while_the_others_move(crane_machine):
-    """The crane at work (every joint moved by the simulated operator, the loads the crane's own masses): the
-    monitor's parity residuals, load-independent, move by the leak's flow in the leaking chamber only."""
-    machine, config = crane_machine
+def test_a_leak_shows_in_the_residual_of_its_own_cylinder_while_the_others_move(crane_machine, tmp_path):
+    """`hydro-ros sim` of the crane at work (every joint moved by the simulated operator, the loads the crane's own
+    masses) into contract bags: the monitor's parity residuals, load-independent, move by the leak's flow in the
+    leaking chamber only."""
+    machine, _ = crane_machine
     probe = machine.with_overrides({"fdi": {"parity_thresholds": ParityThresholds.probe()}})
-    free = simulate_crane(machine, config, CraneRun(60.0, seed=3))
-    leaking = simulate_crane(machine, config, CraneRun(60.0, seed=3, faults={"lift": [Injection("external_leakage_a", 1.0, 25.0)]}))
+    layout = SampleLayout(machine.actuator_names, [a.joint for a in machine.actuators], mobile=True)
+    runs = {}
+    for name, faults in (("free", []), ("leaking", ["--fault", "lift:external_leakage_a=1.0@20"])):
+        bag = tmp_path / name
+        done = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "sim", "--config", str(K70M), "--duration", "50", "--seed", "3",
+                               *faults, "--out", str(bag), "--quiet"], capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr
+        data = read_bag(bag)
+        assert data.complete and (data.truth or {}).get("faults") == (
+            [] if not faults else [{"actuator": "lift", "name": "external_leakage_a", "value": 1.0, "onset_s": 20.0, "ramp_s": 0.0}])
+        runs[name] = data.samples(layout)
+    free = runs["free"]
     moved = np.ptp(free.joint_position[:20000], axis=0)
     assert np.all(moved > np.array([0.1, 0.1, 0.1])), moved  # every joint moves, lift and tilt [rad], extension [m]
     at_rest = np.median(free.pressure_a - free.pressure_b, axis=0)
     assert at_rest[0] > 2e6 and at_rest[1] < -2e6, at_rest  # the lift pushes (A carries the load), the tilt pulls (B)
     means = []
-    for samples in (free, leaking):
+    for samples in runs.values():
         run = run_monitor(FdiMonitor(probe), samples)
-        means.append(np.nanmean(run.residual_mean[run.times > 31.0], axis=0))  # (A, 2) [L/min], a window after onset
+        means.append(np.nanmean(run.residual_mean[run.times > 26.0], axis=0))  # (A, 2) [L/min], a window after onset
     shift = means[1] - means[0]
     # 1 L/min at 10 MPa leaks ~0.95 L/min at the lift's ~9 MPa; the 5 s means of the other channels stay put
     assert 0.5 < shift[0, 0] < 1.2, shift
     others = np.delete(shift.reshape(-1), 0)
     assert np.all(np.abs(others) < 0.15), shift
+    refused = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "sim", "--config", str(K70M), "--duration", "5",
+                              "--fault", "external_leakage_a=1.0@2", "--out", str(tmp_path / "refused"), "--quiet"],
+                             capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 1 and "names its cylinder" in refused.stderr and not (tmp_path / "refused").exists()

@@ -256,14 +256,35 @@ class ContractBagWriter(BagWriter):
         commands: list[float],
     ) -> None:
         """One sample of a multi-joint machine: one JointState with every joint, per-actuator pressures."""
+        self._write_machine(stamp, joints[0], joints[1], pressures[0], pressures[1], supply_pressure, commands, None)
+
+    def write_machine_block(self, block: Samples) -> None:
+        """Samples of every actuator, (n, A) columns in the writer's actuator order, one JointState per sample."""
+        for k in range(len(block.times)):
+            stamp = int(round(block.times[k] * 1e9))
+            mobile = None
+            if self.mobile:
+                mobile = (block.pilot_pressure_1[k], block.pilot_pressure_2[k], block.compensator_pressure[k], float(block.ls_pressure[k]))
+            self._write_machine(stamp, block.joint_position[k], block.joint_velocity[k], block.pressure_a[k], block.pressure_b[k],
+                                float(block.supply_pressure[k]), block.valve_command[k], mobile)
+
+    def _write_machine(self, stamp: int, positions: Any, velocities: Any, p_a: Any, p_b: Any, supply_pressure: float, commands: Any,
+                       mobile: tuple[Any, Any, Any, float] | None) -> None:
         handles = self._handles
         names = list(self.actuators)
-        self.write(handles[topics.JOINT_STATES], stamp, encode_joint_state(stamp, "", list(self.actuators.values()), joints[0], joints[1], []))
+        self.write(handles[topics.JOINT_STATES], stamp, encode_joint_state(
+            stamp, "", list(self.actuators.values()), [float(v) for v in positions], [float(v) for v in velocities], []))
         self.write(handles[topics.SUPPLY_PRESSURE], stamp, encode_fluid_pressure(stamp, "supply", supply_pressure, self.variance))
-        self.write(handles[topics.VALVE_COMMANDS], stamp, encode_joint_state(stamp, "", names, commands, [], []))
-        for actuator, p_a, p_b in zip(names, *pressures):
-            self.write(handles[topics.pressure_a(actuator)], stamp, encode_fluid_pressure(stamp, actuator, p_a, self.variance))
-            self.write(handles[topics.pressure_b(actuator)], stamp, encode_fluid_pressure(stamp, actuator, p_b, self.variance))
+        self.write(handles[topics.VALVE_COMMANDS], stamp, encode_joint_state(stamp, "", names, [float(c) for c in commands], [], []))
+        for i, actuator in enumerate(names):
+            self.write(handles[topics.pressure_a(actuator)], stamp, encode_fluid_pressure(stamp, actuator, float(p_a[i]), self.variance))
+            self.write(handles[topics.pressure_b(actuator)], stamp, encode_fluid_pressure(stamp, actuator, float(p_b[i]), self.variance))
+            if mobile is not None:
+                for quantity, values, variance in zip(topics.MOBILE_VALVE_PRESSURES, mobile[:3], (0.0, 0.0, self.variance)):
+                    self.write(handles[topics.actuator_pressure(actuator, quantity)], stamp,
+                               encode_fluid_pressure(stamp, actuator, float(values[i]), variance))
+        if mobile is not None:
+            self.write(handles[topics.LS_PRESSURE], stamp, encode_fluid_pressure(stamp, "ls", mobile[3], self.variance))
 
     def write_block(self, actuator: str, block: Samples) -> None:
         """One actuator's block of samples; stamps (and bag log times) are sample times."""

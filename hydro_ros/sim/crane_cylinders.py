@@ -234,12 +234,14 @@ class CraneCylinders:
 
 
 def combine(per_actuator: Sequence[Samples]) -> Samples:
-    """One actuator's samples each -> (n, A) columns; the machine-wide channels from the first."""
+    """One actuator's samples each -> (n, A) columns; the supply from the first, the load-sensing line the highest."""
     first = per_actuator[0]
     out = {}
     for f in fields(Samples):
         values = getattr(first, f.name)
-        if values is None or f.name not in PER_ACTUATOR:
+        if f.name == "ls_pressure" and values is not None:
+            out[f.name] = np.max([s.ls_pressure for s in per_actuator], axis=0)
+        elif values is None or f.name not in PER_ACTUATOR:
             out[f.name] = values
         else:
             out[f.name] = np.stack([np.asarray(getattr(s, f.name)).reshape(len(first)) for s in per_actuator], axis=1)
