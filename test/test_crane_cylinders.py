@@ -43,6 +43,8 @@ def test_one_k70m_config_gives_the_planner_and_the_monitor_the_same_cylinders(cr
     shifted = machine.with_overrides({"actuators": {"tilt": {"mount": {"l3": 0.91}}}})
     with pytest.raises(InputError, match="tilt's mount differs from joint tilt's cylinder mapping by 9.9 mm"):
         CraneCylinders(shifted, config, CraneRun(1.0))
+    with pytest.raises(InputError, match="lift:payload_mass: a crane's payload hangs at its tip"):
+        CraneCylinders(machine, config, CraneRun(1.0, faults={"lift": [Injection("payload_mass", 300.0)]}))
     with pytest.raises(InputError, match="fault on slew: no such actuator"):
         CraneCylinders(machine, config, CraneRun(1.0, faults={"slew": [Injection("external_leakage_a", 1.0)]}))
     with pytest.raises(InputError, match="crane's cylinder"):  # the SAM simulator does not take a crane for a boom

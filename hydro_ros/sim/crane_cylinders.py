@@ -61,6 +61,10 @@ FRICTION_VELOCITY = 0.005  # [m/s] tanh smoothing of the Coulomb force's sign (a
 OPERATOR_SHARE = 0.8  # the operator's targets lie within this share of each joint's range, about its middle
 BLOCK = 1000  # samples per measured block
 MOUNT_AGREEMENT = 1e-3  # [m] the machine config's mount must give the crane config's stroke to this
+NOT_PER_CYLINDER = {  # injections the SAM's model takes that this plant does not, refused rather than ignored
+    "payload_mass": "a crane's payload hangs at its tip, not on one cylinder (CraneRun.payload)",
+    "valve_delay": "not simulated on the crane's cylinders",
+}
 
 
 @njit(cache=True)
@@ -146,6 +150,10 @@ class CraneCylinders:
         unknown = [name for name in run.faults if name not in machine.actuator_names]
         if unknown:
             raise InputError(f"fault on {', '.join(unknown)}: no such actuator (actuators: {', '.join(machine.actuator_names)})")
+        for actuator, injections in run.faults.items():
+            for injection in injections:
+                if injection.name in NOT_PER_CYLINDER:
+                    raise InputError(f"fault {actuator}:{injection.name}: {NOT_PER_CYLINDER[injection.name]}")
         self.models = [SamModel(machine, by_joint[c.name].name) for c in planar]
         for cylinder, model in zip(planar, self.models):
             span = np.linspace(cylinder.q_min, cylinder.q_max, 50)
