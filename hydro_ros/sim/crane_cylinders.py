@@ -213,7 +213,7 @@ class CraneCylinders:
             references = np.stack([op.next(len(times)) for op in self.operators], axis=1)
             params = np.stack([m.parameter_matrix(times, self.run.faults.get(m.actuator, ())) for m in self.models], axis=1)
             payload = sum((injection_levels(step, times) for step in self.run.payload), np.zeros(len(times)))
-            states = np.empty((len(times), n, N_STATES))
+            trajectory = np.empty((len(times), self.state.size))  # the plant's state after each sample
             commands = np.empty((len(times), n))
             h = self.dt / self.substeps
             for k in range(len(times)):
@@ -224,20 +224,22 @@ class CraneCylinders:
                 inverse_mass, bias = self._dynamics(q, qd)
                 _sample(self.state, commands[k], np.ascontiguousarray(params[k]), self.poly, self.centre, inverse_mass, bias, h,
                         self.substeps)
-                states[k] = self._cylinder_states()
+                trajectory[k] = self.state
+            states = self._cylinder_states(trajectory)
             if not np.all(np.isfinite(states)):
                 raise InputError(f"crane simulation diverged at t = {times[0]:.2f} s (check the valve sizes and end stops of {self.machine.source})")
             measured = [sensor.measure(times, states[:, i], commands[:, i]) for i, sensor in enumerate(self.sensors)]
             yield states, combine(measured)
 
-    def _cylinder_states(self) -> np.ndarray:
+    def _cylinder_states(self, trajectory: np.ndarray) -> np.ndarray:
+        """The SAM model's state layout (n, A, 7) of each cylinder, its piston from its joint (bristle state 0)."""
         n = len(self.planar)
-        out = np.zeros((n, N_STATES))
+        out = np.zeros((len(trajectory), n, N_STATES))
         for i, model in enumerate(self.models):
-            q, qd = self.state[4 * n + i], self.state[5 * n + i]
-            out[i, :4] = self.state[4 * i:4 * i + 4]
-            out[i, 4] = model.piston_from_joint(q)
-            out[i, 5] = model.piston_velocity(q, qd)
+            q, qd = trajectory[:, 4 * n + i], trajectory[:, 5 * n + i]
+            out[:, i, :4] = trajectory[:, 4 * i:4 * i + 4]
+            out[:, i, 4] = model.piston_from_joint(q)
+            out[:, i, 5] = model.piston_velocity(q, qd)
         return out
 
 
