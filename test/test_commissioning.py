@@ -102,8 +102,9 @@ def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_an
     assert fitted["factor"] == pytest.approx(PARITY_MARGIN * report["threshold"]["reached"])
     machine = mobile.with_overrides(block["model"])
     shipped, commissioned = (FdiSettings.from_machine(m).parity_thresholds for m in (mobile, machine))
-    openings = np.linspace(0.0, 1.0, 101)[:, None]
-    assert commissioned(openings).mean() < 0.8 * shipped(openings).mean()
+    operating_points = np.zeros((101, 3))  # openings 0..1, the flow term unused (flow_fraction 0)
+    operating_points[:, 0] = np.linspace(0.0, 1.0, 101)
+    assert commissioned(operating_points).mean() < 0.8 * shipped(operating_points).mean()
     run = run_monitor(FdiMonitor(machine), _samples(plant, 11, 120.0, PAYLOAD_STEPS))
     assert run.alarms == [], [a.to_json() for a in run.alarms]
     run = run_monitor(FdiMonitor(machine), _samples(plant, 21, 60.0, [Injection("external_leakage_a", 0.4, 20.0)]))

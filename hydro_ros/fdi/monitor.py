@@ -40,7 +40,7 @@ class BlockResult:
     valid: np.ndarray  # (n, A)
     alarms: list[Alarm]
     mean_command: np.ndarray  # (n, A) 5 s mean valve command
-    operating_point: np.ndarray | None = None  # (n, A) parity: 5 s mean pilot-measured opening
+    operating_point: np.ndarray | None = None  # (n, A, 3) parity: 5 s means of the opening and |Q_A|, |Q_B| [L/min]
 
 
 @dataclass

@@ -47,21 +47,23 @@ FLOW_UNIT = 1.0 / 60000.0  # [m^3/s] per L/min: residuals are reported in L/min
 
 
 @njit(cache=True)
-def flow_balance(s, piston, velocity, p_a, p_b, rate_a, rate_b, metering_supply, p, poly, centre) -> tuple[float, float]:
-    """Equation error per chamber [L/min]: valve flow at opening s minus what motion and compression take."""
+def flow_balance(s, piston, velocity, p_a, p_b, rate_a, rate_b, metering_supply, p, poly, centre) -> tuple[float, float, float, float]:
+    """Equation error per chamber [L/min]: valve flow at opening s minus what motion and compression take; and the
+    two valve flows [L/min]."""
     q_a, q_b = chamber_valve_flows(s, p_a, p_b, metering_supply, p[TANK], poly, centre, p[LAMINAR_BAND], 1.0)
     volume_a = p[V0_A] + p[AREA_A] * piston
     volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - piston)
     bulk_a = effective_bulk_modulus(p_a, volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
     bulk_b = effective_bulk_modulus(p_b, volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
     return ((q_a - p[AREA_A] * velocity - volume_a / bulk_a * rate_a) / FLOW_UNIT,
-            (q_b + p[AREA_B] * velocity - volume_b / bulk_b * rate_b) / FLOW_UNIT)
+            (q_b + p[AREA_B] * velocity - volume_b / bulk_b * rate_b) / FLOW_UNIT, q_a / FLOW_UNIT, q_b / FLOW_UNIT)
 
 
 @njit(cache=True)
 def parity_residuals(piston, velocity, p_a, p_b, pilot_1, pilot_2, compensator, valid, previous, params, poly, centre, dt,
-                     residual_out, opening_out):
-    """Per sample and actuator: (r_QA, r_QB) [L/min] and the pilot-measured opening; arrays (n, A)."""
+                     residual_out, opening_out, flow_out):
+    """Per sample and actuator: (r_QA, r_QB) [L/min], the pilot-measured opening and |modelled valve flow| per chamber
+    [L/min]; arrays (n, A[, 2])."""
     for a in range(piston.shape[1]):
         p = params[a]
         for k in range(piston.shape[0]):
@@ -69,6 +71,8 @@ def parity_residuals(piston, velocity, p_a, p_b, pilot_1, pilot_2, compensator, 
                 residual_out[k, a, 0] = 0.0
                 residual_out[k, a, 1] = 0.0
                 opening_out[k, a] = 0.0
+                flow_out[k, a, 0] = 0.0
+                flow_out[k, a, 1] = 0.0
                 continue
             s = spool_opening((pilot_1[k, a] - pilot_2[k, a]) / p[PILOT_MAX], 0.0, p[DEADZONE], 1.0, False)
             rate_a = (p_a[k, a] - previous[a, 0]) / dt if previous[a, 2] > 0.5 else 0.0
@@ -76,8 +80,12 @@ def parity_residuals(piston, velocity, p_a, p_b, pilot_1, pilot_2, compensator, 
             previous[a, 0] = p_a[k, a]
             previous[a, 1] = p_b[k, a]
             previous[a, 2] = 1.0
-            residual_out[k, a, 0], residual_out[k, a, 1] = flow_balance(
+            r_a, r_b, q_a, q_b = flow_balance(
                 s, piston[k, a], velocity[k, a], p_a[k, a], p_b[k, a], rate_a, rate_b, compensator[k, a], p, poly[a], centre[a])
+            residual_out[k, a, 0] = r_a
+            residual_out[k, a, 1] = r_b
+            flow_out[k, a, 0] = abs(q_a)
+            flow_out[k, a, 1] = abs(q_b)
             opening_out[k, a] = abs(s)
 
 
@@ -101,73 +109,108 @@ class ParityGenerator:
         self.previous[:] = 0.0
 
     def run(self, piston: np.ndarray, velocity: np.ndarray, p_a: np.ndarray, p_b: np.ndarray, pilot_1: np.ndarray,
-            pilot_2: np.ndarray, compensator: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            pilot_2: np.ndarray, compensator: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(n, A, 2) residuals, (n, A) openings, (n, A, 2) |valve flows|."""
         n, n_act = piston.shape
         residual = np.empty((n, n_act, 2))
         opening = np.empty((n, n_act))
+        flow = np.empty((n, n_act, 2))
         arrays = [np.ascontiguousarray(np.nan_to_num(v), dtype=float) for v in (piston, velocity, p_a, p_b, pilot_1, pilot_2, compensator)]
         parity_residuals(*arrays, np.ascontiguousarray(valid), self.previous, self.params, self.poly, self.centre, self.dt,
-                         residual, opening)
-        return residual, opening
+                         residual, opening, flow)
+        return residual, opening, flow
+
+
+OPENING, FLOW_A, FLOW_B = 0, 1, 2  # the operating point's channels: 5 s means of the opening and of |Q_A|, |Q_B| [L/min]
+BINS = ("opening", "flow")
 
 
 @dataclass
 class ParityThresholds:
-    """Threshold per chamber as a function of the 5 s mean opening: |mu_bin| + c sigma_bin [L/min].
+    """Threshold per chamber: |mu_bin| + c sigma_bin + k |Q|_mean [L/min].
 
-    Fitted on fault-free data (:func:`hydro_ros.studies.fdi_evaluation.fit_parity_thresholds`), ``c`` set
-    for a target false-alarm rate on held-out fault-free data.
+    The statistical part is P-IV's, per bin of the operating point, fitted on fault-free data with ``c``
+    set on held-out data (``hydro-ros fdi-fit``, ``hydro-ros commission``). The operating point is the 5 s
+    mean opening (``bins: opening``) or each chamber's 5 s mean |modelled valve flow| (``bins: flow``,
+    edges in L/min). The flow is the better one where the valve meters against a varying load: it
+    follows the load pressure through the orifice law, and a window in which a joint moved for a second
+    and held for four is not taken for one at rest. The flow part is the model's own uncertainty: a notch
+    coefficient off by a fraction k puts k times that chamber's valve flow into its residual, so
+    ``flow_fraction`` times the chamber's 5 s mean |valve flow| is allowed on top, also on plants whose
+    notches are further off than any the statistics saw. Operating points are (..., 3): the mean opening
+    and the two chambers' mean |valve flow| [L/min].
     """
 
-    edges: tuple[float, ...]  # opening bin edges, len = bins + 1
+    edges: tuple[float, ...]  # bin edges of the operating point, len = bins + 1
     mean: tuple[tuple[float, float], ...]  # per bin (chamber A, chamber B)
     std: tuple[tuple[float, float], ...]
     factor: float
+    flow_fraction: float = 0.0  # k [-]
+    bins: str = "opening"
 
     @classmethod
     def from_config(cls, section: dict[str, Any] | None) -> "ParityThresholds | None":
         if not section:
             return None
         try:
-            return cls(tuple(float(v) for v in section["edges"]), tuple(tuple(map(float, m)) for m in section["mean"]),
-                       tuple(tuple(map(float, s)) for s in section["std"]), float(section["factor"]))
+            thresholds = cls(tuple(float(v) for v in section["edges"]), tuple(tuple(map(float, m)) for m in section["mean"]),
+                             tuple(tuple(map(float, s)) for s in section["std"]), float(section["factor"]),
+                             float(section.get("flow_fraction", 0.0)), str(section.get("bins", "opening")))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"fdi.parity_thresholds: malformed ({exc})") from None
+        if thresholds.bins not in BINS:
+            raise InputError(f"fdi.parity_thresholds.bins {thresholds.bins!r}: expected {' or '.join(BINS)}")
+        if not 0.0 <= thresholds.flow_fraction < 1.0:
+            raise InputError(f"fdi.parity_thresholds.flow_fraction {thresholds.flow_fraction}: expected 0 <= k < 1 (a share of the valve flow)")
+        if len(thresholds.mean) != len(thresholds.edges) - 1 or len(thresholds.std) != len(thresholds.mean):
+            raise InputError(f"fdi.parity_thresholds: {len(thresholds.edges)} edges need {len(thresholds.edges) - 1} rows of mean and "
+                             f"std (have {len(thresholds.mean)} and {len(thresholds.std)})")
+        return thresholds
 
     @classmethod
-    def from_statistics(cls, residual: np.ndarray, opening: np.ndarray, edges: tuple[float, ...], factor: float,
-                        minimum: int = 100) -> "ParityThresholds":
-        """Mean and spread of fault-free 5 s mean residuals (n, 2) per bin of the mean opening (n,).
+    def from_statistics(cls, residual: np.ndarray, operating_point: np.ndarray, edges: tuple[float, ...], factor: float,
+                        flow_fraction: float = 0.0, bins: str = "opening", minimum: int = 100) -> "ParityThresholds":
+        """Mean and spread of fault-free 5 s mean residuals (n, 2) per bin of the (n, 3) operating points.
 
         A bin with fewer than ``minimum`` samples (an operating point the data never reached) borrows
         the spread of all of them.
         """
-        bins = np.clip(np.searchsorted(edges, opening, side="right") - 1, 0, len(edges) - 2)
+        index = _bin_index(edges, bins, operating_point)
         mean, std = [], []
         for b in range(len(edges) - 1):
-            chosen = residual[bins == b] if np.count_nonzero(bins == b) >= minimum else residual
-            mean.append(tuple(float(v) for v in chosen.mean(axis=0)))
-            std.append(tuple(float(v) for v in chosen.std(axis=0)))
-        return cls(tuple(edges), tuple(mean), tuple(std), factor)
+            columns = [residual[index[:, c] == b, c] if np.count_nonzero(index[:, c] == b) >= minimum else residual[:, c]
+                       for c in range(2)]
+            mean.append(tuple(float(column.mean()) for column in columns))
+            std.append(tuple(float(column.std()) for column in columns))
+        return cls(tuple(edges), tuple(mean), tuple(std), factor, flow_fraction, bins)
 
     @classmethod
     def probe(cls) -> dict[str, Any]:
         """Config of thresholds nothing crosses: a monitor that only records its residuals."""
         return {"edges": [0.0, 1.5], "mean": [[0.0, 0.0]], "std": [[1.0, 1.0]], "factor": 1e12}
 
-    def factor_reached(self, residual: np.ndarray, opening: np.ndarray) -> float:
-        """The largest factor c the 5 s mean residuals (n, 2) at mean openings (n,) reach: |r| = |mu| + c sigma."""
-        index = np.clip(np.searchsorted(self.edges, opening, side="right") - 1, 0, len(self.mean) - 1)
-        reached = (np.abs(residual) - np.abs(np.asarray(self.mean))[index]) / np.asarray(self.std)[index]
-        return float(reached.max(initial=0.0))
+    def _offset_and_spread(self, operating_point: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        index = _bin_index(self.edges, self.bins, operating_point)
+        chamber = np.arange(2)
+        return (np.abs(np.asarray(self.mean))[index, chamber] + self.flow_fraction * operating_point[..., FLOW_A:],
+                np.asarray(self.std)[index, chamber])
+
+    def factor_reached(self, residual: np.ndarray, operating_point: np.ndarray) -> float:
+        """The largest factor c the 5 s mean residuals (n, 2) at operating points (n, 3) reach: |r| = |mu| + c sigma + k |Q|."""
+        offset, spread = self._offset_and_spread(operating_point)
+        return float(((np.abs(residual) - offset) / spread).max(initial=0.0))
 
     def to_config(self) -> dict[str, Any]:
-        return {"edges": list(self.edges), "mean": [list(m) for m in self.mean], "std": [list(s) for s in self.std],
-                "factor": self.factor}
+        return {"bins": self.bins, "edges": list(self.edges), "mean": [list(m) for m in self.mean], "std": [list(s) for s in self.std],
+                "factor": self.factor, "flow_fraction": self.flow_fraction}
 
-    def __call__(self, mean_opening: np.ndarray) -> np.ndarray:
-        """(n, A) mean openings -> (n, A, 2) thresholds."""
-        index = np.clip(np.searchsorted(self.edges, mean_opening, side="right") - 1, 0, len(self.mean) - 1)
-        mean = np.abs(np.asarray(self.mean))[index]
-        std = np.asarray(self.std)[index]
-        return mean + self.factor * std
+    def __call__(self, operating_point: np.ndarray) -> np.ndarray:
+        """(..., 3) operating points -> (..., 2) thresholds."""
+        offset, spread = self._offset_and_spread(operating_point)
+        return offset + self.factor * spread
+
+
+def _bin_index(edges: tuple[float, ...], bins: str, operating_point: np.ndarray) -> np.ndarray:
+    """(..., 2) bin of each chamber: both the opening's, or each its own mean flow's."""
+    value = np.repeat(operating_point[..., OPENING:OPENING + 1], 2, axis=-1) if bins == "opening" else operating_point[..., FLOW_A:]
+    return np.clip(np.searchsorted(edges, value, side="right") - 1, 0, len(edges) - 2)

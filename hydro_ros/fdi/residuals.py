@@ -81,7 +81,7 @@ class ResidualGenerator(ABC):
 
     @abstractmethod
     def residuals(self, block: BlockInput) -> tuple[np.ndarray, np.ndarray | None]:
-        """(n, A, 2) raw residuals, and the (n, A) operating point the thresholds depend on, if any."""
+        """(n, A, 2) raw residuals, and the (n, A, ...) operating point the thresholds depend on, if any."""
 
     @abstractmethod
     def thresholds(self, mean_pressure: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
@@ -147,29 +147,34 @@ class ParityResiduals(ResidualGenerator):
             raise InputError("fdi method parity: the config has no fdi.parity_thresholds (fit them with hydro-ros fdi-fit --write, "
                              "or hydro-ros commission on the machine's recordings)")
         self.generator = ParityGenerator(models)
-        self._opening_mean = MovingAverage(window, len(models))
+        self._operating_point_mean = MovingAverage(window, 3 * len(models))
 
     @property
     def table(self) -> tuple[PatternRow, ...]:
         return self.settings.parity_signatures
 
     def residuals(self, block: BlockInput) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals, and the operating point (n, A, 3): 5 s means of the opening and of the chambers' |valve flow|."""
         if block.mobile is None:
             raise InputError("fdi method parity: no pilot/compensator pressures in the samples")
-        residual, opening = self.generator.run(block.piston, block.velocity, block.pressure[:, :, 0], block.pressure[:, :, 1],
-                                               block.mobile[:, :, 0], block.mobile[:, :, 1], block.mobile[:, :, 2], block.valid)
-        return residual, self._opening_mean(opening)
+        residual, opening, flow = self.generator.run(block.piston, block.velocity, block.pressure[:, :, 0], block.pressure[:, :, 1],
+                                                     block.mobile[:, :, 0], block.mobile[:, :, 1], block.mobile[:, :, 2], block.valid)
+        n, n_act = opening.shape
+        point = np.concatenate([opening[:, :, None], flow], axis=2).reshape(n, -1)
+        return residual, self._operating_point_mean(point).reshape(n, n_act, 3)
 
     def thresholds(self, mean_pressure: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
         return self.settings.parity_thresholds(operating_point)
 
     def reset(self) -> None:
         self.generator.reset()
-        self._opening_mean.reset()
+        self._operating_point_mean.reset()
 
     def self_check(self) -> list[tuple[str, bool]]:
         thresholds = self.settings.parity_thresholds
-        positive = bool(np.all(thresholds(np.asarray([list(thresholds.edges)]).reshape(-1, 1)) > 0.0))
+        at_rest = np.zeros((len(thresholds.edges), 1, 3))
+        at_rest[:, 0, 0] = thresholds.edges
+        positive = bool(np.all(thresholds(at_rest) > 0.0))
         return [("parity thresholds positive at every operating point", positive),
                 ("signature table present", bool(self.table))]
 

@@ -159,14 +159,14 @@ def adaptive_threshold(machine: Machine, held_out: Sequence[Samples], progress: 
 
 
 def armed_parity_residuals(machine: Machine, samples: Samples) -> tuple[np.ndarray, np.ndarray]:
-    """Armed 5 s mean parity residuals (n, 2) [L/min] and mean openings (n,) of every actuator, thresholds ignored."""
+    """Armed 5 s mean parity residuals (n, 2) [L/min] and operating points (n, 3) of every actuator, thresholds ignored."""
     monitor = FdiMonitor(machine.with_overrides({"fdi": {"parity_thresholds": ParityThresholds.probe()}}), "parity")
     run = run_monitor(monitor, samples)
     armed = slice(monitor.startup + monitor.window, None)
     residual = run.residual_mean[armed].reshape(-1, 2)
-    opening = run.operating_point[armed].reshape(-1)
-    keep = np.all(np.isfinite(residual), axis=1) & np.isfinite(opening)
-    return residual[keep], opening[keep]
+    point = run.operating_point[armed].reshape(-1, 3)
+    keep = np.all(np.isfinite(residual), axis=1) & np.all(np.isfinite(point), axis=1)
+    return residual[keep], point[keep]
 
 
 def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequence[Samples],

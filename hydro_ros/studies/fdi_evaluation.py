@@ -324,17 +324,17 @@ THRESHOLD_FACTORS = (2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 14.0)
 
 
 def _parity_records(machine: Machine, case: Case) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Armed (mean residual (n, 2), mean opening (n,), mean command (n,), times (n,)) of one run."""
+    """Armed (mean residual (n, 2), operating point (n, 3), mean command (n,), times (n,)) of one run."""
     probe = machine.with_overrides({"fdi": {"parity_thresholds": ParityThresholds.probe(), "parity_signatures": []}})
     monitor = FdiMonitor(probe, "parity")
     parts = [(r.mean_residual[:, 0], r.operating_point[:, 0], r.mean_command[:, 0], r.times) for _, r in _blocks(probe, case, monitor)]
-    residual, opening, command, times = (np.concatenate([p[i] for p in parts]) for i in range(4))
+    residual, point, command, times = (np.concatenate([p[i] for p in parts]) for i in range(4))
     armed = np.arange(len(times)) >= monitor.window - 1
-    return residual[armed], opening[armed], command[armed], times[armed]
+    return residual[armed], point[armed], command[armed], times[armed]
 
 
-def _crossing_episodes(residual: np.ndarray, opening: np.ndarray, thresholds: ParityThresholds) -> int:
-    return crossing_episodes(crossing_code(residual, thresholds(opening[:, None])[:, 0]))[0]
+def _crossing_episodes(residual: np.ndarray, operating_point: np.ndarray, thresholds: ParityThresholds) -> int:
+    return crossing_episodes(crossing_code(residual, thresholds(operating_point)))[0]
 
 
 def fit_parity_thresholds(machine: Machine, train: Iterable[int], held_out: Iterable[int], duration_s: float = 120.0,
@@ -342,8 +342,8 @@ def fit_parity_thresholds(machine: Machine, train: Iterable[int], held_out: Iter
     """Bin fault-free 5 s mean residuals by mean opening; pick c for the false-alarm target on held-out plants."""
     train_runs = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s)) for seed in train]
     residual = np.concatenate([r[0] for r in train_runs])
-    opening = np.concatenate([r[1] for r in train_runs])
-    statistics = ParityThresholds.from_statistics(residual, opening, PARITY_OPENING_EDGES, THRESHOLD_FACTORS[-1])
+    point = np.concatenate([r[1] for r in train_runs])
+    statistics = ParityThresholds.from_statistics(residual, point, PARITY_OPENING_EDGES, THRESHOLD_FACTORS[-1])
     held = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s)) for seed in held_out]
     hours = sum(len(r[3]) for r in held) / machine.sample_rate_hz / 3600.0
     report: dict[str, Any] = {"held_out_hours": hours, "tried": {}}
@@ -366,8 +366,8 @@ def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seed
     for fault, value in PARITY_FAULTS:
         counts: dict[tuple[int, int], int] = {}
         for seed in seeds:
-            residual, opening, command, times = _parity_records(machine, Case(fault, value, seed, onset_s, duration_s))
-            code = crossing_code(residual, thresholds(opening[:, None])[:, 0])
+            residual, point, command, times = _parity_records(machine, Case(fault, value, seed, onset_s, duration_s))
+            code = crossing_code(residual, thresholds(point))
             after = times >= onset_s
             direction = np.sign(command)
             for c, d in zip(code[after], direction[after]):
