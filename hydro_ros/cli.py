@@ -58,7 +58,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def _sim_crane(args: argparse.Namespace, machine) -> int:
-    """A crane's cylinders at work under the simulated operator; faults name their cylinder (ACTUATOR:NAME=VALUE@T)."""
+    """A crane's cylinders at work, under the simulated operator or working a stored path; faults name their cylinder
+    (ACTUATOR:NAME=VALUE@T)."""
     from tqdm import tqdm
 
     from hydro_ros.bags.reader import read_bag
@@ -77,12 +78,23 @@ def _sim_crane(args: argparse.Namespace, machine) -> int:
                              f"(actuators: {', '.join(machine.actuator_names)})")
         faults.setdefault(actuator, []).extend(_injections([spec], "fault", True))
     _, crane_config = load_crane(args.config)
-    run = CraneRun(args.duration, seed=args.seed, faults=faults)
+    trajectory, work = None, None
+    if args.hold < 0:
+        raise InputError(f"--hold {args.hold}: must be >= 0 s")
+    if args.path:
+        from hydro_ros.planning.serving import executable_trajectory
+
+        trajectory, _ = executable_trajectory(crane_config, args.path, args.method, database=args.db)
+        work = {"path": args.path, "method": args.method, "hold_s": args.hold, "source": args.db or "planned"}
+    elif args.db:
+        raise InputError(f"--db {args.db}: names where --path's trajectory comes from; give --path")
+    run = CraneRun(args.duration, seed=args.seed, faults=faults, trajectory=trajectory, hold_s=args.hold)
     plant = CraneCylinders(machine, crane_config, run)
     writer = ContractBagWriter(args.out, actuators={a.name: a.joint for a in machine.actuators},
                                pressure_variance=machine.sensors.pressure_noise_std ** 2, mobile=machine.mobile)
     with writer, tqdm(total=int(round(args.duration * machine.sample_rate_hz)), unit="sample", desc="simulate", disable=args.quiet) as bar:
         writer.set_truth({"machine": machine.name, "config": machine.source.name, "seed": args.seed, "duration_s": args.duration,
+                          "work_cycle": work,
                           "faults": [{"actuator": name, "name": i.name, "value": i.value, "onset_s": i.onset_s, "ramp_s": i.ramp_s}
                                      for name, injections in faults.items() for i in injections]})
         for _, block in plant.blocks():
@@ -147,6 +159,8 @@ def cmd_fdi_fit(args: argparse.Namespace) -> int:
     machine = load_machine_config(args.config)
     if args.train < 1 or args.held_out < 1:
         raise InputError("--train and --held-out must be >= 1")
+    if machine.crane:
+        return _fdi_fit_crane(args, machine)
     print(f"fitting parity thresholds on {args.train} fault-free mismatched plants, checking on {args.held_out} others ...")
     thresholds, report = fit_parity_thresholds(machine, range(100, 100 + args.train), range(300, 300 + args.held_out))
     print(f"threshold factor {thresholds.factor:g} ({report['false_alarms_per_hour']:.2f} false alarms/h held out)"
@@ -156,7 +170,37 @@ def cmd_fdi_fit(args: argparse.Namespace) -> int:
     for row in rows:
         print(f"  {row['fault']:34s} {row['code']}  command {'any' if row['command_positive'] is None else ('+' if row['command_positive'] else '-')}")
     if args.write:
-        write_fitted_block(Path(args.config), thresholds, rows, report)
+        write_fitted_block(Path(args.config), thresholds, rows,
+                           f"parity thresholds from fault-free mismatched plants, factor {thresholds.factor:g} for <= 1 false alarm/h on "
+                           f"{report['held_out_hours']:.2f} h held out; signature table by simulation of the P-IV fault list.")
+        print(f"written to {args.config}")
+    return 0
+
+
+def _fdi_fit_crane(args: argparse.Namespace, machine) -> int:
+    """A crane's thresholds from its cylinders at work (studies.crane_monitoring); the signature table stays the config's."""
+    from tqdm import tqdm
+
+    from hydro_ros.models.crane import load_crane
+    from hydro_ros.studies.crane_monitoring import fit_crane_thresholds, path_trajectories
+    from hydro_ros.studies.fdi_evaluation import write_fitted_block
+
+    _, crane_config = load_crane(args.config)
+    trajectories = path_trajectories(crane_config)
+    runs = (args.train + args.held_out) * (1 + len(trajectories))
+    print(f"fitting the crane's thresholds: {args.train} nominal cranes at work, the factor on {args.held_out} mismatched ones "
+          f"(the operator and paths {', '.join(trajectories)} each, 90 s, payload steps) ...")
+    with tqdm(total=runs, unit="run", desc="fdi-fit", disable=args.quiet) as bar:
+        thresholds, report = fit_crane_thresholds(machine, crane_config, trajectories, train=range(100, 100 + args.train),
+                                                  held_out=range(300, 300 + args.held_out), progress=bar.update)
+    print(f"threshold factors per flow bin {', '.join(f'{c:.3g}' for c in thresholds.factor)} = {report['margin']:g} x the "
+          f"factor reached held out ({report['held_out_hours']:.2f} h), at least {report['margin']:g} x {report['floor']:g}")
+    if args.write:
+        write_fitted_block(Path(args.config), thresholds, None,
+                           f"the crane's parity thresholds, binned on each chamber's mean valve flow, from {args.train} nominal cranes at "
+                           f"work; factor per bin = {report['margin']:g} x the largest reached in it on {args.held_out} mismatched ones "
+                           f"({report['held_out_hours']:.2f} h, payload steps, every path), at least {report['margin']:g} x "
+                           f"{report['floor']:g}.")
         print(f"written to {args.config}")
     return 0
 
@@ -481,6 +525,11 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                      help="physical effect present from the start (repeatable)")
     sim.add_argument("--seed", type=int, default=0, help="random seed of operator and sensor noise")
+    sim.add_argument("--path", default="", help="crane only: work this path id's trajectory (forwards, hold, back, hold) in "
+                                                "place of the random operator")
+    sim.add_argument("--method", default="dp_cp", help="crane only: the trajectory method of --path (default dp_cp)")
+    sim.add_argument("--db", default=None, help="crane only: trajectory database --path is served from; default: plan it now")
+    sim.add_argument("--hold", type=float, default=4.0, help="crane only: [s] hold at either end of the work cycle")
     sim.add_argument("--out", required=True, help="bag directory to create (must not exist)")
     sim.add_argument("--quiet", action="store_true", help="no progress bar")
     sim.set_defaults(func=cmd_sim)
@@ -504,12 +553,15 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
     ev.set_defaults(func=cmd_fdi_eval)
 
-    fit = sub.add_parser("fdi-fit", help="fit the parity method: statistical thresholds and the signature table (mobile valves)")
-    fit.add_argument("--config", required=True, help="machine config with valve.type mobile, e.g. config/sam_mobile.yaml")
+    fit = sub.add_parser("fdi-fit", help="fit the parity method: statistical thresholds and the signature table (mobile valves); "
+                                         "on a crane config the thresholds from its cylinders at work")
+    fit.add_argument("--config", required=True, help="machine config with valve.type mobile, e.g. config/sam_mobile.yaml or "
+                                                     "config/k70m.yaml")
     fit.add_argument("--train", type=int, default=8, help="fault-free training plants (2 min each)")
     fit.add_argument("--held-out", type=int, default=8, help="fault-free plants that set the threshold factor")
     fit.add_argument("--signature-seeds", type=int, default=2, help="plants per fault for the signature table")
     fit.add_argument("--write", action="store_true", help="write the result into the config's fitted block")
+    fit.add_argument("--quiet", action="store_true", help="no progress bar")
     fit.set_defaults(func=cmd_fdi_fit)
 
     com = sub.add_parser("commission", help="identify the monitor's model and threshold from fault-free recordings of the machine",

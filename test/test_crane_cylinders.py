@@ -18,8 +18,10 @@ from hydro_ros.fdi.offline import run_monitor
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.models.crane import load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
+from hydro_ros.planning.serving import executable_trajectory
 from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun
 from hydro_ros.sim.scenario import Scenario, simulate
+from hydro_ros.studies.crane_monitoring import CraneCase, run_crane_cases
 from test.conftest import K70M
 
 
@@ -86,3 +88,30 @@ def test_a_leak_shows_in_the_residual_of_its_own_cylinder_while_the_others_move(
                               "--fault", "external_leakage_a=1.0@2", "--out", str(tmp_path / "refused"), "--quiet"],
                              capture_output=True, text=True, timeout=120)
     assert refused.returncode == 1 and "names its cylinder" in refused.stderr and not (tmp_path / "refused").exists()
+
+
+@pytest.fixture(scope="module")
+def horizontal():
+    _, config = load_crane(K70M)
+    return {"horizontal": executable_trajectory(config, "horizontal", "dp_cp")[0]}
+
+
+def test_the_crane_at_work_raises_no_alarm_on_plants_that_differ_from_its_model(crane_machine, horizontal):
+    """The shipped thresholds on cranes no fit has seen (every notch, bulk modulus, friction and noise drawn per plant):
+    the random operator moving every joint at once, then the energy-optimal horizontal path worked forwards and back
+    at full speed; 300 kg gripped and released in both."""
+    machine, config = crane_machine
+    cases = [CraneCase(901, 90.0), CraneCase(902, 60.0, "horizontal")]
+    for outcome in run_crane_cases(machine, config, horizontal, cases, workers=2):
+        assert outcome.alarms == [], (outcome.case, outcome.alarms)
+
+
+def test_a_leak_is_isolated_to_its_cylinder_while_the_crane_works_its_path(crane_machine, horizontal):
+    machine, config = crane_machine
+    cases = [CraneCase(903, 60.0, "horizontal", actuator="lift", fault="external_leakage_a", value=1.0, onset_s=20.0),
+             CraneCase(904, 60.0, "horizontal", actuator="tilt", fault="external_leakage_b", value=1.0, onset_s=20.0)]
+    for outcome in run_crane_cases(machine, config, horizontal, cases, workers=2):
+        case = outcome.case
+        assert outcome.false_alarms == [], (case, outcome.alarms)  # nothing before onset, nothing on another cylinder
+        named = [a for a in outcome.alarms if a["fault"] != "unisolated"]
+        assert outcome.detection is not None and named and named[0]["fault"] == case.fault, (case, outcome.alarms)

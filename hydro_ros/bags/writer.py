@@ -232,6 +232,39 @@ def sample_topics(actuator: str, *, mobile: bool = False) -> tuple[str, ...]:
     return base + tuple(topics.actuator_pressure(actuator, q) for q in topics.MOBILE_VALVE_PRESSURES) + (topics.LS_PRESSURE,)
 
 
+def machine_payloads(stamp: int, actuators: dict[str, str], variance: float, positions: Any, velocities: Any, p_a: Any, p_b: Any,
+                     supply_pressure: float, commands: Any, mobile: tuple[Any, Any, Any, float] | None,
+                     held: dict[str, float] | None = None) -> list[tuple[str, bytes]]:
+    """(topic, CDR bytes) of one sample of a machine with several actuators (``actuators``: actuator -> joint, in column
+    order): every joint in one JointState, the pressures per actuator; ``mobile`` = (pilot 1, pilot 2, compensator, LS).
+    ``held``: joints no actuator moves (a crane's base held still), joint -> position, listed first at rest."""
+    names = list(actuators)
+    held = held or {}
+    out = [(topics.JOINT_STATES, encode_joint_state(stamp, "", [*held, *actuators.values()], [*held.values(), *map(float, positions)],
+                                                    [*(0.0 for _ in held), *map(float, velocities)], [])),
+           (topics.SUPPLY_PRESSURE, encode_fluid_pressure(stamp, "supply", supply_pressure, variance)),
+           (topics.VALVE_COMMANDS, encode_joint_state(stamp, "", names, [float(c) for c in commands], [], []))]
+    for i, actuator in enumerate(names):
+        out.append((topics.pressure_a(actuator), encode_fluid_pressure(stamp, actuator, float(p_a[i]), variance)))
+        out.append((topics.pressure_b(actuator), encode_fluid_pressure(stamp, actuator, float(p_b[i]), variance)))
+        if mobile is not None:
+            for quantity, values, noise in zip(topics.MOBILE_VALVE_PRESSURES, mobile[:3], (0.0, 0.0, variance)):
+                out.append((topics.actuator_pressure(actuator, quantity), encode_fluid_pressure(stamp, actuator, float(values[i]), noise)))
+    if mobile is not None:
+        out.append((topics.LS_PRESSURE, encode_fluid_pressure(stamp, "ls", mobile[3], variance)))
+    return out
+
+
+def block_machine_payloads(block: Samples, k: int, stamp: int, actuators: dict[str, str], variance: float,
+                           mobile: bool, held: dict[str, float] | None = None) -> list[tuple[str, bytes]]:
+    """:func:`machine_payloads` of sample k of a block with (n, A) columns."""
+    pressures = None
+    if mobile:
+        pressures = (block.pilot_pressure_1[k], block.pilot_pressure_2[k], block.compensator_pressure[k], float(block.ls_pressure[k]))
+    return machine_payloads(stamp, actuators, variance, block.joint_position[k], block.joint_velocity[k], block.pressure_a[k],
+                            block.pressure_b[k], float(block.supply_pressure[k]), block.valve_command[k], pressures, held)
+
+
 class ContractBagWriter(BagWriter):
     """One machine's sensor topics, written from simulated or converted samples (one file)."""
 
@@ -256,35 +289,16 @@ class ContractBagWriter(BagWriter):
         commands: list[float],
     ) -> None:
         """One sample of a multi-joint machine: one JointState with every joint, per-actuator pressures."""
-        self._write_machine(stamp, joints[0], joints[1], pressures[0], pressures[1], supply_pressure, commands, None)
+        for topic, payload in machine_payloads(stamp, self.actuators, self.variance, joints[0], joints[1], pressures[0], pressures[1],
+                                               supply_pressure, commands, None):
+            self.write(self._handles[topic], stamp, payload)
 
     def write_machine_block(self, block: Samples) -> None:
         """Samples of every actuator, (n, A) columns in the writer's actuator order, one JointState per sample."""
         for k in range(len(block.times)):
             stamp = int(round(block.times[k] * 1e9))
-            mobile = None
-            if self.mobile:
-                mobile = (block.pilot_pressure_1[k], block.pilot_pressure_2[k], block.compensator_pressure[k], float(block.ls_pressure[k]))
-            self._write_machine(stamp, block.joint_position[k], block.joint_velocity[k], block.pressure_a[k], block.pressure_b[k],
-                                float(block.supply_pressure[k]), block.valve_command[k], mobile)
-
-    def _write_machine(self, stamp: int, positions: Any, velocities: Any, p_a: Any, p_b: Any, supply_pressure: float, commands: Any,
-                       mobile: tuple[Any, Any, Any, float] | None) -> None:
-        handles = self._handles
-        names = list(self.actuators)
-        self.write(handles[topics.JOINT_STATES], stamp, encode_joint_state(
-            stamp, "", list(self.actuators.values()), [float(v) for v in positions], [float(v) for v in velocities], []))
-        self.write(handles[topics.SUPPLY_PRESSURE], stamp, encode_fluid_pressure(stamp, "supply", supply_pressure, self.variance))
-        self.write(handles[topics.VALVE_COMMANDS], stamp, encode_joint_state(stamp, "", names, [float(c) for c in commands], [], []))
-        for i, actuator in enumerate(names):
-            self.write(handles[topics.pressure_a(actuator)], stamp, encode_fluid_pressure(stamp, actuator, float(p_a[i]), self.variance))
-            self.write(handles[topics.pressure_b(actuator)], stamp, encode_fluid_pressure(stamp, actuator, float(p_b[i]), self.variance))
-            if mobile is not None:
-                for quantity, values, variance in zip(topics.MOBILE_VALVE_PRESSURES, mobile[:3], (0.0, 0.0, self.variance)):
-                    self.write(handles[topics.actuator_pressure(actuator, quantity)], stamp,
-                               encode_fluid_pressure(stamp, actuator, float(values[i]), variance))
-        if mobile is not None:
-            self.write(handles[topics.LS_PRESSURE], stamp, encode_fluid_pressure(stamp, "ls", mobile[3], self.variance))
+            for topic, payload in block_machine_payloads(block, k, stamp, self.actuators, self.variance, self.mobile):
+                self.write(self._handles[topic], stamp, payload)
 
     def write_block(self, actuator: str, block: Samples) -> None:
         """One actuator's block of samples; stamps (and bag log times) are sample times."""

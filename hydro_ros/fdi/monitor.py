@@ -164,9 +164,10 @@ class FdiMonitor:
         # means of the measured pressures and the command hold their last valid value across gaps
         held = self._hold_last(np.concatenate([measured, raw[:, :, 2:3]], axis=2), valid)
         seen = self.samples_seen + np.arange(1, n + 1)
-        lowest = self._mask_pressure_mean(held[:, :, :2].reshape(n, -1)).reshape(n, n_act, 2).min(axis=2)
-        mask = (~valid | (lowest < self.settings.mask_pressure)
-                | (x < self.settings.mask_retracted) | (seen <= self.startup)[:, None])
+        cavitating = self._mask_pressure_mean(held[:, :, :2].reshape(n, -1)).reshape(n, n_act, 2) < self.settings.mask_pressure
+        if not self.generator.chambers_independent:
+            cavitating = np.repeat(cavitating.any(axis=2, keepdims=True), 2, axis=2)
+        mask = cavitating | (~valid | (x < self.settings.mask_retracted) | (seen <= self.startup)[:, None])[:, :, None]
         mean_pressure = self._pressure_mean(held[:, :, :2].reshape(n, -1) / PRESSURE_UNIT).reshape(n, n_act, 2)
         mean_command = self._command_mean(held[:, :, 2])
         residual, operating_point = self.generator.residuals(

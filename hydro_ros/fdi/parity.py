@@ -130,7 +130,8 @@ class ParityThresholds:
     """Threshold per chamber: |mu_bin| + c sigma_bin + k |Q|_mean [L/min].
 
     The statistical part is P-IV's, per bin of the operating point, fitted on fault-free data with ``c``
-    set on held-out data (``hydro-ros fdi-fit``, ``hydro-ros commission``). The operating point is the 5 s
+    set on held-out data (``hydro-ros fdi-fit``, ``hydro-ros commission``): one c, or one per bin where
+    the held-out data reach different factors at rest and in motion. The operating point is the 5 s
     mean opening (``bins: opening``) or each chamber's 5 s mean |modelled valve flow| (``bins: flow``,
     edges in L/min). The flow is the better one where the valve meters against a varying load: it
     follows the load pressure through the orifice law, and a window in which a joint moved for a second
@@ -144,7 +145,7 @@ class ParityThresholds:
     edges: tuple[float, ...]  # bin edges of the operating point, len = bins + 1
     mean: tuple[tuple[float, float], ...]  # per bin (chamber A, chamber B)
     std: tuple[tuple[float, float], ...]
-    factor: float
+    factor: float | tuple[float, ...]  # c, or one c per bin
     flow_fraction: float = 0.0  # k [-]
     bins: str = "opening"
 
@@ -153,11 +154,15 @@ class ParityThresholds:
         if not section:
             return None
         try:
+            factor = section["factor"]
             thresholds = cls(tuple(float(v) for v in section["edges"]), tuple(tuple(map(float, m)) for m in section["mean"]),
-                             tuple(tuple(map(float, s)) for s in section["std"]), float(section["factor"]),
+                             tuple(tuple(map(float, s)) for s in section["std"]),
+                             tuple(map(float, factor)) if isinstance(factor, (list, tuple)) else float(factor),
                              float(section.get("flow_fraction", 0.0)), str(section.get("bins", "opening")))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"fdi.parity_thresholds: malformed ({exc})") from None
+        if isinstance(thresholds.factor, tuple) and len(thresholds.factor) != len(thresholds.edges) - 1:
+            raise InputError(f"fdi.parity_thresholds.factor: {len(thresholds.factor)} values for {len(thresholds.edges) - 1} bins")
         if thresholds.bins not in BINS:
             raise InputError(f"fdi.parity_thresholds.bins {thresholds.bins!r}: expected {' or '.join(BINS)}")
         if not 0.0 <= thresholds.flow_fraction < 1.0:
@@ -197,17 +202,26 @@ class ParityThresholds:
 
     def factor_reached(self, residual: np.ndarray, operating_point: np.ndarray) -> float:
         """The largest factor c the 5 s mean residuals (n, 2) at operating points (n, 3) reach: |r| = |mu| + c sigma + k |Q|."""
+        return float(self.factors_reached(residual, operating_point).max())
+
+    def factors_reached(self, residual: np.ndarray, operating_point: np.ndarray) -> np.ndarray:
+        """The largest factor reached per bin (0 where no sample fell)."""
         offset, spread = self._offset_and_spread(operating_point)
-        return float(((np.abs(residual) - offset) / spread).max(initial=0.0))
+        reached = ((np.abs(residual) - offset) / spread).reshape(-1)
+        out = np.zeros(len(self.edges) - 1)
+        np.maximum.at(out, _bin_index(self.edges, self.bins, operating_point).reshape(-1), reached)
+        return out
 
     def to_config(self) -> dict[str, Any]:
         return {"bins": self.bins, "edges": list(self.edges), "mean": [list(m) for m in self.mean], "std": [list(s) for s in self.std],
-                "factor": self.factor, "flow_fraction": self.flow_fraction}
+                "factor": list(self.factor) if isinstance(self.factor, tuple) else self.factor, "flow_fraction": self.flow_fraction}
 
     def __call__(self, operating_point: np.ndarray) -> np.ndarray:
         """(..., 3) operating points -> (..., 2) thresholds."""
         offset, spread = self._offset_and_spread(operating_point)
-        return offset + self.factor * spread
+        factor = (np.asarray(self.factor)[_bin_index(self.edges, self.bins, operating_point)] if isinstance(self.factor, tuple)
+                  else self.factor)
+        return offset + factor * spread
 
 
 def _bin_index(edges: tuple[float, ...], bins: str, operating_point: np.ndarray) -> np.ndarray:

@@ -68,6 +68,9 @@ class ResidualGenerator(ABC):
     method: str
     unit: str  # of residuals and thresholds
     needs_mobile_pressures: bool = False
+    # each chamber's residual is its own equation: a cavitating chamber masks only itself (a leak out of A
+    # still shows while B, trapped behind the closed valve, cavitates as the load sinks)
+    chambers_independent: bool = False
 
     def __init__(self, models: list[SamModel], settings: FdiSettings, window: int) -> None:
         self.models = models
@@ -137,6 +140,7 @@ class ParityResiduals(ResidualGenerator):
     method = "parity"
     unit = "L/min"
     needs_mobile_pressures = True
+    chambers_independent = True
 
     def __init__(self, models: list[SamModel], settings: FdiSettings, window: int) -> None:
         super().__init__(models, settings, window)

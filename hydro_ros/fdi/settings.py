@@ -29,8 +29,9 @@ class FdiSettings:
     threshold_constant: float = 0.012  # [MPa] c0 of eq. (25); P-III: 0.015 encoder, 0.023 MEMS
     threshold_quadratic: float = 4.0e-4  # [1/MPa] c2 of eq. (25)
     residual: str = "posterior"  # which estimate p_hat is: a-posteriori (default) or a-priori
-    mask_pressure: float = 2.0e5  # [Pa] residuals zeroed while either chamber is below this: P-II's p_B "close to
-    # zero" of a lowered boom, and the p_A of a cylinder that pulls (a crane's tilt); the chamber law changes at cavitation
+    mask_pressure: float = 2.0e5  # [Pa] residuals zeroed while a chamber is below this: P-II's p_B "close to zero" of a
+    # lowered boom, and the p_A of a cylinder that pulls (a crane's tilt); the chamber law changes at cavitation. The UKF's
+    # two residuals come from one filter, so both go; the parity method's are one equation per chamber, so only that one
     mask_retracted: float = 2.0e-3  # [m] ... or while the piston is within this of full retraction (P-III)
     mask_average_s: float = 0.05  # [s] the chambers are averaged this long for the mask: 0.1 MPa sensor noise around a
     # cavitating chamber otherwise lets every twentieth sample through, and those read the clipped transmitter (INFERRED)

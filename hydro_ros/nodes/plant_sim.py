@@ -1,33 +1,45 @@
 """plant_sim: the machine of a config in (scaled) real time on the contract topics.
 
-A crane config (``kind: crane``) is refused: ``crane_sim`` simulates cranes.
-
 Publishes the measured topics of contract section 1 (raw CDR, the same bytes a bag holds),
 optionally /clock. Valve commands come from the simulated operator (`excitation: operator`,
 then they are published on /hydraulics/valve_commands as the machine would) or from that topic
 (`excitation: topic`). Faults and effects are injected at run time by setting the parameters
 `fault.<name>` (units: `hydro-ros sim --help`). Health on /diagnostics as `hydro_ros/plant_sim`.
+
+Crane mode (a config with ``kind: crane`` and an actuator per planar joint, e.g. config/k70m.yaml):
+the crane's cylinders with their valves (``hydro_ros.sim.crane_cylinders``), every joint in one
+/joint_states (the base held where it started), the pressures of every cylinder. Faults name
+their cylinder: ``fault.<actuator>.<name>``. With ``excitation: trajectory`` the crane starts at
+the start of ``initial_path`` and works each JointTrajectory it receives on ``trajectory_topic``
+(trajectory_server's ``output_topic``) as a cycle, forwards, a hold, back, a hold; a trajectory
+that does not start within ``start_tolerance`` of the joints is refused (logged, and on
+/diagnostics), an empty one holds the joints where they are. ``crane_sim`` is the other crane
+simulator: the closed loop of P-VI's controller for energy and tracking, without valves to monitor.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import FluidPressure, JointState
+from trajectory_msgs.msg import JointTrajectory
 
-from hydro_ros.bags.writer import sample_payloads, sample_topics
+from hydro_ros.bags.writer import block_machine_payloads, sample_payloads, sample_topics
 from hydro_ros.contract import topics
-from hydro_ros.contract.config import default_config_path, read_config
+from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
-from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.contract.names import INJECTION_UNITS, Injection
+from hydro_ros.contract.samples import Samples
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.sim.scenario import Scenario, start
@@ -37,19 +49,114 @@ MAX_CATCH_UP_S = 0.25  # simulate at most this much per tick; beyond it the node
 
 
 PARAMETERS = {
-    "config": Spec(str(default_config_path("sam")), "machine config (YAML) of the simulated machine (not a crane)", existing_file=True),
+    "config": Spec(str(default_config_path("sam")), "machine config (YAML) of the simulated machine: a SAM-style one, or a crane "
+                                                    "with an actuator per planar joint (crane mode)", existing_file=True),
     "seed": Spec(0, "seed of the operator's moves and the sensor noise", 0),
-    "excitation": Spec("operator", "where valve commands come from: the simulated operator, or /hydraulics/valve_commands",
-                       choices=("operator", "topic")),
+    "excitation": Spec("operator", "where valve commands come from: the simulated operator, /hydraulics/valve_commands, or "
+                                   "(crane mode) the trajectories on trajectory_topic", choices=("operator", "topic", "trajectory")),
     "real_time_factor": Spec(1.0, "[-] simulated seconds per wall second", 0.01, 100.0),
     "publish_clock": Spec(False, "publish /clock from the simulation time (stamps then start at 0)"),
     "tick_period": Spec(0.01, "[s] wall time between simulation steps (each publishes the samples due)", 0.001, 1.0),
     "can_interface": Spec("", "python-can interface that also carries the sensors as CAN frames (socketcan, udp_multicast); "
-                              "empty: none"),
+                              "empty: none (not in crane mode)"),
     "can_channel": Spec("", "channel of can_interface (can0, a multicast address)"),
-    **{f"fault.{name}": Spec(0.0, f"[{unit}] size of the fault or effect {name} from the moment it is set; 0: none",
-                             read_only=False) for name, unit in sorted(INJECTION_UNITS.items())},
+    "initial_path": Spec("", "crane mode, excitation trajectory: the path id whose start the crane begins at; empty: the config's first"),
+    "initial_extension": Spec(-1.0, "[m] crane mode, excitation trajectory: extension cylinder stroke at the start; negative: the "
+                                    "smallest feasible one", None, 10.0),
+    "trajectory_topic": Spec("joint_trajectory", "crane mode: JointTrajectory input (trajectory_server's output_topic)"),
+    "start_tolerance": Spec(0.05, "[rad or m] crane mode: a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
+                            read_only=False),
+    **{f"fault.{name}": Spec(0.0, f"[{unit}] size of the fault or effect {name} from the moment it is set; 0: none (crane mode: "
+                                  f"fault.<actuator>.{name})", read_only=False) for name, unit in sorted(INJECTION_UNITS.items())},
 }
+
+
+class SamSource:
+    """The one-actuator machine of a SAM-style config: the operator's or the topic's commands through its plant."""
+
+    def __init__(self, machine: Machine, seed: int) -> None:
+        self.actuator, self.joint = machine.first.name, machine.first.joint
+        self.actuators = [self.actuator]
+        self.run = start(machine, Scenario(float("inf"), (), seed=seed, actuator=self.actuator))
+        self.mobile = self.run.plant.model.mobile_valve
+        self.topics = sample_topics(self.actuator, mobile=self.mobile)
+
+    @property
+    def time(self) -> float:
+        return self.run.plant.time
+
+    @property
+    def sample_index(self) -> int:
+        return self.run.plant.sample_index
+
+    def step(self, n: int, commands: np.ndarray | None) -> Samples:
+        return self.run.step(n, None if commands is None else commands[:, 0])[2]
+
+    def payloads(self, block: Samples, k: int, stamp: int, variance: float) -> list[tuple[str, bytes]]:
+        return list(zip(self.topics, sample_payloads(block, k, stamp, self.actuator, self.joint, variance)))
+
+    def set_fault(self, actuator: str, name: str, value: float, now: float) -> None:
+        for holder in (self.run.plant.injections, self.run.sensors.injections):
+            _replace(holder, name, value, now)
+
+    def active_faults(self) -> list[str]:
+        return sorted({f"{i.name}={i.value:g}" for i in self.run.plant.injections + self.run.sensors.injections})
+
+    def fault_parameter(self, name: str) -> tuple[str, str]:
+        return self.actuator, name.removeprefix("fault.")
+
+
+class CraneSource:
+    """The cylinders of a crane config (``hydro_ros.sim.crane_cylinders``); faults per cylinder."""
+
+    def __init__(self, machine: Machine, seed: int, start_joints: dict[str, float] | None) -> None:
+        from hydro_ros.models.crane import load_crane
+        from hydro_ros.sim.crane_cylinders import NOT_PER_CYLINDER, CraneCylinders, CraneRun
+
+        crane, config = load_crane(machine.source)
+        self.config = config
+        self.actuators = machine.actuator_names
+        self.joints = {a.name: a.joint for a in machine.actuators}
+        planar = [self.joints[a] for a in self.actuators]
+        start_joints = start_joints or {}
+        self.held = {name: float(start_joints.get(name, 0.0)) for name in crane.names if name not in planar}
+        self.plant = CraneCylinders(machine, config, CraneRun(math.inf, seed),
+                                    None if not start_joints else [start_joints[name] for name in planar])
+        self.mobile = machine.mobile
+        self.topics = tuple(topics.sensor_topics(self.actuators, mobile=self.mobile))
+        self.not_per_cylinder = NOT_PER_CYLINDER
+
+    @property
+    def time(self) -> float:
+        return self.plant.sample_index * self.plant.dt
+
+    @property
+    def sample_index(self) -> int:
+        return self.plant.sample_index
+
+    def step(self, n: int, commands: np.ndarray | None) -> Samples:
+        return self.plant.step(n, commands)[1]
+
+    def payloads(self, block: Samples, k: int, stamp: int, variance: float) -> list[tuple[str, bytes]]:
+        return block_machine_payloads(block, k, stamp, self.joints, variance, self.mobile, self.held)
+
+    def set_fault(self, actuator: str, name: str, value: float, now: float) -> None:
+        index = self.actuators.index(actuator)
+        _replace(self.plant.run.faults.setdefault(actuator, []), name, value, now)
+        _replace(self.plant.sensors[index].injections, name, value, now)
+
+    def active_faults(self) -> list[str]:
+        return sorted({f"{actuator}:{i.name}={i.value:g}" for actuator, injections in self.plant.run.faults.items() for i in injections})
+
+    def fault_parameter(self, name: str) -> tuple[str, str]:
+        actuator, _, fault = name.removeprefix("fault.").partition(".")
+        return actuator, fault
+
+
+def _replace(holder: list[Injection], name: str, value: float, now: float) -> None:
+    holder[:] = [i for i in holder if i.name != name]
+    if value != 0.0:
+        holder.append(Injection(name, value, onset_s=now))
 
 
 class PlantSim(Node):
@@ -58,29 +165,34 @@ class PlantSim(Node):
         self.params = Parameters(self, PARAMETERS, self._on_parameter)
         self.can_bus = None
         self.rtf = self.params["real_time_factor"]
-        config_path = self.params["config"]
-        if read_config(config_path, required=("machine",), nonempty="machine").get("kind") == "crane":
-            raise InputError(f"parameter config={config_path}: a crane config; run crane_sim for a crane")
-        self.machine = load_machine_config(config_path)
-        self.actuator = self.machine.first.name
-        self.joint = self.machine.first.joint
+        self.machine = load_machine_config(self.params["config"])
         self.excitation = self.params["excitation"]
         self.publish_clock = self.params["publish_clock"]
-        self.run = start(self.machine, Scenario(float("inf"), (), seed=self.params["seed"], actuator=self.actuator))
-        self.variance = self.machine.sensors.pressure_noise_std ** 2
         self._pending: dict[str, float] = {}
+        self.refused = ""
+        if self.machine.crane:
+            self.source = self._crane_source()
+        else:
+            if self.excitation == "trajectory":
+                raise InputError(f"parameter excitation=trajectory: config {self.params['config']} is not a crane (kind: crane)")
+            self.source = SamSource(self.machine, self.params["seed"])
+        # faults given at start act from the start
+        for params in (self.params, getattr(self, "crane_params", None)):
+            for name, value in (params.values.items() if params else ()):
+                if name.startswith("fault.") and value:
+                    if self.machine.crane and name.count(".") == 1:
+                        raise InputError(f"parameter {self._unnamed_cylinder(name)}")
+                    self._pending[name] = value
+        self.variance = self.machine.sensors.pressure_noise_std ** 2
 
-        # one publisher per sample topic, in sample_payloads' order; valve commands are only
-        # published when the simulated operator makes them
-        mobile = self.run.plant.model.mobile_valve
-        types = topics.sensor_topics([self.actuator], mobile=mobile)
-        self.publishers_in_order = [
-            None if (name == topics.VALVE_COMMANDS and self.excitation != "operator")
-            else self.create_publisher(JointState if types[name] == topics.JOINT_STATE_TYPE else FluidPressure, relative(name), SENSOR_QOS,
-                                       qos_overriding_options=QoSOverridingOptions.with_default_policies())
-            for name in sample_topics(self.actuator, mobile=mobile)
-        ]
-        self.command = 0.0
+        # one publisher per sample topic; valve commands are only published when the plant's own loop makes them
+        types = topics.sensor_topics(self.source.actuators, mobile=self.source.mobile)
+        self.publishers_by_topic = {
+            name: self.create_publisher(JointState if types[name] == topics.JOINT_STATE_TYPE else FluidPressure, relative(name), SENSOR_QOS,
+                                        qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            for name in self.source.topics if not (name == topics.VALVE_COMMANDS and self.excitation == "topic")
+        }
+        self.command = np.zeros(len(self.source.actuators))
         self.command_wall = -math.inf
         if self.excitation == "topic":
             self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._on_command, SENSOR_QOS,
@@ -88,6 +200,9 @@ class PlantSim(Node):
         self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.publish_clock else None
         interface = self.params["can_interface"]
         if interface:
+            if self.machine.crane:
+                raise InputError(f"parameter can_interface={interface}: the CAN frames of a crane's cylinders are not defined "
+                                 "(config/machine_bus.dbc carries one actuator)")
             import can
 
             from hydro_ros.can.codec import MachineBus
@@ -105,55 +220,121 @@ class PlantSim(Node):
         self.create_timer(self.params["tick_period"], self._tick, clock=self.steady)
         self.create_timer(1.0, self._diagnose, clock=self.steady)
         self.get_logger().info(
-            f"simulating {self.machine.name} ({self.actuator}) at {self.machine.sample_rate_hz:.0f} Hz, "
+            f"simulating {self.machine.name} ({', '.join(self.source.actuators)}) at {self.machine.sample_rate_hz:.0f} Hz, "
             f"x{self.rtf:g} real time, excitation={self.excitation}"
         )
 
+    def _crane_source(self) -> CraneSource:
+        start_joints = None
+        if self.excitation == "trajectory":
+            from hydro_ros.models.crane import load_crane
+            from hydro_ros.planning.dp import DpGrid, start_position
+            from hydro_ros.planning.paths import path_from_config
+            from hydro_ros.planning.serving import path_start_state
+
+            crane, config = load_crane(self.machine.source)
+            path = self.params["initial_path"] or next(iter(config["paths"]))
+            if path not in config["paths"]:
+                raise InputError(f"parameter initial_path={path!r}: not a path of {config['machine']} ({', '.join(config['paths'])})")
+            extension = self.params["initial_extension"]
+            if extension < 0.0:
+                samples = path_from_config(config, path).sample(float(config["dp"]["sample_time"]))
+                extension = start_position(crane, samples, DpGrid.for_path(crane, samples, tuple(config["dp"]["grid"])))
+            start_joints = dict(zip(crane.names, path_start_state(config, path, extension).tolist()))
+        source = CraneSource(self.machine, self.params["seed"], start_joints)
+        self.add_on_set_parameters_callback(self._refuse_unnamed_cylinder)
+        if self.excitation == "trajectory":
+            source.plant.follow(None)
+            self.create_subscription(JointTrajectory, self.params["trajectory_topic"], self._on_trajectory, 10)
+        # faults name their cylinder: fault.<actuator>.<name>, declared once the config says which cylinders there are
+        self.crane_params = Parameters(self, {
+            f"fault.{actuator}.{name}": Spec(0.0, f"[{unit}] size of {name} in {actuator}'s cylinder from the moment it is set; 0: none",
+                                             read_only=False)
+            for actuator in source.actuators for name, unit in sorted(INJECTION_UNITS.items()) if name not in source.not_per_cylinder
+        }, self._on_parameter)
+        return source
+
+    def _unnamed_cylinder(self, name: str) -> str:
+        return (f"{name} refused: a crane's fault names its cylinder, fault.<actuator>.{name.removeprefix('fault.')} "
+                f"(actuators: {', '.join(self.machine.actuator_names)})")
+
+    def _refuse_unnamed_cylinder(self, parameters: list) -> SetParametersResult:
+        for parameter in parameters:
+            if parameter.name.startswith("fault.") and parameter.name.count(".") == 1 and parameter.value:
+                return SetParametersResult(successful=False, reason=self._unnamed_cylinder(parameter.name))
+        return SetParametersResult(successful=True)
+
     def _on_parameter(self, name: str, value: float) -> None:
-        self._pending[name.removeprefix("fault.")] = value
+        if name.startswith("fault."):
+            self._pending[name] = value
 
     def _on_command(self, msg: JointState) -> None:
-        if self.actuator in msg.name:
-            value = msg.position[msg.name.index(self.actuator)] if len(msg.position) == len(msg.name) else math.nan
+        by_name = dict(zip(msg.name, msg.position)) if len(msg.position) == len(msg.name) else {}
+        for i, actuator in enumerate(self.source.actuators):
+            if actuator not in msg.name:
+                continue
+            value = by_name.get(actuator, math.nan)
             if math.isfinite(value):
-                self.command = max(-1.0, min(1.0, value))
+                self.command[i] = max(-1.0, min(1.0, value))
                 self.command_wall = time.monotonic()
             else:
-                self.get_logger().warning(f"ignored valve command for {self.actuator}: {value!r} (NaN or missing)")
+                self.get_logger().warning(f"ignored valve command for {actuator}: {value!r} (NaN or missing)")
+
+    def _on_trajectory(self, msg: JointTrajectory) -> None:
+        plant = self.source.plant
+        if not msg.points:
+            plant.follow(None)
+            self.get_logger().info("empty trajectory: holding the joints where they are")
+            return
+        names = [plant_joint.name for plant_joint in plant.planar]
+        missing = [name for name in names if name not in msg.joint_names]
+        order = [list(msg.joint_names).index(name) for name in names if name in msg.joint_names]
+        times = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points])
+        positions = np.array([[p.positions[i] for i in order] for p in msg.points], dtype=float) if not missing else np.empty((0, 0))
+        gap = float(np.max(np.abs(positions[0] - plant.joints()))) if not missing and len(positions) else math.inf
+        tolerance = self.params["start_tolerance"]
+        if missing or not np.all(np.isfinite(positions)) or np.any(np.diff(times) <= 0) or gap > tolerance:
+            reason = (f"joint(s) {', '.join(missing)} missing" if missing else "non-finite values or times not increasing"
+                      if not np.all(np.isfinite(positions)) or np.any(np.diff(times) <= 0)
+                      else f"starts {gap:.3f} from the joints (start_tolerance {tolerance:g})")
+            self.refused = f"trajectory refused: {reason}"
+            self.get_logger().error(self.refused)
+            return
+        self.refused = ""
+        plant.follow(_Path(names, times, positions))
+        self.get_logger().info(f"working a {times[-1]:.1f} s trajectory of {len(times)} points as a cycle")
 
     def _apply_pending(self) -> None:
-        now = self.run.plant.time
+        now = self.source.time
         for name, value in self._pending.items():
-            for holder in (self.run.plant.injections, self.run.sensors.injections):
-                holder[:] = [i for i in holder if i.name != name]
-                if value != 0.0:
-                    holder.append(Injection(name, value, onset_s=now))
-            self.get_logger().info(f"fault {name} = {value:g} from t = {now:.3f} s")
+            actuator, fault = self.source.fault_parameter(name)
+            self.source.set_fault(actuator, fault, value, now)
+            self.get_logger().info(f"fault {actuator}:{fault} = {value:g} from t = {now:.3f} s")
         self._pending.clear()
 
     def _tick(self) -> None:
         if self._pending:
             self._apply_pending()
-        rate = self.run.plant.model.sample_rate
-        due = int((time.monotonic() - self.start_wall) * self.rtf * rate) - self.run.plant.sample_index
+        rate = self.machine.sample_rate_hz
+        due = int((time.monotonic() - self.start_wall) * self.rtf * rate) - self.source.sample_index
         if due <= 0:
             return
         limit = int(MAX_CATCH_UP_S * rate)
         self.lag_s = max(0.0, (due - limit) / rate)
         n = min(due, limit)
-        commands: float | None = None
+        commands = None
         if self.excitation == "topic":
             self.command_stale = time.monotonic() - self.command_wall > COMMAND_TIMEOUT_S
-            commands = 0.0 if self.command_stale else self.command
-        _, _, block = self.run.step(n, None if commands is None else np.full(n, commands))
-        self._publish(block)
+            commands = np.zeros((n, len(self.command))) if self.command_stale else np.repeat(self.command[None], n, axis=0)
+        self._publish(self.source.step(n, commands))
 
-    def _publish(self, block) -> None:
+    def _publish(self, block: Samples) -> None:
         origin = self.stamp_origin_ns
-        publishers = self.publishers_in_order
+        publishers = self.publishers_by_topic
         for k in range(len(block.times)):
             stamp = origin + int(round(block.times[k] * 1e9))
-            for publisher, payload in zip(publishers, sample_payloads(block, k, stamp, self.actuator, self.joint, self.variance)):
+            for topic, payload in self.source.payloads(block, k, stamp, self.variance):
+                publisher = publishers.get(topic)
                 if publisher is not None:
                     publisher.publish(payload)
         if self.can_bus is not None:
@@ -164,13 +345,14 @@ class PlantSim(Node):
             msg.clock.sec, msg.clock.nanosec = divmod(stamp, 1_000_000_000)
             self.pub_clock.publish(msg)
 
-    def _send_frames(self, block) -> None:
+    def _send_frames(self, block: Samples) -> None:
         import can
 
         from hydro_ros.can.codec import sample_values
 
         for k in range(len(block.times)):
-            for frame_id, data in self.can_codec.encode_cycle(sample_values(block, k, self.actuator, self.joint), self.can_counter):
+            for frame_id, data in self.can_codec.encode_cycle(sample_values(block, k, self.source.actuator, self.source.joint),
+                                                              self.can_counter):
                 self.can_bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
             self.can_counter = (self.can_counter + 1) % 16
 
@@ -181,7 +363,7 @@ class PlantSim(Node):
 
     def _diagnose(self) -> None:
         status = DiagnosticStatus(name="hydro_ros/plant_sim", hardware_id=self.machine.name)
-        sim_time = self.run.plant.time
+        sim_time = self.source.time
         wall = time.monotonic() - self.start_wall
         achieved = sim_time / wall if wall > 0 else 0.0
         problems = []
@@ -189,17 +371,27 @@ class PlantSim(Node):
             problems.append(f"behind real time by {self.lag_s:.2f} s")
         if self.excitation == "topic" and self.command_stale:
             problems.append("valve command stale, valve held closed")
+        if self.refused:
+            problems.append(self.refused)
         status.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
         status.message = "; ".join(problems) or "ok"
-        active = [f"{i.name}={i.value:g}" for i in self.run.plant.injections + self.run.sensors.injections]
         status.values = [
             KeyValue(key="sim_time_s", value=f"{sim_time:.3f}"),
             KeyValue(key="real_time_factor", value=f"{achieved:.2f}"),
-            KeyValue(key="active_faults", value=",".join(sorted(set(active))) or "none"),
+            KeyValue(key="active_faults", value=",".join(self.source.active_faults()) or "none"),
         ]
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(array)
+
+
+@dataclass
+class _Path:
+    """A received trajectory's planar columns, as the crane plant takes them."""
+
+    joint_names: list[str]
+    time: np.ndarray
+    positions: np.ndarray
 
 
 def main(args: list[str] | None = None) -> None:

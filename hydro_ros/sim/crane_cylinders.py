@@ -16,15 +16,19 @@ non-differential, and P-VI replaced their force by an identified constant, so th
 load or valve model for it.
 
 The operator moves each joint to random targets in closed loop (``OperatorReference`` per joint,
-within 80 % of its range); the moves overlap, so one joint moves fast while another holds. The
-sensors are the SAM's (``SensorModel`` per cylinder).
+within 80 % of its range); the moves overlap, so one joint moves fast while another holds. Or the
+crane works a stored joint trajectory (``CraneRun.trajectory``, e.g. a P-VI path from the trajectory
+database) as a work cycle, forwards and back with holds between (``WorkCycleReference``), the same
+proportional loop following it; the base column is not followed (see above), so a path that turns
+the base is worked in the plane of its start. The sensors are the SAM's (``SensorModel`` per
+cylinder).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, Iterator, Sequence
+from typing import Any, Iterator, Protocol, Sequence
 
 import numpy as np
 from numba import njit
@@ -54,7 +58,7 @@ from hydro_ros.models.sam import (
     hydraulic_rates,
     injection_levels,
 )
-from hydro_ros.sim.excitation import OperatorReference
+from hydro_ros.sim.excitation import OperatorReference, WorkCycleReference
 from hydro_ros.sim.sensors import SensorModel
 
 FRICTION_VELOCITY = 0.005  # [m/s] tanh smoothing of the Coulomb force's sign (as the closed-loop crane plant)
@@ -125,6 +129,14 @@ def _sample(state, commands, params, poly, centre, inverse_mass, bias, h, subste
                     state[j] = floor
 
 
+class JointPath(Protocol):
+    """What the plant takes of a stored trajectory (``planning.trajectory.JointTrajectoryData`` is one)."""
+
+    joint_names: list[str]
+    time: np.ndarray  # (k,) [s]
+    positions: np.ndarray  # (k, joints)
+
+
 @dataclass
 class CraneRun:
     """What one run asks of the plant: its length, the operator's seed, faults per cylinder, payload steps."""
@@ -133,6 +145,8 @@ class CraneRun:
     seed: int = 0
     faults: dict[str, list[Injection]] = field(default_factory=dict)  # actuator -> its injections
     payload: list[Injection] = field(default_factory=list)  # payload_mass steps at the tip [kg]
+    trajectory: JointPath | None = None  # worked as a cycle in place of the random operator
+    hold_s: float = 4.0  # [s] the work cycle's holds at either end of the trajectory
 
 
 class CraneCylinders:
@@ -166,6 +180,11 @@ class CraneCylinders:
         self.substeps = self.models[0].substeps
         rng = np.random.default_rng(run.seed)
         middle = [0.5 * (c.q_min + c.q_max) for c in planar]
+        self.planar = planar
+        self.work_cycle = None
+        if run.trajectory is not None:
+            self.work_cycle = self._work_cycle(run.trajectory)
+            start = self.work_cycle.start
         start = middle if start is None else list(start)
         excitation = machine.excitation
         self.operators = [
@@ -176,7 +195,7 @@ class CraneCylinders:
         self.sensors = [SensorModel(model, rng, run.faults.get(model.actuator, ())) for model in self.models]
         # extending the cylinder closes the tilt joint: the operator's lever follows the joint, not the cylinder
         self.direction = np.sign([float(m.piston_velocity(q0, 1.0)) for m, q0 in zip(self.models, start)])
-        self.planar = planar
+        self.sample_index = 0
         self.state = np.zeros(6 * len(planar))
         n = len(planar)
         self.state[4 * n:5 * n] = start
@@ -204,32 +223,64 @@ class CraneCylinders:
         return np.linalg.inv(np.asarray(inertia, dtype=float)), bias
 
     def blocks(self) -> Iterator[tuple[np.ndarray, Samples]]:
-        """(true states (n, A, 7), measured samples (n, A)) block by block."""
+        """(true states (n, A, 7), measured samples (n, A)) block by block over the run's duration."""
         n_total = int(round(self.run.duration_s * self.machine.sample_rate_hz))
+        while self.sample_index < n_total:
+            yield self.step(min(BLOCK, n_total - self.sample_index))
+
+    def follow(self, trajectory: JointPath | None) -> None:
+        """Work ``trajectory`` as a cycle from its first point on; the caller checks that it starts where the joints are.
+        None holds the joints where they are."""
+        if trajectory is None:
+            here = self.joints()
+            self.work_cycle = WorkCycleReference(np.array([0.0, 1.0]), np.stack([here, here]), 0.0, self.machine.sample_rate_hz)
+        else:
+            self.work_cycle = self._work_cycle(trajectory)
+
+    def joints(self) -> np.ndarray:
+        """The planar joints' true positions now."""
         n = len(self.planar)
+        return self.state[4 * n:5 * n].copy()
+
+    def _work_cycle(self, trajectory: JointPath) -> WorkCycleReference:
+        columns = [trajectory.joint_names.index(c.name) if c.name in trajectory.joint_names else -1 for c in self.planar]
+        if min(columns) < 0:
+            raise InputError(f"trajectory: joints {', '.join(trajectory.joint_names)} lack "
+                             f"{', '.join(c.name for c, i in zip(self.planar, columns) if i < 0)}")
+        return WorkCycleReference(trajectory.time, np.asarray(trajectory.positions)[:, columns], self.run.hold_s,
+                                  self.machine.sample_rate_hz)
+
+    def step(self, n: int, commands: np.ndarray | None = None) -> tuple[np.ndarray, Samples]:
+        """The next n samples: (true states (n, A, 7), measured samples (n, A)). ``commands`` (n, A) are valve commands
+        from outside (a controller); without them the operator or the work cycle closes the loop."""
+        n_act = len(self.planar)
+        times = (self.sample_index + np.arange(n)) * self.dt
+        references = None
+        if commands is None:
+            references = (self.work_cycle.next(n) if self.work_cycle is not None
+                          else np.stack([op.next(n) for op in self.operators], axis=1))
+        params = np.stack([m.parameter_matrix(times, self.run.faults.get(m.actuator, ())) for m in self.models], axis=1)
+        payload = sum((injection_levels(step, times) for step in self.run.payload), np.zeros(n))
+        trajectory = np.empty((n, self.state.size))  # the plant's state after each sample
+        applied = np.empty((n, n_act))
         gain, ceiling = self.machine.excitation.gain, self.machine.excitation.max_command
-        for first in range(0, n_total, BLOCK):
-            times = (first + np.arange(min(BLOCK, n_total - first))) * self.dt
-            references = np.stack([op.next(len(times)) for op in self.operators], axis=1)
-            params = np.stack([m.parameter_matrix(times, self.run.faults.get(m.actuator, ())) for m in self.models], axis=1)
-            payload = sum((injection_levels(step, times) for step in self.run.payload), np.zeros(len(times)))
-            trajectory = np.empty((len(times), self.state.size))  # the plant's state after each sample
-            commands = np.empty((len(times), n))
-            h = self.dt / self.substeps
-            for k in range(len(times)):
-                q, qd = self.state[4 * n:5 * n], self.state[5 * n:]
-                commands[k] = np.clip(gain * self.direction * (references[k] - q), -ceiling, ceiling)
-                if payload[k] != self.crane.masses[-1].mass:
-                    self.crane.masses[-1] = replace(self.crane.masses[-1], mass=float(payload[k]))
-                inverse_mass, bias = self._dynamics(q, qd)
-                _sample(self.state, commands[k], np.ascontiguousarray(params[k]), self.poly, self.centre, inverse_mass, bias, h,
-                        self.substeps)
-                trajectory[k] = self.state
-            states = self._cylinder_states(trajectory)
-            if not np.all(np.isfinite(states)):
-                raise InputError(f"crane simulation diverged at t = {times[0]:.2f} s (check the valve sizes and end stops of {self.machine.source})")
-            measured = [sensor.measure(times, states[:, i], commands[:, i]) for i, sensor in enumerate(self.sensors)]
-            yield states, combine(measured)
+        h = self.dt / self.substeps
+        for k in range(n):
+            q, qd = self.state[4 * n_act:5 * n_act], self.state[5 * n_act:]
+            applied[k] = (np.clip(commands[k], -1.0, 1.0) if references is None
+                          else np.clip(gain * self.direction * (references[k] - q), -ceiling, ceiling))
+            if payload[k] != self.crane.masses[-1].mass:
+                self.crane.masses[-1] = replace(self.crane.masses[-1], mass=float(payload[k]))
+            inverse_mass, bias = self._dynamics(q, qd)
+            _sample(self.state, applied[k], np.ascontiguousarray(params[k]), self.poly, self.centre, inverse_mass, bias, h,
+                    self.substeps)
+            trajectory[k] = self.state
+        states = self._cylinder_states(trajectory)
+        if not np.all(np.isfinite(states)):
+            raise InputError(f"crane simulation diverged at t = {times[0]:.2f} s (check the valve sizes and end stops of {self.machine.source})")
+        self.sample_index += n
+        measured = [sensor.measure(times, states[:, i], applied[:, i]) for i, sensor in enumerate(self.sensors)]
+        return states, combine(measured)
 
     def _cylinder_states(self, trajectory: np.ndarray) -> np.ndarray:
         """The SAM model's state layout (n, A, 7) of each cylinder, its piston from its joint (bristle state 0)."""

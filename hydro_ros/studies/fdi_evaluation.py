@@ -387,15 +387,16 @@ def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seed
 FIT_MARKER = "# --- fitted by `hydro-ros fdi-fit`"
 
 
-def write_fitted_block(path: Path, thresholds: ParityThresholds, rows: list[dict[str, Any]], report: dict[str, Any]) -> None:
-    """Replace the fitted block at the end of a machine config file (hand-written part untouched)."""
+def write_fitted_block(path: Path, thresholds: ParityThresholds, rows: list[dict[str, Any]] | None, note: str) -> None:
+    """Replace the fitted block at the end of a machine config file (hand-written part untouched); ``rows`` None keeps
+    the config's own signature table."""
     import yaml
 
     text = path.read_text()
     head = text.split(FIT_MARKER)[0].rstrip("\n")
-    block = yaml.safe_dump({"fdi": {"parity_thresholds": thresholds.to_config(), "parity_signatures": rows}},
-                           sort_keys=False, default_flow_style=None, width=120)
-    note = (f"{FIT_MARKER}: parity thresholds from fault-free mismatched plants, factor {thresholds.factor:g} for "
-            f"<= 1 false alarm/h on {report['held_out_hours']:.2f} h held out; signature table by simulation "
-            "of the P-IV fault list. Regenerate, do not edit. ---\n")
-    path.write_text(head + "\n" + note + "fitted:\n" + "".join("  " + line + "\n" for line in block.splitlines()))
+    fitted: dict[str, Any] = {"parity_thresholds": thresholds.to_config()}
+    if rows is not None:
+        fitted["parity_signatures"] = rows
+    block = yaml.safe_dump({"fdi": fitted}, sort_keys=False, default_flow_style=None, width=120)
+    path.write_text(head + "\n" + f"{FIT_MARKER}: {note} Regenerate, do not edit. ---\n" + "fitted:\n"
+                    + "".join("  " + line + "\n" for line in block.splitlines()))
