@@ -42,12 +42,14 @@ SIZES = (0.5, 1.0, 2.0)
 def markdown(summary: dict) -> str:
     free = summary["fault_free"]
     lines = [f"Fault-free: {free['alarms']} alarms in {free['hours']:.2f} h of work ({free['false_alarms_per_hour']:.2f} per hour).", "",
-             "| cylinder | fault | L/min at 10 MPa | detected | isolated (cylinder and fault) | other cylinder alarmed | median delay [s] |",
-             "|---|---|---|---|---|---|---|"]
+             "| cylinder | fault | L/min at 10 MPa | detected | isolated (cylinder and fault) | other cylinder alarmed | median delay [s] | "
+             "named at the end |",
+             "|---|---|---|---|---|---|---|---|"]
     for row in summary["faults"]:
         delay = "-" if row["median_delay_s"] is None else f"{row['median_delay_s']:.1f}"
         lines.append(f"| {row['actuator']} | {row['fault']} | {row['value_l_min']:g} | {row['detected']}/{row['runs']} | "
-                     f"{row['isolated']}/{row['runs']} | {row['other_cylinder_alarms']}/{row['runs']} | {delay} |")
+                     f"{row['isolated']}/{row['runs']} | {row['other_cylinder_alarms']}/{row['runs']} | {delay} | "
+                     f"{', '.join(f'{name} {n}' for name, n in sorted(row['named'].items())) or '-'} |")
     return "\n".join(lines) + "\n"
 
 

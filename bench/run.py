@@ -122,7 +122,7 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _live_graph(domain: int, commands: list[list[str]], status: str, progress_key: str, measure_s: float) -> tuple[float, float, dict, dict]:
+def live_graph(domain: int, commands: list[list[str]], status: str, progress_key: str, measure_s: float) -> tuple[float, float, dict, dict]:
     """Start node processes (module, ROS args), wait until ``status`` reports progress, then measure
     the last process's CPU time over ``measure_s``: (CPU share of one core, wall s, first and last values)."""
     import rclpy
@@ -157,7 +157,7 @@ def _live_graph(domain: int, commands: list[list[str]], status: str, progress_ke
 def fdi_node_live(config_path: Path, measure_s: float = 20.0) -> dict:
     """plant_sim at 1 kHz -> fdi_node, both real processes on a private localhost domain."""
     commands = [[f"hydro_ros.nodes.{name}", "-p", f"config:={config_path}"] for name in ("plant_sim", "fdi_node")]
-    cpu, wall, v0, v1 = _live_graph(151, commands, "hydro_ros/fdi/boom", "samples", measure_s)
+    cpu, wall, v0, v1 = live_graph(151, commands, "hydro_ros/fdi/boom", "samples", measure_s)
     processed = int(v1["samples"]) - int(v0["samples"])
     return {"cpu_share_of_one_core": cpu, "samples_processed_per_s": processed / wall,
             "gap_samples": int(v1["gap_samples"]), "incomplete_samples": int(v1["incomplete_samples"]),
@@ -195,7 +195,7 @@ def can_bridge_live(config_path: Path, measure_s: float = 15.0) -> dict:
                          "/hydraulics/valve_commands") for a in ("-r", f"{t}:=/sim{t}")]
     commands = [["hydro_ros.nodes.plant_sim", "-p", f"config:={config_path}", "-p", "can_interface:=udp_multicast", "-p", f"can_channel:={group}", *aside],
                 ["hydro_ros.nodes.can_bridge", "-p", f"config:={config_path}", "-p", "interface:=udp_multicast", "-p", f"channel:={group}"]]
-    cpu, wall, v0, v1 = _live_graph(152, commands, "hydro_ros/can_bridge/bus", "published_cycles", measure_s)
+    cpu, wall, v0, v1 = live_graph(152, commands, "hydro_ros/can_bridge/bus", "published_cycles", measure_s)
     return {"cpu_share_of_one_core": cpu,
             "cycles_published_per_s": (int(v1["published_cycles"]) - int(v0["published_cycles"])) / wall,
             "frames_per_s": (int(v1["frames_received"]) - int(v0["frames_received"])) / wall,

@@ -1,8 +1,9 @@
-"""`make demo`: simulate the SAM with a developing leak, analyse it offline, then play it through
-bag_player -> fdi_node on a DDS graph, with the operator HMI (hydro_ros.nodes.hmi) serving the page whose
-URL it prints: the actuator's health turning from ok to the isolated fault name. Beside it, the K70M crane
-(crane_sim) asks trajectory_server for the energy-optimal horizontal path from where it
-stands and executes it; the operator sees its pump energy against the joint-space pseudo-inverse's.
+"""`make demo`: the two halves of the thesis on one crane. First the SAM with a developing leak, simulated and
+analysed offline (bag, FDI JSON, plot). Then the K70M on a DDS graph: trajectory_server serves the energy-optimal
+horizontal path from where the crane stands, plant_sim's crane mode works it with the crane's cylinders and their
+valves, fdi_node monitors every cylinder (sample blocks at 1 kHz), and a leak develops in the tilt cylinder's
+chamber B. The operator view (a line per second) and the HMI, whose URL it prints, show every cylinder's health
+and name the leaking one. At the end the path's pump energy against the joint-space pseudo-inverse's.
 """
 
 from __future__ import annotations
@@ -17,78 +18,81 @@ from hydro_ros.contract.config import default_config_path
 
 CRANE_PATH = "horizontal"
 CRANE_GRID = ("120", "41", "41")  # a catalog in seconds; make bench runs the full P-VI grid
+START_EXTENSION = 0.3  # [m] the telescope at the start of the path
+LEAK = ("tilt", "external_leakage_b", 2.0)  # the cylinder, its fault, the size it grows to [L/min at 10 MPa]
 
 
-def _operator_view(duration_s: float, rate: float) -> tuple[list[str], dict | None]:
+def _operator_view(duration_s: float) -> list[str]:
     import json
 
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from sensor_msgs.msg import FluidPressure, JointState
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    from sensor_msgs.msg import JointState
     from std_msgs.msg import String
 
     from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS
 
     rclpy.init()
     node = rclpy.create_node("operator_view")
-    latest: dict[str, float] = {}
+    crane: dict = {}
     health: dict[str, str] = {}
-    node.create_subscription(FluidPressure, "/hydraulics/boom/pressure_a", lambda m: latest.__setitem__("p_a", m.fluid_pressure), SENSOR_QOS)
-    node.create_subscription(FluidPressure, "/hydraulics/boom/pressure_b", lambda m: latest.__setitem__("p_b", m.fluid_pressure), SENSOR_QOS)
-    node.create_subscription(JointState, "/joint_states", lambda m: latest.update(t=m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, joint=m.position[0]), SENSOR_QOS)
     levels = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
     node.create_subscription(
         DiagnosticArray, "/diagnostics",
-        lambda m: health.update({s.name.removeprefix("hydro_ros/"): f"{levels.get(s.level[0], s.level)} {s.message}"
+        lambda m: health.update({s.name.removeprefix("hydro_ros/fdi/"): f"{levels.get(s.level[0], s.level)} {s.message}"
                                  for s in m.status if s.name.startswith("hydro_ros/fdi/")}), 10)
-    crane: dict = {}
-    node.create_subscription(JointState, "/crane/joint_states", lambda m: crane.update(q=list(m.position)), SENSOR_QOS)
-    node.create_subscription(FluidPressure, "/crane/hydraulics/supply_pressure", lambda m: crane.update(p_s=m.fluid_pressure), SENSOR_QOS)
-    node.create_subscription(String, "/crane/trajectory_server/result", lambda m: crane.update(result=json.loads(m.data)), LATCHED_QOS)
-    node.create_subscription(String, "/crane/crane_sim/execution", lambda m: crane.update(execution=json.loads(m.data)), LATCHED_QOS)
-    requests = node.create_publisher(String, "/crane/trajectory_server/request", 10)
-    lines = []
-    end = time.monotonic() + duration_s / rate + 5.0
+    node.create_subscription(JointState, "/joint_states",
+                             lambda m: crane.update(t=m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, q=list(m.position)), SENSOR_QOS)
+    node.create_subscription(String, "/trajectory_server/result", lambda m: crane.update(result=json.loads(m.data)), LATCHED_QOS)
+    requests = node.create_publisher(String, "/trajectory_server/request", 10)
+    faults = AsyncParameterClient(node, "plant_sim")
+    actuator, fault, size = LEAK
+    onset, lines = duration_s / 3.0, []
+    first = None
+    end = time.monotonic() + duration_s + 30.0
     next_print = time.monotonic() + 1.0
     while time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.05)
-        if time.monotonic() >= next_print and "t" in latest:
-            next_print += 1.0
-            line = (f"t={latest['t']:6.1f} s  boom joint {latest['joint']:+.3f} rad  p_A {latest.get('p_a', float('nan')) / 1e6:5.2f} MPa"
-                    f"  p_B {latest.get('p_b', float('nan')) / 1e6:5.2f} MPa  health: {health or 'waiting for /diagnostics'}")
-            print(line, flush=True)
-            lines.append(line)
-            result = crane.get("result")
-            if result and not result["ok"] and ("nothing received" in result["error"] or "no subscriber" in result["error"]):
-                del crane["result"]  # the server has not yet discovered the crane: ask again
-            if "result" not in crane and "q" in crane and requests.get_subscription_count() > 0:
-                requests.publish(String(data=CRANE_PATH))
-                crane["result"] = {}
-            print(f"          crane: {_crane_status(crane)}", flush=True)
-            if latest["t"] >= duration_s - 0.5 and "execution" in crane:
-                break
+        if time.monotonic() < next_print or "t" not in crane:
+            continue
+        next_print += 1.0
+        first = crane["t"] if first is None else first
+        t = crane["t"] - first
+        result = crane.get("result")
+        if result and not result["ok"] and ("nothing received" in result["error"] or "no subscriber" in result["error"]):
+            del crane["result"]  # the server has not yet discovered the crane: ask again
+        if "result" not in crane and requests.get_subscription_count() > 0 and health and all(h == "OK ok" for h in health.values()):
+            requests.publish(String(data=CRANE_PATH))  # once every cylinder is monitored
+            crane["result"] = {}
+        leaking = min(size, size * (t - onset) / onset) if t > onset else 0.0
+        if leaking > 0.0 and faults.services_are_ready():
+            faults.set_parameters([Parameter(f"fault.{actuator}.{fault}", value=round(leaking, 2))])  # the leak grows
+        line = (f"t={t:6.1f} s  {actuator} {fault} {leaking:4.2f} L/min  crane: {_crane_status(crane)}\n"
+                f"          health: {', '.join(f'{name} {state}' for name, state in sorted(health.items())) or 'waiting for /diagnostics'}")
+        print(line, flush=True)
+        lines.append(line)
+        if t >= duration_s and health.get(actuator, "").endswith(fault):
+            break
     node.destroy_node()
     rclpy.shutdown()
-    return lines, crane.get("execution")
+    return lines
 
 
 def _crane_status(crane: dict) -> str:
-    if "execution" in crane:
-        run = crane["execution"]
-        return f"done: {run['energy_J'] / 1e3:.1f} kJ pump energy, ISO 9283 path accuracy {run['path_accuracy_iso9283_m']:.3f} m" if run["ok"] else run["error"]
     result = crane.get("result")
+    joints = ", ".join(f"{q:+.2f}" for q in crane.get("q", []))
     if result is None:
-        return "waiting for crane_sim and trajectory_server"
+        return f"joints [{joints}], waiting for every cylinder to be monitored"
     if not result:
         return f"requested {CRANE_PATH!r}"
     if not result["ok"]:
         return f"refused: {result['error']}"
-    joints = ", ".join(f"{q:+.2f}" for q in crane.get("q", []))
-    return (f"executing {result['method']} ({'re-planned from here' if result['replanned'] else 'as stored'}), joints [{joints}], "
-            f"supply {crane.get('p_s', float('nan')) / 1e6:.1f} MPa")
+    return f"working {result['method']} {CRANE_PATH} forwards and back, joints [{joints}]"
 
 
-def _start_hmi(out: Path, port: int) -> tuple[subprocess.Popen, str, str]:
+def _start_hmi(out: Path, port: int, config: str) -> tuple[subprocess.Popen, str, str]:
     """The operator HMI for this graph, with a fresh token so acknowledge and request can be tried."""
     import secrets
 
@@ -97,7 +101,7 @@ def _start_hmi(out: Path, port: int) -> tuple[subprocess.Popen, str, str]:
     token = secrets.token_urlsafe(12)
     log = out / "hmi.log"
     process = subprocess.Popen(
-        [sys.executable, "-m", "hydro_ros.nodes.hmi", "--ros-args", "-p", f"port:={port}", "-p", "trajectory_server:=/crane/trajectory_server"],
+        [sys.executable, "-m", "hydro_ros.nodes.hmi", "--ros-args", "-p", f"port:={port}", "-p", f"config:={config}"],
         env=dict(os.environ, **{TOKEN_ENV: token}), stdout=log.open("w"), stderr=subprocess.STDOUT)
     deadline = time.monotonic() + 15.0
     while time.monotonic() < deadline:
@@ -116,8 +120,7 @@ def cli(arguments: list[str]) -> int:
     return subprocess.run([sys.executable, "-m", "hydro_ros.cli", *arguments], check=False).returncode
 
 
-def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.0, rate: float = 2.0, hmi_port: int = 8080,
-             linger: float = 0.0) -> int:
+def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.0, hmi_port: int = 8080, linger: float = 0.0) -> int:
     out.mkdir(parents=True, exist_ok=True)
     config = config_path or str(default_config_path("sam"))
     bag = out / "developing_leak"
@@ -144,22 +147,22 @@ def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.
                   "--methods", "dp_cp", "pinv_joint", "--grid", *CRANE_GRID, "--quiet"])
     if status:
         return status
-    print(f"4/4 replaying the SAM x{rate:g}: bag_player -> fdi_node; beside it crane_sim (K70M crane, CP pump) <- "
-          f"trajectory_server on a DDS graph (ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}), operator view:")
+    actuator, fault, size = LEAK
+    print(f"4/4 the K70M at work on a DDS graph (ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}): trajectory_server -> "
+          f"plant_sim (the crane's cylinders) -> fdi_node; {actuator} {fault} growing from {onset:.0f} s to {size:g} L/min. "
+          f"Operator view:")
     nodes = [
-        ("fdi_node", "-p", f"config:={config}", "-p", "use_sim_time:=true"),
-        ("bag_player", "-p", f"bag:={bag}", "-p", f"rate:={rate}", "-p", "start_delay:=3.0"),
-        # the crane is a second machine on the graph: its contract topics live in the namespace /crane
-        ("crane_sim", "-r", "__ns:=/crane", "-p", f"config:={crane_config}", "-p", f"initial_path:={CRANE_PATH}",
-         "-p", "initial_extension:=0.3"),
-        ("trajectory_server", "-r", "__ns:=/crane", "-p", f"database:={database}", "-p", "output_topic:=joint_trajectory"),
+        ("plant_sim", "-p", f"config:={crane_config}", "-p", "excitation:=trajectory", "-p", f"initial_path:={CRANE_PATH}",
+         "-p", f"initial_extension:={START_EXTENSION}", "-p", "seed:=7", "-p", "sensor_topics:=joint_states", "-p", "sample_blocks:=true"),
+        ("trajectory_server", "-p", f"database:={database}", "-p", "output_topic:=joint_trajectory"),
+        ("fdi_node", "-p", f"config:={crane_config}", "-p", "input:=sample_block"),
     ]
-    hmi, url, token = _start_hmi(out, hmi_port)
+    hmi, url, token = _start_hmi(out, hmi_port, crane_config)
     print(f"    operator HMI: {url}  (operator token for acknowledge / request: {token})" if url else f"    {token}", flush=True)
     processes = [subprocess.Popen([sys.executable, "-m", f"hydro_ros.nodes.{name}", "--ros-args", *args], stderr=subprocess.DEVNULL)
                  for name, *args in nodes] + [hmi]
     try:
-        _, executed = _operator_view(duration, rate)
+        _operator_view(duration)
         if linger > 0 and url:
             print(f"    the graph stays up {linger:g} s more: {url}", flush=True)
             time.sleep(linger)
@@ -167,23 +170,25 @@ def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.
         for process in processes:
             process.terminate()
             process.wait(timeout=10)
-    if executed and executed.get("ok"):
-        _energy_against_pseudo_inverse(crane_config, database, executed)
+    _energy_against_pseudo_inverse(crane_config, database)
     print(f"bag:  {bag}\nplot: {bag}.png\nFDI:  {out / 'fdi.json'} and {out / 'fdi.png'}\ncatalog: hydro-ros db list --db {database}\n"
           f"HMI log (operator actions): {out / 'hmi.log'}")
     return 0
 
 
-def _energy_against_pseudo_inverse(crane_config: str, database: Path, executed: dict) -> None:
-    """The pseudo-inverse from the same start on the same simulated crane (offline: the live crane has moved on)."""
+def _energy_against_pseudo_inverse(crane_config: str, database: Path) -> None:
+    """The served DP-CP trajectory and the joint pseudo-inverse from the same start, each in closed loop on P-VI's
+    simulated crane (``studies.execution``: the controller of Appendix A, the CP pump)."""
     from hydro_ros.models.crane import load_crane
     from hydro_ros.planning.serving import executable_trajectory
     from hydro_ros.studies.execution import execute
 
     _, config = load_crane(crane_config)
-    trajectory, _ = executable_trajectory(config, CRANE_PATH, "pinv_joint", database=str(database), start_extension=0.3)
-    baseline = execute(config, trajectory, "cp").summary
-    saving = 1.0 - executed["energy_J"] / baseline["energy_J"]
-    print(f"crane {CRANE_PATH}: energy-optimal (DP-CP) {executed['energy_J'] / 1e3:.1f} kJ, joint pseudo-inverse "
+    runs = {method: execute(config, executable_trajectory(config, CRANE_PATH, method, database=str(database),
+                                                          start_extension=START_EXTENSION)[0], "cp").summary
+            for method in ("dp_cp", "pinv_joint")}
+    optimal, baseline = runs["dp_cp"], runs["pinv_joint"]
+    saving = 1.0 - optimal["energy_J"] / baseline["energy_J"]
+    print(f"crane {CRANE_PATH}: energy-optimal (DP-CP) {optimal['energy_J'] / 1e3:.1f} kJ, joint pseudo-inverse "
           f"{baseline['energy_J'] / 1e3:.1f} kJ on the same crane: {100 * saving:.0f} % saved; "
-          f"path accuracy {executed['path_accuracy_iso9283_m']:.3f} m vs {baseline['path_accuracy_iso9283_m']:.3f} m")
+          f"path accuracy {optimal['path_accuracy_iso9283_m']:.3f} m vs {baseline['path_accuracy_iso9283_m']:.3f} m")

@@ -10,7 +10,17 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
-from hydro_ros.bags.cdr import decode_fluid_pressure, decode_joint_state, encode_fluid_pressure, encode_joint_state, encode_joint_trajectory
+from hydro_ros.bags.align import ContractAligner, SampleLayout
+from hydro_ros.bags.cdr import (
+    CdrError,
+    decode_fluid_pressure,
+    decode_joint_state,
+    decode_sample_block,
+    encode_fluid_pressure,
+    encode_joint_state,
+    encode_joint_trajectory,
+    encode_sample_block,
+)
 from hydro_ros.bags.reader import BagError, mcap_files, read_bag
 from hydro_ros.bags.writer import TYPESTORE, BagExistsError, ContractBagWriter
 from hydro_ros.contract import topics
@@ -52,6 +62,40 @@ def test_cdr_matches_rosbags_serialiser():
                            time_from_start=duration(sec=t // 1_000_000_000, nanosec=t % 1_000_000_000)) for k, t in enumerate(times_ns)])
     ours = encode_joint_trajectory(3_000_000_004, "base", ["base", "lift", "tilt", "ext"], times_ns, *rows)
     assert TYPESTORE.serialize_cdr(msg, jt.__msgtype__).tobytes() == ours
+
+
+def test_a_sample_block_is_a_standard_point_cloud_and_the_aligner_takes_its_columns():
+    pc, field = TYPESTORE.types["sensor_msgs/msg/PointCloud2"], TYPESTORE.types["sensor_msgs/msg/PointField"]
+    header, stamp = TYPESTORE.types["std_msgs/msg/Header"], TYPESTORE.types["builtin_interfaces/msg/Time"]
+    layout = SampleLayout(["lift", "tilt"], ["lift", "tilt"], mobile=True)
+    stamps = 7_000_000_001 + 1_000_000 * np.arange(10)
+    rows = np.random.default_rng(2).normal(size=(10, len(layout.columns)))
+    rows[3, 4] = np.nan  # a sensor's NaN travels as the gap it is
+    ours = encode_sample_block(int(stamps[0]), "k70m", layout.field_names, stamps, rows)
+    table = np.column_stack([(stamps - stamps[0]) * 1e-9, rows]).astype("<f8")
+    names = ["t", *layout.field_names]
+    msg = pc(header=header(stamp=stamp(sec=7, nanosec=1), frame_id="k70m"), height=1, width=10,
+             fields=[field(name=n, offset=8 * k, datatype=8, count=1) for k, n in enumerate(names)], is_bigendian=False,
+             point_step=8 * len(names), row_step=80 * len(names), data=np.frombuffer(table.tobytes(), dtype=np.uint8), is_dense=False)
+    assert TYPESTORE.serialize_cdr(msg, pc.__msgtype__).tobytes() == ours
+    fields, decoded_stamps, decoded = decode_sample_block(ours)
+    assert fields == layout.field_names and np.array_equal(decoded_stamps, stamps)
+    assert np.array_equal(decoded, rows, equal_nan=True)
+    # the aligner takes a block in any field order, extra fields ignored, as the rows of its layout
+    aligner = ContractAligner(layout, sync_window_ns=0)
+    order = np.random.default_rng(3).permutation(len(layout.columns))
+    aligner.put_block(encode_sample_block(int(stamps[0]), "", [*np.array(layout.field_names)[order], "base/joint_position"], stamps,
+                                          np.column_stack([rows[:, order], np.zeros(10)])))
+    taken_stamps, taken = aligner.take(final=True)
+    assert np.array_equal(taken_stamps, stamps) and np.array_equal(taken, rows, equal_nan=True)
+    with pytest.raises(CdrError, match="sample block lacks tilt/pilot_pressure_2"):
+        missing = [f for f in layout.field_names if f != "tilt/pilot_pressure_2"]
+        aligner.put_block(encode_sample_block(int(stamps[-1]) + 1, "", missing, stamps + 10**7, rows[:, : len(missing)]))
+    wrong = TYPESTORE.serialize_cdr(pc(header=msg.header, height=1, width=10, fields=[field(name="t", offset=0, datatype=7, count=1)],
+                                       is_bigendian=False, point_step=4, row_step=40, data=np.zeros(40, dtype=np.uint8), is_dense=True),
+                                    pc.__msgtype__).tobytes()
+    with pytest.raises(CdrError, match="field 't': datatype 7"):
+        decode_sample_block(wrong)
 
 
 def test_bag_is_readable_by_rosbags_with_contract_types(leak_bag, sam_config):

@@ -107,7 +107,7 @@ def _log_sample_run(config, path, seconds=12.0, injections=(), corrupt_every=0):
     try:
         for times, _, samples in run_blocks(config, Scenario(seconds, injections, seed=4)):
             for k in range(len(times)):
-                for i, (frame_id, data) in enumerate(bus.encode_cycle(sample_values(samples, k, actuator, joint), k_total % 16)):
+                for i, (frame_id, data) in enumerate(bus.encode_cycle(sample_values(samples, k, {actuator: joint}), k_total % 16)):
                     if corrupt_every and (k_total * 4 + i) % corrupt_every == 0:
                         data = bytes([data[0] ^ 0xFF]) + data[1:]
                     writer.on_message_received(can.Message(timestamp=1.7e9 + times[k] + i * 1e-5, arbitration_id=frame_id,
@@ -161,3 +161,28 @@ def test_mobile_machine_frames_carry_pilot_and_compensator_pressures(tmp_path):
     convert_log(log, mobile, tmp_path / "bag")
     data = read_bag(tmp_path / "bag")
     assert "boom" in data.pilot_pressure_1 and np.nanmax(data.compensator_pressure["boom"]) > 1e6
+
+
+def test_the_crane_cylinders_frames_carry_every_cylinder_in_its_slot(k70m):
+    """The K70M's three monitored cylinders in slots 2-4 of the four-slot DBC: one cycle carries every cylinder's joint,
+    chamber, pilot and compensator pressures, and decodes back to them within the signals' resolution."""
+    from hydro_ros.models.crane import load_crane
+    from hydro_ros.sim.crane_cylinders import CraneRun, simulate_crane
+
+    machine = load_machine_config(REPO / "config" / "k70m.yaml")
+    samples = simulate_crane(machine, load_crane(REPO / "config" / "k70m.yaml")[1], CraneRun(0.2, seed=1))
+    bus = MachineBus(machine)
+    assert sorted(slot.number for slot in bus.slots) == [2, 3, 4] and len(bus.expected) == 10
+    actuators = {a.name: a.joint for a in machine.actuators}
+    assembler = CycleAssembler(bus.expected)
+    for k in range(len(samples.times)):
+        cycles = []
+        for frame_id, data in bus.encode_cycle(sample_values(samples, k, actuators), k % 16):
+            cycles += assembler.add(*bus.decode(frame_id, data), k)
+        assert len(cycles) == 1 and cycles[0].complete(bus.expected)
+        values = cycle_values(bus, cycles[0])
+        for i, actuator in enumerate(actuators):
+            assert values["pressure_a"][actuator] == pytest.approx(samples.pressure_a[k, i], abs=250)
+            assert values["pilot_pressure_2"][actuator] == pytest.approx(samples.pilot_pressure_2[k, i], abs=50)
+            assert values["compensator_pressure"][actuator] == pytest.approx(samples.compensator_pressure[k, i], abs=250)
+            assert values["joint_position"][actuators[actuator]] == pytest.approx(samples.joint_position[k, i], abs=1e-7)

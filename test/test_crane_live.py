@@ -72,3 +72,27 @@ def test_a_leak_in_one_cylinder_of_the_working_crane_shows_at_warn_on_that_cylin
         refused = client.set_parameters([Parameter("fault.external_leakage_a", value=1.0)])
         assert spin_until(node, refused.done, 10)
         assert not refused.result().results[0].successful and "names its cylinder" in refused.result().results[0].reason
+
+
+def test_fdi_node_takes_the_crane_in_sample_blocks_at_full_rate(ros_domain):
+    """Every cylinder at 1 kHz in real time through /hydraulics/sample_block (the per-sample topics are off): armed,
+    nothing lost, and a leak set on one cylinder is named on it."""
+    diags: list[DiagnosticArray] = []
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={K70M}", "-p", "seed:=6", "-p", "sensor_topics:=none",
+                      "-p", "sample_blocks:=true"), \
+            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={K70M}", "-p", "input:=sample_block"), probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        assert spin_until(node, lambda: all(_statuses(diags, a) and _statuses(diags, a)[-1].message == "ok"
+                                            for a in ("lift", "tilt", "extension")), 60), \
+            {a: [s.message for s in _statuses(diags, a)[-3:]] for a in ("lift", "tilt", "extension")}
+        client = AsyncParameterClient(node, "plant_sim")
+        assert client.wait_for_services(10.0)
+        future = client.set_parameters([Parameter("fault.tilt.external_leakage_b", value=3.0)])
+        assert spin_until(node, future.done, 10) and future.result().results[0].successful
+        assert spin_until(node, lambda: _statuses(diags, "tilt")[-1].message == "external_leakage_b", 60), \
+            [s.message for s in _statuses(diags, "tilt")[-5:]]
+        values = {v.key: v.value for v in _statuses(diags, "tilt")[-1].values}
+        assert int(values["samples"]) > 10_000 and int(values["undecodable_messages"]) == 0, values
+        assert int(values["incomplete_samples"]) == 0 and int(values["out_of_order_dropped"]) == 0, values
+        for other in ("lift", "extension"):
+            assert {s.message for s in _statuses(diags, other)} <= {"ok", "stale", "not_monitored"}, other

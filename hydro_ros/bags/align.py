@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from hydro_ros.bags.cdr import decode_fluid_pressure, decode_joint_state
+from hydro_ros.bags.cdr import CdrError, decode_fluid_pressure, decode_joint_state, decode_sample_block
 from hydro_ros.contract import topics
 from hydro_ros.contract.samples import Samples
 
@@ -55,6 +55,18 @@ class SampleLayout:
         if quantity == "ls_pressure":
             return topics.LS_PRESSURE
         return topics.actuator_pressure(name, quantity)
+
+    @property
+    def field_names(self) -> list[str]:
+        """The columns as the fields of a sample block (topics.SAMPLE_BLOCK): ``<joint or actuator>/<quantity>``."""
+        return [f"{name}/{quantity}" if name else quantity for quantity, name in self.columns]
+
+    def rows(self, samples: Samples) -> np.ndarray:
+        """Samples with (n, A) per-actuator arrays -> rows of this layout's columns (the inverse of :meth:`samples`)."""
+        n = len(samples.times)
+        per = np.stack([np.asarray(getattr(samples, quantity), dtype=float).reshape(n, len(self.actuators)) for quantity in self.fields],
+                       axis=2)
+        return np.column_stack([per.reshape(n, -1), np.asarray(samples.supply_pressure, dtype=float).reshape(n)])
 
     def samples(self, times: np.ndarray, rows: np.ndarray) -> Samples:
         """Rows of this layout's columns -> Samples with (n, A) per-actuator arrays."""
@@ -198,6 +210,23 @@ class ContractAligner(SampleAligner):
         self.off_base = 0
         self._joints = {joint: (layout.index("joint_position", joint), layout.index("joint_velocity", joint)) for joint in layout.joints}
         self._commands = {actuator: layout.index("valve_command", actuator) for actuator in layout.actuators}
+        self._fields = layout.field_names
+        self._block_columns: tuple[tuple[str, ...], list[int]] | None = None  # field names of the last block, where each column is
+
+    def put_block(self, data: bytes) -> None:
+        """A sample block (topics.SAMPLE_BLOCK): every column of many samples; fields the layout lacks are ignored, and
+        a block that lacks one of the layout's columns is refused naming them (nothing of it is taken)."""
+        names, stamps, rows = decode_sample_block(data)
+        if self._block_columns is None or self._block_columns[0] != tuple(names):
+            where = {name: k for k, name in enumerate(names)}
+            missing = [field for field in self._fields if field not in where]
+            if missing:
+                raise CdrError(f"sample block lacks {', '.join(missing)}")
+            self._block_columns = (tuple(names), [where[field] for field in self._fields])
+        if len(stamps) == 0 or not self._follow(int(stamps[-1])):
+            return
+        for column, source in enumerate(self._block_columns[1]):
+            self.add(column, stamps, rows[:, source])
 
     def _on_base(self, stamp: int) -> bool:
         if self.base is None or abs(stamp - self.base) <= self.jump_ns:

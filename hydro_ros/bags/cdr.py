@@ -160,3 +160,74 @@ def decode_joint_state(data: bytes) -> tuple[int, list[str], tuple[float, ...], 
     except (struct.error, UnicodeDecodeError) as exc:
         raise CdrError(f"JointState malformed ({exc})") from None
     return stamp, names, arrays[0], arrays[1]
+
+
+_POINT_FIELD_FLOAT64 = 8  # sensor_msgs/PointField.FLOAT64
+SAMPLE_TIME_FIELD = "t"  # [s] after header.stamp: the first field of a sample block
+
+
+def encode_sample_block(stamp_ns: int, frame_id: str, names: Sequence[str], stamps_ns: np.ndarray, rows: np.ndarray) -> bytes:
+    """sensor_msgs/PointCloud2 as a table of samples: one point per sample, its fields the time after header.stamp
+    (``t`` [s], header.stamp = the first sample's stamp) and then ``names``, all FLOAT64 little-endian."""
+    stamps_ns = np.asarray(stamps_ns, dtype=np.int64)
+    rows = np.asarray(rows, dtype=float).reshape(len(stamps_ns), len(names))
+    body, offset = _header(stamp_ns, frame_id)
+    parts = [body]
+    pad = _pad(offset, 4)
+    parts.append(b"\x00" * pad + struct.pack("<II", 1, len(stamps_ns)))
+    offset += pad + 8
+    fields = [SAMPLE_TIME_FIELD, *names]
+    parts.append(_U32.pack(len(fields)))
+    offset += 4
+    for k, name in enumerate(fields):
+        chunk, offset = _string(name, offset)
+        pad = _pad(offset, 4)
+        parts.append(chunk + b"\x00" * pad + _U32.pack(8 * k) + bytes([_POINT_FIELD_FLOAT64]))
+        offset += pad + 5
+        pad = _pad(offset, 4)
+        parts.append(b"\x00" * pad + _U32.pack(1))
+        offset += pad + 4
+    table = np.column_stack([(stamps_ns - stamp_ns) * 1e-9, rows]).astype("<f8").tobytes()
+    point_step = 8 * len(fields)
+    pad = _pad(offset + 1, 4)  # is_bigendian, then point_step aligned
+    parts.append(b"\x00" + b"\x00" * pad + struct.pack("<III", point_step, point_step * len(stamps_ns), len(table)))
+    parts.append(table + bytes([bool(np.isfinite(rows).all())]))
+    return _HEADER + b"".join(parts)
+
+
+def decode_sample_block(data: bytes) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """(field names after ``t``, stamps_ns (n,), rows (n, fields)) of a PointCloud2 written by :func:`encode_sample_block`
+    (or any other whose fields are all FLOAT64 and begin with ``t``)."""
+    stamp, offset = _read_header(data)
+    try:
+        offset = _align(offset, 4)
+        height, width, count = struct.unpack_from("<III", data, offset)
+        offset += 12
+        names, offsets = [], []
+        for _ in range(count):
+            offset = _align(offset, 4)
+            (n,) = _U32.unpack_from(data, offset)
+            name = data[offset + 4 : offset + 3 + n].decode()
+            offset = _align(offset + 4 + n, 4)
+            (field_offset,) = _U32.unpack_from(data, offset)
+            datatype = data[offset + 4]
+            offset = _align(offset + 5, 4)
+            (field_count,) = _U32.unpack_from(data, offset)
+            offset += 4
+            if datatype != _POINT_FIELD_FLOAT64 or field_count != 1:
+                raise CdrError(f"sample block field {name!r}: datatype {datatype} x {field_count}, expected one FLOAT64")
+            names.append(name)
+            offsets.append(field_offset)
+        big_endian = data[offset]
+        offset = _align(offset + 1, 4)
+        point_step, _, size = struct.unpack_from("<III", data, offset)
+        offset += 12
+    except (struct.error, IndexError, UnicodeDecodeError) as exc:
+        raise CdrError(f"sample block malformed ({exc})") from None
+    if big_endian or not names or names[0] != SAMPLE_TIME_FIELD or offsets != [8 * k for k in range(len(names))]:
+        raise CdrError(f"sample block: fields {names} are not little-endian FLOAT64 {SAMPLE_TIME_FIELD!r}, ... in order")
+    points = height * width
+    if point_step != 8 * len(names) or size != points * point_step or offset + size > len(data):
+        raise CdrError(f"sample block: {points} points of {point_step} bytes do not fill its {size} data bytes")
+    table = np.frombuffer(data, dtype="<f8", count=points * len(names), offset=offset).reshape(points, len(names))
+    return names[1:], stamp + np.round(table[:, 0] * 1e9).astype(np.int64), table[:, 1:]

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import cantools
+import numpy as np
 
 from hydro_ros.contract.config import config_dir
 from hydro_ros.contract.errors import InputError
@@ -231,17 +232,25 @@ def cycle_values(bus: MachineBus, cycle: Cycle) -> dict[str, Any]:
     return out
 
 
-def sample_values(samples: Any, k: int, actuator: str, joint: str) -> dict[str, Any]:
-    """Sample ``k`` of one actuator's Samples block in the shape encode_cycle takes."""
-    def at(name: str) -> dict[str, float] | None:
-        series = getattr(samples, name)
-        return None if series is None else {actuator: float(series[k])}
+def sample_values(samples: Any, k: int, actuators: dict[str, str]) -> dict[str, Any]:
+    """Sample ``k`` of a Samples block in the shape encode_cycle takes; ``actuators``: actuator -> joint, in the block's
+    column order ((n,) columns for one actuator, (n, A) for several)."""
+    names = list(actuators)
 
+    def row(name: str) -> list[float] | None:
+        series = getattr(samples, name)
+        return None if series is None else [float(v) for v in np.asarray(series[k]).reshape(-1)]
+
+    def by_actuator(name: str) -> dict[str, float] | None:
+        values = row(name)
+        return None if values is None else dict(zip(names, values))
+
+    positions, velocities = row("joint_position"), row("joint_velocity")
     return {
-        "joint_position": {joint: float(samples.joint_position[k])}, "joint_velocity": {joint: float(samples.joint_velocity[k])},
-        "pressure_a": at("pressure_a"), "pressure_b": at("pressure_b"), "valve_command": at("valve_command"),
+        "joint_position": dict(zip(actuators.values(), positions)), "joint_velocity": dict(zip(actuators.values(), velocities)),
+        "pressure_a": by_actuator("pressure_a"), "pressure_b": by_actuator("pressure_b"), "valve_command": by_actuator("valve_command"),
         "supply_pressure": float(samples.supply_pressure[k]),
         "ls_pressure": None if samples.ls_pressure is None else float(samples.ls_pressure[k]),
-        "pilot_pressure_1": at("pilot_pressure_1"), "pilot_pressure_2": at("pilot_pressure_2"),
-        "compensator_pressure": at("compensator_pressure"),
+        "pilot_pressure_1": by_actuator("pilot_pressure_1"), "pilot_pressure_2": by_actuator("pilot_pressure_2"),
+        "compensator_pressure": by_actuator("compensator_pressure"),
     }

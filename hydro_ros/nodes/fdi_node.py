@@ -32,7 +32,7 @@ from diagnostic_msgs.srv import SelfTest
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import FluidPressure, JointState
+from sensor_msgs.msg import FluidPressure, JointState, PointCloud2
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
@@ -59,6 +59,9 @@ OVERLOAD_SHARE = 0.05  # more incomplete samples than this: the input outruns th
 PARAMETERS = {
     "config": Spec(str(default_config_path("sam")), "machine config (YAML) whose actuators are monitored", existing_file=True),
     "method": Spec("", "residual generator; empty: the config's fdi.method", choices=("", *GENERATORS)),
+    "input": Spec("topics", "where samples come from: the contract's per-sample sensor topics, or the sample blocks on "
+                            "/hydraulics/sample_block (every column, many samples a message: a crane at 1 kHz)",
+                  choices=("topics", "sample_block")),
     "process_period": Spec(0.02, "[s] period of aligning and filtering the queued samples", 0.001, 1.0),
     "diagnostics_period": Spec(1.0, "[s] period of /diagnostics", 0.05, 60.0),
     "residual_rate": Spec(50.0, "[Hz] rate of /fdi/residuals", 0.1, 1000.0),
@@ -102,14 +105,11 @@ class FdiNode(Node):
 
         self.last_arrival: dict[str, float] = {}
         self.first_arrival: dict[str, float] = {}
-        self._subscribe_raw(JointState, topics.JOINT_STATES, self.aligner.put_joint_states)
-        self._subscribe_raw(JointState, topics.VALVE_COMMANDS, self.aligner.put_commands)
-        self._subscribe_raw(FluidPressure, topics.SUPPLY_PRESSURE, lambda d, c=index("supply_pressure"): self.aligner.put_pressure(d, c))
-        for actuator in actuators:
-            quantities = ("pressure_a", "pressure_b", *(topics.MOBILE_VALVE_PRESSURES if self.mobile else ()))
-            for quantity in quantities:
-                self._subscribe_raw(FluidPressure, topics.actuator_pressure(actuator, quantity),
-                                    lambda d, c=index(quantity, actuator): self.aligner.put_pressure(d, c))
+        self.blocks = self.params["input"] == "sample_block"
+        if self.blocks:
+            self._subscribe_raw(PointCloud2, topics.SAMPLE_BLOCK, self.aligner.put_block)
+        else:
+            self._subscribe_contract_topics(actuators, index)
 
         self.pub_diag = self.create_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
         self.pub_halt = self.create_publisher(Bool, relative(topics.FDI_HALT), HALT_QOS)
@@ -139,12 +139,23 @@ class FdiNode(Node):
         elif name == "reset_min_interval":
             self.reset_min_interval = value
 
+    def _subscribe_contract_topics(self, actuators: list[str], index: Any) -> None:
+        self._subscribe_raw(JointState, topics.JOINT_STATES, self.aligner.put_joint_states)
+        self._subscribe_raw(JointState, topics.VALVE_COMMANDS, self.aligner.put_commands)
+        self._subscribe_raw(FluidPressure, topics.SUPPLY_PRESSURE, lambda d, c=index("supply_pressure"): self.aligner.put_pressure(d, c))
+        for actuator in actuators:
+            quantities = ("pressure_a", "pressure_b", *(topics.MOBILE_VALVE_PRESSURES if self.mobile else ()))
+            for quantity in quantities:
+                self._subscribe_raw(FluidPressure, topics.actuator_pressure(actuator, quantity),
+                                    lambda d, c=index(quantity, actuator): self.aligner.put_pressure(d, c))
+
     def _subscribe_raw(self, msg_type: Any, topic: str, handler: Any) -> None:
         def consume(data: bytes) -> None:
             try:
                 handler(data)
-            except CdrError:
+            except CdrError as exc:
                 self.undecodable += 1
+                self.get_logger().error(f"{topic}: message dropped: {exc}", throttle_duration_sec=10.0)
 
         def callback(data: bytes) -> None:
             self.last_arrival[topic] = time.monotonic()
@@ -201,6 +212,8 @@ class FdiNode(Node):
 
     def _topics(self, index: int) -> tuple[str, ...]:
         """The topics one actuator's samples need."""
+        if self.blocks:
+            return (topics.SAMPLE_BLOCK,)
         actuator = self.monitor.actuators[index]
         needed = (topics.JOINT_STATES, topics.VALVE_COMMANDS, topics.SUPPLY_PRESSURE, topics.pressure_a(actuator), topics.pressure_b(actuator))
         if self.mobile:

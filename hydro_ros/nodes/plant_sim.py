@@ -30,9 +30,11 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sensor_msgs.msg import FluidPressure, JointState
+from sensor_msgs.msg import FluidPressure, JointState, PointCloud2
 from trajectory_msgs.msg import JointTrajectory
 
+from hydro_ros.bags.align import SampleLayout
+from hydro_ros.bags.cdr import encode_sample_block
 from hydro_ros.bags.writer import block_machine_payloads, sample_payloads, sample_topics
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
@@ -58,8 +60,12 @@ PARAMETERS = {
     "publish_clock": Spec(False, "publish /clock from the simulation time (stamps then start at 0)"),
     "tick_period": Spec(0.01, "[s] wall time between simulation steps (each publishes the samples due)", 0.001, 1.0),
     "can_interface": Spec("", "python-can interface that also carries the sensors as CAN frames (socketcan, udp_multicast); "
-                              "empty: none (not in crane mode)"),
+                              "empty: none"),
     "can_channel": Spec("", "channel of can_interface (can0, a multicast address)"),
+    "sensor_topics": Spec("all", "which of the contract's per-sample sensor topics to publish: all, only /joint_states (what a "
+                                 "trajectory server and an HMI read, when the monitor takes sample blocks), none",
+                          choices=("all", "joint_states", "none")),
+    "sample_blocks": Spec(False, f"also publish every tick's samples as one message on {topics.SAMPLE_BLOCK} (fdi_node input:=sample_block)"),
     "initial_path": Spec("", "crane mode, excitation trajectory: the path id whose start the crane begins at; empty: the config's first"),
     "initial_extension": Spec(-1.0, "[m] crane mode, excitation trajectory: extension cylinder stroke at the start; negative: the "
                                     "smallest feasible one", None, 10.0),
@@ -77,6 +83,7 @@ class SamSource:
     def __init__(self, machine: Machine, seed: int) -> None:
         self.actuator, self.joint = machine.first.name, machine.first.joint
         self.actuators = [self.actuator]
+        self.joints = {self.actuator: self.joint}
         self.run = start(machine, Scenario(float("inf"), (), seed=seed, actuator=self.actuator))
         self.mobile = self.run.plant.model.mobile_valve
         self.topics = sample_topics(self.actuator, mobile=self.mobile)
@@ -190,8 +197,13 @@ class PlantSim(Node):
         self.publishers_by_topic = {
             name: self.create_publisher(JointState if types[name] == topics.JOINT_STATE_TYPE else FluidPressure, relative(name), SENSOR_QOS,
                                         qos_overriding_options=QoSOverridingOptions.with_default_policies())
-            for name in self.source.topics if not (name == topics.VALVE_COMMANDS and self.excitation == "topic")
+            for name in self.source.topics if self._publishes(name)
         }
+        self.layout = SampleLayout(self.source.actuators, [a.joint for a in self.machine.actuators if a.name in self.source.actuators],
+                                   mobile=self.source.mobile)
+        self.pub_block = (self.create_publisher(PointCloud2, relative(topics.SAMPLE_BLOCK), SENSOR_QOS,
+                                                qos_overriding_options=QoSOverridingOptions.with_default_policies())
+                          if self.params["sample_blocks"] else None)
         self.command = np.zeros(len(self.source.actuators))
         self.command_wall = -math.inf
         if self.excitation == "topic":
@@ -200,9 +212,6 @@ class PlantSim(Node):
         self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.publish_clock else None
         interface = self.params["can_interface"]
         if interface:
-            if self.machine.crane:
-                raise InputError(f"parameter can_interface={interface}: the CAN frames of a crane's cylinders are not defined "
-                                 "(config/machine_bus.dbc carries one actuator)")
             import can
 
             from hydro_ros.can.codec import MachineBus
@@ -253,6 +262,13 @@ class PlantSim(Node):
             for actuator in source.actuators for name, unit in sorted(INJECTION_UNITS.items()) if name not in source.not_per_cylinder
         }, self._on_parameter)
         return source
+
+    def _publishes(self, topic: str) -> bool:
+        """Whether a sensor topic is this node's to publish (valve commands are not when they come from outside)."""
+        chosen = self.params["sensor_topics"]
+        if topic == topics.VALVE_COMMANDS and self.excitation == "topic":
+            return False
+        return chosen == "all" or (chosen == "joint_states" and topic == topics.JOINT_STATES)
 
     def _unnamed_cylinder(self, name: str) -> str:
         return (f"{name} refused: a crane's fault names its cylinder, fault.<actuator>.{name.removeprefix('fault.')} "
@@ -331,12 +347,17 @@ class PlantSim(Node):
     def _publish(self, block: Samples) -> None:
         origin = self.stamp_origin_ns
         publishers = self.publishers_by_topic
-        for k in range(len(block.times)):
-            stamp = origin + int(round(block.times[k] * 1e9))
-            for topic, payload in self.source.payloads(block, k, stamp, self.variance):
-                publisher = publishers.get(topic)
-                if publisher is not None:
-                    publisher.publish(payload)
+        if publishers:
+            for k in range(len(block.times)):
+                stamp = origin + int(round(block.times[k] * 1e9))
+                for topic, payload in self.source.payloads(block, k, stamp, self.variance):
+                    publisher = publishers.get(topic)
+                    if publisher is not None:
+                        publisher.publish(payload)
+        if self.pub_block is not None:
+            stamps = origin + np.round(np.asarray(block.times) * 1e9).astype(np.int64)
+            self.pub_block.publish(encode_sample_block(int(stamps[0]), self.machine.name, self.layout.field_names, stamps,
+                                                       self.layout.rows(block)))
         if self.can_bus is not None:
             self._send_frames(block)
         if self.pub_clock is not None:
@@ -351,8 +372,7 @@ class PlantSim(Node):
         from hydro_ros.can.codec import sample_values
 
         for k in range(len(block.times)):
-            for frame_id, data in self.can_codec.encode_cycle(sample_values(block, k, self.source.actuator, self.source.joint),
-                                                              self.can_counter):
+            for frame_id, data in self.can_codec.encode_cycle(sample_values(block, k, self.source.joints), self.can_counter):
                 self.can_bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
             self.can_counter = (self.can_counter + 1) % 16
 

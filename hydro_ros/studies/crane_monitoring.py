@@ -23,6 +23,7 @@ cylinder: detection, isolation to the cylinder and the fault, delay, and false a
 
 from __future__ import annotations
 
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterable, Sequence
@@ -72,6 +73,12 @@ class CraneOutcome:
     def false_alarms(self) -> list[dict[str, Any]]:
         c = self.case
         return [a for a in self.alarms if c.fault is None or a["actuator"] != c.actuator or a["time_s"] < c.onset_s]
+
+    @property
+    def named(self) -> str | None:
+        """The faulty cylinder's name for its fault at the end of the run (its last alarm)."""
+        own = [a["fault"] for a in self.alarms if a["actuator"] == self.case.actuator]
+        return own[-1] if own else None
 
     @property
     def detection(self) -> dict[str, Any] | None:
@@ -205,6 +212,7 @@ def summarise_crane(outcomes: Sequence[CraneOutcome], fault_free: Sequence[Crane
             "isolated": sum(any(a["actuator"] == actuator and a["fault"] == fault and a["time_s"] >= o.case.onset_s for a in o.alarms)
                             for o in group),
             "other_cylinder_alarms": sum(any(a["actuator"] != actuator for a in o.alarms) for o in group),
+            "named": dict(Counter(o.named for o in group if o.named)),
             "early_alarms": sum(any(a["time_s"] < o.case.onset_s for a in o.alarms) for o in group),
             "median_delay_s": float(np.median(delays)) if delays else None,
         })
