@@ -68,15 +68,24 @@ def _sim_crane(args: argparse.Namespace, machine) -> int:
     from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun
     from hydro_ros.studies.plots import plot_bag
 
-    if args.effect:
-        raise InputError(f"--effect {args.effect[0]!r}: effects are not simulated on a crane's cylinders yet; use --fault")
-    faults: dict[str, list] = {}
-    for text in args.fault:
-        actuator, separator, spec = text.partition(":")
-        if not separator or "=" in actuator:
-            raise InputError(f"--fault {text!r}: a crane's fault names its cylinder: ACTUATOR:NAME=VALUE@T[:RAMP] "
-                             f"(actuators: {', '.join(machine.actuator_names)})")
-        faults.setdefault(actuator, []).extend(_injections([spec], "fault", True))
+    faults: dict[str, list] = {}  # per cylinder, the plant's injections: faults and effects
+    payload: list = []
+    truth: dict[str, list] = {"faults": [], "effects": []}
+    for kind, texts in (("fault", args.fault), ("effect", args.effect)):
+        for text in texts:
+            actuator, separator, spec = text.partition(":")
+            if not separator or "=" in actuator:
+                injection = _injections([text], kind, kind == "fault")[0]
+                if injection.name == "payload_mass":  # a crane's payload hangs at its tip, on no one cylinder
+                    payload.append(injection)
+                    continue
+                form = "ACTUATOR:NAME=VALUE@T[:RAMP]" if kind == "fault" else "ACTUATOR:NAME=VALUE"
+                raise InputError(f"--{kind} {text!r}: a crane's {kind} names its cylinder: {form} "
+                                 f"(actuators: {', '.join(machine.actuator_names)}; payload_mass alone is at the tip)")
+            injection = _injections([spec], kind, kind == "fault")[0]
+            faults.setdefault(actuator, []).append(injection)
+            truth[f"{kind}s"].append({"actuator": actuator, "name": injection.name, "value": injection.value,
+                                      "onset_s": injection.onset_s, "ramp_s": injection.ramp_s})
     _, crane_config = load_crane(args.config)
     trajectory, work = None, None
     if args.hold < 0:
@@ -88,15 +97,15 @@ def _sim_crane(args: argparse.Namespace, machine) -> int:
         work = {"path": args.path, "method": args.method, "hold_s": args.hold, "source": args.db or "planned"}
     elif args.db:
         raise InputError(f"--db {args.db}: names where --path's trajectory comes from; give --path")
-    run = CraneRun(args.duration, seed=args.seed, faults=faults, trajectory=trajectory, hold_s=args.hold)
+    run = CraneRun(args.duration, seed=args.seed, faults=faults, payload=payload, trajectory=trajectory, hold_s=args.hold)
     plant = CraneCylinders(machine, crane_config, run)
     writer = ContractBagWriter(args.out, actuators={a.name: a.joint for a in machine.actuators},
                                pressure_variance=machine.sensors.pressure_noise_std ** 2, mobile=machine.mobile)
     with writer, tqdm(total=int(round(args.duration * machine.sample_rate_hz)), unit="sample", desc="simulate", disable=args.quiet) as bar:
         writer.set_truth({"machine": machine.name, "config": machine.source.name, "seed": args.seed, "duration_s": args.duration,
                           "work_cycle": work,
-                          "faults": [{"actuator": name, "name": i.name, "value": i.value, "onset_s": i.onset_s, "ramp_s": i.ramp_s}
-                                     for name, injections in faults.items() for i in injections]})
+                          **truth, "payload": [{"name": i.name, "value": i.value, "onset_s": i.onset_s, "ramp_s": i.ramp_s}
+                                               for i in payload]})
         for _, block in plant.blocks():
             writer.write_machine_block(block)
             bar.update(len(block))
@@ -523,7 +532,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="fault switched on at T s, developing linearly over RAMP s (repeatable); on a crane "
                           "ACTUATOR:NAME=VALUE@T[:RAMP], e.g. lift:external_leakage_a=1.0@20")
     sim.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
-                     help="physical effect present from the start (repeatable)")
+                     help="physical effect present from the start (repeatable); on a crane ACTUATOR:NAME=VALUE, and "
+                          "payload_mass=KG (also as a timed --fault) at the tip")
     sim.add_argument("--seed", type=int, default=0, help="random seed of operator and sensor noise")
     sim.add_argument("--path", default="", help="crane only: work this path id's trajectory (forwards, hold, back, hold) in "
                                                 "place of the random operator")

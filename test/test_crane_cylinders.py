@@ -88,6 +88,10 @@ def test_a_leak_shows_in_the_residual_of_its_own_cylinder_while_the_others_move(
                               "--fault", "external_leakage_a=1.0@2", "--out", str(tmp_path / "refused"), "--quiet"],
                              capture_output=True, text=True, timeout=120)
     assert refused.returncode == 1 and "names its cylinder" in refused.stderr and not (tmp_path / "refused").exists()
+    refused = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "sim", "--config", str(K70M), "--duration", "5",
+                              "--effect", "coulomb_friction=500", "--out", str(tmp_path / "refused"), "--quiet"],
+                             capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 1 and "effect names its cylinder" in refused.stderr and not (tmp_path / "refused").exists()
 
 
 @pytest.fixture(scope="module")

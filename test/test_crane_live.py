@@ -30,8 +30,33 @@ def horizontal_db(tmp_path_factory, k70m):
     return path
 
 
+CYLINDERS = ("lift", "tilt", "extension")
+
+
 def _statuses(messages: list[DiagnosticArray], actuator: str) -> list:
     return [s for m in messages for s in m.status if s.name == f"hydro_ros/fdi/{actuator}"]
+
+
+def _armed(node, diags: list[DiagnosticArray], timeout: float) -> None:
+    assert spin_until(node, lambda: all(_statuses(diags, a) and _statuses(diags, a)[-1].message == "ok" for a in CYLINDERS), timeout), \
+        {a: [s.message for s in _statuses(diags, a)[-3:]] for a in CYLINDERS}
+
+
+def _leak_named_on_its_cylinder_only(node, diags: list[DiagnosticArray], actuator: str, fault: str, timeout: float):
+    """Set the leak through plant_sim's parameter; its cylinder turns WARN with the fault's name, the others stay ok.
+    Returns the parameter client and the cylinder's last status."""
+    client = AsyncParameterClient(node, "plant_sim")
+    assert client.wait_for_services(10.0)
+    future = client.set_parameters([Parameter(f"fault.{actuator}.{fault}", value=3.0)])
+    assert spin_until(node, future.done, 10) and future.result().results[0].successful
+    assert spin_until(node, lambda: _statuses(diags, actuator)[-1].message == fault, timeout), \
+        [s.message for s in _statuses(diags, actuator)[-5:]]
+    status = _statuses(diags, actuator)[-1]
+    assert status.level == bytes([1])  # WARN: a leak is a minor fault
+    for other in CYLINDERS:
+        if other != actuator:
+            assert {s.message for s in _statuses(diags, other)} <= {"ok", "stale", "not_monitored"}, other
+    return client, status
 
 
 def test_a_leak_in_one_cylinder_of_the_working_crane_shows_at_warn_on_that_cylinder(ros_domain, horizontal_db):
@@ -44,10 +69,7 @@ def test_a_leak_in_one_cylinder_of_the_working_crane_shows_at_warn_on_that_cylin
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
         node.create_subscription(String, "/trajectory_server/result", lambda m: results.append(json.loads(m.data)), LATCHED_QOS)
         requests = node.create_publisher(String, "/trajectory_server/request", 10)
-        # every cylinder monitored (armed) before the trajectory is asked for
-        assert spin_until(node, lambda: all(_statuses(diags, a) and _statuses(diags, a)[-1].message == "ok"
-                                            for a in ("lift", "tilt", "extension")), 90), \
-            {a: [s.message for s in _statuses(diags, a)[-3:]] for a in ("lift", "tilt", "extension")}
+        _armed(node, diags, 90)  # every cylinder monitored before the trajectory is asked for
         for _ in range(20):  # until discovery connects the joint states and the output (the answers say what is missing)
             count = len(results)
             requests.publish(String(data="horizontal"))
@@ -59,16 +81,7 @@ def test_a_leak_in_one_cylinder_of_the_working_crane_shows_at_warn_on_that_cylin
         spin_until(node, lambda: False, 6.0)  # ~2 s of the crane working its path
         plant = [s for m in diags for s in m.status if s.name == "hydro_ros/plant_sim"]
         assert plant and "refused" not in plant[-1].message, plant[-1].message
-        client = AsyncParameterClient(node, "plant_sim")
-        assert client.wait_for_services(10.0)
-        future = client.set_parameters([Parameter("fault.lift.external_leakage_a", value=3.0)])
-        assert spin_until(node, future.done, 10) and future.result().results[0].successful
-        assert spin_until(node, lambda: _statuses(diags, "lift")[-1].message == "external_leakage_a", 120), \
-            [s.message for s in _statuses(diags, "lift")[-5:]]
-        lift = _statuses(diags, "lift")[-1]
-        assert lift.level == bytes([1])  # WARN: a leak is a minor fault
-        for other in ("tilt", "extension"):
-            assert {s.message for s in _statuses(diags, other)} <= {"ok", "stale", "not_monitored"}, other
+        client, _ = _leak_named_on_its_cylinder_only(node, diags, "lift", "external_leakage_a", 120)
         refused = client.set_parameters([Parameter("fault.external_leakage_a", value=1.0)])
         assert spin_until(node, refused.done, 10)
         assert not refused.result().results[0].successful and "names its cylinder" in refused.result().results[0].reason
@@ -82,17 +95,8 @@ def test_fdi_node_takes_the_crane_in_sample_blocks_at_full_rate(ros_domain):
                       "-p", "sample_blocks:=true"), \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={K70M}", "-p", "input:=sample_block"), probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-        assert spin_until(node, lambda: all(_statuses(diags, a) and _statuses(diags, a)[-1].message == "ok"
-                                            for a in ("lift", "tilt", "extension")), 60), \
-            {a: [s.message for s in _statuses(diags, a)[-3:]] for a in ("lift", "tilt", "extension")}
-        client = AsyncParameterClient(node, "plant_sim")
-        assert client.wait_for_services(10.0)
-        future = client.set_parameters([Parameter("fault.tilt.external_leakage_b", value=3.0)])
-        assert spin_until(node, future.done, 10) and future.result().results[0].successful
-        assert spin_until(node, lambda: _statuses(diags, "tilt")[-1].message == "external_leakage_b", 60), \
-            [s.message for s in _statuses(diags, "tilt")[-5:]]
-        values = {v.key: v.value for v in _statuses(diags, "tilt")[-1].values}
+        _armed(node, diags, 60)
+        _, tilt = _leak_named_on_its_cylinder_only(node, diags, "tilt", "external_leakage_b", 60)
+        values = {v.key: v.value for v in tilt.values}
         assert int(values["samples"]) > 10_000 and int(values["undecodable_messages"]) == 0, values
         assert int(values["incomplete_samples"]) == 0 and int(values["out_of_order_dropped"]) == 0, values
-        for other in ("lift", "extension"):
-            assert {s.message for s in _statuses(diags, other)} <= {"ok", "stale", "not_monitored"}, other
