@@ -64,7 +64,8 @@ def test_a_leak_in_one_cylinder_of_the_working_crane_shows_at_warn_on_that_cylin
     results: list[dict] = []
     with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={K70M}", "-p", "excitation:=trajectory", "-p", "seed:=5",
                       "-p", "initial_path:=horizontal", "-p", "real_time_factor:=0.3"), \
-            node_process("hydro_ros.nodes.trajectory_server", "-p", f"database:={horizontal_db}", "-p", "output_topic:=joint_trajectory"), \
+            node_process("hydro_ros.nodes.trajectory_server", "-p", f"database:={horizontal_db}", "-p", "output_topic:=joint_trajectory",
+                         "-p", "tip_tolerance:=0.1"), \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={K70M}"), probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
         node.create_subscription(String, "/trajectory_server/result", lambda m: results.append(json.loads(m.data)), LATCHED_QOS)
