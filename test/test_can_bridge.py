@@ -234,3 +234,31 @@ def test_lifecycle_opens_forwards_and_leaves_the_valves_neutral(ros_domain, sam_
             assert lifecycle_state(node, "/can_bridge") == "unconfigured"
     finally:
         listener.shutdown()
+
+
+def test_the_crane_cylinders_reach_the_graph_through_the_bus(ros_domain):
+    """plant_sim's crane mode on the bus (no topics of its own), can_bridge with the K70M's config: every cylinder's
+    frames (slots 2-4 of the DBC's four) become its topics, in one /joint_states with the three joints."""
+    from sensor_msgs.msg import JointState
+
+    k70m = Path(SAM_CONFIG).with_name("k70m.yaml")
+    group = _group(ros_domain)
+    diags: list[DiagnosticArray] = []
+    joints: list[JointState] = []
+    pilots: dict[str, list[float]] = {a: [] for a in ("lift", "tilt", "extension")}
+    with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={k70m}", "-p", "interface:=udp_multicast", "-p", f"channel:={group}"), \
+            node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={k70m}", "-p", "seed:=3", "-p", "real_time_factor:=0.25",
+                         "-p", "sensor_topics:=none", "-p", "can_interface:=udp_multicast", "-p", f"can_channel:={group}"), \
+            probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        node.create_subscription(JointState, "/joint_states", joints.append, SENSOR_QOS)
+        for actuator, values in pilots.items():
+            node.create_subscription(FluidPressure, f"/hydraulics/{actuator}/compensator_pressure",
+                                     lambda m, v=values: v.append(m.fluid_pressure), SENSOR_QOS)
+        assert spin_until(node, lambda: len(joints) > 500 and all(len(v) > 500 for v in pilots.values()), 40), \
+            (len(joints), {a: len(v) for a, v in pilots.items()})
+        assert list(joints[-1].name) == ["lift", "tilt", "extension"]
+        assert all(min(v[-100:]) > 1e6 for v in pilots.values())  # the compensators feed every valve
+        for name in ("JOINT2_STATE", "CYL3_PRESSURE", "VALVE4_STATE", "SUPPLY_STATE"):
+            assert _statuses(diags, f"hydro_ros/can_bridge/{name}"), name
+        assert not _statuses(diags, "hydro_ros/can_bridge/JOINT1_STATE")  # slot 1 (the base) is not this machine's
