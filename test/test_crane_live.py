@@ -10,10 +10,12 @@ from __future__ import annotations
 import json
 
 import pytest
+from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import String
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from hydro_ros.nodes.common import LATCHED_QOS
 from hydro_ros.planning.catalog import build, plan_units
@@ -35,6 +37,11 @@ CYLINDERS = ("lift", "tilt", "extension")
 
 def _statuses(messages: list[DiagnosticArray], actuator: str) -> list:
     return [s for m in messages for s in m.status if s.name == f"hydro_ros/fdi/{actuator}"]
+
+
+def _plant_status(messages: list[DiagnosticArray]) -> str:
+    plant = [s for m in messages for s in m.status if s.name == "hydro_ros/plant_sim"]
+    return plant[-1].message if plant else "none yet"
 
 
 def _armed(node, diags: list[DiagnosticArray], timeout: float) -> None:
@@ -80,12 +87,16 @@ def test_a_leak_in_one_cylinder_of_the_working_crane_shows_at_warn_on_that_cylin
             spin_until(node, lambda: False, 0.5)
         assert results[-1]["ok"], results[-1]
         spin_until(node, lambda: False, 6.0)  # ~2 s of the crane working its path
-        plant = [s for m in diags for s in m.status if s.name == "hydro_ros/plant_sim"]
-        assert plant and "refused" not in plant[-1].message, plant[-1].message
+        assert "refused" not in _plant_status(diags), _plant_status(diags)
         client, _ = _leak_named_on_its_cylinder_only(node, diags, "lift", "external_leakage_a", 120)
         refused = client.set_parameters([Parameter("fault.external_leakage_a", value=1.0)])
         assert spin_until(node, refused.done, 10)
         assert not refused.result().results[0].successful and "names its cylinder" in refused.result().results[0].reason
+        # a trajectory that starts away from the joints would be a jump: refused, said on /diagnostics, the cycle goes on
+        jump = JointTrajectory(joint_names=["lift", "tilt", "extension"],
+                               points=[JointTrajectoryPoint(positions=[1.0, -1.0, 0.5], time_from_start=Duration(sec=t)) for t in (0, 1)])
+        node.create_publisher(JointTrajectory, "/joint_trajectory", 10).publish(jump)
+        assert spin_until(node, lambda: "trajectory refused: starts" in _plant_status(diags), 20), _plant_status(diags)
 
 
 def test_fdi_node_takes_the_crane_in_sample_blocks_at_full_rate(ros_domain):

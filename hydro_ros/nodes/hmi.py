@@ -107,7 +107,7 @@ OK, WARN = DiagnosticStatus.OK, DiagnosticStatus.WARN
 class HmiNode(Node):
     def __init__(self) -> None:
         super().__init__("hmi")
-        # the monitored machine: its actuators get tiles before their first status (a crane config has none)
+        # the monitored machine: its actuators get tiles before their first status (a config without actuators has none)
         self.params = Parameters(self, PARAMETERS)
         config = read_config(self.params["config"], required=("machine",), nonempty="machine")
         host, port = self.params["host"], self.params["port"]
@@ -159,7 +159,7 @@ class HmiNode(Node):
         try:
             machine = load_machine_config(self.params["config"])
             sensors = topics.sensor_topics(machine.actuator_names, mobile=machine.mobile)
-        except InputError:  # a crane config: its joints, supply and commands
+        except InputError:  # a crane config without actuators (crane3dof): its joints, supply and commands
             sensors = topics.sensor_topics([])
         try:
             live = FoxgloveLive(self, self._sampler, sensors, host=self.params["foxglove_host"], port=self.params["foxglove_port"],

@@ -253,7 +253,7 @@ class PlantSim(Node):
         source = CraneSource(self.machine, self.params["seed"], start_joints)
         self.add_on_set_parameters_callback(self._refuse_unnamed_cylinder)
         if self.excitation == "trajectory":
-            source.plant.follow(None)
+            source.plant.hold()
             self.create_subscription(JointTrajectory, self.params["trajectory_topic"], self._on_trajectory, 10)
         # faults name their cylinder: fault.<actuator>.<name>, declared once the config says which cylinders there are
         self.crane_params = Parameters(self, {
@@ -299,26 +299,37 @@ class PlantSim(Node):
     def _on_trajectory(self, msg: JointTrajectory) -> None:
         plant = self.source.plant
         if not msg.points:
-            plant.follow(None)
+            plant.hold()
             self.get_logger().info("empty trajectory: holding the joints where they are")
             return
-        names = [plant_joint.name for plant_joint in plant.planar]
-        missing = [name for name in names if name not in msg.joint_names]
-        order = [list(msg.joint_names).index(name) for name in names if name in msg.joint_names]
-        times = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points])
-        positions = np.array([[p.positions[i] for i in order] for p in msg.points], dtype=float) if not missing else np.empty((0, 0))
-        gap = float(np.max(np.abs(positions[0] - plant.joints()))) if not missing and len(positions) else math.inf
-        tolerance = self.params["start_tolerance"]
-        if missing or not np.all(np.isfinite(positions)) or np.any(np.diff(times) <= 0) or gap > tolerance:
-            reason = (f"joint(s) {', '.join(missing)} missing" if missing else "non-finite values or times not increasing"
-                      if not np.all(np.isfinite(positions)) or np.any(np.diff(times) <= 0)
-                      else f"starts {gap:.3f} from the joints (start_tolerance {tolerance:g})")
-            self.refused = f"trajectory refused: {reason}"
+        try:
+            path = self._planar_path(msg)
+        except InputError as exc:
+            self.refused = f"trajectory refused: {exc}"
             self.get_logger().error(self.refused)
             return
         self.refused = ""
-        plant.follow(_Path(names, times, positions))
-        self.get_logger().info(f"working a {times[-1]:.1f} s trajectory of {len(times)} points as a cycle")
+        plant.follow(path)
+        self.get_logger().info(f"working a {path.time[-1]:.1f} s trajectory of {len(path.time)} points as a cycle")
+
+    def _planar_path(self, msg: JointTrajectory) -> "_Path":
+        """The received trajectory's columns of the crane's planar joints; InputError with the reason it cannot be worked."""
+        plant = self.source.plant
+        names = [cylinder.name for cylinder in plant.planar]
+        missing = [name for name in names if name not in msg.joint_names]
+        if missing:
+            raise InputError(f"joint(s) {', '.join(missing)} missing")
+        order = [list(msg.joint_names).index(name) for name in names]
+        if any(len(p.positions) != len(msg.joint_names) for p in msg.points):
+            raise InputError("a point's positions do not match its joint names")
+        positions = np.array([[p.positions[i] for i in order] for p in msg.points], dtype=float)
+        times = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points])
+        if not np.all(np.isfinite(positions)) or np.any(np.diff(times) <= 0):
+            raise InputError("non-finite positions or times not increasing")
+        gap = float(np.max(np.abs(positions[0] - plant.joints())))
+        if gap > self.params["start_tolerance"]:
+            raise InputError(f"starts {gap:.3f} from the joints (start_tolerance {self.params['start_tolerance']:g})")
+        return _Path(names, times, positions)
 
     def _apply_pending(self) -> None:
         now = self.source.time

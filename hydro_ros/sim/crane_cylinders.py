@@ -228,14 +228,14 @@ class CraneCylinders:
         while self.sample_index < n_total:
             yield self.step(min(BLOCK, n_total - self.sample_index))
 
-    def follow(self, trajectory: JointPath | None) -> None:
-        """Work ``trajectory`` as a cycle from its first point on; the caller checks that it starts where the joints are.
-        None holds the joints where they are."""
-        if trajectory is None:
-            here = self.joints()
-            self.work_cycle = WorkCycleReference(np.array([0.0, 1.0]), np.stack([here, here]), 0.0, self.machine.sample_rate_hz)
-        else:
-            self.work_cycle = self._work_cycle(trajectory)
+    def follow(self, trajectory: JointPath) -> None:
+        """Work ``trajectory`` as a cycle from its first point on; the caller checks that it starts where the joints are."""
+        self.work_cycle = self._work_cycle(trajectory)
+
+    def hold(self) -> None:
+        """Hold the joints where they are (the operator's loop on a constant reference)."""
+        here = self.joints()
+        self.work_cycle = WorkCycleReference(np.array([0.0, 1.0]), np.stack([here, here]), 0.0, self.machine.sample_rate_hz)
 
     def joints(self) -> np.ndarray:
         """The planar joints' true positions now."""
