@@ -219,9 +219,13 @@ def summarise_crane(outcomes: Sequence[CraneOutcome], fault_free: Sequence[Crane
             "early_alarms": sum(any(a["time_s"] < o.case.onset_s for a in o.alarms) for o in group),
             "median_delay_s": float(np.median(delays)) if delays else None,
         })
-    hours = sum(o.monitored_s for o in fault_free) / 3600.0
-    alarms = sum(len(o.alarms) for o in fault_free)
-    episodes = {name: sum(o.crossing_episodes.get(name, 0) for o in fault_free) for name in (fault_free[0].crossing_episodes if fault_free else {})}
-    return {"faults": table, "fault_free": {"hours": hours, "alarms": alarms, "false_alarms_per_hour": alarms / hours if hours else None,
-                                            "crossing_episodes_per_hour": {k: v / hours for k, v in episodes.items()} if hours else {},
-                                            "runs": len(fault_free)}}
+    return {"faults": table, "fault_free": summarise_fault_free(fault_free)}
+
+
+def summarise_fault_free(outcomes: Sequence[CraneOutcome]) -> dict[str, Any]:
+    """Hours monitored, alarms (all false) and threshold-crossing episodes per hour and cylinder."""
+    hours = sum(o.monitored_s for o in outcomes) / 3600.0
+    alarms = sum(len(o.alarms) for o in outcomes)
+    episodes = {name: sum(o.crossing_episodes.get(name, 0) for o in outcomes) for name in (outcomes[0].crossing_episodes if outcomes else {})}
+    return {"hours": hours, "alarms": alarms, "false_alarms_per_hour": alarms / hours if hours else None,
+            "crossing_episodes_per_hour": {k: v / hours for k, v in episodes.items()} if hours else {}, "runs": len(outcomes)}
