@@ -40,8 +40,13 @@ def cmd_sim(args: argparse.Namespace) -> int:
     machine = load_machine_config(args.config)
     if args.duration <= 0:
         raise InputError(f"--duration {args.duration}: must be > 0 s")
+    given = [f"--{name}" for name in ("path", "method", "db", "hold") if getattr(args, name) is not None]
     if machine.crane:
+        if given and args.path is None:
+            raise InputError(f"{', '.join(given)}: only with --path (the stored trajectory the crane works)")
         return _sim_crane(args, machine)
+    if given:
+        raise InputError(f"{', '.join(given)}: crane configs only ({args.config} is not a crane)")
     injections = _injections(args.fault, "fault", True) + _injections(args.effect, "effect", False)
     actuator = machine.first
     scenario = Scenario(args.duration, injections, seed=args.seed, actuator=actuator.name)
@@ -88,16 +93,15 @@ def _sim_crane(args: argparse.Namespace, machine) -> int:
                                       "onset_s": injection.onset_s, "ramp_s": injection.ramp_s})
     _, crane_config = load_crane(args.config)
     trajectory, work = None, None
-    if args.hold < 0:
-        raise InputError(f"--hold {args.hold}: must be >= 0 s")
+    method, hold = args.method or "dp_cp", 4.0 if args.hold is None else args.hold
+    if hold < 0:
+        raise InputError(f"--hold {hold}: must be >= 0 s")
     if args.path:
         from hydro_ros.planning.serving import executable_trajectory
 
-        trajectory, _ = executable_trajectory(crane_config, args.path, args.method, database=args.db)
-        work = {"path": args.path, "method": args.method, "hold_s": args.hold, "source": args.db or "planned"}
-    elif args.db:
-        raise InputError(f"--db {args.db}: names where --path's trajectory comes from; give --path")
-    run = CraneRun(args.duration, seed=args.seed, faults=faults, payload=payload, trajectory=trajectory, hold_s=args.hold)
+        trajectory, _ = executable_trajectory(crane_config, args.path, method, database=args.db)
+        work = {"path": args.path, "method": method, "hold_s": hold, "source": args.db or "planned"}
+    run = CraneRun(args.duration, seed=args.seed, faults=faults, payload=payload, trajectory=trajectory, hold_s=hold)
     plant = CraneCylinders(machine, crane_config, run)
     writer = ContractBagWriter(args.out, actuators={a.name: a.joint for a in machine.actuators},
                                pressure_variance=machine.sensors.pressure_noise_std ** 2, mobile=machine.mobile)
@@ -535,11 +539,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="physical effect present from the start (repeatable); on a crane ACTUATOR:NAME=VALUE, and "
                           "payload_mass=KG (also as a timed --fault) at the tip")
     sim.add_argument("--seed", type=int, default=0, help="random seed of operator and sensor noise")
-    sim.add_argument("--path", default="", help="crane only: work this path id's trajectory (forwards, hold, back, hold) in "
+    sim.add_argument("--path", default=None, help="crane only: work this path id's trajectory (forwards, hold, back, hold) in "
                                                 "place of the random operator")
-    sim.add_argument("--method", default="dp_cp", help="crane only: the trajectory method of --path (default dp_cp)")
+    sim.add_argument("--method", default=None, help="crane only: the trajectory method of --path (default dp_cp)")
     sim.add_argument("--db", default=None, help="crane only: trajectory database --path is served from; default: plan it now")
-    sim.add_argument("--hold", type=float, default=4.0, help="crane only: [s] hold at either end of the work cycle")
+    sim.add_argument("--hold", type=float, default=None, help="crane only: [s] hold at either end of the work cycle (default 4)")
     sim.add_argument("--out", required=True, help="bag directory to create (must not exist)")
     sim.add_argument("--quiet", action="store_true", help="no progress bar")
     sim.set_defaults(func=cmd_sim)

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from test.conftest import REPO, SAM_CONFIG
+from test.conftest import K70M, REPO, SAM_CONFIG
 
 BAGS = REPO / "bags"
 
@@ -33,6 +33,9 @@ def test_every_subcommand_has_help(sub):
         (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--fault", "internal_leakage=oops", "--out", "X"], "cannot parse"),
         (["sim", "--config", str(SAM_CONFIG), "--duration", "-1", "--out", "X"], "--duration -1.0"),
         (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--effect", "payload_mass=50@3", "--out", "X"], "effects are present from t = 0"),
+        (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--path", "horizontal", "--out", "X"], "--path: crane configs only"),
+        (["sim", "--config", str(K70M), "--duration", "1", "--hold", "2", "--out", "X"], "--hold: only with --path"),
+        (["sim", "--config", str(K70M), "--duration", "1", "--path", "nowhere", "--out", "X"], "path 'nowhere': not in config k70m"),
         (["fdi", "--bag", "nobag", "--config", str(SAM_CONFIG), "--json", "X"], "bag nobag: no such file or directory"),
         (["fdi", "--bag", str(BAGS / "fault_free"), "--config", str(SAM_CONFIG), "--method", "parity", "--json", "X"], "pilot pressures"),
         (["fdi", "--bag", str(BAGS / "fault_free"), "--config", str(SAM_CONFIG), "--json", "nodir/X.json"], "directory nodir does not exist"),
