@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -116,12 +117,9 @@ class SamSource:
 class CraneSource:
     """The cylinders of a crane config (``hydro_ros.sim.crane_cylinders``); faults per cylinder."""
 
-    def __init__(self, machine: Machine, seed: int, start_joints: dict[str, float] | None) -> None:
-        from hydro_ros.models.crane import load_crane
+    def __init__(self, machine: Machine, crane: Any, config: dict[str, Any], seed: int, start_joints: dict[str, float] | None) -> None:
         from hydro_ros.sim.crane_cylinders import NOT_PER_CYLINDER, CraneCylinders, CraneRun
 
-        crane, config = load_crane(machine.source)
-        self.config = config
         self.actuators = machine.actuator_names
         self.joints = {a.name: a.joint for a in machine.actuators}
         planar = [self.joints[a] for a in self.actuators]
@@ -234,14 +232,15 @@ class PlantSim(Node):
         )
 
     def _crane_source(self) -> CraneSource:
+        from hydro_ros.models.crane import load_crane
+
+        crane, config = load_crane(self.machine.source)
         start_joints = None
         if self.excitation == "trajectory":
-            from hydro_ros.models.crane import load_crane
             from hydro_ros.planning.dp import DpGrid, start_position
             from hydro_ros.planning.paths import path_from_config
             from hydro_ros.planning.serving import path_start_state
 
-            crane, config = load_crane(self.machine.source)
             path = self.params["initial_path"] or next(iter(config["paths"]))
             if path not in config["paths"]:
                 raise InputError(f"parameter initial_path={path!r}: not a path of {config['machine']} ({', '.join(config['paths'])})")
@@ -250,7 +249,7 @@ class PlantSim(Node):
                 samples = path_from_config(config, path).sample(float(config["dp"]["sample_time"]))
                 extension = start_position(crane, samples, DpGrid.for_path(crane, samples, tuple(config["dp"]["grid"])))
             start_joints = dict(zip(crane.names, path_start_state(config, path, extension).tolist()))
-        source = CraneSource(self.machine, self.params["seed"], start_joints)
+        source = CraneSource(self.machine, crane, config, self.params["seed"], start_joints)
         self.add_on_set_parameters_callback(self._refuse_unnamed_cylinder)
         if self.excitation == "trajectory":
             source.plant.hold()

@@ -24,7 +24,6 @@ cylinder: detection, isolation to the cylinder and the fault, delay, and false a
 from __future__ import annotations
 
 from collections import Counter
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterable, Sequence
 
@@ -35,7 +34,7 @@ from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun
-from hydro_ros.studies.fdi_evaluation import mismatched_config
+from hydro_ros.studies.fdi_evaluation import mismatched_config, parallel_map
 
 # [L/min] bins of a chamber's 5 s mean |valve flow|. The first reaches 1 L/min: a held cylinder's chamber sees its centre
 # leakage there, 0.3-0.7 L/min at the crane's holding pressures, and the mismatched plants' centre leakage (+-30 %) moved
@@ -91,7 +90,7 @@ class CraneOutcome:
         return hits[0] if hits else None
 
 
-def crane_run(case: CraneCase, crane_config: dict[str, Any], trajectories: dict[str, Any]) -> CraneRun:
+def crane_run(case: CraneCase, trajectories: dict[str, Any]) -> CraneRun:
     payload = [Injection("payload_mass", PAYLOAD_KG, case.duration_s / 3.0),
                Injection("payload_mass", -PAYLOAD_KG, 2.0 * case.duration_s / 3.0)] if case.payload else []
     faults = {case.actuator: [Injection(case.fault, case.value, case.onset_s)]} if case.fault else {}
@@ -109,7 +108,7 @@ def run_crane_case(machine: Machine, crane_config: dict[str, Any], trajectories:
     kept: list[tuple[np.ndarray, np.ndarray]] = []
     armed_from = monitor.startup + monitor.window
     seen = 0
-    for _, block in CraneCylinders(plant, crane_config, crane_run(case, crane_config, trajectories)).blocks():
+    for _, block in CraneCylinders(plant, crane_config, crane_run(case, trajectories)).blocks():
         result = monitor.process(block)
         for i, name in enumerate(monitor.actuators):
             new, crossing[name] = crossing_episodes(result.code[:, i], previous=crossing[name])
@@ -134,21 +133,8 @@ def _run(arguments: tuple) -> CraneOutcome:
 
 def run_crane_cases(machine: Machine, crane_config: dict[str, Any], trajectories: dict[str, Any], cases: Sequence[CraneCase], *,
                     keep_residuals: bool = False, workers: int = 2, progress: Callable[[int], None] | None = None) -> list[CraneOutcome]:
-    arguments = [(machine, crane_config, trajectories, case, keep_residuals) for case in cases]
-    if workers <= 1:
-        outcomes = []
-        for argument in arguments:
-            outcomes.append(_run(argument))
-            if progress:
-                progress(1)
-        return outcomes
-    with ProcessPoolExecutor(workers) as pool:
-        outcomes = []
-        for outcome in pool.map(_run, arguments):
-            outcomes.append(outcome)
-            if progress:
-                progress(1)
-        return outcomes
+    return parallel_map(_run, [(machine, crane_config, trajectories, case, keep_residuals) for case in cases], workers=workers,
+                        progress=progress)
 
 
 def path_trajectories(crane_config: dict[str, Any], method: str = "dp_cp", database: str | None = None) -> dict[str, Any]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -171,20 +172,19 @@ def _run(args: tuple[Machine, Case]) -> Outcome:
 
 
 def run_cases(machine: Machine, cases: list[Case], *, workers: int = 2, progress: Callable[[int], None] | None = None) -> list[Outcome]:
-    if workers <= 1:
-        out = []
-        for case in cases:
-            out.append(run_case(machine, case))
+    return parallel_map(_run, [(machine, c) for c in cases], workers=workers, progress=progress)
+
+
+def parallel_map(function: Callable[[Any], Any], arguments: list[Any], *, workers: int = 2,
+                 progress: Callable[[int], None] | None = None) -> list[Any]:
+    """``function`` over ``arguments`` in order, on ``workers`` processes (one: in this one), ticking ``progress`` per result."""
+    out = []
+    with ProcessPoolExecutor(workers) if workers > 1 else nullcontext() as pool:
+        for result in (pool.map(function, arguments) if pool is not None else map(function, arguments)):
+            out.append(result)
             if progress:
                 progress(1)
-        return out
-    with ProcessPoolExecutor(workers) as pool:
-        out = []
-        for outcome in pool.map(_run, [(machine, c) for c in cases]):
-            out.append(outcome)
-            if progress:
-                progress(1)
-        return out
+    return out
 
 
 INJECTION_UNITS_SHORT = {"velocity_sensor_bias": "rad/s", "pressure_sensor_bias_a": "Pa", "pressure_sensor_bias_b": "Pa",
