@@ -42,6 +42,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/commissioning.py --config config/sam_mobile.yaml --out bench/commissioning_mobile.json
 	$(PY) bench/crane_monitoring.py --out bench/crane_monitoring.json
 	$(PY) bench/crane_cpu.py --out bench/crane_cpu.json
+	$(PY) bench/crane_commissioning.py --out bench/crane_commissioning.json
 
 bags: setup
 	$(PY) scripts/make_sample_bags.py --out bags

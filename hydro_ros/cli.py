@@ -241,11 +241,15 @@ def cmd_commission(args: argparse.Namespace) -> int:
     write_config(config, out, block)
     for actuator, fit in block["fit"].items():
         gains = ", ".join(f"{n} {g:.3f}" for n, g in fit["notch_gain"].items())
-        print(f"{actuator}: notch gains {gains}; flow error {fit['rms_flow_error_l_min']['nominal']:.3f} -> "
+        kept = f" ({', '.join(fit['shape_kept'])} seen only narrow: a gain on the nominal polynomial)" if fit["shape_kept"] else ""
+        print(f"{actuator}: notch gains {gains}{kept}; flow error {fit['rms_flow_error_l_min']['nominal']:.3f} -> "
               f"{fit['rms_flow_error_l_min']['commissioned']:.3f} L/min")
     threshold = report["threshold"]
-    before = "none" if threshold["before"] is None else f"{threshold['before']:.4g}"
-    print(f"threshold {threshold['parameter']} {threshold['value']:.4g} (config had {before}; "
+
+    def values(value: float | list[float] | None) -> str:
+        return "none" if value is None else ", ".join(f"{v:.3g}" for v in value) if isinstance(value, list) else f"{value:.4g}"
+
+    print(f"threshold {threshold['parameter']} {values(threshold['value'])} (config had {values(threshold['before'])}; "
           f"{threshold['form']}); written to {out}")
     return 0
 

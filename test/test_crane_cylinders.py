@@ -16,12 +16,15 @@ from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import run_monitor
 from hydro_ros.fdi.parity import ParityThresholds
+from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.crane import load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
 from hydro_ros.planning.serving import executable_trajectory
 from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun
 from hydro_ros.sim.scenario import Scenario, simulate
-from hydro_ros.studies.crane_monitoring import CraneCase, run_crane_cases
+from hydro_ros.studies.commissioning import LEAK_LIMIT, commission
+from hydro_ros.studies.crane_monitoring import CraneCase, commissioning_recordings, path_trajectories, run_crane_cases
+from hydro_ros.studies.fdi_evaluation import mismatched_config
 from test.conftest import K70M
 
 
@@ -119,3 +122,35 @@ def test_a_leak_is_isolated_to_its_cylinder_while_the_crane_works_its_path(crane
         assert outcome.false_alarms == [], (case, outcome.alarms)  # nothing before onset, nothing on another cylinder
         named = [a for a in outcome.alarms if a["fault"] != "unisolated"]
         assert outcome.detection is not None and named and named[0]["fault"] == case.fault, (case, outcome.alarms)
+
+
+def test_commissioning_on_the_cranes_own_work_names_leaks_its_shipped_thresholds_miss(crane_machine):
+    """A crane that differs from its config is commissioned on its own fault-free work (operator and the three paths,
+    payload gripped and released): the lowering notch it never opens wide is fitted as a gain, no leak is read into
+    the fault-free recordings, the thresholds at rest drop below the shipped ones, and on runs of that crane no fit has
+    seen it stays quiet at work and names a 0.5 L/min leak on its cylinder, a size the shipped thresholds miss."""
+    machine, config = crane_machine
+    trajectories = path_trajectories(config)
+    plant = mismatched_config(machine, 905)
+    block, report = commission(machine, commissioning_recordings(plant, config, trajectories, 1, operator_s=90.0, path_s=45.0))
+    for ident in report["identification"]:
+        assert max(ident["leaks_l_min"].values()) < LEAK_LIMIT, ident["actuator"]
+        for notch, gain in ident["notch_gain"].items():
+            drawn, nominal = (np.asarray(m.actuator(ident["actuator"]).valve.kv_poly[notch]) for m in (plant, machine))
+            truth = drawn[np.argmax(np.abs(nominal))] / nominal[np.argmax(np.abs(nominal))]  # the plant's notch is the nominal scaled
+            assert gain == pytest.approx(truth, abs=0.03), (ident["actuator"], notch)
+    assert "PB" in block["fit"]["lift"]["shape_kept"]
+    commissioned = machine.with_overrides(block["model"])
+    at_rest = np.array([[0.0, 0.5, 0.5]])
+    shipped_rest, commissioned_rest = (FdiSettings.from_machine(m).parity_thresholds(at_rest) for m in (machine, commissioned))
+    assert np.all(commissioned_rest < 0.6 * shipped_rest), (commissioned_rest, shipped_rest)
+    quiet = [CraneCase(51, 60.0), CraneCase(52, 60.0, "horizontal")]
+    leaks = [CraneCase(53, 60.0, "vertical", actuator="lift", fault="external_leakage_a", value=0.5, onset_s=20.0),
+             CraneCase(54, 60.0, "horizontal", actuator="extension", fault="external_leakage_b", value=0.5, onset_s=20.0)]
+    shipped_leaks = run_crane_cases(machine, config, trajectories, leaks, plant=plant, workers=2)
+    assert all(o.named is None or o.named == "unisolated" for o in shipped_leaks), [o.alarms for o in shipped_leaks]
+    for outcome in run_crane_cases(commissioned, config, trajectories, quiet + leaks, plant=plant, workers=2):
+        case = outcome.case
+        assert outcome.false_alarms == [], (case, outcome.alarms)
+        if case.fault:
+            assert outcome.named == case.fault, (case, outcome.alarms)

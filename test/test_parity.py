@@ -7,6 +7,8 @@ import pytest
 
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.fdi.monitor import FdiMonitor
+from hydro_ros.models.sam import PILOT_MAX, SamModel
+from hydro_ros.models.valve import pilot_drive
 from hydro_ros.studies.fdi_evaluation import Case, _blocks, run_case
 from test.conftest import REPO
 
@@ -58,3 +60,19 @@ def test_parity_on_mismatched_plants(mobile, fault, value, isolated):
         assert outcome.isolated == isolated
     # else: detected only; its pattern is shared with other faults of the table (P-IV: only a
     # subset of the fault list is isolable; the README's evaluation table gives the rates)
+
+
+def test_a_pilot_at_tank_read_by_a_transmitter_clipped_at_zero_does_not_shrink_the_opening(mobile):
+    """One pilot acts, the other is at tank; its transmitter cannot read below zero, so it reports its noise rectified.
+    Read as p_1 - p_2 that is a closing bias of 0.4 sigma on every opening; the drive takes such a reading as tank, while a
+    real back pressure on both pilot lines still cancels."""
+    model = SamModel(mobile)
+    sigma, pilot_max = mobile.sensors.pilot_pressure_noise_std, model.base[PILOT_MAX]
+    rng = np.random.default_rng(3)
+    acting = 0.4 * pilot_max + rng.normal(0.0, sigma, 100_000)
+    at_tank = np.clip(rng.normal(0.0, sigma, 100_000), 0.0, None)
+    assert np.mean((acting - at_tank) / pilot_max) < 0.4 - 0.3 * sigma / pilot_max  # the bias the drive must not have
+    assert np.mean(pilot_drive(acting, at_tank, pilot_max, model.pilot_tank_band)) == pytest.approx(0.4, abs=0.02 * sigma / pilot_max)
+    back = 3.0e5  # [Pa] a tank line's back pressure on both pilots, read with the transmitter's noise either side
+    at_back = back + rng.normal(0.0, sigma, 100_000)
+    assert np.mean(pilot_drive(acting + back, at_back, pilot_max, model.pilot_tank_band)) == pytest.approx(0.4, abs=0.02 * sigma / pilot_max)

@@ -43,6 +43,7 @@ from hydro_ros.models.kinematics import (
     triangle_angle,
 )
 from hydro_ros.models.valve import (
+    PILOT_TANK_SIGMAS,
     chamber_valve_flows,
     compensator_pressure,
     spool_acceleration,
@@ -417,6 +418,11 @@ class SamModel:
     @property
     def mobile_valve(self) -> bool:
         return bool(self.base[VALVE_MOBILE] > 0.5)
+
+    @property
+    def pilot_tank_band(self) -> float:
+        """[Pa] pilot readings below this are the tank's (``valve.pilot_drive``): 3 sigma of the pilot transmitters' noise."""
+        return PILOT_TANK_SIGMAS * (self.machine.sensors.pilot_pressure_noise_std or 0.0)
 
     def parameter_matrix(self, times: np.ndarray, injections: Sequence[Injection] = ()) -> np.ndarray:
         """Parameter vector per sample time, with every plant-side injection applied."""

@@ -14,6 +14,19 @@ from numba import njit
 
 PA, PB, AT, BT = 0, 1, 2, 3
 CENTRE_BAND = 0.01  # |spool| below which the laminar centre leakage acts (P-I eqs. 13-14)
+PILOT_TANK_SIGMAS = 3.0  # a pilot reading within this many sigma of its transmitter's noise above zero is the tank's
+
+
+def pilot_drive(pilot_1: np.ndarray, pilot_2: np.ndarray, pilot_max: np.ndarray | float, tank_band: float) -> np.ndarray:
+    """A mobile valve's main-spool drive (fraction of full command) from its two pilot pressures [Pa].
+
+    One pilot acts at a time and the other line is at tank, where a transmitter that cannot read below
+    zero reports its noise rectified (+0.4 sigma on average). Taken as read, p_1 - p_2 shrinks every
+    opening by that and the notch flows by a share that grows with the flow (measured on the crane: 2-4 %
+    of each cylinder's flow, fitted as a leak by commissioning). A reading below ``tank_band`` is taken
+    as zero; a tank line's real back pressure above it acts on both spool ends and cancels in the difference.
+    """
+    return (np.where(pilot_1 > tank_band, pilot_1, 0.0) - np.where(pilot_2 > tank_band, pilot_2, 0.0)) / pilot_max
 
 
 @njit(cache=True)
@@ -23,11 +36,10 @@ def spool_acceleration(x_s: float, v_s: float, reference: float, omega_n: float,
 
 
 @njit(cache=True)
-def spool_positions(command: np.ndarray, omega_n: float, damping: float, dt: float, substeps: int) -> np.ndarray:
-    """The spool of eq. (15) driven by sampled commands from rest at the first; one position per sample."""
+def spool_track(command: np.ndarray, omega_n: float, damping: float, dt: float, substeps: int, state: np.ndarray) -> np.ndarray:
+    """The spool of eq. (15) driven by sampled commands from ``state`` (position, velocity; updated): one position per sample."""
     out = np.empty(command.shape[0])
-    x_s = command[0] if command.shape[0] else 0.0
-    v_s = 0.0
+    x_s, v_s = state[0], state[1]
     h = dt / substeps
     for k in range(command.shape[0]):
         for _ in range(substeps):
@@ -35,7 +47,17 @@ def spool_positions(command: np.ndarray, omega_n: float, damping: float, dt: flo
             x_s += h * v_s
             v_s += h * acceleration
         out[k] = x_s
+    state[0], state[1] = x_s, v_s
     return out
+
+
+@njit(cache=True)
+def spool_positions(command: np.ndarray, omega_n: float, damping: float, dt: float, substeps: int) -> np.ndarray:
+    """The spool of eq. (15) driven by sampled commands from rest at the first; one position per sample."""
+    state = np.zeros(2)
+    if command.shape[0]:
+        state[0] = command[0]
+    return spool_track(command, omega_n, damping, dt, substeps, state)
 
 
 @njit(cache=True)

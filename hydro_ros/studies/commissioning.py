@@ -17,12 +17,14 @@ the method's own, because each is what the thesis validated with its residual:
   residual is a pressure error whose spread grows with the load pressure, which the p^2 term
   follows; a per-opening table would have to learn that growth from two minutes of data.
 - pressure-compensated mobile valve, parity method: P-IV's statistical form, |mu| + c sigma per
-  bin of the 5 s mean opening. Its residual is a flow error whose bias and spread follow the
-  opening (the notch polynomial's error scales with the flow), not the pressure. mu and sigma come
-  from the identified part of the recordings, c from the held-out part. The spool is then the one
-  the pilot pressures drive, and the notches are fed by the measured compensator pressure. The
-  signature table stays the config's (built by simulation, ``hydro-ros fdi-fit``): which residual
-  a fault moves is the fault's physics, not this machine's tolerances.
+  bin of the operating point, binned as the config's thresholds are (the SAM's 5 s mean opening,
+  the crane's chamber valve flow, with a c per bin), plus k = 0.02 times the chamber's mean valve
+  flow, what identification leaves of a notch's coefficient. Its residual is a flow error whose
+  bias and spread follow the flow, not the pressure. mu and sigma come from the identified part of
+  the recordings, c from the held-out part. The spool is then the one the pilot pressures drive,
+  and the notches are fed by the measured compensator pressure. The signature table stays the
+  config's (built by simulation, ``hydro-ros fdi-fit``): which residual a fault moves is the fault's
+  physics, not this machine's tolerances.
 """
 
 from __future__ import annotations
@@ -62,14 +64,20 @@ from hydro_ros.models.identification import (
 )
 from hydro_ros.models.sam import HOSE_VOLUME, SamModel
 
-MIN_OPEN_S = 3.0  # [s] each notch must be seen open this long ...
-MIN_OPENING = 0.3  # ... and opened at least this far, or the recordings cannot identify it
+MIN_OPEN_S = 3.0  # [s] each notch must be seen open this long, or the recordings cannot identify it ...
+MIN_OPENING = 0.3  # ... and opened at least this far for its polynomial's shape; a notch seen only narrower is fitted as
+# one gain on its nominal polynomial: a crane lowers its boom on the load's weight through a PB opened 0.2-0.3, and a cubic
+# fitted there would be extrapolated wherever an operator lowers faster
 HELD_OUT_SHARE = 1.0 / 3.0  # the last third of each recording fits the threshold, never the model
 MIN_HELD_OUT_S = 30.0
 THRESHOLD_MARGIN = 2.0  # c0 = margin x the worst held-out excess: an hour holds 30x the 24 windows of 2 min held
 # out, and the largest of 720 Gaussian 5 s means is ~1.6x the largest of 24; times the evaluation's 1.25
 LEAK_LIMIT = 0.15  # [L/min at 10 MPa] a fitted leak above this refuses the recording (fault-free fits stay below ~0.05)
-PARITY_OPENING_EDGES = (0.0, 0.02, 0.06, 0.15, 0.3, 1.5)  # the 5 s mean opening's bins (as fdi-fit's)
+PARITY_OPENING_EDGES = (0.0, 0.02, 0.06, 0.15, 0.3, 1.5)  # the 5 s mean opening's bins where the config has no thresholds
+COMMISSIONED_FLOW_FRACTION = 0.02  # k of the commissioned thresholds: what identification leaves of each notch's coefficient
+# (gains recovered within 2 %, test_commissioning); a notch error puts k x the chamber's valve flow into its residual whatever
+# the load pressure, which the opening bins cannot see (300 kg on the mobile SAM crossed a threshold without it)
+PARITY_FLOOR = 3.0  # [sigma] with a c per bin, none below margin x this, however quiet its held-out data
 PARITY_MARGIN = 3.0  # c = margin x the largest held-out factor. The bins follow the opening, not the load pressure
 # that the return notch's flow error grows with: on 6 plants commissioned without payload, 300 kg steps reached
 # 1.0-2.6x the held-out factor (bench/commissioning_mobile.json), and 2.0 gave 3 false alarms per hour
@@ -88,6 +96,7 @@ class Identification:
     hose_bulk_modulus: float
     leaks_l_min: dict[str, float]  # fitted beside the valve: what a fault-free recording must keep near zero
     notch_gain: dict[str, float]  # mean fitted / nominal K_v over the openings seen
+    shape_kept: list[str]  # notches seen only below MIN_OPENING: their nominal polynomial scaled by the gain
     rms_error_l_min: dict[str, float]  # equation error with the nominal and with the fitted model
     open_s: dict[str, float]
     seconds: float
@@ -100,14 +109,16 @@ class Identification:
 
 def identify(model: SamModel, regression: FlowRegression, source: str) -> Identification:
     """Per-notch polynomials and bulk moduli of one actuator; InputError when the data cannot say or hold a leak."""
-    unseen = [n for n in NOTCHES if regression.open_s[n] < MIN_OPEN_S or regression.widest[n] < MIN_OPENING]
+    unseen = [n for n in NOTCHES if regression.open_s[n] < MIN_OPEN_S]
     if unseen:
         notch = unseen[0]
         raise InputError(f"{source}: too little excitation of actuator {model.actuator}: notch {notch} was open "
-                         f"{regression.open_s[notch]:.1f} s, at most {regression.widest[notch]:.2f} of full opening "
-                         f"(needs {MIN_OPEN_S:g} s beyond {OPEN:g} and {MIN_OPENING:g}); record {MOTION_HINT[notch]}")
-    valve_and_fluid = list(range(VALVE_AND_FLUID))
-    with_leaks, _ = least_squares(regression, list(range(len(COLUMNS))))
+                         f"{regression.open_s[notch]:.1f} s (needs {MIN_OPEN_S:g} s beyond {OPEN:g}); record {MOTION_HINT[notch]}")
+    narrow = [n for n in NOTCHES if regression.widest[n] < MIN_OPENING]
+    scaled = notch_gain_rows(regression, model, narrow)
+    shape_columns = [COLUMNS.index(f"{n}_c{k}") for n in narrow for k in range(3)]  # their c2..c0: the gain sits in c3
+    valve_and_fluid = [c for c in range(VALVE_AND_FLUID) if c not in shape_columns]
+    with_leaks, _ = least_squares(scaled, valve_and_fluid + list(range(VALVE_AND_FLUID, len(COLUMNS))))
     unit = leak_coefficient(1.0)
     leaks = {name: float(with_leaks[COLUMNS.index(name)] / unit) for name in LEAKS}
     leaking = {name: value for name, value in leaks.items() if value > LEAK_LIMIT}
@@ -115,10 +126,11 @@ def identify(model: SamModel, regression: FlowRegression, source: str) -> Identi
         name, value = max(leaking.items(), key=lambda item: item[1])
         raise InputError(f"{source}: actuator {model.actuator} loses oil: {name} of {value:.2f} L/min at 10 MPa fits the "
                          f"recordings (limit {LEAK_LIMIT:g}); commissioning needs a fault-free machine: repair it, then record")
-    fitted, error = least_squares(regression, valve_and_fluid)
+    fitted, error = least_squares(scaled, valve_and_fluid)
     nominal_error = rms_flow_error(regression, nominal_coefficients(model))
     p = model.base
-    poly = {n: [float(c) for c in fitted[4 * i:4 * i + 4]] for i, n in enumerate(NOTCHES)}
+    poly = {n: ([float(fitted[4 * i]) * c for c in model.poly[i]] if n in narrow else [float(c) for c in fitted[4 * i:4 * i + 4]])
+            for i, n in enumerate(NOTCHES)}
     gain = {}
     for i, n in enumerate(NOTCHES):
         sign = 1.0 if n in ("PA", "BT") else -1.0
@@ -131,7 +143,19 @@ def identify(model: SamModel, regression: FlowRegression, source: str) -> Identi
                          f"{', '.join(f'{n} {c:.3g}' for n, c in centre.items())}, notch gains "
                          f"{', '.join(f'{n} {g:.2f}' for n, g in gain.items())}); is this the machine of the config?")
     return Identification(model.actuator, poly, centre, float(1.0 / fitted[OIL_COMPLIANCE]), float(p[HOSE_VOLUME] / fitted[HOSE_CAPACITANCE]), leaks, gain,
-                          {"nominal": nominal_error, "commissioned": error}, dict(regression.open_s), regression.seconds)
+                          narrow, {"nominal": nominal_error, "commissioned": error}, dict(regression.open_s), regression.seconds)
+
+
+def notch_gain_rows(regression: FlowRegression, model: SamModel, notches: Sequence[str]) -> FlowRegression:
+    """The rows with each of ``notches`` as one column, its nominal polynomial's flow (in its c3 place; c2..c0 zero)."""
+    if not notches:
+        return regression
+    regressors = regression.regressors.copy()
+    for notch in notches:
+        i = NOTCHES.index(notch)
+        regressors[:, 4 * i] = regression.regressors[:, 4 * i:4 * i + 4] @ model.poly[i]
+        regressors[:, 4 * i + 1:4 * i + 4] = 0.0
+    return replace(regression, regressors=regressors)
 
 
 def threshold_excess(monitor: FdiMonitor, samples: Samples) -> float:
@@ -171,25 +195,35 @@ def armed_parity_residuals(machine: Machine, samples: Samples) -> tuple[np.ndarr
 
 def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequence[Samples],
                      progress: Callable[[str], None] | None) -> dict[str, Any]:
-    """P-IV's statistical form (parity method): |mu| + c sigma per bin of the 5 s mean opening.
+    """P-IV's statistical form (parity method): |mu| + c sigma per bin of the operating point.
 
-    mu and sigma per operating point come from the commissioned model's residuals on the part of the
-    recordings it was identified on; c = margin x the largest factor the held-out part reaches.
+    The form is the config's (``fdi.parity_thresholds``: its bins, edges, flow fraction, one c or a c
+    per bin), else one c per bin of the 5 s mean opening. mu and sigma per bin come from the
+    commissioned model's residuals on the part of the recordings it was identified on; c = margin x the
+    largest factor the held-out part reaches (per bin, at least margin x PARITY_FLOOR, where the config
+    has a c per bin).
     """
+    before = FdiSettings.from_machine(machine).parity_thresholds
+    per_bin = before is not None and isinstance(before.factor, tuple)
+    edges, bins = (before.edges, before.bins) if before is not None else (PARITY_OPENING_EDGES, "opening")
+    flow_fraction = COMMISSIONED_FLOW_FRACTION
     parts = [armed_parity_residuals(machine, samples) for samples in fitted]
     statistics = ParityThresholds.from_statistics(np.concatenate([r for r, _ in parts]), np.concatenate([o for _, o in parts]),
-                                                  PARITY_OPENING_EDGES, 1.0)
-    reached = 0.0
+                                                  edges, 1.0, flow_fraction, bins)
+    reached = np.zeros(len(edges) - 1)
     for samples in held_out:
-        reached = max(reached, statistics.factor_reached(*armed_parity_residuals(machine, samples)))
+        reached = np.maximum(reached, statistics.factors_reached(*armed_parity_residuals(machine, samples)))
         if progress:
             progress("threshold")
-    thresholds = replace(statistics, factor=PARITY_MARGIN * reached)
-    before = FdiSettings.from_machine(machine).parity_thresholds
+    factor = (tuple(float(c) for c in PARITY_MARGIN * np.maximum(reached, PARITY_FLOOR)) if per_bin
+              else PARITY_MARGIN * float(reached.max()))
+    thresholds = replace(statistics, factor=factor)
     return {"fdi": {"parity_thresholds": thresholds.to_config()},
-            "form": "P-IV statistical, per operating point: |mu| + c sigma per bin of the 5 s mean opening",
-            "parameter": "c [-]", "before": before.factor if before else None, "reached": reached,
-            "value": thresholds.factor, "margin": PARITY_MARGIN, "budget": "no crossing on the held-out data"}
+            "form": f"P-IV statistical, per operating point: |mu| + c sigma per bin of the 5 s mean {bins}"
+                    + (f" + {flow_fraction:g} x the chamber's mean valve flow" if flow_fraction else "") + (", c per bin" if per_bin else ""),
+            "parameter": "c [-]", "before": list(before.factor) if per_bin else (before.factor if before else None),
+            "reached": reached.tolist() if per_bin else float(reached.max()), "value": list(factor) if per_bin else factor,
+            "margin": PARITY_MARGIN, "budget": "no crossing on the held-out data"}
 
 
 @dataclass
@@ -246,7 +280,7 @@ def commission(machine: Machine, recordings: Sequence[Recording],
         "identified_s": round(sum(i.seconds for i in identified) / len(identified), 1),
         "held_out_s": round(held_out_s, 1),
         "fit": {i.actuator: {"rms_flow_error_l_min": {k: round(v, 4) for k, v in i.rms_error_l_min.items()},
-                             "notch_gain": {n: round(g, 4) for n, g in i.notch_gain.items()},
+                             "notch_gain": {n: round(g, 4) for n, g in i.notch_gain.items()}, "shape_kept": i.shape_kept,
                              "leaks_l_min_at_10mpa": {n: round(v, 4) for n, v in i.leaks_l_min.items()}}
                 for i in identified},
         "threshold": {key: value for key, value in threshold.items() if key != "before"},

@@ -33,7 +33,8 @@ from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds
-from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun
+from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun, simulate_crane
+from hydro_ros.studies.commissioning import Recording
 from hydro_ros.studies.fdi_evaluation import mismatched_config, parallel_map
 
 # [L/min] bins of a chamber's 5 s mean |valve flow|. The first reaches 1 L/min: a held cylinder's chamber sees its centre
@@ -98,9 +99,10 @@ def crane_run(case: CraneCase, trajectories: dict[str, Any]) -> CraneRun:
 
 
 def run_crane_case(machine: Machine, crane_config: dict[str, Any], trajectories: dict[str, Any], case: CraneCase, *,
-                   keep_residuals: bool = False) -> CraneOutcome:
-    """The monitor of ``machine`` on the crane plant of the case (mismatched per its seed)."""
-    plant = mismatched_config(machine, case.seed, case.mismatch) if case.mismatch else machine
+                   keep_residuals: bool = False, plant: Machine | None = None) -> CraneOutcome:
+    """The monitor of ``machine`` on ``plant``, else on the crane plant of the case (``machine`` mismatched per its seed)."""
+    if plant is None:
+        plant = mismatched_config(machine, case.seed, case.mismatch) if case.mismatch else machine
     monitor = FdiMonitor(machine)
     outcome = CraneOutcome(case)
     crossing = dict.fromkeys(monitor.actuators, False)
@@ -127,13 +129,14 @@ def run_crane_case(machine: Machine, crane_config: dict[str, Any], trajectories:
 
 
 def _run(arguments: tuple) -> CraneOutcome:
-    machine, crane_config, trajectories, case, keep = arguments
-    return run_crane_case(machine, crane_config, trajectories, case, keep_residuals=keep)
+    machine, crane_config, trajectories, case, keep, plant = arguments
+    return run_crane_case(machine, crane_config, trajectories, case, keep_residuals=keep, plant=plant)
 
 
 def run_crane_cases(machine: Machine, crane_config: dict[str, Any], trajectories: dict[str, Any], cases: Sequence[CraneCase], *,
-                    keep_residuals: bool = False, workers: int = 2, progress: Callable[[int], None] | None = None) -> list[CraneOutcome]:
-    return parallel_map(_run, [(machine, crane_config, trajectories, case, keep_residuals) for case in cases], workers=workers,
+                    keep_residuals: bool = False, workers: int = 2, progress: Callable[[int], None] | None = None,
+                    plant: Machine | None = None) -> list[CraneOutcome]:
+    return parallel_map(_run, [(machine, crane_config, trajectories, case, keep_residuals, plant) for case in cases], workers=workers,
                         progress=progress)
 
 
@@ -142,6 +145,16 @@ def path_trajectories(crane_config: dict[str, Any], method: str = "dp_cp", datab
     from hydro_ros.planning.serving import executable_trajectory
 
     return {path: executable_trajectory(crane_config, path, method, database=database)[0] for path in crane_config["paths"]}
+
+
+def commissioning_recordings(plant: Machine, crane_config: dict[str, Any], trajectories: dict[str, Any], seed: int, *,
+                             operator_s: float = 120.0, path_s: float = 60.0) -> list[Recording]:
+    """A crane's fault-free work to commission it on: the operator twice, each path's cycle once, a payload gripped and
+    released in each (a forestry crane's day; recorded into the bags ``hydro-ros commission`` reads)."""
+    runs = [(f"operator{seed + k}", CraneCase(seed + k, operator_s)) for k in range(2)]
+    runs += [(path, CraneCase(seed, path_s, path)) for path in trajectories]
+    return [Recording(f"{name} (seed {case.seed})", simulate_crane(plant, crane_config, crane_run(case, trajectories)))
+            for name, case in runs]
 
 
 def work_cases(seeds: Iterable[int], paths: Iterable[str], duration_s: float, mismatch: float) -> list[CraneCase]:

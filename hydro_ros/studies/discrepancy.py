@@ -286,7 +286,8 @@ def _equation_error(piston, velocity, p_a, p_b, spool, supply, params, poly, cen
         s = spool_opening(spool[k], 0.0, params[DEADZONE], 1.0, False, params[DEADZONE_PLAIN] < 0.5)
         dpa = (p_a[k] - p_a[k - 1]) / dt if k > 0 else 0.0
         dpb = (p_b[k] - p_b[k - 1]) / dt if k > 0 else 0.0
-        out[k, 0], out[k, 1], _, _ = flow_balance(s, piston[k], velocity[k], p_a[k], p_b[k], dpa, dpb, supply[k], params, poly, centre)
+        out[k, 0], out[k, 1], _, _ = flow_balance(s, piston[k], velocity[k], p_a[k], p_b[k], dpa, dpb, p_a[k], p_b[k], supply[k], params,
+                                                   poly, centre)
 
 
 def load_independent_error(machine: Machine, rec: Recording) -> np.ndarray:

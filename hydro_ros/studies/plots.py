@@ -239,8 +239,17 @@ def plot_commissioning(report: dict, machine: Machine, out: str | Path) -> Path:
         ax = row[4]
         threshold = report["threshold"]
         name, unit = threshold["parameter"].split(" ", 1)
-        ax.bar([f"{name} before", "worst held-out", f"{name} commissioned"],
-               [threshold["before"] or 0.0, threshold["reached"], threshold["value"]], color=["0.6", "tab:orange", "tab:blue"])
+        if isinstance(threshold["value"], list):  # a c per bin of the operating point
+            bins = np.arange(len(threshold["value"]))
+            for offset, label, values, color in ((-0.27, f"{name} before", threshold["before"], "0.6"),
+                                                 (0.0, "worst held-out", threshold["reached"], "tab:orange"),
+                                                 (0.27, f"{name} commissioned", threshold["value"], "tab:blue")):
+                ax.bar(bins + offset, values or np.zeros(len(bins)), width=0.27, label=label, color=color)
+            ax.set_xticks(bins, [f"bin {b}" for b in bins])
+            ax.legend(fontsize=7)
+        else:
+            ax.bar([f"{name} before", "worst held-out", f"{name} commissioned"],
+                   [threshold["before"] or 0.0, threshold["reached"], threshold["value"]], color=["0.6", "tab:orange", "tab:blue"])
         ax.set_ylabel(unit)
         ax.set_title(f"threshold ({report['held_out_s']:.0f} s held out)")
     fig.tight_layout()
