@@ -126,24 +126,23 @@ def test_a_leak_is_isolated_to_its_cylinder_while_the_crane_works_its_path(crane
 
 def test_commissioning_on_the_cranes_own_work_names_leaks_its_shipped_thresholds_miss(crane_machine):
     """A crane that differs from its config is commissioned on its own fault-free work (operator and the three paths,
-    payload gripped and released): the lowering notch it never opens wide is fitted as a gain, no leak is read into
-    the fault-free recordings, the thresholds at rest drop below the shipped ones, and on runs of that crane no fit has
+    payload gripped and released): every notch's gain is recovered, no leak is read into the fault-free
+    recordings, the thresholds at rest drop below the shipped ones, and on runs of that crane no fit has
     seen it stays quiet at work and names a 0.5 L/min leak on its cylinder, a size the shipped thresholds miss."""
     machine, config = crane_machine
     trajectories = path_trajectories(config)
     plant = mismatched_config(machine, 905)
-    block, report = commission(machine, commissioning_recordings(plant, config, trajectories, 1, operator_s=90.0, path_s=45.0))
+    block, report = commission(machine, commissioning_recordings(plant, config, trajectories, 1))
     for ident in report["identification"]:
         assert max(ident["leaks_l_min"].values()) < LEAK_LIMIT, ident["actuator"]
         for notch, gain in ident["notch_gain"].items():
             drawn, nominal = (np.asarray(m.actuator(ident["actuator"]).valve.kv_poly[notch]) for m in (plant, machine))
             truth = drawn[np.argmax(np.abs(nominal))] / nominal[np.argmax(np.abs(nominal))]  # the plant's notch is the nominal scaled
             assert gain == pytest.approx(truth, abs=0.03), (ident["actuator"], notch)
-    assert "PB" in block["fit"]["lift"]["shape_kept"]
     commissioned = machine.with_overrides(block["model"])
     at_rest = np.array([[0.0, 0.5, 0.5]])
     shipped_rest, commissioned_rest = (FdiSettings.from_machine(m).parity_thresholds(at_rest) for m in (machine, commissioned))
-    assert np.all(commissioned_rest < 0.6 * shipped_rest), (commissioned_rest, shipped_rest)
+    assert np.all(commissioned_rest < shipped_rest), (commissioned_rest, shipped_rest)
     quiet = [CraneCase(51, 60.0), CraneCase(52, 60.0, "horizontal")]
     leaks = [CraneCase(53, 60.0, "vertical", actuator="lift", fault="external_leakage_a", value=0.5, onset_s=20.0),
              CraneCase(54, 60.0, "horizontal", actuator="extension", fault="external_leakage_b", value=0.5, onset_s=20.0)]
