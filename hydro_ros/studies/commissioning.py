@@ -200,8 +200,8 @@ def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequ
     The form is the config's (``fdi.parity_thresholds``: its bins, edges, flow fraction, one c or a c
     per bin), else one c per bin of the 5 s mean opening. mu and sigma per bin come from the
     commissioned model's residuals on the part of the recordings it was identified on; c = margin x the
-    largest factor the held-out part reaches (per bin, at least margin x PARITY_FLOOR, where the config
-    has a c per bin).
+    largest factor the held-out part reaches (where the config has a c per bin: in the bin and its two
+    neighbours, at least margin x PARITY_FLOOR).
     """
     before = FdiSettings.from_machine(machine).parity_thresholds
     per_bin = before is not None and isinstance(before.factor, tuple)
@@ -215,7 +215,11 @@ def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequ
         reached = np.maximum(reached, statistics.factors_reached(*armed_parity_residuals(machine, samples)))
         if progress:
             progress("threshold")
-    factor = (tuple(float(c) for c in PARITY_MARGIN * np.maximum(reached, PARITY_FLOOR)) if per_bin
+    # a 5 s window whose mean crosses from one bin into the next still holds its neighbour's residual, and a bin's held-out
+    # windows are few: each bin's c covers its neighbours' (the crane's tilt left a moving bin (c 82) into one of c 11 with
+    # -1.1 L/min still in its mean)
+    covering = np.maximum(reached, np.maximum(np.concatenate([reached[1:], [0.0]]), np.concatenate([[0.0], reached[:-1]])))
+    factor = (tuple(float(c) for c in PARITY_MARGIN * np.maximum(covering, PARITY_FLOOR)) if per_bin
               else PARITY_MARGIN * float(reached.max()))
     thresholds = replace(statistics, factor=factor)
     return {"fdi": {"parity_thresholds": thresholds.to_config()},
