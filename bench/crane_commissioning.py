@@ -28,12 +28,13 @@ from tqdm import tqdm
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from hydro_ros.contract.errors import InputError  # noqa: E402
 from hydro_ros.contract.machine import load_machine_config  # noqa: E402
+from hydro_ros.fdi.parity import FLOW_EDGES  # noqa: E402
 from hydro_ros.fdi.settings import FdiSettings  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
 from hydro_ros.studies.commissioning import commission  # noqa: E402
 from hydro_ros.studies.crane_monitoring import (  # noqa: E402
-    FLOW_EDGES,
     commissioning_recordings,
     fault_cases,
     path_trajectories,
@@ -77,7 +78,12 @@ def main() -> int:
         plant = mismatched_config(nominal, plant_seed)
         began = time.perf_counter()
         recordings = commissioning_recordings(plant, crane, trajectories, 1)
-        block, report = commission(nominal, recordings)
+        try:
+            block, report = commission(nominal, recordings)
+        except InputError as refused:  # a refusal is a result: the plant stays on the shipped thresholds
+            plants.append({"plant_seed": plant_seed, "refused": str(refused)})
+            bar.update(per_plant_runs)
+            continue
         commission_s = time.perf_counter() - began
         commissioned = nominal.with_overrides(block["model"])
         free = work_cases(range(50, 50 + args.fault_free_seeds), paths, 90.0, 1.0)
@@ -94,9 +100,11 @@ def main() -> int:
                        "thresholds_l_min": {"shipped": thresholds_at_bins(nominal), "commissioned": thresholds_at_bins(commissioned)},
                        "fault_free_alarms": alarms})
     bar.close()
+    plants, refused = [p for p in plants if "refused" not in p], [p for p in plants if "refused" in p]
     summary = {
+        "refused": refused,
         "config": str(Path(args.config).resolve().relative_to(REPO)) if Path(args.config).resolve().is_relative_to(REPO) else args.config,
-        "plants": args.plants, "sizes_l_min": list(SIZES), "bin_flows_l_min": list(BIN_FLOWS), "flow_edges_l_min": list(FLOW_EDGES),
+        "plants": len(plants), "sizes_l_min": list(SIZES), "bin_flows_l_min": list(BIN_FLOWS), "flow_edges_l_min": list(FLOW_EDGES),
         "fault_free": {name: summarise_fault_free(outcomes) for name, outcomes in fault_free.items()},
         "thresholds_median_l_min": {name: np.median([p["thresholds_l_min"][name] for p in plants], axis=0).round(3).tolist()
                                     for name in ("shipped", "commissioned")},

@@ -166,6 +166,11 @@ class ParityGenerator:
         return residual, opening, flow
 
 
+# [L/min] bins of a chamber's 5 s mean |valve flow| (``bins: flow``; the crane's fit and every commissioning). The first reaches
+# 1 L/min: a held cylinder's chamber sees its centre leakage there, 0.3-0.7 L/min at the crane's holding pressures, and the
+# mismatched plants' centre leakage (+-30 %) moved a lift's B by 0.3 L/min at rest where a bin below 0.3 L/min, fitted on the
+# few samples the nominal crane put in it, allowed 0.3
+FLOW_EDGES = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 1000.0)
 OPENING, FLOW_A, FLOW_B = 0, 1, 2  # the operating point's channels: 5 s means of the opening and of |Q_A|, |Q_B| [L/min]
 BINS = ("opening", "flow")
 
@@ -183,8 +188,9 @@ class ParityThresholds:
     and held for four is not taken for one at rest. The flow part is the model's own uncertainty: a notch
     coefficient off by a fraction k puts k times that chamber's valve flow into its residual, so
     ``flow_fraction`` times the chamber's 5 s mean |valve flow| is allowed on top, also on plants whose
-    notches are further off than any the statistics saw. Operating points are (..., 3): the mean opening
-    and the two chambers' mean |valve flow| [L/min].
+    notches are further off than any the statistics saw. ``floor`` [L/min] bounds every threshold from
+    below (commissioning's, whose spread is the machine's own). Operating points are (..., 3): the mean
+    opening and the two chambers' mean |valve flow| [L/min].
     """
 
     edges: tuple[float, ...]  # bin edges of the operating point, len = bins + 1
@@ -193,6 +199,7 @@ class ParityThresholds:
     factor: float | tuple[float, ...]  # c, or one c per bin
     flow_fraction: float = 0.0  # k [-]
     bins: str = "opening"
+    floor: float = 0.0  # [L/min] no threshold below this
 
     @classmethod
     def from_config(cls, section: dict[str, Any] | None) -> "ParityThresholds | None":
@@ -203,7 +210,8 @@ class ParityThresholds:
             thresholds = cls(tuple(float(v) for v in section["edges"]), tuple(tuple(map(float, m)) for m in section["mean"]),
                              tuple(tuple(map(float, s)) for s in section["std"]),
                              tuple(map(float, factor)) if isinstance(factor, (list, tuple)) else float(factor),
-                             float(section.get("flow_fraction", 0.0)), str(section.get("bins", "opening")))
+                             float(section.get("flow_fraction", 0.0)), str(section.get("bins", "opening")),
+                             float(section.get("floor", 0.0)))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"fdi.parity_thresholds: malformed ({exc})") from None
         if isinstance(thresholds.factor, tuple) and len(thresholds.factor) != len(thresholds.edges) - 1:
@@ -212,6 +220,8 @@ class ParityThresholds:
             raise InputError(f"fdi.parity_thresholds.bins {thresholds.bins!r}: expected {' or '.join(BINS)}")
         if not 0.0 <= thresholds.flow_fraction < 1.0:
             raise InputError(f"fdi.parity_thresholds.flow_fraction {thresholds.flow_fraction}: expected 0 <= k < 1 (a share of the valve flow)")
+        if not thresholds.floor >= 0.0:
+            raise InputError(f"fdi.parity_thresholds.floor {thresholds.floor}: expected >= 0 L/min")
         if len(thresholds.mean) != len(thresholds.edges) - 1 or len(thresholds.std) != len(thresholds.mean):
             raise InputError(f"fdi.parity_thresholds: {len(thresholds.edges)} edges need {len(thresholds.edges) - 1} rows of mean and "
                              f"std (have {len(thresholds.mean)} and {len(thresholds.std)})")
@@ -260,14 +270,15 @@ class ParityThresholds:
 
     def to_config(self) -> dict[str, Any]:
         return {"bins": self.bins, "edges": list(self.edges), "mean": [list(m) for m in self.mean], "std": [list(s) for s in self.std],
-                "factor": list(self.factor) if isinstance(self.factor, tuple) else self.factor, "flow_fraction": self.flow_fraction}
+                "factor": list(self.factor) if isinstance(self.factor, tuple) else self.factor, "flow_fraction": self.flow_fraction,
+                **({"floor": self.floor} if self.floor else {})}
 
     def __call__(self, operating_point: np.ndarray) -> np.ndarray:
         """(..., 3) operating points -> (..., 2) thresholds."""
         offset, spread = self._offset_and_spread(operating_point)
         factor = (np.asarray(self.factor)[_bin_index(self.edges, self.bins, operating_point)] if isinstance(self.factor, tuple)
                   else self.factor)
-        return offset + factor * spread
+        return np.maximum(offset + factor * spread, self.floor)
 
 
 def _bin_index(edges: tuple[float, ...], bins: str, operating_point: np.ndarray) -> np.ndarray:

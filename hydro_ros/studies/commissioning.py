@@ -45,7 +45,7 @@ from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.samples import Samples
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import run_monitor
-from hydro_ros.fdi.parity import ParityThresholds
+from hydro_ros.fdi.parity import FLOW_EDGES, ParityThresholds
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.chamber import leak_coefficient
 from hydro_ros.models.identification import (
@@ -73,10 +73,12 @@ MIN_HELD_OUT_S = 30.0
 THRESHOLD_MARGIN = 2.0  # c0 = margin x the worst held-out excess: an hour holds 30x the 24 windows of 2 min held
 # out, and the largest of 720 Gaussian 5 s means is ~1.6x the largest of 24; times the evaluation's 1.25
 LEAK_LIMIT = 0.15  # [L/min at 10 MPa] a fitted leak above this refuses the recording (fault-free fits stay below ~0.05)
-PARITY_OPENING_EDGES = (0.0, 0.02, 0.06, 0.15, 0.3, 1.5)  # the 5 s mean opening's bins where the config has no thresholds
 COMMISSIONED_FLOW_FRACTION = 0.02  # k of the commissioned thresholds: what identification leaves of each notch's coefficient
 # (gains recovered within 2 %, test_commissioning); a notch error puts k x the chamber's valve flow into its residual whatever
 # the load pressure, which the opening bins cannot see (300 kg on the mobile SAM crossed a threshold without it)
+PARITY_FLOOR_L_MIN = 0.25  # [L/min] no commissioned parity threshold below this: a meter-in notch wide open on a compensator at
+# its supply limit (the load too heavy to lift: the mobile SAM with 300 kg, a payload the recordings did not hold) meters on a
+# pressure drop of the order of the transmitters' noise, and the orifice law's root biases its 5 s mean by -0.22 L/min
 PARITY_FLOOR = 3.0  # [sigma] with a c per bin, none below margin x this, however quiet its held-out data
 PARITY_MARGIN = 3.0  # c = margin x the largest held-out factor. The bins follow the opening, not the load pressure
 # that the return notch's flow error grows with: on 6 plants commissioned without payload, 300 kg steps reached
@@ -204,9 +206,7 @@ def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequ
     neighbours, at least margin x PARITY_FLOOR).
     """
     before = FdiSettings.from_machine(machine).parity_thresholds
-    per_bin = before is not None and isinstance(before.factor, tuple)
-    edges, bins = (before.edges, before.bins) if before is not None else (PARITY_OPENING_EDGES, "opening")
-    flow_fraction = COMMISSIONED_FLOW_FRACTION
+    edges, bins, flow_fraction = FLOW_EDGES, "flow", COMMISSIONED_FLOW_FRACTION
     parts = [armed_parity_residuals(machine, samples) for samples in fitted]
     statistics = ParityThresholds.from_statistics(np.concatenate([r for r, _ in parts]), np.concatenate([o for _, o in parts]),
                                                   edges, 1.0, flow_fraction, bins)
@@ -219,14 +219,12 @@ def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequ
     # windows are few: each bin's c covers its neighbours' (the crane's tilt left a moving bin (c 82) into one of c 11 with
     # -1.1 L/min still in its mean)
     covering = np.maximum(reached, np.maximum(np.concatenate([reached[1:], [0.0]]), np.concatenate([[0.0], reached[:-1]])))
-    factor = (tuple(float(c) for c in PARITY_MARGIN * np.maximum(covering, PARITY_FLOOR)) if per_bin
-              else PARITY_MARGIN * float(reached.max()))
-    thresholds = replace(statistics, factor=factor)
+    factor = tuple(float(c) for c in PARITY_MARGIN * np.maximum(covering, PARITY_FLOOR))
+    thresholds = replace(statistics, factor=factor, floor=PARITY_FLOOR_L_MIN)
     return {"fdi": {"parity_thresholds": thresholds.to_config()},
-            "form": f"P-IV statistical, per operating point: |mu| + c sigma per bin of the 5 s mean {bins}"
-                    + (f" + {flow_fraction:g} x the chamber's mean valve flow" if flow_fraction else "") + (", c per bin" if per_bin else ""),
-            "parameter": "c [-]", "before": list(before.factor) if per_bin else (before.factor if before else None),
-            "reached": reached.tolist() if per_bin else float(reached.max()), "value": list(factor) if per_bin else factor,
+            "form": f"P-IV statistical, per operating point: |mu| + c sigma per bin of the chamber's 5 s mean valve flow, c per bin, "
+                    f"+ {flow_fraction:g} x that flow",
+            "parameter": "c [-]", "before": before.factor if before else None, "reached": reached.tolist(), "value": list(factor),
             "margin": PARITY_MARGIN, "budget": "no crossing on the held-out data"}
 
 

@@ -32,15 +32,11 @@ import numpy as np
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_episodes
-from hydro_ros.fdi.parity import ParityThresholds
+from hydro_ros.fdi.parity import FLOW_EDGES, ParityThresholds
 from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun, simulate_crane
 from hydro_ros.studies.commissioning import Recording
 from hydro_ros.studies.fdi_evaluation import mismatched_config, parallel_map
 
-# [L/min] bins of a chamber's 5 s mean |valve flow|. The first reaches 1 L/min: a held cylinder's chamber sees its centre
-# leakage there, 0.3-0.7 L/min at the crane's holding pressures, and the mismatched plants' centre leakage (+-30 %) moved
-# a lift's B by 0.3 L/min at rest where a bin below 0.3 L/min, fitted on the few samples the nominal crane put in it, allowed 0.3
-FLOW_EDGES = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 1000.0)
 FLOW_FRACTION = 0.1  # k: the notch coefficients' tolerance the allowance covers: twice MISMATCH's +-5 % (INFERRED; see the README)
 MARGIN = 1.5  # c = margin x the largest held-out factor of the bin (the evaluation's plants are others again)
 FACTOR_FLOOR = 3.0  # [sigma] no bin's c below margin x this, however quiet its held-out data

@@ -25,7 +25,7 @@ from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.sim.scenario import Scenario, run_blocks, simulate
-from hydro_ros.studies.commissioning import PARITY_OPENING_EDGES, threshold_excess
+from hydro_ros.studies.commissioning import threshold_excess
 
 # Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order
 # fit RMSE is 1-2 % of K_v, an identified valve on another day/temperature is worse: 5 %.
@@ -321,6 +321,7 @@ PARITY_FAULTS = (
     ("compensator_spool_erosion", 0.5), ("pilot_pressure_spool_offset", 0.05),
 )
 THRESHOLD_FACTORS = (2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 14.0)
+PARITY_OPENING_EDGES = (0.0, 0.02, 0.06, 0.15, 0.3, 1.5)  # the mobile SAM's bins of the 5 s mean opening
 
 
 def _parity_records(machine: Machine, case: Case) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
