@@ -17,10 +17,9 @@ the method's own, because each is what the thesis validated with its residual:
   residual is a pressure error whose spread grows with the load pressure, which the p^2 term
   follows; a per-opening table would have to learn that growth from two minutes of data.
 - pressure-compensated mobile valve, parity method: P-IV's statistical form, |mu| + c sigma per
-  bin of the operating point, binned as the config's thresholds are (the SAM's 5 s mean opening,
-  the crane's chamber valve flow, with a c per bin), plus k = 0.02 times the chamber's mean valve
-  flow, what identification leaves of a notch's coefficient. Its residual is a flow error whose
-  bias and spread follow the flow, not the pressure. mu and sigma come from the identified part of
+  bin of each chamber's 5 s mean valve flow with a c per bin, plus k = 0.02 times that flow (what
+  identification leaves of a notch's coefficient), never below PARITY_FLOOR_L_MIN. Its residual is
+  a flow error whose bias and spread follow the flow, not the opening. mu and sigma come from the identified part of
   the recordings, c from the held-out part. The spool is then the one the pilot pressures drive,
   and the notches are fed by the measured compensator pressure. The signature table stays the
   config's (built by simulation, ``hydro-ros fdi-fit``): which residual a fault moves is the fault's
@@ -79,7 +78,7 @@ COMMISSIONED_FLOW_FRACTION = 0.02  # k of the commissioned thresholds: what iden
 PARITY_FLOOR_L_MIN = 0.25  # [L/min] no commissioned parity threshold below this: a meter-in notch wide open on a compensator at
 # its supply limit (the load too heavy to lift: the mobile SAM with 300 kg, a payload the recordings did not hold) meters on a
 # pressure drop of the order of the transmitters' noise, and the orifice law's root biases its 5 s mean by -0.22 L/min
-PARITY_FLOOR = 3.0  # [sigma] with a c per bin, none below margin x this, however quiet its held-out data
+PARITY_FLOOR = 3.0  # [sigma] no bin's c below margin x this, however quiet its held-out data
 PARITY_MARGIN = 3.0  # c = margin x the largest held-out factor. The bins follow the opening, not the load pressure
 # that the return notch's flow error grows with: on 6 plants commissioned without payload, 300 kg steps reached
 # 1.0-2.6x the held-out factor (bench/commissioning_mobile.json), and 2.0 gave 3 false alarms per hour
@@ -197,13 +196,11 @@ def armed_parity_residuals(machine: Machine, samples: Samples) -> tuple[np.ndarr
 
 def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequence[Samples],
                      progress: Callable[[str], None] | None) -> dict[str, Any]:
-    """P-IV's statistical form (parity method): |mu| + c sigma per bin of the operating point.
+    """P-IV's statistical form (parity method): |mu| + c sigma per bin of each chamber's 5 s mean valve flow.
 
-    The form is the config's (``fdi.parity_thresholds``: its bins, edges, flow fraction, one c or a c
-    per bin), else one c per bin of the 5 s mean opening. mu and sigma per bin come from the
-    commissioned model's residuals on the part of the recordings it was identified on; c = margin x the
-    largest factor the held-out part reaches (where the config has a c per bin: in the bin and its two
-    neighbours, at least margin x PARITY_FLOOR).
+    mu and sigma per bin come from the commissioned model's residuals on the part of the recordings it
+    was identified on; c = margin x the largest factor the held-out part reaches in the bin and its two
+    neighbours, at least margin x PARITY_FLOOR; k = COMMISSIONED_FLOW_FRACTION, floor PARITY_FLOOR_L_MIN.
     """
     before = FdiSettings.from_machine(machine).parity_thresholds
     edges, bins, flow_fraction = FLOW_EDGES, "flow", COMMISSIONED_FLOW_FRACTION
