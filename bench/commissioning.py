@@ -108,7 +108,9 @@ def main() -> int:
         "false_alarms_per_hour": {name: sum(p["false_alarms"][name] for p in plants) / hours for name in ("shipped", "commissioned")},
         "config": str(Path(args.config).resolve().relative_to(REPO)) if Path(args.config).resolve().is_relative_to(REPO) else args.config,
         "threshold": {"form": report["threshold"]["form"], "parameter": report["threshold"]["parameter"],
-                      "median": float(np.median([p["threshold"] for p in plants])), "max": max(p["threshold"] for p in plants),
+                      # over plants and, where the threshold has a c per bin, over its bins
+                      "median": float(np.median(np.hstack([p["threshold"] for p in plants]))),
+                      "max": float(np.max(np.hstack([p["threshold"] for p in plants]))),
                       "shipped": report["threshold"]["before"]},
         "smallest_isolated_in_every_plant_l_min": smallest, "paper_l_min": PAPER,
         "detected_share": {f"{fault}@{size}": float(np.mean([r["detected_s"] is not None and not r["early"] for p in plants
