@@ -9,7 +9,7 @@ import sys
 import threading
 import time
 from contextlib import contextmanager
-from typing import Callable, Iterator
+from typing import Any, Callable, Iterator
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -99,18 +99,21 @@ def change_state(node: rclpy.node.Node, lifecycle_node: str, transition_id: int)
     return future.result().success
 
 
+def answered(node: rclpy.node.Node, ask: Callable[[], Any], attempts: int = 3, timeout: float = 5.0) -> Any:
+    """The result of an idempotent service call, asked again when no answer comes: DDS may report a service before the
+    server's response writer has matched this client, and then the first response is lost (seen in loaded full runs)."""
+    for _ in range(attempts):
+        future = ask()
+        if spin_until(node, future.done, timeout):
+            return future.result()
+    raise AssertionError(f"no answer to {attempts} requests of {timeout:g} s")
+
+
 def lifecycle_state(node: rclpy.node.Node, lifecycle_node: str) -> str:
     from lifecycle_msgs.srv import GetState
 
     client = node.create_client(GetState, f"{lifecycle_node}/get_state")
     assert client.wait_for_service(20.0), f"{lifecycle_node}/get_state not offered"
-    # DDS may report the service before the server's response writer has matched this client, and then the
-    # first response is lost (seen once in a loaded full run); asking for the state again is harmless
-    for _ in range(3):
-        future = client.call_async(GetState.Request())
-        if spin_until(node, future.done, 5):
-            break
-        client.remove_pending_request(future)
-    assert future.done(), f"{lifecycle_node}/get_state did not answer three requests"
+    result = answered(node, lambda: client.call_async(GetState.Request()))
     node.destroy_client(client)
-    return future.result().current_state.label
+    return result.current_state.label

@@ -15,7 +15,7 @@ from hydro_ros.contract import topics
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS
 from hydro_ros.sim.scenario import Scenario, run_blocks
 from test.conftest import SAM_CONFIG
-from test.ros_graph import node_process, probe_node, spin_until
+from test.ros_graph import answered, node_process, probe_node, spin_until
 
 
 def test_plant_sim_publishes_contract_topics_and_takes_faults(ros_domain):
@@ -33,9 +33,7 @@ def test_plant_sim_publishes_contract_topics_and_takes_faults(ros_domain):
         before = np.mean([m.fluid_pressure for m in samples["pa"][-500:]])
         client = AsyncParameterClient(node, "plant_sim")
         assert client.wait_for_services(10.0)
-        future = client.set_parameters([Parameter("fault.external_leakage_a", value=20.0)])
-        assert spin_until(node, future.done, 10)
-        assert future.result().results[0].successful
+        assert answered(node, lambda: client.set_parameters([Parameter("fault.external_leakage_a", value=20.0)])).results[0].successful
         count = len(samples["pa"])
         assert spin_until(node, lambda: len(samples["pa"]) > count + 6000, 40)
         after = np.mean([m.fluid_pressure for m in samples["pa"][-500:]])
@@ -48,9 +46,7 @@ def test_plant_sim_rejects_bad_fault_values(ros_domain):
     with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}"), probe_node("probe") as node:
         client = AsyncParameterClient(node, "plant_sim")
         assert client.wait_for_services(20.0)
-        future = client.set_parameters([Parameter("fault.internal_leakage", value=float("nan"))])
-        assert spin_until(node, future.done, 10)
-        result = future.result().results[0]
+        result = answered(node, lambda: client.set_parameters([Parameter("fault.internal_leakage", value=float("nan"))])).results[0]
         assert not result.successful and "finite" in result.reason
 
 
