@@ -111,7 +111,7 @@ def main() -> int:
                       # over plants and, where the threshold has a c per bin, over its bins
                       "median": float(np.median(np.hstack([p["threshold"] for p in plants]))),
                       "max": float(np.max(np.hstack([p["threshold"] for p in plants]))),
-                      "shipped": report["threshold"]["before"]},
+                      "shipped": float(np.max(report["threshold"]["before"]))},
         "smallest_isolated_in_every_plant_l_min": smallest, "paper_l_min": PAPER,
         "detected_share": {f"{fault}@{size}": float(np.mean([r["detected_s"] is not None and not r["early"] for p in plants
                                                               for r in p["leaks"] if r["fault"] == fault and r["size"] == size]))

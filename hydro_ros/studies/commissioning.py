@@ -221,7 +221,8 @@ def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequ
     return {"fdi": {"parity_thresholds": thresholds.to_config()},
             "form": f"P-IV statistical, per operating point: |mu| + c sigma per bin of the chamber's 5 s mean valve flow, c per bin, "
                     f"+ {flow_fraction:g} x that flow",
-            "parameter": "c [-]", "before": before.factor if before else None, "reached": reached.tolist(), "value": list(factor),
+            "parameter": "c [-]", "before": None if before is None else list(np.atleast_1d(before.factor).astype(float)),
+            "reached": reached.tolist(), "value": list(factor),
             "margin": PARITY_MARGIN, "budget": "no crossing on the held-out data"}
 
 

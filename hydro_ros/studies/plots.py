@@ -244,7 +244,8 @@ def plot_commissioning(report: dict, machine: Machine, out: str | Path) -> Path:
             for offset, label, values, color in ((-0.27, f"{name} before", threshold["before"], "0.6"),
                                                  (0.0, "worst held-out", threshold["reached"], "tab:orange"),
                                                  (0.27, f"{name} commissioned", threshold["value"], "tab:blue")):
-                ax.bar(bins + offset, values or np.zeros(len(bins)), width=0.27, label=label, color=color)
+                ax.bar(bins + offset, np.broadcast_to(np.asarray(values if values is not None else 0.0, dtype=float), bins.shape),
+                       width=0.27, label=label, color=color)
             ax.set_xticks(bins, [f"bin {b}" for b in bins])
             ax.legend(fontsize=7)
         else:
