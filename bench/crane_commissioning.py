@@ -30,7 +30,7 @@ sys.path.insert(0, str(REPO))
 
 from hydro_ros.contract.errors import InputError  # noqa: E402
 from hydro_ros.contract.machine import load_machine_config  # noqa: E402
-from hydro_ros.fdi.parity import FLOW_EDGES  # noqa: E402
+from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS  # noqa: E402
 from hydro_ros.fdi.settings import FdiSettings  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
 from hydro_ros.studies.commissioning import commission  # noqa: E402
@@ -51,7 +51,7 @@ BIN_FLOWS = (0.5, 1.5, 3.0, 6.0, 12.0, 30.0)  # [L/min] one operating point insi
 
 def thresholds_at_bins(machine) -> list[list[float]]:
     """[L/min] the (A, B) threshold at a mean valve flow inside each bin."""
-    point = np.zeros((len(BIN_FLOWS), 3))
+    point = np.zeros((len(BIN_FLOWS), POINT_CHANNELS))
     point[:, 1] = point[:, 2] = BIN_FLOWS
     return np.round(FdiSettings.from_machine(machine).parity_thresholds(point), 3).tolist()
 

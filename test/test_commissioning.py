@@ -16,6 +16,7 @@ from hydro_ros.contract.names import Injection
 from hydro_ros.contract.samples import Samples
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import run_monitor
+from hydro_ros.fdi.parity import POINT_CHANNELS
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.identification import flow_regression
 from hydro_ros.models.sam import SamModel
@@ -105,7 +106,7 @@ def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_an
     shipped, commissioned = (FdiSettings.from_machine(m).parity_thresholds for m in (mobile, machine))
     run = run_monitor(FdiMonitor(machine), _samples(plant, 11, 120.0, PAYLOAD_STEPS))
     assert run.alarms == [], [a.to_json() for a in run.alarms]
-    worked = run.operating_point.reshape(-1, 3)[run.monitor.startup + run.monitor.window:]  # where this machine's work took it
+    worked = run.operating_point.reshape(-1, POINT_CHANNELS)[run.monitor.startup + run.monitor.window:]  # where this machine's work took it
     assert commissioned(worked).mean() < 0.8 * shipped(worked).mean()
     run = run_monitor(FdiMonitor(machine), _samples(plant, 21, 60.0, [Injection("external_leakage_a", 0.4, 20.0)]))
     named = [a for a in run.alarms if a.fault is not None and a.fault.value != "unisolated"]

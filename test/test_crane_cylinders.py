@@ -141,7 +141,7 @@ def test_commissioning_on_the_cranes_own_work_lowers_its_thresholds_and_names_ha
             truth = drawn[np.argmax(np.abs(nominal))] / nominal[np.argmax(np.abs(nominal))]  # the plant's notch is the nominal scaled
             assert gain == pytest.approx(truth, abs=0.03), (ident["actuator"], notch)
     commissioned = machine.with_overrides(block["model"])
-    at_rest = np.array([[0.0, 0.5, 0.5]])
+    at_rest = np.array([[0.0, 0.5, 0.5, 0.0, 0.0]])
     shipped_rest, commissioned_rest = (FdiSettings.from_machine(m).parity_thresholds(at_rest) for m in (machine, commissioned))
     assert np.all(commissioned_rest < shipped_rest), (commissioned_rest, shipped_rest)
     quiet = [CraneCase(51, 60.0), CraneCase(52, 60.0, "horizontal")]

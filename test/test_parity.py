@@ -7,6 +7,7 @@ import pytest
 
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.fdi.monitor import FdiMonitor
+from hydro_ros.fdi.parity import ParityGenerator
 from hydro_ros.models.sam import PILOT_MAX, SamModel
 from hydro_ros.models.valve import pilot_drive
 from hydro_ros.studies.fdi_evaluation import Case, _blocks, run_case
@@ -76,3 +77,28 @@ def test_a_pilot_at_tank_read_by_a_transmitter_clipped_at_zero_does_not_shrink_t
     back = 3.0e5  # [Pa] a tank line's back pressure on both pilots, read with the transmitter's noise either side
     at_back = back + rng.normal(0.0, sigma, 100_000)
     assert np.mean(pilot_drive(acting + back, at_back, pilot_max, model.pilot_tank_band)) == pytest.approx(0.4, abs=0.02 * sigma / pilot_max)
+
+
+def test_the_roots_noise_bias_bounds_a_stalled_notchs_misreading(mobile):
+    """A compensator at its supply limit, the boom stalled under a load the pump cannot lift: the meter-in notch is open but
+    its drop is zero, read by two transmitters with 0.1 MPa noise. The root reads flows of either sign, and their 5 s mean
+    misses zero by more than a fitted threshold's spread; the curvature term that joins the thresholds covers it there and
+    adds next to nothing where the notch meters on its regulated drop."""
+    model = SamModel(mobile)
+    sigma, n = mobile.sensors.pressure_noise_std, 5000
+    rng = np.random.default_rng(7)
+
+    def window(drop: float) -> tuple[float, float]:
+        generator = ParityGenerator([model])
+        column = np.ones((n, 1))
+        supply = 10.0e6
+        residual, _, _, bias = generator.run(
+            0.3 * column, 0.0 * column, supply - drop + rng.normal(0.0, sigma, (n, 1)), 1.0e6 + rng.normal(0.0, sigma, (n, 1)),
+            0.8 * model.base[PILOT_MAX] * column, 0.0 * column, supply + rng.normal(0.0, sigma, (n, 1)), column.astype(bool))
+        return float(np.mean(residual[1000:, 0, 0])), float(np.mean(bias[1000:, 0, 0]))
+
+    stalled = [window(0.0) for _ in range(8)]
+    assert max(abs(r) for r, _ in stalled) > 0.05  # what the noise alone puts into a 5 s mean [L/min]
+    assert all(abs(r) < b for r, b in stalled), stalled
+    assert min(b for _, b in stalled) > 0.2
+    assert window(mobile.actuators[0].valve.compensator_pressure_drop)[1] < 0.02

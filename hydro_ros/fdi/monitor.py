@@ -40,7 +40,7 @@ class BlockResult:
     valid: np.ndarray  # (n, A)
     alarms: list[Alarm]
     mean_command: np.ndarray  # (n, A) 5 s mean valve command
-    operating_point: np.ndarray | None = None  # (n, A, 3) parity: 5 s means of the opening and |Q_A|, |Q_B| [L/min]
+    operating_point: np.ndarray | None = None  # (n, A, 5) parity: 5 s means of the opening, |Q_A|, |Q_B| and the roots' noise bias in A, B [L/min]
 
 
 @dataclass

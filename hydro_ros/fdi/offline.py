@@ -28,7 +28,7 @@ class FdiRun:
     threshold: np.ndarray  # (n, A, 2) MPa
     code: np.ndarray  # (n, A)
     alarms: list[Alarm]
-    operating_point: np.ndarray | None = None  # (n, A, 3) parity: 5 s means of the opening and |Q_A|, |Q_B| [L/min]
+    operating_point: np.ndarray | None = None  # (n, A, 5) parity: 5 s means of the opening, |Q_A|, |Q_B| and the roots' noise bias in A, B [L/min]
     data: BagData | None = None
 
     def to_json(self) -> dict[str, Any]:

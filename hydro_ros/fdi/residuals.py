@@ -22,7 +22,7 @@ import numpy as np
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.fdi.isolation import UKF_TABLE, PatternRow
-from hydro_ros.fdi.parity import ParityGenerator
+from hydro_ros.fdi.parity import POINT_CHANNELS, ParityGenerator
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.fdi.ukf import PRESSURE_UNIT, UkfBank
 from hydro_ros.models.sam import SamModel
@@ -151,21 +151,22 @@ class ParityResiduals(ResidualGenerator):
             raise InputError("fdi method parity: the config has no fdi.parity_thresholds (fit them with hydro-ros fdi-fit --write, "
                              "or hydro-ros commission on the machine's recordings)")
         self.generator = ParityGenerator(models)
-        self._operating_point_mean = MovingAverage(window, 3 * len(models))
+        self._operating_point_mean = MovingAverage(window, POINT_CHANNELS * len(models))
 
     @property
     def table(self) -> tuple[PatternRow, ...]:
         return self.settings.parity_signatures
 
     def residuals(self, block: BlockInput) -> tuple[np.ndarray, np.ndarray]:
-        """Residuals, and the operating point (n, A, 3): 5 s means of the opening and of the chambers' |valve flow|."""
+        """Residuals, and the operating point (n, A, 5): 5 s means of the opening, the chambers' |valve flow| and their roots'
+        noise bias."""
         if block.mobile is None:
             raise InputError("fdi method parity: no pilot/compensator pressures in the samples")
-        residual, opening, flow = self.generator.run(block.piston, block.velocity, block.pressure[:, :, 0], block.pressure[:, :, 1],
+        residual, opening, flow, bias = self.generator.run(block.piston, block.velocity, block.pressure[:, :, 0], block.pressure[:, :, 1],
                                                      block.mobile[:, :, 0], block.mobile[:, :, 1], block.mobile[:, :, 2], block.valid)
         n, n_act = opening.shape
-        point = np.concatenate([opening[:, :, None], flow], axis=2).reshape(n, -1)
-        return residual, self._operating_point_mean(point).reshape(n, n_act, 3)
+        point = np.concatenate([opening[:, :, None], flow, bias], axis=2).reshape(n, -1)
+        return residual, self._operating_point_mean(point).reshape(n, n_act, POINT_CHANNELS)
 
     def thresholds(self, mean_pressure: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
         return self.settings.parity_thresholds(operating_point)
@@ -176,7 +177,7 @@ class ParityResiduals(ResidualGenerator):
 
     def self_check(self) -> list[tuple[str, bool]]:
         thresholds = self.settings.parity_thresholds
-        at_rest = np.zeros((len(thresholds.edges), 1, 3))
+        at_rest = np.zeros((len(thresholds.edges), 1, POINT_CHANNELS))
         at_rest[:, 0, 0] = thresholds.edges
         positive = bool(np.all(thresholds(at_rest) > 0.0))
         return [("parity thresholds positive at every operating point", positive),

@@ -32,7 +32,7 @@ import numpy as np
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_episodes
-from hydro_ros.fdi.parity import FLOW_EDGES, ParityThresholds
+from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS, ParityThresholds
 from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun, simulate_crane
 from hydro_ros.studies.commissioning import Recording
 from hydro_ros.studies.fdi_evaluation import mismatched_config, parallel_map
@@ -66,7 +66,7 @@ class CraneOutcome:
     crossing_episodes: dict[str, int] = field(default_factory=dict)
     monitored_s: float = 0.0
     residual: np.ndarray | None = None  # armed (n, A, 2) 5 s mean residuals, kept when asked
-    operating_point: np.ndarray | None = None  # armed (n, A, 3)
+    operating_point: np.ndarray | None = None  # armed (n, A, 5)
 
     @property
     def false_alarms(self) -> list[dict[str, Any]]:
@@ -160,7 +160,7 @@ def work_cases(seeds: Iterable[int], paths: Iterable[str], duration_s: float, mi
 
 def _flatten(outcomes: Sequence[CraneOutcome]) -> tuple[np.ndarray, np.ndarray]:
     residual = np.concatenate([o.residual.reshape(-1, 2) for o in outcomes])
-    point = np.concatenate([o.operating_point.reshape(-1, 3) for o in outcomes])
+    point = np.concatenate([o.operating_point.reshape(-1, POINT_CHANNELS) for o in outcomes])
     keep = np.all(np.isfinite(residual), axis=1) & np.all(np.isfinite(point), axis=1)
     return residual[keep], point[keep]
 
