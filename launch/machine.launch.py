@@ -1,4 +1,4 @@
-"""Bring-up of a SAM-type machine: can_bridge (sensors from the CAN bus), fdi_node (the monitor), the
+"""Bring-up of a machine (a SAM type or the K70M crane): can_bridge (sensors from the CAN bus), fdi_node (the monitor), the
 operator HMI and, where installed, diagnostic_aggregator.
 
     ros2 launch hydro_ros machine.launch.py params_file:=/path/to/my_machine.yaml namespace:=machine2

@@ -186,3 +186,38 @@ def test_the_crane_cylinders_frames_carry_every_cylinder_in_its_slot(k70m):
             assert values["pilot_pressure_2"][actuator] == pytest.approx(samples.pilot_pressure_2[k, i], abs=50)
             assert values["compensator_pressure"][actuator] == pytest.approx(samples.compensator_pressure[k, i], abs=250)
             assert values["joint_position"][actuators[actuator]] == pytest.approx(samples.joint_position[k, i], abs=1e-7)
+
+
+def test_a_crane_log_converts_to_a_bag_of_every_cylinder(tmp_path):
+    """A K70M recording on the bus (three cylinders in slots 2-4) becomes one contract bag with every cylinder, as
+    `hydro-ros sim` writes it: the samples within the signals' resolution, a corrupt frame's cycle left out."""
+    from hydro_ros.bags.align import SampleLayout
+    from hydro_ros.models.crane import load_crane
+    from hydro_ros.sim.crane_cylinders import CraneRun, simulate_crane
+
+    machine = load_machine_config(REPO / "config" / "k70m.yaml")
+    samples = simulate_crane(machine, load_crane(REPO / "config" / "k70m.yaml")[1], CraneRun(1.0, seed=2))
+    bus = MachineBus(machine)
+    actuators = {a.name: a.joint for a in machine.actuators}
+    log = tmp_path / "crane.blf"
+    writer = can.Logger(str(log))
+    try:
+        for k in range(len(samples.times)):
+            for i, (frame_id, data) in enumerate(bus.encode_cycle(sample_values(samples, k, actuators), k % 16)):
+                if k == 500 and i == 3:
+                    data = bytes([data[0] ^ 0xFF]) + data[1:]
+                writer.on_message_received(can.Message(timestamp=1.7e9 + samples.times[k] + i * 1e-5, arbitration_id=frame_id,
+                                                       data=data, is_extended_id=False))
+    finally:
+        writer.stop()
+    report = convert_log(log, machine, tmp_path / "bag")
+    assert report.rejected["bad_checksum"] == 1 and report.incomplete_cycles == 1 and report.cycles == len(samples.times) - 1
+    data = read_bag(tmp_path / "bag")
+    layout = SampleLayout(machine.actuator_names, list(actuators.values()), mobile=True)
+    read = data.samples(layout)
+    kept = np.delete(np.arange(len(samples.times)), 500)
+    assert read.pressure_a.shape == (len(kept), 3) and data.complete
+    assert np.allclose(read.pressure_b, samples.pressure_b[kept], atol=250)
+    assert np.allclose(read.compensator_pressure, samples.compensator_pressure[kept], atol=250)
+    assert np.allclose(read.joint_position, samples.joint_position[kept], atol=1e-6)
+    assert np.allclose(np.diff(read.times), np.diff(samples.times[kept]), atol=1e-6)

@@ -98,7 +98,7 @@ def test_machine_launch_takes_namespace_params_file_sim_time_and_node_choices(mo
     assert all(type(node.kwargs["namespace"]).__name__ == "LaunchConfiguration" for node in nodes)
 
 
-@pytest.mark.parametrize("machine", ["sam", "sam_mobile", "sam_mems"])
+@pytest.mark.parametrize("machine", ["sam", "sam_mobile", "sam_mems", "k70m"])
 def test_shipped_params_files_are_what_the_nodes_declare(machine):
     shipped = (REPO / "config" / "params" / f"{machine}.yaml").read_text()
     assert shipped == machine_params(REPO / "config" / f"{machine}.yaml"), f"regenerate: hydro-ros params --config config/{machine}.yaml"

@@ -17,6 +17,7 @@ import numpy as np
 
 from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_values
+from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.samples import Samples
@@ -41,7 +42,7 @@ class ConversionReport:
                 "out_of_order_cycles": self.out_of_order_cycles, "rejected_samples": dict(self.rejected_samples)}
 
 
-def _kept_in_time_order(stamps: np.ndarray, rows: list[dict[str, Any]], slot: Any, machine: Machine,
+def _kept_in_time_order(stamps: np.ndarray, rows: list[dict[str, Any]], slots: list[Any], machine: Machine,
                         report: ConversionReport) -> np.ndarray:
     """Indices of the cycles to write, in time order: a second cycle at one stamp and a physically
     impossible reading (a garbage frame whose CRC-8 matched by chance) are rejected and counted."""
@@ -54,12 +55,13 @@ def _kept_in_time_order(stamps: np.ndarray, rows: list[dict[str, Any]], slot: An
     keep = []
     for i in order[~duplicate]:
         row = rows[i]
-        pressures = [row["pressure_a"][slot.actuator], row["pressure_b"][slot.actuator], row["supply_pressure"]]
-        readings = [row["joint_position"][slot.joint], row["joint_velocity"][slot.joint], *pressures]
-        if not np.all(np.isfinite(readings)):
+        positions = [row["joint_position"][slot.joint] for slot in slots]
+        velocities = [row["joint_velocity"][slot.joint] for slot in slots]
+        pressures = [row["supply_pressure"], *(row[side][slot.actuator] for slot in slots for side in ("pressure_a", "pressure_b"))]
+        if not np.all(np.isfinite([*positions, *velocities, *pressures])):
             report.rejected_samples["nonfinite"] += 1
-        elif (not sensors.joint_range[0] <= row["joint_position"][slot.joint] <= sensors.joint_range[1]
-              or abs(row["joint_velocity"][slot.joint]) > sensors.joint_velocity_max
+        elif (not all(sensors.joint_range[0] <= q <= sensors.joint_range[1] for q in positions)
+              or any(abs(v) > sensors.joint_velocity_max for v in velocities)
               or not all(low <= p <= high for p in pressures)):
             report.rejected_samples["implausible"] += 1
         else:
@@ -74,9 +76,8 @@ def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Ca
     if log.suffix.lower() not in LOG_SUFFIXES:
         raise InputError(f"log {log}: unsupported format {log.suffix!r}; expected candump .log, .asc or .blf")
     bus = MachineBus(machine)
-    if len(bus.slots) != 1:
-        raise InputError("can convert: only single-actuator machines are written to bags so far")
-    slot = bus.slots[0]
+    slots = bus.slots
+    mobile = any(slot.mobile for slot in slots)
     assembler = CycleAssembler(bus.expected)
     counters = CounterCheck()
     report = ConversionReport()
@@ -114,26 +115,25 @@ def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Ca
     report.counter_gaps = dict(counters.gaps)
     if not rows:
         raise InputError(f"log {log}: no complete sensor cycle of machine {machine.name!r} ({dict(report.rejected)})")
-    order = _kept_in_time_order(np.asarray(stamps), rows, slot, machine, report)
+    order = _kept_in_time_order(np.asarray(stamps), rows, slots, machine, report)
     report.cycles = len(order)
     if not len(order):
         raise InputError(f"log {log}: no plausible sensor cycle of machine {machine.name!r} ({dict(report.rejected_samples)})")
 
-    def series(key: str, name: str) -> np.ndarray:
-        return np.array([rows[i][key][name] for i in order])
+    def columns(key: str) -> np.ndarray:
+        """(n, A): the quantity of every actuator (or of its joint), in the machine's actuator order."""
+        by_joint = key.startswith("joint_")
+        return np.array([[rows[i][key][slot.joint if by_joint else slot.actuator] for slot in slots] for i in order])
 
     samples = Samples(
         times=np.asarray(stamps)[order] * 1e-9,
-        joint_position=series("joint_position", slot.joint), joint_velocity=series("joint_velocity", slot.joint),
-        pressure_a=series("pressure_a", slot.actuator), pressure_b=series("pressure_b", slot.actuator),
+        **{key: columns(key) for key in ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command")},
         supply_pressure=np.array([rows[i]["supply_pressure"] for i in order]),
-        valve_command=series("valve_command", slot.actuator),
-        **({"pilot_pressure_1": series("pilot_pressure_1", slot.actuator), "pilot_pressure_2": series("pilot_pressure_2", slot.actuator),
-            "compensator_pressure": series("compensator_pressure", slot.actuator),
-            "ls_pressure": np.array([rows[i]["ls_pressure"] for i in order])} if slot.mobile else {}),
+        **({**{key: columns(key) for key in topics.MOBILE_VALVE_PRESSURES},
+            "ls_pressure": np.array([rows[i]["ls_pressure"] for i in order])} if mobile else {}),
     )
     variance = machine.sensors.pressure_noise_std ** 2
-    with ContractBagWriter(out, actuators={slot.actuator: slot.joint}, pressure_variance=variance, mobile=slot.mobile) as writer:
+    with ContractBagWriter(out, actuators={slot.actuator: slot.joint for slot in slots}, pressure_variance=variance, mobile=mobile) as writer:
         writer.custom_data["hydro_ros.source"] = str(log.name)
-        writer.write_block(slot.actuator, samples)
+        writer.write_machine_block(samples)
     return report

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.nodes import can_bridge, fdi_node, hmi
 from hydro_ros.nodes.parameters import PACKAGE_SHARE, Spec, params_yaml
 
@@ -17,6 +18,10 @@ BRINGUP: dict[str, dict[str, Spec]] = {
     "fdi_node": fdi_node.PARAMETERS,
     "hmi": hmi.PARAMETERS,
 }
+
+# a crane's cylinders at 1 kHz are ~19 000 per-sample messages a second, more than rclpy carries: the bridge hands the
+# monitor sample blocks and keeps only /joint_states, which the HMI and a trajectory server read
+CRANE_VALUES = {"can_bridge": {"sensor_topics": "joint_states", "sample_blocks": True}, "fdi_node": {"input": "sample_block"}}
 
 
 def machine_params(config: Path) -> str:
@@ -28,6 +33,8 @@ def machine_params(config: Path) -> str:
         f"# {PACKAGE_SHARE} is expanded by the launch file; for `--params-file` write the path out.\n"
         "# /**: the same values for these node names in any namespace (-r __ns:=/machine2).\n"
     )
-    blocks = [params_yaml(name, specs, {"config": f"{PACKAGE_SHARE}/config/{config.name}"}).replace(f"{name}:\n", f"/**/{name}:\n", 1)
+    crane = load_machine_config(config).crane
+    blocks = [params_yaml(name, specs, {"config": f"{PACKAGE_SHARE}/config/{config.name}", **(CRANE_VALUES.get(name, {}) if crane else {})})
+              .replace(f"{name}:\n", f"/**/{name}:\n", 1)
               for name, specs in BRINGUP.items()]
     return header + "\n".join(blocks)

@@ -9,6 +9,10 @@ counted by kind and never published. Per-message health goes to /diagnostics
 and length errors) with a bus status (`hydro_ros/can_bridge/bus`: connection, error frames,
 unknown ids, reconnects). A lost bus is reopened with exponential back-off.
 
+With ``sample_blocks`` each decoding tick's complete cycles also go out as one message on
+/hydraulics/sample_block, plant_sim's format, and ``sensor_topics`` can turn the per-sample topics off:
+a crane's cycles at 1 kHz are more per-sample messages than rclpy carries (README, fdi_node on a crane).
+
 `forward_commands` (off by default: it drives a machine) sends /hydraulics/valve_commands as
 VALVEn_REQUEST frames while the node is active; the bridge then leaves /hydraulics/valve_commands
 to ROS and does not publish the applied commands it reads back. Deactivating (or shutting down)
@@ -28,18 +32,20 @@ import time
 from typing import Any
 
 import can
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from sensor_msgs.msg import FluidPressure, JointState
+from sensor_msgs.msg import FluidPressure, JointState, PointCloud2
 
-from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
+from hydro_ros.bags.align import SampleLayout
+from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state, encode_sample_block
 from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_values
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.nodes.common import SENSOR_QOS, destroy_entities, relative, run_node
+from hydro_ros.nodes.common import SAMPLE_OUTPUT_PARAMETERS, SENSOR_QOS, destroy_entities, publishes_sensor_topic, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
@@ -115,6 +121,7 @@ PARAMETERS = {
     "hardware_filters": Spec(True, "let the interface pass only the DBC's sensor frames"),
     "forward_commands": Spec(False, "while active, send /hydraulics/valve_commands as valve request frames (this drives "
                                     "the machine); deactivating sends neutral requests"),
+    **SAMPLE_OUTPUT_PARAMETERS,
     "autostart": Spec(True, "configure and activate at start; false: wait for a lifecycle manager"),
     "process_period": Spec(0.01, "[s] period of decoding the received frames", 0.001, 1.0),
     "diagnostics_period": Spec(1.0, "[s] period of /diagnostics", 0.05, 60.0),
@@ -162,9 +169,13 @@ class CanBridge(LifecycleNode):
         types = topics.sensor_topics([s.actuator for s in self.codec.slots], mobile=mobile)
         self.pubs = {name: self.create_lifecycle_publisher(JointState if kind == topics.JOINT_STATE_TYPE else FluidPressure,
                                                            relative(name), SENSOR_QOS)
-                     for name, kind in types.items() if not (self.forward and name == topics.VALVE_COMMANDS)}
+                     for name, kind in types.items()
+                     if publishes_sensor_topic(self.params["sensor_topics"], name) and not (self.forward and name == topics.VALVE_COMMANDS)}
+        self.layout = SampleLayout([slot.actuator for slot in self.codec.slots], [slot.joint for slot in self.codec.slots], mobile=mobile)
+        self.pub_block = (self.create_lifecycle_publisher(PointCloud2, relative(topics.SAMPLE_BLOCK), SENSOR_QOS)
+                          if self.params["sample_blocks"] else None)
         self.pub_diag = self.create_lifecycle_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
-        self._entities = [*self.pubs.values(), self.pub_diag]
+        self._entities = [*self.pubs.values(), *([self.pub_block] if self.pub_block else []), self.pub_diag]
         if self.forward:
             self._entities.append(self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._forward, SENSOR_QOS))
 
@@ -236,6 +247,7 @@ class CanBridge(LifecycleNode):
             return
         frames = self.reader.frames
         now = time.monotonic()
+        block: list[tuple[int, list[float]]] = []
         for _ in range(len(frames)):
             message = frames.popleft()
             try:
@@ -248,28 +260,43 @@ class CanBridge(LifecycleNode):
             self.last_seen[name] = now
             self.counters(name, counter)
             for cycle in self.assembler.add(name, counter, values, int(round(message.timestamp * 1e9))):
-                if self.active:  # configured but inactive: the bus is read and checked, nothing is published
-                    self._publish(cycle)
+                if not self.active:  # configured but inactive: the bus is read and checked, nothing is published
+                    continue
+                values = cycle_values(self.codec, cycle)
+                if self.pubs:
+                    self._publish(values, cycle.stamp_ns)
+                # a block row needs every column: an incomplete cycle is a gap the monitor sees (counted in incomplete_cycles)
+                if self.pub_block is not None and cycle.complete(self.codec.expected):
+                    block.append((cycle.stamp_ns, self._row(values)))
+                self.published_cycles += 1
+        if block:
+            stamps = np.array([stamp for stamp, _ in block], dtype=np.int64)
+            self.pub_block.publish(encode_sample_block(int(stamps[0]), self.machine, self.layout.field_names, stamps,
+                                                       np.array([row for _, row in block])))
 
-    def _publish(self, cycle: Any) -> None:
-        values = cycle_values(self.codec, cycle)
-        stamp = cycle.stamp_ns
-        if values["joint_position"]:
+    def _row(self, values: dict[str, Any]) -> list[float]:
+        """A complete cycle's values in the sample block's columns."""
+        return [values[quantity][name] if name else values[quantity] for quantity, name in self.layout.columns]
+
+    def _publish(self, values: dict[str, Any], stamp: int) -> None:
+        pubs = self.pubs
+        if values["joint_position"] and topics.JOINT_STATES in pubs:
             joints = list(values["joint_position"])
-            self.pubs[topics.JOINT_STATES].publish(encode_joint_state(
+            pubs[topics.JOINT_STATES].publish(encode_joint_state(
                 stamp, "", joints, [values["joint_position"][j] for j in joints], [values["joint_velocity"][j] for j in joints], []))
-        if "supply_pressure" in values:
-            self.pubs[topics.SUPPLY_PRESSURE].publish(encode_fluid_pressure(stamp, "supply", values["supply_pressure"], 0.0))
-            if topics.LS_PRESSURE in self.pubs:
-                self.pubs[topics.LS_PRESSURE].publish(encode_fluid_pressure(stamp, "ls", values["ls_pressure"], 0.0))
+        if "supply_pressure" in values and topics.SUPPLY_PRESSURE in pubs:
+            pubs[topics.SUPPLY_PRESSURE].publish(encode_fluid_pressure(stamp, "supply", values["supply_pressure"], 0.0))
+            if topics.LS_PRESSURE in pubs:
+                pubs[topics.LS_PRESSURE].publish(encode_fluid_pressure(stamp, "ls", values["ls_pressure"], 0.0))
         for quantity in ("pressure_a", "pressure_b", *topics.MOBILE_VALVE_PRESSURES):
             for actuator, value in values[quantity].items():
-                self.pubs[topics.actuator_pressure(actuator, quantity)].publish(encode_fluid_pressure(stamp, actuator, value, 0.0))
-        if values["valve_command"] and topics.VALVE_COMMANDS in self.pubs:
+                topic = topics.actuator_pressure(actuator, quantity)
+                if topic in pubs:
+                    pubs[topic].publish(encode_fluid_pressure(stamp, actuator, value, 0.0))
+        if values["valve_command"] and topics.VALVE_COMMANDS in pubs:
             actuators = list(values["valve_command"])
-            self.pubs[topics.VALVE_COMMANDS].publish(encode_joint_state(
+            pubs[topics.VALVE_COMMANDS].publish(encode_joint_state(
                 stamp, "", actuators, [values["valve_command"][a] for a in actuators], [], []))
-        self.published_cycles += 1
 
     def _forward(self, msg: JointState) -> None:
         if not self.active or self.reader is None:

@@ -18,6 +18,7 @@ from rclpy.timer import Timer
 
 from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
+from hydro_ros.nodes.parameters import Spec
 
 SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=topics.SENSOR_QUEUE_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
 # State that late joiners must see (halt, catalog, results).
@@ -34,6 +35,21 @@ HALT_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
     deadline=Duration(seconds=3 * HALT_PERIOD_S),
 )
+
+
+# the two nodes that put sensor samples on the graph (plant_sim, can_bridge) offer the same outputs: a crane at 1 kHz is
+# ~19 000 per-sample messages a second, more than rclpy carries, so its monitor takes sample blocks instead
+SAMPLE_OUTPUT_PARAMETERS = {
+    "sensor_topics": Spec("all", "which of the contract's per-sample sensor topics to publish: all, only /joint_states (what a "
+                                 "trajectory server and an HMI read, when the monitor takes sample blocks), none",
+                          choices=("all", "joint_states", "none")),
+    "sample_blocks": Spec(False, f"also publish every tick's samples as one message on {topics.SAMPLE_BLOCK} (fdi_node input:=sample_block)"),
+}
+
+
+def publishes_sensor_topic(chosen: str, topic: str) -> bool:
+    """Whether the sensor_topics choice ``chosen`` includes ``topic``."""
+    return chosen == "all" or (chosen == "joint_states" and topic == topics.JOINT_STATES)
 
 
 def relative(topic: str) -> str:

@@ -43,7 +43,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.contract.names import INJECTION_UNITS, Injection
 from hydro_ros.contract.samples import Samples
-from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, relative, run_node
+from hydro_ros.nodes.common import CLOCK_QOS, SAMPLE_OUTPUT_PARAMETERS, SENSOR_QOS, publishes_sensor_topic, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.sim.scenario import Scenario, start
 
@@ -63,10 +63,7 @@ PARAMETERS = {
     "can_interface": Spec("", "python-can interface that also carries the sensors as CAN frames (socketcan, udp_multicast); "
                               "empty: none"),
     "can_channel": Spec("", "channel of can_interface (can0, a multicast address)"),
-    "sensor_topics": Spec("all", "which of the contract's per-sample sensor topics to publish: all, only /joint_states (what a "
-                                 "trajectory server and an HMI read, when the monitor takes sample blocks), none",
-                          choices=("all", "joint_states", "none")),
-    "sample_blocks": Spec(False, f"also publish every tick's samples as one message on {topics.SAMPLE_BLOCK} (fdi_node input:=sample_block)"),
+    **SAMPLE_OUTPUT_PARAMETERS,
     "initial_path": Spec("", "crane mode, excitation trajectory: the path id whose start the crane begins at; empty: the config's first"),
     "initial_extension": Spec(-1.0, "[m] crane mode, excitation trajectory: extension cylinder stroke at the start; negative: the "
                                     "smallest feasible one", None, 10.0),
@@ -264,10 +261,9 @@ class PlantSim(Node):
 
     def _publishes(self, topic: str) -> bool:
         """Whether a sensor topic is this node's to publish (valve commands are not when they come from outside)."""
-        chosen = self.params["sensor_topics"]
         if topic == topics.VALVE_COMMANDS and self.excitation == "topic":
             return False
-        return chosen == "all" or (chosen == "joint_states" and topic == topics.JOINT_STATES)
+        return publishes_sensor_topic(self.params["sensor_topics"], topic)
 
     def _unnamed_cylinder(self, name: str) -> str:
         return (f"{name} refused: a crane's fault names its cylinder, fault.<actuator>.{name.removeprefix('fault.')} "
