@@ -232,6 +232,11 @@ def cycle_values(bus: MachineBus, cycle: Cycle) -> dict[str, Any]:
     return out
 
 
+def cycle_row(values: dict[str, Any], columns: list[tuple[str, str]]) -> list[float]:
+    """A complete cycle's :func:`cycle_values` in a sample layout's columns, (quantity, joint or actuator; "" machine-wide)."""
+    return [values[quantity][name] if name else values[quantity] for quantity, name in columns]
+
+
 def sample_values(samples: Any, k: int, actuators: dict[str, str]) -> dict[str, Any]:
     """Sample ``k`` of a Samples block in the shape encode_cycle takes; ``actuators``: actuator -> joint, in the block's
     column order ((n,) columns for one actuator, (n, A) for several)."""

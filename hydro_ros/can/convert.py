@@ -15,12 +15,11 @@ from typing import Any, Callable
 import can
 import numpy as np
 
+from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.writer import ContractBagWriter
-from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_values
-from hydro_ros.contract import topics
+from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_row, cycle_values
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
-from hydro_ros.contract.samples import Samples
 
 LOG_SUFFIXES = (".log", ".asc", ".blf")
 
@@ -120,18 +119,10 @@ def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Ca
     if not len(order):
         raise InputError(f"log {log}: no plausible sensor cycle of machine {machine.name!r} ({dict(report.rejected_samples)})")
 
-    def columns(key: str) -> np.ndarray:
-        """(n, A): the quantity of every actuator (or of its joint), in the machine's actuator order."""
-        by_joint = key.startswith("joint_")
-        return np.array([[rows[i][key][slot.joint if by_joint else slot.actuator] for slot in slots] for i in order])
-
-    samples = Samples(
-        times=np.asarray(stamps)[order] * 1e-9,
-        **{key: columns(key) for key in ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command")},
-        supply_pressure=np.array([rows[i]["supply_pressure"] for i in order]),
-        **({**{key: columns(key) for key in topics.MOBILE_VALVE_PRESSURES},
-            "ls_pressure": np.array([rows[i]["ls_pressure"] for i in order])} if mobile else {}),
-    )
+    layout = SampleLayout([slot.actuator for slot in slots], [slot.joint for slot in slots], mobile=mobile)
+    samples = layout.samples(np.asarray(stamps)[order] * 1e-9, np.array([cycle_row(rows[i], layout.columns) for i in order]))
+    if mobile:  # the load-sensing line is a bag topic, not a column the monitor reads
+        samples.ls_pressure = np.array([rows[i]["ls_pressure"] for i in order])
     variance = machine.sensors.pressure_noise_std ** 2
     with ContractBagWriter(out, actuators={slot.actuator: slot.joint for slot in slots}, pressure_variance=variance, mobile=mobile) as writer:
         writer.custom_data["hydro_ros.source"] = str(log.name)

@@ -40,7 +40,7 @@ from sensor_msgs.msg import FluidPressure, JointState, PointCloud2
 
 from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state, encode_sample_block
-from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_values
+from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_row, cycle_values
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
@@ -175,7 +175,7 @@ class CanBridge(LifecycleNode):
         self.pub_block = (self.create_lifecycle_publisher(PointCloud2, relative(topics.SAMPLE_BLOCK), SENSOR_QOS)
                           if self.params["sample_blocks"] else None)
         self.pub_diag = self.create_lifecycle_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
-        self._entities = [*self.pubs.values(), *([self.pub_block] if self.pub_block else []), self.pub_diag]
+        self._entities = [*self.pubs.values(), self.pub_diag] + ([self.pub_block] if self.pub_block else [])
         if self.forward:
             self._entities.append(self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._forward, SENSOR_QOS))
 
@@ -267,16 +267,12 @@ class CanBridge(LifecycleNode):
                     self._publish(values, cycle.stamp_ns)
                 # a block row needs every column: an incomplete cycle is a gap the monitor sees (counted in incomplete_cycles)
                 if self.pub_block is not None and cycle.complete(self.codec.expected):
-                    block.append((cycle.stamp_ns, self._row(values)))
+                    block.append((cycle.stamp_ns, cycle_row(values, self.layout.columns)))
                 self.published_cycles += 1
         if block:
             stamps = np.array([stamp for stamp, _ in block], dtype=np.int64)
             self.pub_block.publish(encode_sample_block(int(stamps[0]), self.machine, self.layout.field_names, stamps,
                                                        np.array([row for _, row in block])))
-
-    def _row(self, values: dict[str, Any]) -> list[float]:
-        """A complete cycle's values in the sample block's columns."""
-        return [values[quantity][name] if name else values[quantity] for quantity, name in self.layout.columns]
 
     def _publish(self, values: dict[str, Any], stamp: int) -> None:
         pubs = self.pubs
