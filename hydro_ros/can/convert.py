@@ -76,7 +76,7 @@ def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Ca
         raise InputError(f"log {log}: unsupported format {log.suffix!r}; expected candump .log, .asc or .blf")
     bus = MachineBus(machine)
     slots = bus.slots
-    mobile = any(slot.mobile for slot in slots)
+    mobile = machine.mobile
     assembler = CycleAssembler(bus.expected)
     counters = CounterCheck()
     report = ConversionReport()
