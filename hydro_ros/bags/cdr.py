@@ -137,17 +137,7 @@ def decode_joint_state(data: bytes) -> tuple[int, list[str], tuple[float, ...], 
     """(stamp_ns, names, positions, velocities)."""
     stamp, offset = _read_header(data)
     try:
-        offset = _align(offset, 4)
-        (count,) = _U32.unpack_from(data, offset)
-        offset += 4
-        names = []
-        for _ in range(count):
-            offset = _align(offset, 4)
-            (n,) = _U32.unpack_from(data, offset)
-            if offset + 4 + n > len(data):
-                raise CdrError("JointState name runs past the message")
-            names.append(data[offset + 4 : offset + 3 + n].decode())
-            offset += 4 + n
+        names, offset = _read_strings(data, offset, "JointState")
         arrays = []
         for _ in range(2):
             offset = _align(offset, 4)
@@ -160,6 +150,35 @@ def decode_joint_state(data: bytes) -> tuple[int, list[str], tuple[float, ...], 
     except (struct.error, UnicodeDecodeError) as exc:
         raise CdrError(f"JointState malformed ({exc})") from None
     return stamp, names, arrays[0], arrays[1]
+
+
+def _read_strings(data: bytes, offset: int, what: str) -> tuple[list[str], int]:
+    """A sequence<string> at ``offset``: (the strings, the offset after it)."""
+    offset = _align(offset, 4)
+    (count,) = _U32.unpack_from(data, offset)
+    offset += 4
+    if count > len(data):
+        raise CdrError(f"{what} claims {count} names")
+    names = []
+    for _ in range(count):
+        offset = _align(offset, 4)
+        (n,) = _U32.unpack_from(data, offset)
+        if offset + 4 + n > len(data):
+            raise CdrError(f"{what} name runs past the message")
+        names.append(data[offset + 4 : offset + 3 + n].decode())
+        offset += 4 + n
+    return names, offset
+
+
+def joint_trajectory_size(data: bytes) -> tuple[list[str], int]:
+    """(joint_names, number of points) of a trajectory_msgs/JointTrajectory, read without decoding the points."""
+    _, offset = _read_header(data)
+    try:
+        names, offset = _read_strings(data, offset, "JointTrajectory")
+        (points,) = _U32.unpack_from(data, _align(offset, 4))
+    except (struct.error, UnicodeDecodeError) as exc:
+        raise CdrError(f"JointTrajectory malformed ({exc})") from None
+    return names, points
 
 
 _POINT_FIELD_FLOAT64 = 8  # sensor_msgs/PointField.FLOAT64

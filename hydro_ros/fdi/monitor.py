@@ -97,8 +97,12 @@ class FdiMonitor:
 
         Until then "no severe fault" is assumed, not known (a restarted monitor before it re-isolates a fault).
         """
-        return self.armed and all(isolator.fault is not None or (key is not None and key // 32 == 0)
-                                  for isolator, key in zip(self.isolators, self._last_key))
+        return all(self.explained(i) for i in range(len(self.actuators)))
+
+    def explained(self, index: int) -> bool:
+        """Armed, and this actuator's evidence explained: an alarm latched, or no threshold crossing at the last sample."""
+        key = self._last_key[index]
+        return self.armed and (self.isolators[index].fault is not None or (key is not None and key // 32 == 0))
 
     def sensor_problems(self, index: int) -> dict[str, str]:
         """The actuator's readings that were invalid within the last second: sensor -> nonfinite / out_of_range / frozen."""
@@ -119,12 +123,6 @@ class FdiMonitor:
         for isolator in self.isolators:
             isolator.acknowledge()
         self._last_key = [None] * len(self.actuators)
-
-    def acknowledge(self) -> None:
-        """Clear the latched alarms; a fault still present is detected again at once."""
-        for i, isolator in enumerate(self.isolators):
-            isolator.acknowledge()
-            self._last_key[i] = None
 
     def piston_motion(self, joint_position: np.ndarray, joint_velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Eqs. (3)-(4): measured joint positions and rates (n, A) -> piston positions and velocities, each by its mount."""

@@ -16,7 +16,10 @@ a crane's cycles at 1 kHz are more per-sample messages than rclpy carries (READM
 `forward_commands` (off by default: it drives a machine) sends /hydraulics/valve_commands as
 VALVEn_REQUEST frames while the node is active; the bridge then leaves /hydraulics/valve_commands
 to ROS and does not publish the applied commands it reads back. Deactivating (or shutting down)
-sends a neutral request to every valve.
+sends a neutral request to every valve. A deadman guards the bus: a valve whose last command is older
+than ``command_timeout`` gets neutral requests (again every ``command_timeout`` while none comes), so
+a controller that dies (SIGKILL) cannot leave a valve open. A non-finite or out-of-range command is
+refused, counted (``refused_commands``) and that valve sent neutral: nothing is clamped to a full opening.
 
 A lifecycle node (ros2_socketcan's habit): configure opens the bus, activate starts publishing and
 forwarding, deactivate stops them and sends the neutral requests, cleanup closes the bus.
@@ -45,7 +48,8 @@ from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.nodes.common import SAMPLE_OUTPUT_PARAMETERS, SENSOR_QOS, destroy_entities, publishes_sensor_topic, relative, run_node
+from hydro_ros.nodes.common import (SAMPLE_OUTPUT_PARAMETERS, SENSOR_QOS, VALVE_COMMAND_TIMEOUT, checked_valve_commands,
+                                    destroy_entities, publishes_sensor_topic, relative, run_node)
 from hydro_ros.nodes.parameters import Parameters, Spec
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
@@ -121,6 +125,7 @@ PARAMETERS = {
     "hardware_filters": Spec(True, "let the interface pass only the DBC's sensor frames"),
     "forward_commands": Spec(False, "while active, send /hydraulics/valve_commands as valve request frames (this drives "
                                     "the machine); deactivating sends neutral requests"),
+    "command_timeout": VALVE_COMMAND_TIMEOUT,
     **SAMPLE_OUTPUT_PARAMETERS,
     "autostart": Spec(True, "configure and activate at start; false: wait for a lifecycle manager"),
     "process_period": Spec(0.01, "[s] period of decoding the received frames", 0.001, 1.0),
@@ -149,6 +154,11 @@ class CanBridge(LifecycleNode):
         self.reader: BusReader | None = None
         self._entities: list[Any] = []  # publishers, timers and the subscription of the configured state
         self._request_counter = 0
+        self.command_timeout = self.params["command_timeout"]
+        self.command_time: dict[int, float] = {}  # valve slot -> monotonic time of its last command (or neutral request)
+        self.refused_commands = 0
+        self.deadman_neutrals = 0
+        self._forward_since = time.monotonic()
         if self.params["autostart"]:
             self.trigger_configure()
             self.trigger_activate()
@@ -200,6 +210,8 @@ class CanBridge(LifecycleNode):
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.active = True
+        self._forward_since = time.monotonic()
+        self.command_time.clear()
         self.get_logger().info("active: publishing" + (" and forwarding valve commands" if self.forward else ""))
         return super().on_activate(state)
 
@@ -247,6 +259,8 @@ class CanBridge(LifecycleNode):
             return
         frames = self.reader.frames
         now = time.monotonic()
+        if self.forward and self.active:
+            self._deadman(now)
         block: list[tuple[int, list[float]]] = []
         for _ in range(len(frames)):
             message = frames.popleft()
@@ -297,12 +311,31 @@ class CanBridge(LifecycleNode):
     def _forward(self, msg: JointState) -> None:
         if not self.active or self.reader is None:
             return
+        accepted, refused = checked_valve_commands(list(msg.name), list(msg.position), [slot.actuator for slot in self.codec.slots])
+        if refused:
+            self.refused_commands += 1
+            self.get_logger().error(f"{topics.VALVE_COMMANDS} refused: {'; '.join(f'{a} {why}' for a, why in refused.items())}: "
+                                    "commanded neutral", throttle_duration_sec=2.0)
+        now = time.monotonic()
         for slot in self.codec.slots:
-            if slot.actuator in msg.name and len(msg.position) == len(msg.name):
-                command = msg.position[msg.name.index(slot.actuator)]
-                if command == command:  # NaN never reaches a valve
-                    self.reader.send(*self.codec.encode_request(slot.number, command, self._request_counter))
+            if slot.actuator in accepted or slot.actuator in refused:
+                command = accepted.get(slot.actuator, 0.0)
+                self.reader.send(*self.codec.encode_request(slot.number, command, self._request_counter))
+                self.command_time[slot.number] = now
         self._request_counter = (self._request_counter + 1) % 16
+
+    def _deadman(self, now: float) -> None:
+        """Neutral requests for every valve whose last command is older than command_timeout (a dead or silent controller)."""
+        stale = [slot for slot in self.codec.slots if now - self.command_time.get(slot.number, self._forward_since) > self.command_timeout]
+        if not stale or self.reader is None:
+            return
+        for slot in stale:
+            self.reader.send(*self.codec.encode_request(slot.number, 0.0, self._request_counter))
+            self.command_time[slot.number] = now
+        self._request_counter = (self._request_counter + 1) % 16
+        self.deadman_neutrals += 1
+        self.get_logger().warning(f"no valve command for {self.command_timeout:g} s: {', '.join(s.actuator for s in stale)} "
+                                  "commanded neutral", throttle_duration_sec=5.0)
 
     # health ------------------------------------------------------------------------------------
     def _diagnose(self) -> None:
@@ -333,6 +366,7 @@ class CanBridge(LifecycleNode):
                       "error_frames": str(reader.error_frames), "reconnects": str(reader.reconnects),
                       "last_error": reader.last_error, "incomplete_cycles": str(self.assembler.incomplete),
                       "published_cycles": str(self.published_cycles), "queue": str(len(reader.frames)),
+                      "refused_commands": str(self.refused_commands), "deadman_neutrals": str(self.deadman_neutrals),
                       **{f"rejected_{kind}": str(n) for kind, n in sorted(self.rejected.items())}}
         problems = [] if reader.connected else [f"bus {self.bus_name} down ({reader.last_error or 'connecting'})"]
         if sum(self.rejected.values()):

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import importlib
+import math
 import signal
 import sys
 from typing import Any, Callable
 
 import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -47,6 +48,33 @@ SAMPLE_OUTPUT_PARAMETERS = {
 }
 
 
+# every consumer of /hydraulics/valve_commands (can_bridge forwarding, plant_sim, crane_sim) goes neutral when its
+# freshest command is older than this: a controller that died (SIGKILL) cannot leave a valve open
+VALVE_COMMAND_TIMEOUT = Spec(0.2, "[s wall] a valve whose last command is older than this is commanded neutral (deadman)", 0.01, 5.0)
+
+
+def checked_valve_commands(names: list[str], positions: list[float], actuators: list[str]) -> tuple[dict[str, float], dict[str, str]]:
+    """The valve commands of a /hydraulics/valve_commands message for ``actuators``: (accepted, refused with the reason).
+
+    A command is a normalised opening in [-1, 1]; a non-finite or out-of-range one is refused (never clamped to a full
+    opening), and so is every command of a message whose names and positions differ in length or that names a valve
+    twice. The caller commands a refused valve neutral.
+    """
+    ours = [name for name in names if name in actuators]
+    if len(names) != len(positions):
+        return {}, {name: f"{len(names)} names but {len(positions)} positions" for name in ours}
+    if len(set(names)) != len(names):
+        return {}, {name: "a valve named twice in the message" for name in ours}
+    accepted, refused = {}, {}
+    for name, value in zip(names, positions):
+        if name in actuators:
+            if math.isfinite(value) and -1.0 <= value <= 1.0:
+                accepted[name] = float(value)
+            else:
+                refused[name] = f"{value!r} outside [-1, 1]"
+    return accepted, refused
+
+
 def publishes_sensor_topic(chosen: str, topic: str) -> bool:
     """Whether the sensor_topics choice ``chosen`` includes ``topic``."""
     return chosen == "all" or (chosen == "joint_states" and topic == topics.JOINT_STATES)
@@ -63,8 +91,11 @@ def message_class(type_name: str) -> Any:
     return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
 
-def run_node(factory: Callable[[], Node], args: list[str] | None = None, *, last_words: bool = False) -> None:
+def run_node(factory: Callable[[], Node], args: list[str] | None = None, *, last_words: bool = False, threads: int = 1) -> None:
     """Init, spin, shut down cleanly; Ctrl-C exits without a traceback.
+
+    ``threads`` > 1: a multi-threaded executor, for a node whose callback groups must not wait for each other
+    (services answered while a busy timer works).
 
     ``last_words``: a node that must still publish as it goes (neutral valve commands) handles SIGINT and
     SIGTERM itself. rclpy's own handlers shut the context down first, after which nothing can be sent;
@@ -83,7 +114,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None, *, last
         except InputError as exc:  # bad parameter or config (ConfigError is one): one line, no traceback
             print(f"{getattr(factory, '__name__', 'node')}: error: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
-        rclpy.spin(node)
+        rclpy.spin(node, executor=MultiThreadedExecutor(num_threads=threads) if threads > 1 else None)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

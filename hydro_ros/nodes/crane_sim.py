@@ -35,7 +35,7 @@ from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import load_crane
-from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
+from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, checked_valve_commands, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.planning.controller import CylinderReference
 from hydro_ros.planning.dp import DpGrid, start_position
@@ -144,10 +144,11 @@ class CraneSim(Node):
         self.get_logger().info(f"executing a {trajectory.time[-1]:.1f} s trajectory of {len(trajectory.time)} points")
 
     def _on_valve_commands(self, msg: JointState) -> None:
-        """An outside controller's commands, by cylinder name; a missing or non-finite one is neutral."""
-        by_name = dict(zip(msg.name, msg.position))
-        command = np.array([by_name.get(name, 0.0) for name in self.names], dtype=float)
-        self.external_command = np.clip(np.nan_to_num(command, nan=0.0, posinf=0.0, neginf=0.0), -1.0, 1.0)
+        """An outside controller's commands, by cylinder name; a missing or refused one is neutral."""
+        accepted, refused = checked_valve_commands(list(msg.name), list(msg.position), self.names)
+        if refused:
+            self.get_logger().error(f"{topics.VALVE_COMMANDS} refused: {refused}: neutral", throttle_duration_sec=2.0)
+        self.external_command = np.array([accepted.get(name, 0.0) for name in self.names])
         self.external_command_time = time.monotonic()
 
     def _hold(self) -> None:

@@ -17,11 +17,23 @@ it is really monitored: until a window of data is evaluated (start, reset, time 
 reading is invalid (non-finite, implausible, frozen: ``hydro_ros/sensors/<actuator>`` names it) it
 is STALE ``not_monitored``; when samples arrive incomplete it is WARN ``overloaded``. All counters
 are in the diagnostic values.
+
+Halt: ``true`` whenever a severe fault is latched; ``false`` only while every actuator is armed,
+evaluated (its evidence explained), fresh and not overloaded. While any actuator is blind (stale,
+not monitored, overloaded, inputs stopped) the heartbeat stops: silence means "not vouched for", and a
+trajectory_executor requiring the monitor stops within three heartbeat periods.
+
+Acknowledge silences an alarm (``acknowledged`` in its status), never clears it: a latched fault stays
+until a reset. A reset re-arms the filters and keeps every fault that was latched shown (``rechecking``)
+until the re-armed monitor has evaluated a window: a fault still present is reported throughout, one
+that is gone is cleared. The services run on their own executor thread, so a burst of calls is
+answered while the monitor works (a lock keeps them and the processing apart).
 """
 
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections import deque
 from typing import Any
@@ -29,6 +41,7 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from diagnostic_msgs.srv import SelfTest
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -41,6 +54,7 @@ from hydro_ros.bags.cdr import CdrError
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.contract.names import Fault
 from hydro_ros.contract.samples import PER_ACTUATOR
 from hydro_ros.fdi.alarm_log import AlarmLog
 from hydro_ros.fdi.monitor import ERROR, OK, STALE, WARN, FdiMonitor
@@ -72,7 +86,8 @@ PARAMETERS = {
                                 read_only=False),
     "alarm_log": Spec("", "SQLite file of the alarm log (every alarm raised, changed, cleared, acknowledged, reset); latched "
                           "alarms in it come back after a restart; empty: no log"),
-    "reset_min_interval": Spec(5.0, "[s] at least this long between two accepted ~/reset calls", 0.0, 3600.0, read_only=False),
+    "reset_min_interval": Spec(5.0, "[s] at least this long between two accepted ~/reset calls (a reset cannot hide a present "
+                                    "fault: it stays shown until re-checked)", 1.0, 3600.0, read_only=False),
 }
 
 
@@ -85,11 +100,20 @@ class FdiNode(Node):
         self.machine = self.machine_config.name
         self.stale_timeout = self.params["stale_timeout"]
         self.alarm_log = AlarmLog(self.params["alarm_log"], self.machine) if self.params["alarm_log"] else None
-        # latched alarms of the run before: shown (and a severe one halts) until acknowledged or reset
-        self.restored = {a.actuator: a for a in (self.alarm_log.latched() if self.alarm_log else []) if a.actuator in self.monitor.actuators}
-        self._logged_faults = {actuator: alarm.fault for actuator, alarm in self.restored.items()}
-        for alarm in self.restored.values():
-            self.get_logger().warning(f"{alarm.actuator}: {alarm.fault} latched before the restart (alarm log), until acknowledged")
+        if self.alarm_log is not None and self.alarm_log.error:
+            self.get_logger().warning(f"alarm log: {self.alarm_log.error}; events are kept in memory and written once it opens")
+        for aside in self.alarm_log.moved_aside if self.alarm_log else []:
+            self.get_logger().warning(f"alarm log {self.alarm_log.path} was not an alarm log: moved aside to {aside}, a new one started")
+        # faults shown although the monitor has not (re-)isolated them: latched before a restart (alarm log) until a
+        # reset, and after a reset until the re-armed monitor has evaluated them (rechecking)
+        self.held: dict[str, tuple[int, str, bool]] = {  # actuator -> (level, fault, rechecking)
+            a.actuator: (a.level, a.fault, False)
+            for a in (self.alarm_log.latched() if self.alarm_log else []) if a.actuator in self.monitor.actuators}
+        self._logged_faults = {actuator: fault for actuator, (_, fault, _) in self.held.items()}
+        for actuator, (_, fault, _) in self.held.items():
+            self.get_logger().warning(f"{actuator}: {fault} latched before the restart (alarm log), until a reset")
+        self.acknowledged: dict[str, str] = {}  # actuator -> the fault the operator acknowledged (silenced, still shown)
+        self.lock = threading.Lock()  # the services' thread against the processing
         actuators = self.monitor.actuators
         self.mobile = self.monitor.generator.needs_mobile_pressures
         self.layout = SampleLayout(actuators, self.monitor.joints, mobile=self.mobile)
@@ -115,9 +139,10 @@ class FdiNode(Node):
         self.pub_halt = self.create_publisher(Bool, relative(topics.FDI_HALT), HALT_QOS)
         self.pub_residuals = self.create_publisher(JointState, relative(topics.FDI_RESIDUALS), 10)
         self._residual_channels = topics.fdi_residual_channels(actuators, mobile=self.mobile)
-        self.create_service(Trigger, "~/acknowledge", self._on_acknowledge)
-        self.create_service(Trigger, "~/reset", self._on_reset)
-        self.create_service(SelfTest, "~/self_test", self._on_self_test)
+        operator = MutuallyExclusiveCallbackGroup()
+        self.create_service(Trigger, "~/acknowledge", self._on_acknowledge, callback_group=operator)
+        self.create_service(Trigger, "~/reset", self._on_reset, callback_group=operator)
+        self.create_service(SelfTest, "~/self_test", self._on_self_test, callback_group=MutuallyExclusiveCallbackGroup())
 
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.started = time.monotonic()
@@ -127,8 +152,8 @@ class FdiNode(Node):
         self._residual_interval_ns = int(1e9 / self.params["residual_rate"])
         self._last_residual_ns = -(1 << 62)
         self.create_timer(self.params["process_period"], self._process, clock=self.steady)
-        self.create_timer(self.params["diagnostics_period"], self._publish_diagnostics, clock=self.steady)
-        self.create_timer(HALT_PERIOD_S, self._publish_halt, clock=self.steady)
+        self.create_timer(self.params["diagnostics_period"], self._on_diagnostics_tick, clock=self.steady)
+        self.create_timer(HALT_PERIOD_S, self._on_halt_tick, clock=self.steady)
         self.get_logger().info(f"monitoring {', '.join(actuators)} of {self.machine} with the {self.monitor.method} method")
 
     def _on_parameter(self, name: str, value: Any) -> None:
@@ -175,6 +200,10 @@ class FdiNode(Node):
 
     # processing -------------------------------------------------------------------------------
     def _process(self) -> None:
+        with self.lock:
+            self._process_queued()
+
+    def _process_queued(self) -> None:
         if len(self.aligner.time_jumps) != self._jumps_seen:
             self._jumps_seen = len(self.aligner.time_jumps)
             self.monitor.restart()
@@ -237,14 +266,8 @@ class FdiNode(Node):
         flowing = time.monotonic() - max(self.first_arrival[topic] for topic in needed)
         return flowing > 2 * OVERLOAD_WINDOW_S and self._incomplete_share() > OVERLOAD_SHARE
 
-    def _state(self, index: int) -> tuple[int, str]:
-        """Level and message of an actuator: a latched fault first, then why it is not (fully) monitored."""
-        status = self.monitor.status(index)
-        if status.fault is not None:
-            return status.level, status.message
-        restored = self.restored.get(self.monitor.actuators[index])
-        if restored is not None:
-            return restored.level, restored.fault
+    def _blindness(self, index: int) -> tuple[int, str] | None:
+        """Why an actuator is not (fully) monitored now, or None while it is."""
         if self._stale_topics(index):
             return STALE, "stale"
         if self._overloaded(index):
@@ -252,9 +275,31 @@ class FdiNode(Node):
         problems = {c: p for c, p in self.monitor.sensor_problems(index).items() if c != "supply_pressure"}
         if problems or not self.monitor.armed:
             return STALE, "not_monitored"
-        return OK, "ok"
+        return None
+
+    def _state(self, index: int) -> tuple[int, str]:
+        """Level and message of an actuator: a latched or held fault first, then why it is not (fully) monitored."""
+        status = self.monitor.status(index)
+        held = self.held.get(self.monitor.actuators[index])
+        if status.fault is not None and not (held is not None and status.fault is Fault.UNISOLATED):
+            return status.level, status.message
+        if held is not None:
+            return max(held[0], status.level), held[1]
+        return self._blindness(index) or (OK, "ok")
+
+    def _release_rechecked(self) -> None:
+        """A fault held through a reset is dropped once the monitor has isolated it again or evaluated the actuator healthy."""
+        for i, actuator in enumerate(self.monitor.actuators):
+            held = self.held.get(actuator)
+            fault = self.monitor.status(i).fault
+            if held is not None and held[2] and (fault not in (None, Fault.UNISOLATED) or (fault is None and self.monitor.explained(i))):
+                del self.held[actuator]
+        for i, actuator in enumerate(self.monitor.actuators):
+            if self.acknowledged.get(actuator) not in (None, self._latched_fault(i)):
+                del self.acknowledged[actuator]  # a new fault is a new alarm: it is heard again
 
     def _check_levels(self) -> None:
+        self._release_rechecked()
         levels = [self._state(i) for i in range(len(self.monitor.actuators))]
         if levels != self._levels:
             self._levels = levels
@@ -263,11 +308,8 @@ class FdiNode(Node):
             self._publish_halt()
 
     def _latched_fault(self, index: int) -> str:
-        status = self.monitor.status(index)
-        if status.fault is not None:
-            return status.message
-        restored = self.restored.get(self.monitor.actuators[index])
-        return restored.fault if restored is not None else ""
+        level, message = self._state(index)
+        return message if self.monitor.status(index).fault is not None or self.monitor.actuators[index] in self.held else ""
 
     def _log_alarms(self) -> None:
         """Each actuator's latched fault against the last one logged: raised, changed or cleared."""
@@ -285,11 +327,19 @@ class FdiNode(Node):
                                   evidence=evidence)
             self._logged_faults[actuator] = now
 
+    def _on_halt_tick(self) -> None:
+        with self.lock:
+            self._publish_halt()
+
+    def vouched(self) -> bool:
+        """Whether "no halt" is known: every actuator armed, its evidence explained, fresh and not overloaded."""
+        return self.monitor.confirmed and all(self._blindness(i) is None for i in range(len(self.monitor.actuators)))
+
     def _publish_halt(self) -> None:
-        """Heartbeat of the halt request; nothing while "no halt" is not confirmed (start, time jump, a crossing pending).
-        A severe alarm restored from the log halts at once."""
-        halt = self.monitor.halt or any(alarm.level == ERROR for alarm in self.restored.values())
-        if not halt and not self.monitor.confirmed:
+        """Heartbeat of the halt request: true on a severe fault (latched, or held from the log or through a reset);
+        false only while vouched; nothing while any actuator is blind or a crossing is pending."""
+        halt = self.monitor.halt or any(level == ERROR for level, _, _ in self.held.values())
+        if not halt and not self.vouched():
             return
         if halt != self.halt and halt:
             self.get_logger().error(f"severe fault: requesting halt on {topics.FDI_HALT}")
@@ -304,6 +354,7 @@ class FdiNode(Node):
         for i, actuator in enumerate(self.monitor.actuators):
             status = self.monitor.status(i)
             stale = self._stale_topics(i)
+            held = self.held.get(actuator)
             level, message = self._state(i)
             problems = self.monitor.sensor_problems(i)
             values = {
@@ -328,7 +379,10 @@ class FdiNode(Node):
                 "off_time_base_dropped": str(a.off_base),
                 "incomplete_share": f"{self._incomplete_share():.3f}",
                 "detection_held": str(time.monotonic() < self._hold_until).lower(),
-                "restored_from_alarm_log": str(actuator in self.restored and status.fault is None).lower(),
+                "restored_from_alarm_log": str(held is not None and not held[2] and status.fault is None).lower(),
+                "rechecking": str(held is not None and held[2] and status.fault is None).lower(),
+                "acknowledged": str(actuator in self.acknowledged).lower(),
+                "vouched": str(self._blindness(i) is None and self.monitor.explained(i)).lower(),
             }
             out.append(DiagnosticStatus(level=bytes([level]), name=f"{topics.FDI_STATUS_PREFIX}{actuator}", message=message,
                                         hardware_id=self.machine,
@@ -340,16 +394,25 @@ class FdiNode(Node):
                 values=[KeyValue(key=self._source(c, actuator), value=p) for c, p in problems.items()]))
         if self.alarm_log is not None:
             log = self.alarm_log
+            trouble = log.error or (f"{log.dropped} events dropped (queue full)" if log.dropped else "")
+            values = {"file": str(log.path), "failed_writes": log.failed_writes, "pending_events": len(log.pending),
+                      "dropped_events": log.dropped, "reopened": log.reopened, "moved_aside": ",".join(map(str, log.moved_aside)),
+                      "restored_alarms": sum(not rechecking for _, _, rechecking in self.held.values())}
             out.append(DiagnosticStatus(
-                level=bytes([WARN if log.error else OK]), name=ALARM_LOG_STATUS, hardware_id=self.machine,
-                message=f"alarm log not written: {log.error}" if log.error else "ok",
-                values=[KeyValue(key="file", value=str(log.path)), KeyValue(key="failed_writes", value=str(log.failed_writes)),
-                        KeyValue(key="restored_alarms", value=str(len(self.restored)))]))
+                level=bytes([WARN if trouble else OK]), name=ALARM_LOG_STATUS, hardware_id=self.machine,
+                message=f"alarm log not written: {trouble}; {len(log.pending)} events kept in memory" if trouble else "ok",
+                values=[KeyValue(key=k, value=str(v)) for k, v in values.items()]))
         return out
 
     def _source(self, channel: str, actuator: str) -> str:
         name = self.monitor.joints[self.monitor.actuators.index(actuator)] if channel.startswith("joint_") else actuator
         return SampleLayout.source((channel, "" if channel == "supply_pressure" else name))
+
+    def _on_diagnostics_tick(self) -> None:
+        with self.lock:
+            if self.alarm_log is not None and self.alarm_log.pending:
+                self.alarm_log.flush()  # what a full or missing disk held back
+            self._publish_diagnostics()
 
     def _publish_diagnostics(self) -> None:
         array = DiagnosticArray(status=self.statuses())
@@ -366,30 +429,35 @@ class FdiNode(Node):
         response.message = message
         return response
 
-    def _forget_restored(self, event: str, detail: str) -> None:
-        self.restored.clear()
-        if self.alarm_log is not None:
-            self.alarm_log.record(event, "", evidence={"detail": detail})
-
     def _on_acknowledge(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        cleared = [f"{a}: {self.monitor.status(i).message}" for i, a in enumerate(self.monitor.actuators) if self.monitor.status(i).fault]
-        self.monitor.acknowledge()
-        self._forget_restored("acknowledged", "; ".join(cleared))
-        return self._answer(response, f"acknowledged: {'; '.join(cleared) or 'no latched alarm'}")
+        """Silence the latched alarms the operator has seen; each stays shown, and halting, until a reset."""
+        with self.lock:
+            latched = {a: self._latched_fault(i) for i, a in enumerate(self.monitor.actuators) if self._latched_fault(i)}
+            self.acknowledged.update(latched)
+            detail = "; ".join(f"{a}: {fault}" for a, fault in latched.items())
+            if self.alarm_log is not None:
+                self.alarm_log.record("acknowledged", "", evidence={"detail": detail})
+            return self._answer(response, f"acknowledged: {detail or 'no latched alarm'} (shown until a reset)")
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        since = time.monotonic() - self.last_reset
-        if since < self.reset_min_interval:
-            response.success = False
-            response.message = f"reset refused: the last one was {since:.1f} s ago (at most one per {self.reset_min_interval:g} s)"
-            self.get_logger().warning(response.message)
-            return response
-        self.last_reset = time.monotonic()
-        before = "; ".join(f"{a}: {message}" for a, (_, message) in zip(self.monitor.actuators, self._levels)) or "no status yet"
-        self.monitor.reset()
-        self._forget_restored("reset", before)
-        return self._answer(response, f"filters, averages and latches reset (before: {before}); detection re-arms after "
-                                      f"{self.monitor.settings.window_s:g} s of data")
+        with self.lock:
+            since = time.monotonic() - self.last_reset
+            if since < self.reset_min_interval:
+                response.success = False
+                response.message = f"reset refused: the last one was {since:.1f} s ago (at most one per {self.reset_min_interval:g} s)"
+                self.get_logger().warning(response.message)
+                return response
+            self.last_reset = time.monotonic()
+            before = "; ".join(f"{a}: {message}" for a, (_, message) in zip(self.monitor.actuators, self._levels)) or "no status yet"
+            # every fault latched now stays shown until the re-armed monitor has looked again
+            self.held = {a: (self._state(i)[0], self._latched_fault(i), True)
+                         for i, a in enumerate(self.monitor.actuators) if self._latched_fault(i)}
+            self.acknowledged.clear()
+            self.monitor.reset()
+            if self.alarm_log is not None:
+                self.alarm_log.record("reset", "", evidence={"detail": before})
+            return self._answer(response, f"filters, averages and latches reset (before: {before}); detection re-arms after "
+                                          f"{self.monitor.settings.window_s:g} s of data, a latched fault stays shown until re-checked")
 
     def _on_self_test(self, _request: SelfTest.Request, response: SelfTest.Response) -> SelfTest.Response:
         """The residual generator's own checks, a simulated healthy machine without alarm, sensor topics fresh."""
@@ -421,7 +489,7 @@ class FdiNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(FdiNode, args)
+    run_node(FdiNode, args, threads=3)
 
 
 if __name__ == "__main__":

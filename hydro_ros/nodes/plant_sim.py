@@ -43,7 +43,8 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.contract.names import INJECTION_UNITS, Injection
 from hydro_ros.contract.samples import Samples
-from hydro_ros.nodes.common import CLOCK_QOS, SAMPLE_OUTPUT_PARAMETERS, SENSOR_QOS, publishes_sensor_topic, relative, run_node
+from hydro_ros.nodes.common import (CLOCK_QOS, SAMPLE_OUTPUT_PARAMETERS, SENSOR_QOS, checked_valve_commands, publishes_sensor_topic,
+                                    relative, run_node)
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.sim.scenario import Scenario, start
 
@@ -280,16 +281,13 @@ class PlantSim(Node):
             self._pending[name] = value
 
     def _on_command(self, msg: JointState) -> None:
-        by_name = dict(zip(msg.name, msg.position)) if len(msg.position) == len(msg.name) else {}
+        accepted, refused = checked_valve_commands(list(msg.name), list(msg.position), self.source.actuators)
+        if refused:
+            self.get_logger().error(f"{topics.VALVE_COMMANDS} refused: {refused}: neutral", throttle_duration_sec=2.0)
         for i, actuator in enumerate(self.source.actuators):
-            if actuator not in msg.name:
-                continue
-            value = by_name.get(actuator, math.nan)
-            if math.isfinite(value):
-                self.command[i] = max(-1.0, min(1.0, value))
+            if actuator in accepted or actuator in refused:
+                self.command[i] = accepted.get(actuator, 0.0)
                 self.command_wall = time.monotonic()
-            else:
-                self.get_logger().warning(f"ignored valve command for {actuator}: {value!r} (NaN or missing)")
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
         plant = self.source.plant

@@ -12,37 +12,52 @@ control loop; deactivate, shutdown and destruction send neutral commands first, 
 process on SIGINT or SIGTERM (it handles them itself, so its publisher still works). ``autostart``
 (default true) configures and activates at start for machines without a lifecycle manager.
 
-It stops (neutral, the trajectory dropped, the reason on ``~/status``) on:
-- ``/fdi/halt`` true (and, with ``require_monitor``, when the monitor's halt heartbeat is missing);
-  a new trajectory is refused until the halt is cleared;
-- a joint state older than ``joint_state_timeout`` (a controller that cannot see the machine must not
-  move it);
+It stops (neutral at once, the trajectory dropped, the reason on ``~/status``) on:
+- ``/fdi/halt`` true from any publisher: the halt latches until the configured ``monitor`` node itself
+  sends ``false`` (a ``false`` from anyone else is refused and its sender named);
+- with ``require_monitor`` (the default; opting out is logged at every configure), no ``false`` from
+  the monitor for three heartbeat periods: the monitor stops its heartbeat whenever it cannot vouch for
+  every actuator (blind, stale, not armed), so a blind monitor stops the crane;
+- a joint state from ``joint_state_source`` older than ``joint_state_timeout`` (a controller that cannot
+  see the machine must not move it); joint states from other publishers are refused;
 - an empty trajectory (ros2_control's "stop the current one").
-A trajectory is refused when it lacks a joint, has non-finite values or non-increasing times, leaves a
-joint's position range or a cylinder's velocity limit, or starts farther than ``start_tolerance``
-from the measured joints.
+A trajectory is taken only from ``trajectory_source``. It is refused when it has more than ``max_points``
+points (counted in the serialized message, before it is decoded, on its own thread: the control loop
+never waits for it), lacks a joint or names one twice, has non-finite values or non-increasing times,
+leaves a joint's position range or a cylinder's velocity limit, or starts farther than
+``start_tolerance`` from the measured joints. A trajectory that replaces a running one takes over
+through a ramp of at most ``command_slew_rate`` per second in every valve command (the old motion is
+decelerated, never reversed in one step).
 
 ``~/status`` (latched String, JSON): ``state`` (inactive, idle, executing, holding, stopped, refused),
-``reason`` and, for a trajectory, its ``points`` and ``duration_s``.
+``reason``, for a trajectory its ``points`` and ``duration_s``, and ``foreign_publishers`` once any
+node other than the configured sources has sent to it; ``/diagnostics`` (``hydro_ros/trajectory_executor``)
+says the same every second, WARN while a foreign publisher is on one of its inputs.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import threading
 from typing import Any
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.serialization import deserialize_message
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 from trajectory_msgs.msg import JointTrajectory
 
+from hydro_ros.bags.cdr import joint_trajectory_size
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane, load_crane
+from hydro_ros.nodes.authority import PinnedSource
 from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, LATCHED_QOS, SENSOR_QOS, destroy_entities, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.planning.controller import CylinderReference, MotionController, controller_settings
@@ -56,7 +71,16 @@ PARAMETERS = {
     "joint_state_timeout": Spec(0.1, "[s] a joint state older than this stops the crane", 0.005, 5.0, read_only=False),
     "start_tolerance": Spec(0.02, "[rad or m] a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
                             read_only=False),
-    "require_monitor": Spec(False, "execute only while the condition monitor's /fdi/halt heartbeat is alive"),
+    "require_monitor": Spec(True, "execute only while the condition monitor vouches for the machine (its /fdi/halt false "
+                                  "heartbeat); false is logged at every configure"),
+    "monitor": Spec("fdi_node", "the condition monitor's node name (relative to this node's namespace, or absolute): only its "
+                                "/fdi/halt false clears a halt and counts as its heartbeat"),
+    "trajectory_source": Spec("trajectory_server", "the only node whose trajectories on ~/joint_trajectory are taken"),
+    "joint_state_source": Spec("can_bridge", "the only node whose /joint_states are taken (the machine's sensor bridge; "
+                                             "crane_sim or plant_sim in simulation)"),
+    "max_points": Spec(10000, "a trajectory with more points is refused before it is decoded", 2, 1000000),
+    "command_slew_rate": Spec(5.0, "[1/s] largest change of a valve command per second while one trajectory takes over from "
+                                   "another", 0.1, 1000.0),
 }
 
 
@@ -67,6 +91,9 @@ class TrajectoryExecutor(LifecycleNode):
         self.joint_state_timeout = self.params["joint_state_timeout"]
         self.start_tolerance = self.params["start_tolerance"]
         self.require_monitor = self.params["require_monitor"]
+        self.lock = threading.Lock()  # the trajectory thread against the control loop
+        self.last_command: np.ndarray | None = None
+        self.slewing = False
         self.crane: Crane | None = None
         self.active = False
         self._entities: list[Any] = []
@@ -78,6 +105,7 @@ class TrajectoryExecutor(LifecycleNode):
         self.started: Time | None = None
         self.holding_until = math.inf
         self.state = "inactive"
+        self.reason = ""
         self.status_pub = self.create_publisher(String, "~/status", LATCHED_QOS)
         self._say("inactive", "not configured")
         if self.params["autostart"]:
@@ -101,15 +129,29 @@ class TrajectoryExecutor(LifecycleNode):
         self.settle_time = controller_settings(config)["settle_time"]
         rate = self.params["rate"] or controller_settings(config)["rate"]
         self.names = list(self.crane.names)
+        self.slew_step = self.params["command_slew_rate"] / rate
+        self.sources = {
+            "halt": PinnedSource(self, relative(topics.FDI_HALT), self.params["monitor"]),
+            "joint_states": PinnedSource(self, relative(topics.JOINT_STATES), self.params["joint_state_source"]),
+            "trajectory": PinnedSource(self, "~/joint_trajectory", self.params["trajectory_source"]),
+        }
         self.command_pub = self.create_lifecycle_publisher(JointState, relative(topics.VALVE_COMMANDS), SENSOR_QOS)
+        self.diag_pub = self.create_lifecycle_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
         self._entities = [
             self.command_pub,
+            self.diag_pub,
             self.create_subscription(JointState, relative(topics.JOINT_STATES), self._on_joint_state, SENSOR_QOS),
             self.create_subscription(Bool, relative(topics.FDI_HALT), self._on_halt, HALT_QOS),
-            self.create_subscription(JointTrajectory, "~/joint_trajectory", self._on_trajectory, 10),
+            self.create_subscription(JointTrajectory, "~/joint_trajectory", self._on_trajectory, 10, raw=True,
+                                     callback_group=MutuallyExclusiveCallbackGroup()),
             self.create_timer(1.0 / rate, self._control),
+            self.create_timer(1.0, self._diagnose),
         ]
-        self.get_logger().info(f"crane {config['machine']}: cylinders {', '.join(self.names)}, control at {rate:g} Hz")
+        self.get_logger().info(f"crane {config['machine']}: cylinders {', '.join(self.names)}, control at {rate:g} Hz; "
+                               + ", ".join(f"{kind} from {source.source}" for kind, source in self.sources.items()))
+        if not self.require_monitor:
+            self.get_logger().warning("require_monitor is false: trajectories run without a condition monitor vouching for "
+                                      "the machine (only a halt request stops them)")
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -120,6 +162,7 @@ class TrajectoryExecutor(LifecycleNode):
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._stop("inactive", "deactivated")
         self.active = False
+        self.halted = False  # an operator's lifecycle action clears a halt no monitor is there to clear
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -144,7 +187,10 @@ class TrajectoryExecutor(LifecycleNode):
         destroy_entities(self, self._entities)
 
     # inputs --------------------------------------------------------------------------------------
-    def _on_joint_state(self, msg: JointState) -> None:
+    def _on_joint_state(self, msg: JointState, info: dict[str, Any]) -> None:
+        if not self.sources["joint_states"].accepts(info):
+            self._foreign("joint_states")
+            return
         by_name = dict(zip(msg.name, msg.position))
         if all(name in by_name for name in self.names):
             positions = np.array([by_name[name] for name in self.names], dtype=float)
@@ -152,28 +198,67 @@ class TrajectoryExecutor(LifecycleNode):
                 self.joints = positions
                 self.joints_time = self.get_clock().now()
 
-    def _on_halt(self, msg: Bool) -> None:
-        self.halt_time = self.get_clock().now()
-        if msg.data and not self.halted and self.reference is not None:
-            self._stop("stopped", "halt requested on /fdi/halt")
-        self.halted = bool(msg.data)
+    def _on_halt(self, msg: Bool, info: dict[str, Any]) -> None:
+        from_monitor = self.sources["halt"].accepts(info)
+        if msg.data:
+            if not self.halted:
+                source = "the monitor" if from_monitor else next(reversed(self.sources["halt"].foreign))
+                self.get_logger().error(f"halt requested on /fdi/halt by {source}: latched until the monitor clears it")
+            self.halted = True
+            with self.lock:
+                if self.reference is not None:
+                    self._stop("stopped", "halt requested on /fdi/halt")
+        elif not from_monitor:
+            self._foreign("halt")  # only the monitor can say "no halt"
+            return
+        else:
+            self.halted = False
+        if from_monitor:
+            self.halt_time = self.get_clock().now()
 
-    def _on_trajectory(self, msg: JointTrajectory) -> None:
+    def _foreign(self, kind: str) -> None:
+        source = self.sources[kind]
+        sender = next(reversed(source.foreign))
+        self.get_logger().warning(f"{source.topic}: message from {sender} refused (only {source.source} is taken)",
+                                  throttle_duration_sec=5.0)
+        if source.foreign[sender] == 1:
+            self._say(self.state, self.reason, force=True)
+
+    def _on_trajectory(self, data: bytes, info: dict[str, Any]) -> None:
+        if not self.sources["trajectory"].accepts(info):
+            self._foreign("trajectory")
+            return
+        try:
+            names, points = joint_trajectory_size(data)
+            if points > self.params["max_points"]:
+                raise InputError(f"trajectory: {points} points, max_points {self.params['max_points']}")
+            msg = deserialize_message(data, JointTrajectory)
+        except InputError as exc:  # CdrError is one
+            self._refuse(str(exc))
+            return
         if not msg.points:
-            if self.reference is not None:
-                self._stop("stopped", "empty trajectory: stop")
+            with self.lock:
+                if self.reference is not None:
+                    self._stop("stopped", "empty trajectory: stop")
             return
         try:
             trajectory = self._checked(msg)
         except InputError as exc:
-            self._say("refused", str(exc))
-            self.get_logger().warning(str(exc))
+            self._refuse(str(exc))
             return
         assert self.crane is not None
-        self.reference = CylinderReference(self.crane, trajectory)
-        self.started = self.get_clock().now()
-        self.holding_until = self.reference.duration + self.settle_time
-        self._say("executing", "", points=len(trajectory.time), duration_s=self.reference.duration)
+        reference = CylinderReference(self.crane, trajectory)
+        with self.lock:
+            self.slewing = self.reference is not None  # a running motion is ramped over, not cut
+            self.reference = reference
+            self.started = self.get_clock().now()
+            self.holding_until = self.reference.duration + self.settle_time
+            self._say("executing", "replaces the running trajectory" if self.slewing else "", points=len(trajectory.time),
+                      duration_s=self.reference.duration)
+
+    def _refuse(self, reason: str) -> None:
+        self._say("refused", reason)
+        self.get_logger().warning(reason)
 
     def _checked(self, msg: JointTrajectory) -> JointTrajectoryData:
         assert self.crane is not None
@@ -182,6 +267,9 @@ class TrajectoryExecutor(LifecycleNode):
         why_not = self._why_not_move()
         if why_not:
             raise InputError(f"trajectory: refused, {why_not}")
+        twice = sorted({name for name in msg.joint_names if list(msg.joint_names).count(name) > 1})
+        if twice:
+            raise InputError(f"trajectory: joint(s) {', '.join(twice)} named twice")
         missing = [name for name in self.names if name not in msg.joint_names]
         if missing:
             raise InputError(f"trajectory: joint(s) {', '.join(missing)} missing (has {', '.join(msg.joint_names) or 'none'})")
@@ -231,6 +319,10 @@ class TrajectoryExecutor(LifecycleNode):
         return ""
 
     def _control(self) -> None:
+        with self.lock:
+            self._control_step()
+
+    def _control_step(self) -> None:
         if not self.active:
             return
         if self.reference is None:
@@ -251,11 +343,17 @@ class TrajectoryExecutor(LifecycleNode):
             self._say("holding", "at the last point for the settle time")
         stroke_ref, velocity_ref = self.reference.at(t)
         strokes = np.array([cylinder.stroke(q) for cylinder, q in zip(self.crane.cylinders, self.joints)])
-        self._send(np.clip(self.controller.command(stroke_ref, velocity_ref, strokes), -1.0, 1.0))
+        command = np.clip(self.controller.command(stroke_ref, velocity_ref, strokes), -1.0, 1.0)
+        if self.slewing and self.last_command is not None:
+            step = command - self.last_command
+            self.slewing = bool(np.any(np.abs(step) > self.slew_step))
+            command = self.last_command + np.clip(step, -self.slew_step, self.slew_step)
+        self._send(command)
 
     def _stop(self, state: str, reason: str) -> None:
         """Drop the trajectory and command every valve neutral now."""
         self.reference = None
+        self.slewing = False
         if self.active:
             self._send(np.zeros(len(self.names)))
         self._say(state, reason)
@@ -265,19 +363,44 @@ class TrajectoryExecutor(LifecycleNode):
             self.get_logger().info(f"{state}: {reason}")
 
     def _send(self, commands: np.ndarray) -> None:
+        self.last_command = np.asarray(commands, dtype=float)
         msg = JointState(name=self.names, position=[float(c) for c in commands])
         msg.header.stamp = self.get_clock().now().to_msg()
         self.command_pub.publish(msg)
 
-    def _say(self, state: str, reason: str, **extra: Any) -> None:
-        if state == self.state and not extra and state != "refused":
+    def _foreign_publishers(self) -> dict[str, list[str]]:
+        return {kind: sorted(source.foreign) for kind, source in getattr(self, "sources", {}).items() if source.foreign}
+
+    def _say(self, state: str, reason: str, *, force: bool = False, **extra: Any) -> None:
+        if state == self.state and not extra and state != "refused" and not force:
             return
-        self.state = state
-        self.status_pub.publish(String(data=json.dumps({"state": state, "reason": reason, **extra})))
+        self.state, self.reason = state, reason
+        foreign = self._foreign_publishers()
+        status = {"state": state, "reason": reason, **extra, **({"foreign_publishers": foreign} if foreign else {})}
+        self.status_pub.publish(String(data=json.dumps(status)))
+
+    def _diagnose(self) -> None:
+        if not self.active:
+            return
+        foreign = self._foreign_publishers()
+        present = {kind: source.others() for kind, source in self.sources.items()}
+        present = {kind: names for kind, names in present.items() if names}
+        level = 1 if foreign or present else 0
+        message = "; ".join(f"{kind} refused from {', '.join(names)}" for kind, names in foreign.items()) or (
+            "; ".join(f"other publishers on {kind}: {', '.join(names)}" for kind, names in present.items()) or "ok")
+        values = {"state": self.state, "reason": self.reason, "halted": str(self.halted).lower(),
+                  "require_monitor": str(self.require_monitor).lower(),
+                  **{f"{kind}_source": source.source for kind, source in self.sources.items()},
+                  **{f"{kind}_refused": str(source.refused) for kind, source in self.sources.items()}}
+        array = DiagnosticArray(status=[DiagnosticStatus(level=bytes([level]), name="hydro_ros/trajectory_executor", message=message,
+                                                         hardware_id=self.crane.name if self.crane else "",
+                                                         values=[KeyValue(key=k, value=v) for k, v in values.items()])])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diag_pub.publish(array)
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(TrajectoryExecutor, args, last_words=True)
+    run_node(TrajectoryExecutor, args, last_words=True, threads=2)
 
 
 if __name__ == "__main__":
