@@ -232,7 +232,7 @@ def cmd_commission(args: argparse.Namespace) -> int:
     machine = load_machine_config(config)
     recordings = load_recordings(args.bag, machine)
     with tqdm(total=len(machine.actuators) + len(recordings), unit="step", desc="commission", disable=args.quiet) as bar:
-        block, report = commission(machine, recordings, progress=lambda _: bar.update())
+        block, report = commission(machine, recordings, progress=lambda _: bar.update(), force=args.force)
     if args.report:
         report_dir = Path(args.report)
         report_dir.mkdir(parents=True, exist_ok=True)
@@ -589,6 +589,8 @@ def build_parser() -> argparse.ArgumentParser:
     com.add_argument("--config", required=True, help="the machine config the commissioned one extends, e.g. config/sam.yaml")
     com.add_argument("--out", required=True, help="the commissioned machine config to write (extends --config)")
     com.add_argument("--report", help="directory for commissioning.json and commissioning.png")
+    com.add_argument("--force", action="store_true", help="accept a commissioned threshold above the config's own (refused "
+                                                          "otherwise: it would hide faults the config's threshold shows)")
     com.add_argument("--quiet", action="store_true", help="no progress bar")
     com.set_defaults(func=cmd_commission)
 

@@ -187,3 +187,18 @@ def test_live_commissioned_monitor_names_a_leak_the_shipped_threshold_cannot_see
         assert spin_until(node, future.done, 10)
         assert spin_until(node, lambda: statuses()[-1].message == "external_leakage_b", 60), [s.message for s in statuses()[-5:]]
         assert statuses()[-1].level == bytes([1])
+
+
+def test_a_leak_that_begins_in_the_held_out_part_is_refused_never_learnt(sam_config):
+    """The leak starts inside the last third, which only sets the threshold: refused by the held-out leak check, and a
+    threshold above the config's safe one is refused unless forced."""
+    plant, _, _ = _plant(sam_config)
+    leaking = [Recording("leak_at_200", _samples(plant, 1, 300.0, [Injection("internal_leakage", 1.0, 200.0)]))]
+    with pytest.raises(InputError, match="held-out part .*internal_leakage"):
+        commission(sam_config, leaking)
+    fault_free = [Recording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2)]
+    strict = sam_config.with_overrides({"fdi": {"threshold_constant": 0.001}})  # a config whose own c0 is sharper than the data's
+    with pytest.raises(InputError, match="c0 .* above the config's 0.0010 MPa.*--force"):
+        commission(strict, fault_free)
+    block, report = commission(strict, fault_free, force=True)
+    assert block["threshold"]["forced"] and block["model"]["fdi"]["threshold_constant"] > 0.001
