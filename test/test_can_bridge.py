@@ -165,31 +165,66 @@ def test_bridge_on_vcan0(ros_domain, sam_config):
         assert spin_until(node, lambda: len(pressures) >= 100, 10)
 
 
-def test_forward_commands_sends_valve_requests_and_drops_nan(ros_domain, sam_config):
+CONTROLLER = """
+import sys, rclpy
+from sensor_msgs.msg import JointState
+from hydro_ros.nodes.common import SENSOR_QOS
+rclpy.init()
+node = rclpy.create_node("controller")
+pub = node.create_publisher(JointState, "/hydraulics/valve_commands", SENSOR_QOS)
+node.create_timer(0.02, lambda: pub.publish(JointState(name=["boom"], position=[0.25])))
+rclpy.spin(node)
+"""
+
+
+def test_forwarded_commands_are_checked_and_a_dead_controller_leaves_the_valve_neutral(ros_domain, sam_config):
+    """NaN, inf and 5.0 are refused and that valve sent neutral (never a full opening); SIGKILL of the controller
+    publishing 0.25 at 50 Hz: neutral requests on the bus within command_timeout (0.2 s), and again while none comes."""
+    import signal
+    import subprocess
+    import sys
+
     from sensor_msgs.msg import JointState
 
     group = _group(ros_domain)
     codec = MachineBus(sam_config)
+    message = codec.db.get_message_by_frame_id(0x201)
     listener = can.Bus(interface="udp_multicast", channel=group)
+
+    def requests(seconds: float) -> list[tuple[float, float]]:
+        out, end = [], time.monotonic() + seconds
+        while time.monotonic() < end:
+            frame = listener.recv(0.05)
+            if frame is not None and frame.arbitration_id == 0x201:
+                assert frame.data[7] == crc8(0x201, bytes(frame.data))
+                out.append((time.monotonic(), message.decode(bytes(frame.data))["REQ1_COMMAND"]))
+        return out
+
     try:
         with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={SAM_CONFIG}", "-p", "interface:=udp_multicast",
                           "-p", f"channel:={group}", "-p", "forward_commands:=true"), probe_node("probe") as node:
             publisher = node.create_publisher(JointState, "/hydraulics/valve_commands", SENSOR_QOS)
             assert spin_until(node, lambda: publisher.get_subscription_count() > 0, 30)
             spin_until(node, lambda: False, 1.0)  # the bridge's bus is open
-            for value in (float("nan"), 0.25):
+            idle = requests(1.0)
+            assert idle and all(value == 0.0 for _, value in idle)  # nobody commands: the deadman keeps it neutral
+            for value in (float("nan"), float("inf"), 5.0, -1.5):
                 publisher.publish(JointState(name=["boom"], position=[value]))
-                spin_until(node, lambda: False, 0.2)
-            frames = []
-            end = time.monotonic() + 3.0
-            while time.monotonic() < end:
-                message = listener.recv(0.1)
-                if message is not None and message.arbitration_id == 0x201:
-                    frames.append(message)
-        assert len(frames) == 1  # the NaN command was not forwarded
-        signals = codec.db.get_message_by_frame_id(0x201).decode(bytes(frames[0].data))
-        assert signals["REQ1_COMMAND"] == pytest.approx(0.25, abs=1e-4)
-        assert frames[0].data[7] == crc8(0x201, bytes(frames[0].data))
+                assert all(abs(v) < 1e-4 for _, v in requests(0.1)), value
+            controller = subprocess.Popen([sys.executable, "-c", CONTROLLER], env=dict(os.environ))
+            try:
+                assert any(abs(v - 0.25) < 1e-4 for _, v in requests(15.0 if not idle else 10.0)), "the controller never got through"
+                driving = requests(1.0)
+                assert driving and all(abs(v - 0.25) < 1e-4 for _, v in driving)
+                controller.send_signal(signal.SIGKILL)
+                killed = time.monotonic()
+                controller.wait(timeout=10)
+            finally:
+                controller.kill()
+            after = requests(1.5)
+        neutral = [t for t, v in after if v == 0.0]
+        assert neutral and neutral[0] - killed < 0.2 + 0.1, "no neutral request within command_timeout of the controller's death"
+        assert all(v == 0.0 for t, v in after if t > neutral[0]) and len(neutral) >= 3  # stays neutral, and says so again
     finally:
         listener.shutdown()
 
@@ -227,7 +262,9 @@ def test_lifecycle_opens_forwards_and_leaves_the_valves_neutral(ros_domain, sam_
 
             assert change_state(node, "/can_bridge", Transition.TRANSITION_ACTIVATE)
             publisher.publish(JointState(name=["boom"], position=[0.25]))
-            assert requests(1.5) == [pytest.approx(0.25, abs=1e-4)]
+            active = requests(1.5)
+            assert sorted({round(value, 3) for value in active}) == [0.0, 0.25]
+            assert active[-1] == 0.0  # one command, then the deadman's neutral requests
 
             assert change_state(node, "/can_bridge", Transition.TRANSITION_DEACTIVATE)
             assert requests(1.0) == [0.0]  # the valve is left neutral

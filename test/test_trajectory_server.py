@@ -175,7 +175,8 @@ def _crane_plant_and_executor(*executor_args: str):
     return (
         node_process("hydro_ros.nodes.crane_sim", "-r", "__ns:=/crane", "-p", f"config:={K70M}", "-p", "external_commands:=true",
                      "-p", "publish_rate:=100.0", "-p", "initial_path:=horizontal", "-p", "initial_extension:=0.3"),
-        node_process("hydro_ros.nodes.trajectory_executor", "-r", "__ns:=/crane", "-p", f"config:={K70M}", *executor_args),
+        node_process("hydro_ros.nodes.trajectory_executor", "-r", "__ns:=/crane", "-p", f"config:={K70M}",
+                     "-p", "joint_state_source:=crane_sim", "-p", "require_monitor:=false", *executor_args),
     )
 
 
@@ -244,7 +245,8 @@ def test_the_executor_refuses_bad_trajectories_and_stops_neutral_on_halt_and_on_
     from lifecycle_msgs.msg import Transition
 
     names = config_joint_names(k70m)
-    plant, executor = _crane_plant_and_executor("-p", "joint_state_timeout:=0.5")
+    plant, executor = _crane_plant_and_executor("-p", "joint_state_timeout:=0.5", "-p", "trajectory_source:=/client",
+                                                "-p", "monitor:=/client")
     with plant, executor as executor_process, probe_node("client") as node:
         seen = _watch_crane(node)
         trajectories = node.create_publisher(JointTrajectory, f"{EXECUTOR_IN_CRANE}/joint_trajectory", 10)
