@@ -15,7 +15,8 @@ from typing import Any
 
 from rclpy.node import Node
 
-GRAPH_REFRESH_S = 1.0  # at most this often the graph is asked again about an unknown publisher
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"  # rmw's name for an endpoint whose node it has not been told of
+GRAPH_REFRESH_S = 0.5  # at most this often the graph is asked again about an unknown publisher
 
 
 def full_node_name(name: str, namespace: str) -> str:
@@ -36,20 +37,27 @@ class PinnedSource:
         self._last_refresh = -float("inf")
         self.foreign: dict[str, int] = {}  # full node name -> messages refused from it
         self.refused = 0
+        self.unidentified = 0  # messages from a publisher the graph did not (yet) list
+        self.last_sender: str | None = None  # the node of the last message checked, None when unidentified
 
     def refresh(self) -> None:
         self._last_refresh = time.monotonic()
+        # an endpoint whose node the graph does not know yet (its discovery info still on the way) stays unknown
         self._names = {bytes(info.endpoint_gid): full_node_name(info.node_name, info.node_namespace)
-                       for info in self.node.get_publishers_info_by_topic(self.topic)}
+                       for info in self.node.get_publishers_info_by_topic(self.topic) if info.node_name != UNKNOWN_NODE}
 
     def accepts(self, info: dict[str, Any] | None) -> bool:
         """Whether the message with this ``MessageInfo`` came from the source; refused ones are counted and named."""
         gid = bytes(((info or {}).get("publisher_gid") or {}).get("data", b""))
         if gid not in self._names and time.monotonic() - self._last_refresh > GRAPH_REFRESH_S:
             self.refresh()
-        name = self._names.get(gid, "unknown publisher")
-        if gid and name == self.source:
+        name = self._names.get(gid)
+        self.last_sender = name
+        if name == self.source:
             return True
+        if name is None:  # not (yet) in the graph: refused, but named only once the graph says whose it is
+            self.unidentified += 1
+            return False
         self.refused += 1
         self.foreign[name] = self.foreign.get(name, 0) + 1
         return False
@@ -57,4 +65,4 @@ class PinnedSource:
     def others(self) -> list[str]:
         """Nodes other than the source publishing on the topic now."""
         return sorted({full_node_name(info.node_name, info.node_namespace)
-                       for info in self.node.get_publishers_info_by_topic(self.topic)} - {self.source})
+                       for info in self.node.get_publishers_info_by_topic(self.topic) if info.node_name != UNKNOWN_NODE} - {self.source})

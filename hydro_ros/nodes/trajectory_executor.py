@@ -202,7 +202,7 @@ class TrajectoryExecutor(LifecycleNode):
         from_monitor = self.sources["halt"].accepts(info)
         if msg.data:
             if not self.halted:
-                source = "the monitor" if from_monitor else next(reversed(self.sources["halt"].foreign))
+                source = "the monitor" if from_monitor else self.sources["halt"].last_sender or "an unidentified publisher"
                 self.get_logger().error(f"halt requested on /fdi/halt by {source}: latched until the monitor clears it")
             self.halted = True
             with self.lock:
@@ -218,15 +218,21 @@ class TrajectoryExecutor(LifecycleNode):
 
     def _foreign(self, kind: str) -> None:
         source = self.sources[kind]
-        sender = next(reversed(source.foreign))
+        sender = source.last_sender
+        if sender is None:
+            return  # a publisher the graph does not list yet (discovery): counted as unidentified
         self.get_logger().warning(f"{source.topic}: message from {sender} refused (only {source.source} is taken)",
                                   throttle_duration_sec=5.0)
         if source.foreign[sender] == 1:
             self._say(self.state, self.reason, force=True)
 
     def _on_trajectory(self, data: bytes, info: dict[str, Any]) -> None:
-        if not self.sources["trajectory"].accepts(info):
-            self._foreign("trajectory")
+        source = self.sources["trajectory"]
+        if not source.accepts(info):
+            if source.last_sender is not None:
+                self._foreign("trajectory")
+            else:  # the sender should know: it may be the source, not yet listed on the graph (send again)
+                self._refuse(f"trajectory: refused, its publisher is not yet identified on the graph (only {source.source} is taken)")
             return
         try:
             names, points = joint_trajectory_size(data)
@@ -303,11 +309,6 @@ class TrajectoryExecutor(LifecycleNode):
     # control -------------------------------------------------------------------------------------
     def _why_not_move(self) -> str:
         now = self.get_clock().now()
-        if self.joints is None or self.joints_time is None:
-            return f"no joint state on {topics.JOINT_STATES}"
-        age = (now - self.joints_time).nanoseconds * 1e-9
-        if age > self.joint_state_timeout:
-            return f"joint state stale ({age:.2f} s old, joint_state_timeout {self.joint_state_timeout} s)"
         if self.halted:
             return "halt requested on /fdi/halt"
         if self.require_monitor:
@@ -316,6 +317,11 @@ class TrajectoryExecutor(LifecycleNode):
             silent = (now - self.halt_time).nanoseconds * 1e-9
             if silent > 3 * HALT_PERIOD_S:
                 return f"condition monitor silent for {silent:.1f} s (require_monitor)"
+        if self.joints is None or self.joints_time is None:
+            return f"no joint state on {topics.JOINT_STATES}"
+        age = (now - self.joints_time).nanoseconds * 1e-9
+        if age > self.joint_state_timeout:
+            return f"joint state stale ({age:.2f} s old, joint_state_timeout {self.joint_state_timeout} s)"
         return ""
 
     def _control(self) -> None:
@@ -391,7 +397,8 @@ class TrajectoryExecutor(LifecycleNode):
         values = {"state": self.state, "reason": self.reason, "halted": str(self.halted).lower(),
                   "require_monitor": str(self.require_monitor).lower(),
                   **{f"{kind}_source": source.source for kind, source in self.sources.items()},
-                  **{f"{kind}_refused": str(source.refused) for kind, source in self.sources.items()}}
+                  **{f"{kind}_refused": str(source.refused) for kind, source in self.sources.items()},
+                  **{f"{kind}_unidentified": str(source.unidentified) for kind, source in self.sources.items()}}
         array = DiagnosticArray(status=[DiagnosticStatus(level=bytes([level]), name="hydro_ros/trajectory_executor", message=message,
                                                          hardware_id=self.crane.name if self.crane else "",
                                                          values=[KeyValue(key=k, value=v) for k, v in values.items()])])
