@@ -170,6 +170,52 @@ def _read_strings(data: bytes, offset: int, what: str) -> tuple[list[str], int]:
     return names, offset
 
 
+def _read_doubles(data: bytes, offset: int) -> tuple[tuple[float, ...], int]:
+    offset = _align(offset, 4)
+    (count,) = _U32.unpack_from(data, offset)
+    offset += 4
+    if not count:
+        return (), offset
+    offset = _align(offset, 8)
+    if offset + 8 * count > len(data):
+        raise CdrError("a sequence runs past the message")
+    return struct.unpack_from(f"<{count}d", data, offset), offset + 8 * count
+
+
+def decode_joint_trajectory(data: bytes) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+    """(joint_names, times [s], positions (n, joints), velocities (n, joints), zero where a point gives none) of a
+    trajectory_msgs/JointTrajectory. Plain Python on purpose: a thread decoding a large message lets the others run
+    (rclpy's own conversion holds the interpreter for the whole message)."""
+    _, offset = _read_header(data)
+    try:
+        names, offset = _read_strings(data, offset, "JointTrajectory")
+        offset = _align(offset, 4)
+        (count,) = _U32.unpack_from(data, offset)
+        offset += 4
+        joints = len(names)
+        times = np.empty(count)
+        positions = np.empty((count, joints))
+        velocities = np.zeros((count, joints))
+        for k in range(count):
+            position, offset = _read_doubles(data, offset)
+            velocity, offset = _read_doubles(data, offset)
+            for _ in range(2):  # accelerations, effort
+                _, offset = _read_doubles(data, offset)
+            offset = _align(offset, 4)
+            sec, nanosec = struct.unpack_from("<iI", data, offset)
+            offset += 8
+            if len(position) != joints or len(velocity) not in (0, joints):
+                raise CdrError(f"JointTrajectory point {k}: {len(position)} positions and {len(velocity)} velocities for "
+                               f"{joints} joint names")
+            times[k] = sec + nanosec * 1e-9
+            positions[k] = position
+            if velocity:
+                velocities[k] = velocity
+    except (struct.error, UnicodeDecodeError) as exc:
+        raise CdrError(f"JointTrajectory malformed ({exc})") from None
+    return names, times, positions, velocities
+
+
 def joint_trajectory_size(data: bytes) -> tuple[list[str], int]:
     """(joint_names, number of points) of a trajectory_msgs/JointTrajectory, read without decoding the points."""
     _, offset = _read_header(data)

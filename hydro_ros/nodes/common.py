@@ -10,7 +10,7 @@ from typing import Any, Callable
 
 import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -91,11 +91,8 @@ def message_class(type_name: str) -> Any:
     return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
 
-def run_node(factory: Callable[[], Node], args: list[str] | None = None, *, last_words: bool = False, threads: int = 1) -> None:
+def run_node(factory: Callable[[], Node], args: list[str] | None = None, *, last_words: bool = False) -> None:
     """Init, spin, shut down cleanly; Ctrl-C exits without a traceback.
-
-    ``threads`` > 1: a multi-threaded executor, for a node whose callback groups must not wait for each other
-    (services answered while a busy timer works).
 
     ``last_words``: a node that must still publish as it goes (neutral valve commands) handles SIGINT and
     SIGTERM itself. rclpy's own handlers shut the context down first, after which nothing can be sent;
@@ -114,7 +111,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None, *, last
         except InputError as exc:  # bad parameter or config (ConfigError is one): one line, no traceback
             print(f"{getattr(factory, '__name__', 'node')}: error: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
-        rclpy.spin(node, executor=MultiThreadedExecutor(num_threads=threads) if threads > 1 else None)
+        rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

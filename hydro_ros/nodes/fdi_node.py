@@ -26,14 +26,14 @@ trajectory_executor requiring the monitor stops within three heartbeat periods.
 Acknowledge silences an alarm (``acknowledged`` in its status), never clears it: a latched fault stays
 until a reset. A reset re-arms the filters and keeps every fault that was latched shown (``rechecking``)
 until the re-armed monitor has evaluated a window: a fault still present is reported throughout, one
-that is gone is cleared. The services run on their own executor thread, so a burst of calls is
-answered while the monitor works (a lock keeps them and the processing apart).
+that is gone is cleared. The services stay cheap so a burst of calls is answered between two
+processing ticks: the self-test's simulated healthy machine is evaluated once per node, an
+acknowledgement is logged only when it silences something new.
 """
 
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections import deque
 from typing import Any
@@ -41,7 +41,6 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from diagnostic_msgs.srv import SelfTest
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -113,7 +112,7 @@ class FdiNode(Node):
         for actuator, (_, fault, _) in self.held.items():
             self.get_logger().warning(f"{actuator}: {fault} latched before the restart (alarm log), until a reset")
         self.acknowledged: dict[str, str] = {}  # actuator -> the fault the operator acknowledged (silenced, still shown)
-        self.lock = threading.Lock()  # the services' thread against the processing
+        self._simulated_check: bool | None = None  # the self-test's simulated healthy machine, evaluated once
         actuators = self.monitor.actuators
         self.mobile = self.monitor.generator.needs_mobile_pressures
         self.layout = SampleLayout(actuators, self.monitor.joints, mobile=self.mobile)
@@ -139,10 +138,9 @@ class FdiNode(Node):
         self.pub_halt = self.create_publisher(Bool, relative(topics.FDI_HALT), HALT_QOS)
         self.pub_residuals = self.create_publisher(JointState, relative(topics.FDI_RESIDUALS), 10)
         self._residual_channels = topics.fdi_residual_channels(actuators, mobile=self.mobile)
-        operator = MutuallyExclusiveCallbackGroup()
-        self.create_service(Trigger, "~/acknowledge", self._on_acknowledge, callback_group=operator)
-        self.create_service(Trigger, "~/reset", self._on_reset, callback_group=operator)
-        self.create_service(SelfTest, "~/self_test", self._on_self_test, callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_service(Trigger, "~/acknowledge", self._on_acknowledge)
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self.create_service(SelfTest, "~/self_test", self._on_self_test)
 
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.started = time.monotonic()
@@ -153,7 +151,7 @@ class FdiNode(Node):
         self._last_residual_ns = -(1 << 62)
         self.create_timer(self.params["process_period"], self._process, clock=self.steady)
         self.create_timer(self.params["diagnostics_period"], self._on_diagnostics_tick, clock=self.steady)
-        self.create_timer(HALT_PERIOD_S, self._on_halt_tick, clock=self.steady)
+        self.create_timer(HALT_PERIOD_S, self._publish_halt, clock=self.steady)
         self.get_logger().info(f"monitoring {', '.join(actuators)} of {self.machine} with the {self.monitor.method} method")
 
     def _on_parameter(self, name: str, value: Any) -> None:
@@ -200,10 +198,6 @@ class FdiNode(Node):
 
     # processing -------------------------------------------------------------------------------
     def _process(self) -> None:
-        with self.lock:
-            self._process_queued()
-
-    def _process_queued(self) -> None:
         if len(self.aligner.time_jumps) != self._jumps_seen:
             self._jumps_seen = len(self.aligner.time_jumps)
             self.monitor.restart()
@@ -327,10 +321,6 @@ class FdiNode(Node):
                                   evidence=evidence)
             self._logged_faults[actuator] = now
 
-    def _on_halt_tick(self) -> None:
-        with self.lock:
-            self._publish_halt()
-
     def vouched(self) -> bool:
         """Whether "no halt" is known: every actuator armed, its evidence explained, fresh and not overloaded."""
         return self.monitor.confirmed and all(self._blindness(i) is None for i in range(len(self.monitor.actuators)))
@@ -409,10 +399,9 @@ class FdiNode(Node):
         return SampleLayout.source((channel, "" if channel == "supply_pressure" else name))
 
     def _on_diagnostics_tick(self) -> None:
-        with self.lock:
-            if self.alarm_log is not None and self.alarm_log.pending:
-                self.alarm_log.flush()  # what a full or missing disk held back
-            self._publish_diagnostics()
+        if self.alarm_log is not None and self.alarm_log.pending:
+            self.alarm_log.flush()  # what a full or missing disk held back
+        self._publish_diagnostics()
 
     def _publish_diagnostics(self) -> None:
         array = DiagnosticArray(status=self.statuses())
@@ -431,51 +420,60 @@ class FdiNode(Node):
 
     def _on_acknowledge(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """Silence the latched alarms the operator has seen; each stays shown, and halting, until a reset."""
-        with self.lock:
-            latched = {a: self._latched_fault(i) for i, a in enumerate(self.monitor.actuators) if self._latched_fault(i)}
+        latched = {a: self._latched_fault(i) for i, a in enumerate(self.monitor.actuators) if self._latched_fault(i)}
+        detail = "; ".join(f"{a}: {fault}" for a, fault in latched.items())
+        if latched.items() - self.acknowledged.items():
             self.acknowledged.update(latched)
-            detail = "; ".join(f"{a}: {fault}" for a, fault in latched.items())
             if self.alarm_log is not None:
                 self.alarm_log.record("acknowledged", "", evidence={"detail": detail})
-            return self._answer(response, f"acknowledged: {detail or 'no latched alarm'} (shown until a reset)")
+            return self._answer(response, f"acknowledged: {detail} (shown until a reset)")
+        response.success = True
+        response.message = f"acknowledged: {detail or 'no latched alarm'} (nothing new; shown until a reset)"
+        return response
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        with self.lock:
-            since = time.monotonic() - self.last_reset
-            if since < self.reset_min_interval:
-                response.success = False
-                response.message = f"reset refused: the last one was {since:.1f} s ago (at most one per {self.reset_min_interval:g} s)"
-                self.get_logger().warning(response.message)
-                return response
-            self.last_reset = time.monotonic()
-            before = "; ".join(f"{a}: {message}" for a, (_, message) in zip(self.monitor.actuators, self._levels)) or "no status yet"
-            # every fault latched now stays shown until the re-armed monitor has looked again
-            self.held = {a: (self._state(i)[0], self._latched_fault(i), True)
-                         for i, a in enumerate(self.monitor.actuators) if self._latched_fault(i)}
-            self.acknowledged.clear()
-            self.monitor.reset()
-            if self.alarm_log is not None:
-                self.alarm_log.record("reset", "", evidence={"detail": before})
-            return self._answer(response, f"filters, averages and latches reset (before: {before}); detection re-arms after "
-                                          f"{self.monitor.settings.window_s:g} s of data, a latched fault stays shown until re-checked")
+        since = time.monotonic() - self.last_reset
+        if since < self.reset_min_interval:
+            response.success = False
+            response.message = f"reset refused: the last one was {since:.1f} s ago (at most one per {self.reset_min_interval:g} s)"
+            self.get_logger().warning(response.message, throttle_duration_sec=1.0)
+            return response
+        self.last_reset = time.monotonic()
+        before = "; ".join(f"{a}: {message}" for a, (_, message) in zip(self.monitor.actuators, self._levels)) or "no status yet"
+        # every fault latched now stays shown until the re-armed monitor has looked again
+        self.held = {a: (self._state(i)[0], self._latched_fault(i), True)
+                     for i, a in enumerate(self.monitor.actuators) if self._latched_fault(i)}
+        self.acknowledged.clear()
+        self.monitor.reset()
+        if self.alarm_log is not None:
+            self.alarm_log.record("reset", "", evidence={"detail": before})
+        return self._answer(response, f"filters, averages and latches reset (before: {before}); detection re-arms after "
+                                      f"{self.monitor.settings.window_s:g} s of data, a latched fault stays shown until re-checked")
+
+    def _simulated_healthy_machine(self) -> bool:
+        """A short fault-free simulation of the first actuator, replayed on every actuator, through a fresh monitor of the
+        same config: residuals within thresholds and no alarm. It depends on the config alone, so it runs once."""
+        if self._simulated_check is None:
+            probe = FdiMonitor(self.machine_config, self.monitor.method)
+            n_act = len(probe.actuators)
+            scenario = Scenario(probe.settings.window_s + 1.0, (), seed=0, actuator=probe.actuators[0])
+            alarms = []
+            for _, _, measured in run_blocks(self.machine_config, scenario):
+                block = measured.as_columns()
+                for name in PER_ACTUATOR:
+                    if getattr(block, name) is not None:  # the other actuators replay the first one's samples
+                        setattr(block, name, np.repeat(getattr(block, name), n_act, axis=1))
+                result = probe.process(block)
+                alarms += result.alarms
+            converged = bool(np.all(np.abs(result.mean_residual[-1, 0]) < result.threshold[-1, 0]))
+            self._simulated_check = converged and not alarms
+        return self._simulated_check
 
     def _on_self_test(self, _request: SelfTest.Request, response: SelfTest.Response) -> SelfTest.Response:
         """The residual generator's own checks, a simulated healthy machine without alarm, sensor topics fresh."""
         checks = self.monitor.generator.self_check()
-        # a short fault-free simulation of the first actuator through a fresh monitor of the same config
-        probe = FdiMonitor(self.machine_config, self.monitor.method)
-        n_act = len(probe.actuators)
-        scenario = Scenario(probe.settings.window_s + 1.0, (), seed=0, actuator=probe.actuators[0])
-        alarms = []
-        for _, _, measured in run_blocks(self.machine_config, scenario):
-            block = measured.as_columns()
-            for name in PER_ACTUATOR:
-                if getattr(block, name) is not None:  # the other actuators replay the first one's samples
-                    setattr(block, name, np.repeat(getattr(block, name), n_act, axis=1))
-            result = probe.process(block)
-            alarms += result.alarms
-        converged = bool(np.all(np.abs(result.mean_residual[-1, 0]) < result.threshold[-1, 0]))
-        checks.append(("residuals stay within thresholds on a simulated healthy machine, no alarm", converged and not alarms))
+        checks.append(("residuals stay within thresholds on a simulated healthy machine, no alarm", self._simulated_healthy_machine()))
+        n_act = len(self.monitor.actuators)
         fresh = [i for i in range(n_act) if not self._stale_topics(i)]
         checks.append((f"sensor topics fresh for {len(fresh)}/{n_act} actuators", len(fresh) == n_act))
         response.id = f"hydro_ros/fdi/{self.machine}"
@@ -489,7 +487,7 @@ class FdiNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(FdiNode, args, threads=3)
+    run_node(FdiNode, args)
 
 
 if __name__ == "__main__":

@@ -22,8 +22,8 @@ It stops (neutral at once, the trajectory dropped, the reason on ``~/status``) o
   see the machine must not move it); joint states from other publishers are refused;
 - an empty trajectory (ros2_control's "stop the current one").
 A trajectory is taken only from ``trajectory_source``. It is refused when it has more than ``max_points``
-points (counted in the serialized message, before it is decoded, on its own thread: the control loop
-never waits for it), lacks a joint or names one twice, has non-finite values or non-increasing times,
+points (counted in the serialized message before anything is decoded; decoding and checking run on a
+thread of their own, so the control loop never waits for a trajectory), lacks a joint or names one twice, has non-finite values or non-increasing times,
 leaves a joint's position range or a cylinder's velocity limit, or starts farther than
 ``start_tolerance`` from the measured joints. A trajectory that replaces a running one takes over
 through a ramp of at most ``command_slew_rate`` per second in every valve command (the old motion is
@@ -39,20 +39,19 @@ from __future__ import annotations
 
 import json
 import math
+import queue
 import threading
 from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from rclpy.serialization import deserialize_message
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
 from trajectory_msgs.msg import JointTrajectory
 
-from hydro_ros.bags.cdr import joint_trajectory_size
+from hydro_ros.bags.cdr import decode_joint_trajectory, joint_trajectory_size
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
@@ -91,7 +90,9 @@ class TrajectoryExecutor(LifecycleNode):
         self.joint_state_timeout = self.params["joint_state_timeout"]
         self.start_tolerance = self.params["start_tolerance"]
         self.require_monitor = self.params["require_monitor"]
-        self.lock = threading.Lock()  # the trajectory thread against the control loop
+        self.lock = threading.Lock()  # the trajectory checker's thread against the control loop
+        self.incoming: queue.Queue[bytes | None] = queue.Queue(maxsize=4)
+        self.checker: threading.Thread | None = None
         self.last_command: np.ndarray | None = None
         self.slewing = False
         self.crane: Crane | None = None
@@ -142,13 +143,14 @@ class TrajectoryExecutor(LifecycleNode):
             self.diag_pub,
             self.create_subscription(JointState, relative(topics.JOINT_STATES), self._on_joint_state, SENSOR_QOS),
             self.create_subscription(Bool, relative(topics.FDI_HALT), self._on_halt, HALT_QOS),
-            self.create_subscription(JointTrajectory, "~/joint_trajectory", self._on_trajectory, 10, raw=True,
-                                     callback_group=MutuallyExclusiveCallbackGroup()),
+            self.create_subscription(JointTrajectory, "~/joint_trajectory", self._on_trajectory, 10, raw=True),
             self.create_timer(1.0 / rate, self._control),
             self.create_timer(1.0, self._diagnose),
         ]
         self.get_logger().info(f"crane {config['machine']}: cylinders {', '.join(self.names)}, control at {rate:g} Hz; "
                                + ", ".join(f"{kind} from {source.source}" for kind, source in self.sources.items()))
+        self.checker = threading.Thread(target=self._check_trajectories, daemon=True, name="trajectory-checker")
+        self.checker.start()
         if not self.require_monitor:
             self.get_logger().warning("require_monitor is false: trajectories run without a condition monitor vouching for "
                                       "the machine (only a halt request stops them)")
@@ -160,8 +162,9 @@ class TrajectoryExecutor(LifecycleNode):
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._stop("inactive", "deactivated")
-        self.active = False
+        with self.lock:
+            self._stop("inactive", "deactivated")
+            self.active = False
         self.halted = False  # an operator's lifecycle action clears a halt no monitor is there to clear
         return super().on_deactivate(state)
 
@@ -185,6 +188,10 @@ class TrajectoryExecutor(LifecycleNode):
 
     def _release(self) -> None:
         destroy_entities(self, self._entities)
+        if self.checker is not None:
+            self.incoming.put(None)
+            self.checker.join(timeout=2.0)
+            self.checker = None
 
     # inputs --------------------------------------------------------------------------------------
     def _on_joint_state(self, msg: JointState, info: dict[str, Any]) -> None:
@@ -235,59 +242,65 @@ class TrajectoryExecutor(LifecycleNode):
                 self._refuse(f"trajectory: refused, its publisher is not yet identified on the graph (only {source.source} is taken)")
             return
         try:
-            names, points = joint_trajectory_size(data)
-            if points > self.params["max_points"]:
-                raise InputError(f"trajectory: {points} points, max_points {self.params['max_points']}")
-            msg = deserialize_message(data, JointTrajectory)
+            _, points = joint_trajectory_size(data)
         except InputError as exc:  # CdrError is one
             self._refuse(str(exc))
             return
-        if not msg.points:
+        if points > self.params["max_points"]:
+            self._refuse(f"trajectory: {points} points, max_points {self.params['max_points']}")
+        elif points == 0:
             with self.lock:
                 if self.reference is not None:
                     self._stop("stopped", "empty trajectory: stop")
-            return
-        try:
-            trajectory = self._checked(msg)
-        except InputError as exc:
-            self._refuse(str(exc))
-            return
-        assert self.crane is not None
-        reference = CylinderReference(self.crane, trajectory)
-        with self.lock:
-            self.slewing = self.reference is not None  # a running motion is ramped over, not cut
-            self.reference = reference
-            self.started = self.get_clock().now()
-            self.holding_until = self.reference.duration + self.settle_time
-            self._say("executing", "replaces the running trajectory" if self.slewing else "", points=len(trajectory.time),
-                      duration_s=self.reference.duration)
+        else:
+            try:
+                self.incoming.put_nowait(data)
+            except queue.Full:
+                self._refuse("trajectory: refused, trajectories arrive faster than they are checked")
+
+    def _check_trajectories(self) -> None:
+        """The checker's thread: decode and check each trajectory, then hand it to the control loop."""
+        while (data := self.incoming.get()) is not None:
+            try:
+                trajectory = self._checked(*decode_joint_trajectory(data))
+            except InputError as exc:  # CdrError is one
+                self._refuse(str(exc))
+                continue
+            assert self.crane is not None
+            reference = CylinderReference(self.crane, trajectory)
+            with self.lock:
+                why_not = self._why_not_move() if self.active else "the executor is not active"  # changed while it was checked
+                if why_not:
+                    self._refuse(f"trajectory: refused, {why_not}")
+                    continue
+                self.slewing = self.reference is not None  # a running motion is ramped over, not cut
+                self.reference = reference
+                self.started = self.get_clock().now()
+                self.holding_until = self.reference.duration + self.settle_time
+                self._say("executing", "replaces the running trajectory" if self.slewing else "", points=len(trajectory.time),
+                          duration_s=self.reference.duration)
 
     def _refuse(self, reason: str) -> None:
         self._say("refused", reason)
         self.get_logger().warning(reason)
 
-    def _checked(self, msg: JointTrajectory) -> JointTrajectoryData:
+    def _checked(self, joint_names: list[str], times: np.ndarray, points: np.ndarray, point_velocities: np.ndarray) -> JointTrajectoryData:
         assert self.crane is not None
         if not self.active:
             raise InputError("trajectory: refused, the executor is not active")
         why_not = self._why_not_move()
         if why_not:
             raise InputError(f"trajectory: refused, {why_not}")
-        twice = sorted({name for name in msg.joint_names if list(msg.joint_names).count(name) > 1})
+        twice = sorted({name for name in joint_names if joint_names.count(name) > 1})
         if twice:
             raise InputError(f"trajectory: joint(s) {', '.join(twice)} named twice")
-        missing = [name for name in self.names if name not in msg.joint_names]
+        missing = [name for name in self.names if name not in joint_names]
         if missing:
-            raise InputError(f"trajectory: joint(s) {', '.join(missing)} missing (has {', '.join(msg.joint_names) or 'none'})")
-        order = [list(msg.joint_names).index(name) for name in self.names]
-        times = np.array([p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points])
-        try:
-            positions = np.array([[p.positions[i] for i in order] for p in msg.points], dtype=float)
-            velocities = np.array([[p.velocities[i] if len(p.velocities) else 0.0 for i in order] for p in msg.points], dtype=float)
-        except IndexError:
-            raise InputError("trajectory: a point has fewer positions or velocities than joint names") from None
-        if not (np.isfinite(positions).all() and np.isfinite(velocities).all()):
-            raise InputError("trajectory: non-finite position or velocity")
+            raise InputError(f"trajectory: joint(s) {', '.join(missing)} missing (has {', '.join(joint_names) or 'none'})")
+        order = [joint_names.index(name) for name in self.names]
+        positions, velocities = points[:, order], point_velocities[:, order]
+        if not (np.isfinite(positions).all() and np.isfinite(velocities).all() and np.isfinite(times).all()):
+            raise InputError("trajectory: non-finite position, velocity or time")
         if len(times) > 1 and np.any(np.diff(times) <= 0.0):
             raise InputError("trajectory: time_from_start not increasing")
         data = JointTrajectoryData(self.names, times, positions, velocities, np.zeros_like(positions), np.zeros(len(times)))
@@ -407,7 +420,7 @@ class TrajectoryExecutor(LifecycleNode):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(TrajectoryExecutor, args, last_words=True, threads=2)
+    run_node(TrajectoryExecutor, args, last_words=True)
 
 
 if __name__ == "__main__":
