@@ -296,3 +296,39 @@ def test_held_detection_raises_no_alarm_from_data_that_would_raise_one(sam_confi
     held, free = FdiMonitor(sam_config), FdiMonitor(sam_config)
     assert [a for block in blocks for a in held.process(block, hold=True).alarms] == []
     assert any(a.fault.value == "external_leakage_a" for block in blocks for a in free.process(block).alarms)
+
+
+def test_no_halt_is_said_only_while_the_monitor_sees_every_input(ros_domain, leak_bag, tmp_path):
+    """p_A NaN from 9 s to 11 s of the bag, and the bag ends at 14 s: /fdi/halt says false before, never while the boom is
+    not monitored, and never again once its inputs have stopped (the heartbeat stops; a trajectory_executor then stops)."""
+    def tamper(topic: str, stamp: int, value: float) -> tuple[int, float]:
+        blind = topic == topics.pressure_a("boom") and 9_000_000_000 <= stamp < 11_000_000_000
+        return stamp, (float("nan") if blind else value)
+
+    halts: list[tuple[float, bool]] = []
+    statuses: list[tuple[float, str, bool]] = []  # (arrival, message, any topic stale)
+
+    def on_diagnostics(message: DiagnosticArray) -> None:
+        statuses.extend((time.monotonic(), s.message, bool(_values(s)["stale_topics"]))
+                        for s in message.status if s.name == "hydro_ros/fdi/boom")
+
+    with probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 50)
+        node.create_subscription(Bool, topics.FDI_HALT, lambda m: halts.append((time.monotonic(), m.data)), HALT_QOS)
+        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), \
+                node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={tampered(leak_bag, tmp_path / 'bag', tamper)}",
+                             "-p", "publish_clock:=false", "-p", "rate:=0.5", "-p", "start_delay:=3.0"):
+            def ended() -> bool:
+                blind = [t for t, m, _ in statuses if m == "not_monitored"]
+                return bool(blind) and any(stale and t > blind[-1] for t, _, stale in statuses)
+
+            assert spin_until(node, ended, 60), statuses[-5:]
+            spin_until(node, lambda: False, 3.0)
+    vouched = [t for t, halt in halts if halt is False]
+    blind_at = next(t for t, m, _ in statuses if m == "not_monitored" and any(h < t for h in vouched))
+    back_at = next(t for t, m, _ in statuses if t > blind_at and m != "not_monitored")
+    stale_at = next(t for t, _, stale in statuses if t > back_at and stale)
+    assert any(t < blind_at for t in vouched), "the monitor never vouched before the sensor failed"
+    assert not [t for t in vouched if blind_at + 0.3 < t < back_at], "no halt said while p_A was NaN"
+    assert not [t for t in vouched if t > stale_at + 0.3], "no halt said after the inputs stopped"
+    assert not any(halt for _, halt in halts)  # a leak is minor, never a halt
