@@ -332,3 +332,83 @@ def test_no_halt_is_said_only_while_the_monitor_sees_every_input(ros_domain, lea
     assert not [t for t in vouched if blind_at + 0.3 < t < back_at], "no halt said while p_A was NaN"
     assert not [t for t in vouched if t > stale_at + 0.3], "no halt said after the inputs stopped"
     assert not any(halt for _, halt in halts)  # a leak is minor, never a halt
+
+
+def test_a_present_leak_survives_acknowledge_reset_and_a_service_burst_and_its_blocked_log_catches_up(ros_domain, tmp_path):
+    """The alarm log's directory cannot be created (a file stands in its way): monitoring goes on and says so. A leak is
+    alarmed; an acknowledgement never turns it `ok`; a burst of 300 calls (self_test, acknowledge, reset) is answered; the
+    one reset accepted shows the leak again from the re-armed monitor; once the directory can be made, every event is in
+    the log."""
+    from hydro_ros.fdi.alarm_log import read_events
+    from hydro_ros.nodes.common import SERVICE_QOS
+    from diagnostic_msgs.srv import SelfTest
+
+    blocker = tmp_path / "logs"
+    blocker.write_text("a file where the log's directory should be")
+    log = blocker / "alarms.sqlite"
+    statuses: list[tuple[float, str, dict[str, str]]] = []
+    log_status: list[tuple[int, str]] = []
+
+    def on_diagnostics(message: DiagnosticArray) -> None:
+        now = time.monotonic()
+        for s in message.status:
+            if s.name == "hydro_ros/fdi/boom":
+                statuses.append((now, s.message, _values(s)))
+            elif s.name == "hydro_ros/alarm_log":
+                log_status.append((s.level[0], s.message))
+
+    def call_all(node, calls: list) -> list[float]:
+        started = time.monotonic()
+        answered: list[float] = []
+        futures = [client.call_async(request) for client, request in calls]
+        for future in futures:
+            future.add_done_callback(lambda _: answered.append(time.monotonic() - started))
+        assert spin_until(node, lambda: all(f.done() for f in futures), 30), f"{sum(f.done() for f in futures)}/{len(futures)} answered"
+        return [f.result() for f in futures], answered
+
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"), \
+            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"alarm_log:={log}"), \
+            probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 50)
+        assert spin_until(node, lambda: any(m == "ok" for _, m, _ in statuses), 60), "not monitoring with its log blocked"
+        assert log_status and log_status[-1][0] == 1, log_status[-3:]
+        plant = AsyncParameterClient(node, "plant_sim")
+        assert plant.wait_for_services(10.0)
+        future = plant.set_parameters([Parameter("fault.external_leakage_a", value=3.0)])
+        assert spin_until(node, future.done, 10)
+        assert spin_until(node, lambda: statuses[-1][1] == "external_leakage_a", 50), statuses[-1][:2]
+
+        acknowledge = node.create_client(Trigger, "/fdi_node/acknowledge", qos_profile=SERVICE_QOS)
+        reset = node.create_client(Trigger, "/fdi_node/reset", qos_profile=SERVICE_QOS)
+        self_test = node.create_client(SelfTest, "/fdi_node/self_test", qos_profile=SERVICE_QOS)
+        for client in (acknowledge, reset, self_test):
+            assert client.wait_for_service(timeout_sec=10)
+        (answer,), _ = call_all(node, [(acknowledge, Trigger.Request())])
+        assert answer.success and "external_leakage_a" in answer.message
+        acknowledged_at = time.monotonic()
+        spin_until(node, lambda: False, 4.0)
+        after_ack = [(m, v["acknowledged"]) for t, m, v in statuses if t > acknowledged_at + 0.3]
+        assert after_ack and all(m == "external_leakage_a" and acked == "true" for m, acked in after_ack), after_ack
+
+        burst = [(self_test, SelfTest.Request())] * 30 + [(acknowledge, Trigger.Request()), (reset, Trigger.Request())] * 135
+        answers, delays = call_all(node, burst)
+        reset_at = time.monotonic()
+        resets = [a for (client, _), a in zip(burst, answers) if client is reset]
+        assert sum(a.success for a in resets) == 1 and all("refused" in a.message for a in resets if not a.success)
+        print(f"burst of {len(burst)}: median answer {np.median(delays):.3f} s, last {max(delays):.3f} s")
+        assert max(delays) < 1.0, f"the burst took {max(delays):.1f} s"
+        assert spin_until(node, lambda: any(t > reset_at and m == "external_leakage_a" and v["rechecking"] == "false"
+                                            for t, m, v in statuses), 40), "the reset hid the leak"
+        assert all(m != "ok" for t, m, _ in statuses if t > acknowledged_at)
+
+        blocker.unlink()
+        blocker.mkdir()
+        assert spin_until(node, lambda: log_status[-1][1] == "ok", 20), log_status[-1]
+    events, _ = read_events(log, newest_first=False)
+    kinds = [(e["event"], e["fault"]) for e in events]
+    assert ("raised", "unisolated") in kinds or ("raised", "external_leakage_a") in kinds, kinds
+    # the burst's acknowledgements after its reset silence the re-held leak once more: logged once, as something new
+    events_only = [k for k, _ in kinds]
+    assert events_only.count("reset") == 1 and events_only.index("acknowledged") < events_only.index("reset"), kinds
+    assert events_only.count("acknowledged") <= 2, kinds
+    assert any(k in ("raised", "changed") and f == "external_leakage_a" for k, f in kinds), kinds

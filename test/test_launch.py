@@ -138,3 +138,24 @@ def test_the_sros2_policy_lets_only_the_hmi_and_maintenance_call_the_monitor():
     replied = {s.text for services in fdi.iter("services") if services.get("reply") == "ALLOW" for s in services.iter("service")}
     for service in ("~/acknowledge", "~/reset", "~/self_test"):
         assert service in replied and f'"{service}"' in node_source
+
+
+def test_every_node_has_an_enclave_and_only_its_owner_may_publish_halt_commands_and_trajectories():
+    import re
+    import xml.etree.ElementTree as ET
+    from fnmatch import fnmatch  # DDS partitions and topic names in a policy match as fnmatch does
+
+    policy = ET.parse(REPO / "config" / "sros2" / "policy.xml").getroot()
+    profiles = {profile.get("node"): profile for profile in policy.iter("profile")}
+    sources = "".join(source.read_text() for source in (REPO / "hydro_ros" / "nodes").glob("*.py"))
+    node_names = set(re.findall(r'(?:super\(\).__init__|create_node)\("(\w+)"', sources))
+    assert node_names and node_names <= set(profiles), sorted(node_names - set(profiles))
+
+    def publishers(topic: str) -> set[str]:
+        return {name for name, profile in profiles.items() for topics in profile.iter("topics")
+                if topics.get("publish") == "ALLOW" and any(fnmatch(topic, t.text) for t in topics.iter("topic"))}
+
+    assert publishers("fdi/halt") == {"fdi_node"}
+    assert publishers("hydraulics/valve_commands") == {"trajectory_executor", "plant_sim", "crane_sim"}
+    assert publishers("trajectory_executor/joint_trajectory") == {"trajectory_server"}
+    assert "can_bridge" in publishers("joint_states") and not publishers("joint_states") & {"trajectory_server", "trajectory_executor", "hmi"}

@@ -29,6 +29,8 @@ LATCHED_QOS = QoSProfile(
 # the newest sample only, for a subscription that is never spun but taken from by a timer (rclpy's wait_for_message habit)
 LATEST_ONLY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+# operator services: rclpy's default keeps 10 requests, and the rest of a burst was lost unanswered
+SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 # /fdi/halt: latched, and re-published every HALT_PERIOD_S with an offered deadline, so a consumer that
 # asks for a deadline (or watches the heartbeat) can tell "no halt" from "monitor dead"
 HALT_PERIOD_S = 0.5

@@ -58,7 +58,7 @@ from hydro_ros.contract.samples import PER_ACTUATOR
 from hydro_ros.fdi.alarm_log import AlarmLog
 from hydro_ros.fdi.monitor import ERROR, OK, STALE, WARN, FdiMonitor
 from hydro_ros.fdi.residuals import GENERATORS
-from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, SENSOR_QOS, relative, run_node
+from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, SENSOR_QOS, SERVICE_QOS, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
@@ -138,9 +138,9 @@ class FdiNode(Node):
         self.pub_halt = self.create_publisher(Bool, relative(topics.FDI_HALT), HALT_QOS)
         self.pub_residuals = self.create_publisher(JointState, relative(topics.FDI_RESIDUALS), 10)
         self._residual_channels = topics.fdi_residual_channels(actuators, mobile=self.mobile)
-        self.create_service(Trigger, "~/acknowledge", self._on_acknowledge)
-        self.create_service(Trigger, "~/reset", self._on_reset)
-        self.create_service(SelfTest, "~/self_test", self._on_self_test)
+        self.create_service(Trigger, "~/acknowledge", self._on_acknowledge, qos_profile=SERVICE_QOS)
+        self.create_service(Trigger, "~/reset", self._on_reset, qos_profile=SERVICE_QOS)
+        self.create_service(SelfTest, "~/self_test", self._on_self_test, qos_profile=SERVICE_QOS)
 
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.started = time.monotonic()
