@@ -8,8 +8,8 @@ effect at its true value), the best any fitted model can do on that bag. The val
 entrained air also run at a second, larger size: at the first, little more than the plant's
 mismatch, half the gap before lies near that floor.
 
-Writes bench/discrepancy_suite.json and bench/discrepancy_example.html (the report of EXAMPLE) and prints a markdown table (``python bench/discrepancy_suite.py --table``
-prints it from the file).
+Writes bench/discrepancy_suite.json and bench/discrepancy_example.html (the report of EXAMPLE) and prints a
+markdown table (``python bench/discrepancy_suite.py --table`` prints it from the file).
 """
 
 from __future__ import annotations

@@ -6,12 +6,15 @@ Every sub-command exits 0 on success and non-zero with a one-line error naming t
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Iterator, Sequence
 
+from hydro_ros.contract.config import plain_data
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import INJECTION_UNITS, parse_injection
@@ -29,12 +32,53 @@ def _injections(texts: Sequence[str], kind: str, timed: bool) -> list:
     return out
 
 
+def _actuator_injections(args: argparse.Namespace, machine, machine_wide: dict[str, str]) -> tuple[dict[str, list], list, dict[str, list]]:
+    """--fault / --effect of each actuator (ACTUATOR:NAME=VALUE@T[:RAMP]); a one-actuator machine may leave its actuator
+    out. ``machine_wide``: names that act on the whole machine (a crane's payload), with where they act."""
+    by_actuator: dict[str, list] = {}
+    shared: list = []
+    truth: dict[str, list] = {"faults": [], "effects": []}
+    for kind, texts in (("fault", args.fault), ("effect", args.effect)):
+        for text in texts:
+            actuator, separator, spec = text.partition(":")
+            if not separator or "=" in actuator:
+                injection = _injections([text], kind, kind == "fault")[0]
+                if injection.name in machine_wide:
+                    shared.append(injection)
+                    continue
+                if len(machine.actuators) > 1:
+                    form = "ACTUATOR:NAME=VALUE@T[:RAMP]" if kind == "fault" else "ACTUATOR:NAME=VALUE"
+                    alone = "".join(f"; {name} alone is {where}" for name, where in machine_wide.items())
+                    raise InputError(f"--{kind} {text!r}: on a machine of several actuators a {kind} names its actuator: {form} "
+                                     f"(actuators: {', '.join(machine.actuator_names)}{alone})")
+                actuator, spec = machine.first.name, text
+            if actuator not in machine.actuator_names:
+                raise InputError(f"--{kind} {text!r}: no actuator {actuator!r} (actuators: {', '.join(machine.actuator_names)})")
+            injection = _injections([spec], kind, kind == "fault")[0]
+            by_actuator.setdefault(actuator, []).append(injection)
+            truth[f"{kind}s"].append({"actuator": actuator, "name": injection.name, "value": injection.value,
+                                      "onset_s": injection.onset_s, "ramp_s": injection.ramp_s})
+    return by_actuator, shared, truth
+
+
+@contextlib.contextmanager
+def _bag_or_nothing(out: str) -> Iterator[None]:
+    """A bag folder this command creates is removed if the run fails, so the rerun is not refused as an existing bag."""
+    existed = Path(out).exists()
+    try:
+        yield
+    except BaseException:
+        if not existed:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
 def cmd_sim(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.bags.reader import read_bag
     from hydro_ros.bags.writer import ContractBagWriter
-    from hydro_ros.sim.scenario import Scenario, run_blocks
+    from hydro_ros.sim.scenario import MachineRun
     from hydro_ros.studies.plots import plot_bag
 
     machine = load_machine_config(args.config)
@@ -44,19 +88,21 @@ def cmd_sim(args: argparse.Namespace) -> int:
     if machine.crane:
         if given and args.path is None:
             raise InputError(f"{', '.join(given)}: only with --path (the stored trajectory the crane works)")
-        return _sim_crane(args, machine)
+        with _bag_or_nothing(args.out):
+            return _sim_crane(args, machine)
     if given:
         raise InputError(f"{', '.join(given)}: crane configs only ({args.config} is not a crane)")
-    injections = _injections(args.fault, "fault", True) + _injections(args.effect, "effect", False)
-    actuator = machine.first
-    scenario = Scenario(args.duration, injections, seed=args.seed, actuator=actuator.name)
-    writer = ContractBagWriter(args.out, actuators={actuator.name: actuator.joint},
-                               pressure_variance=machine.sensors.pressure_noise_std ** 2, mobile=actuator.valve.mobile)
+    injections, _, truth = _actuator_injections(args, machine, {})
+    plant = MachineRun(machine, injections, seed=args.seed)
     total = int(round(args.duration * machine.sample_rate_hz))
-    with writer, tqdm(total=total, unit="sample", desc="simulate", disable=args.quiet) as bar:
-        writer.set_truth(scenario.truth(machine))
-        for _, _, block in run_blocks(machine, scenario, progress=bar.update):
-            writer.write_block(actuator.name, block)
+    with _bag_or_nothing(args.out):
+        writer = ContractBagWriter(args.out, actuators={a.name: a.joint for a in machine.actuators},
+                                   pressure_variance=machine.sensors.pressure_noise_std ** 2, mobile=machine.mobile)
+        with writer, tqdm(total=total, unit="sample", desc="simulate", disable=args.quiet) as bar:
+            writer.set_truth({"machine": machine.name, "config": machine.source.name, "seed": args.seed, "duration_s": args.duration,
+                              "actuators": machine.actuator_names, **truth})
+            for block in plant.blocks(args.duration, progress=bar.update):
+                writer.write_machine_block(block)
     plot = plot_bag(read_bag(args.out), Path(str(args.out).rstrip("/") + ".png"))
     print(json.dumps({"bag": str(args.out), "messages": writer.messages, "plot": str(plot)}))
     return 0
@@ -73,24 +119,8 @@ def _sim_crane(args: argparse.Namespace, machine) -> int:
     from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun
     from hydro_ros.studies.plots import plot_bag
 
-    faults: dict[str, list] = {}  # per cylinder, the plant's injections: faults and effects
-    payload: list = []
-    truth: dict[str, list] = {"faults": [], "effects": []}
-    for kind, texts in (("fault", args.fault), ("effect", args.effect)):
-        for text in texts:
-            actuator, separator, spec = text.partition(":")
-            if not separator or "=" in actuator:
-                injection = _injections([text], kind, kind == "fault")[0]
-                if injection.name == "payload_mass":  # a crane's payload hangs at its tip, on no one cylinder
-                    payload.append(injection)
-                    continue
-                form = "ACTUATOR:NAME=VALUE@T[:RAMP]" if kind == "fault" else "ACTUATOR:NAME=VALUE"
-                raise InputError(f"--{kind} {text!r}: a crane's {kind} names its cylinder: {form} "
-                                 f"(actuators: {', '.join(machine.actuator_names)}; payload_mass alone is at the tip)")
-            injection = _injections([spec], kind, kind == "fault")[0]
-            faults.setdefault(actuator, []).append(injection)
-            truth[f"{kind}s"].append({"actuator": actuator, "name": injection.name, "value": injection.value,
-                                      "onset_s": injection.onset_s, "ramp_s": injection.ramp_s})
+    # a crane's payload hangs at its tip, on no one cylinder
+    faults, payload, truth = _actuator_injections(args, machine, {"payload_mass": "at the tip"})
     _, crane_config = load_crane(args.config)
     trajectory, work = None, None
     method, hold = args.method or "dp_cp", 4.0 if args.hold is None else args.hold
@@ -233,12 +263,12 @@ def cmd_commission(args: argparse.Namespace) -> int:
     recordings = load_recordings(args.bag, machine)
     with tqdm(total=len(machine.actuators) + len(recordings), unit="step", desc="commission", disable=args.quiet) as bar:
         block, report = commission(machine, recordings, progress=lambda _: bar.update(), force=args.force)
+    write_config(config, out, block)  # first: the config is what the machine needs, the report what people read
     if args.report:
         report_dir = Path(args.report)
         report_dir.mkdir(parents=True, exist_ok=True)
-        (report_dir / "commissioning.json").write_text(json.dumps(report, indent=2) + "\n")
+        (report_dir / "commissioning.json").write_text(json.dumps(plain_data(report), indent=2) + "\n")
         plot_commissioning(report, machine, report_dir / "commissioning.png")
-    write_config(config, out, block)
     for actuator, fit in block["fit"].items():
         gains = ", ".join(f"{n} {g:.3f}" for n, g in fit["notch_gain"].items())
         kept = f" ({', '.join(fit['shape_kept'])} seen only narrow: a gain on the nominal polynomial)" if fit["shape_kept"] else ""

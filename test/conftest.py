@@ -24,6 +24,26 @@ def k70m() -> dict:
     return load_crane(K70M)[1]
 
 
+# the tiers: `make test-fast` runs what has none of these marks (setup.cfg [tool:pytest] describes them)
+TIER_FIXTURES = {"ros_domain": "ros_graph", "chromium": "browser"}
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test that starts nodes or a browser is marked by the fixture it takes, so no mark can be forgotten."""
+    for item in items:
+        for fixture, mark in TIER_FIXTURES.items():
+            if fixture in getattr(item, "fixturenames", ()):
+                item.add_marker(getattr(pytest.mark, mark))
+
+
+@pytest.fixture
+def chromium() -> None:
+    """Debian's chromium, or a skip (a failure in CI)."""
+    from test.browser import require_chromium
+
+    require_chromium()
+
+
 @pytest.fixture
 def ros_domain(worker_id: str = "main") -> int:
     """A test-unique ROS domain on localhost only (brief: never leave the machine, never cross)."""

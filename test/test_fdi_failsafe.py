@@ -339,9 +339,10 @@ def test_a_present_leak_survives_acknowledge_reset_and_a_service_burst_and_its_b
     alarmed; an acknowledgement never turns it `ok`; a burst of 300 calls (self_test, acknowledge, reset) is answered; the
     one reset accepted shows the leak again from the re-armed monitor; once the directory can be made, every event is in
     the log."""
+    from diagnostic_msgs.srv import SelfTest
+
     from hydro_ros.fdi.alarm_log import read_events
     from hydro_ros.nodes.common import SERVICE_QOS
-    from diagnostic_msgs.srv import SelfTest
 
     blocker = tmp_path / "logs"
     blocker.write_text("a file where the log's directory should be")

@@ -19,7 +19,7 @@ from std_msgs.msg import String
 from hydro_ros.contract import topics
 from hydro_ros.nodes.common import LATCHED_QOS
 from hydro_ros.nodes.hmi import TOKEN_ENV
-from test.browser import chromium_page, require_chromium
+from test.browser import chromium_page
 from test.conftest import REPO, SAM_CONFIG
 from test.ros_graph import free_port, node_process, port_open, probe_node, spinning, wait_for
 
@@ -49,8 +49,7 @@ def _click_and_read_status(page, selector: str) -> str:
     return page.text_content("#action-status")
 
 
-def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_domain, monkeypatch, tmp_path):
-    require_chromium()
+def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_domain, chromium, monkeypatch, tmp_path):
     monkeypatch.setenv(TOKEN_ENV, TOKEN)
     port = free_port()
     requests: list[str] = []

@@ -17,6 +17,17 @@ class ConfigError(InputError):
     """A machine config is missing, unreadable or inconsistent."""
 
 
+def plain_data(node: Any) -> Any:
+    """``node`` with NumPy scalars and arrays, tuples and non-string keys made plain, as yaml.safe_dump and json write them."""
+    if isinstance(node, dict):
+        return {str(key): plain_data(value) for key, value in node.items()}
+    if isinstance(node, (list, tuple)):
+        return [plain_data(value) for value in node]
+    if hasattr(node, "tolist"):  # a NumPy scalar or array
+        return plain_data(node.tolist())
+    return node
+
+
 def _coerce_numbers(node: Any) -> Any:
     # PyYAML 1.1 reads '1.4e9' (no sign in the exponent) as a string: convert where it parses.
     if isinstance(node, dict):

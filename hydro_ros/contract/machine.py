@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from hydro_ros.contract.check import config_problems
 from hydro_ros.contract.config import ConfigError, read_config, with_overrides
 from hydro_ros.contract.names import EFFECT_FORMS, first_form
 
@@ -24,6 +25,7 @@ VALVE_TYPES = ("proportional", "mobile")
 _REQUIRED = ("machine", "sample_rate_hz", "actuators", "supply_pressure", "tank_pressure", "sensors")
 # what the machine config holds for the monitor and the simulators, beside the name (a crane config also has its
 # planner's keys: joints, masses, hydraulics, dp, paths)
+MAX_LISTED = 5  # problems named in one error line; `hydro-ros machine check` lists all
 MONITOR_KEYS = frozenset(_REQUIRED[1:]) | {"simulation", "excitation", "effects", "effect_forms", "can", "fdi"}
 
 
@@ -345,6 +347,10 @@ def load_machine_config(path: str | Path) -> Machine:
 
 
 def parse_machine(config: dict[str, Any], source: Path) -> Machine:
+    problems = config_problems(config)
+    if problems:
+        listed = "; ".join(problems[:MAX_LISTED]) + (f"; and {len(problems) - MAX_LISTED} more" if len(problems) > MAX_LISTED else "")
+        raise ConfigError(f"config {source}: {listed} (hydro-ros machine check {source} lists each)")
     top = _Section(str(source), "", config)
     missing = [key for key in _REQUIRED if key not in config]
     if missing:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from hydro_ros.contract.config import config_dir
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.nodes import can_bridge, fdi_node, hmi
 from hydro_ros.nodes.parameters import PACKAGE_SHARE, Spec, params_yaml
@@ -25,16 +26,19 @@ CRANE_VALUES = {"can_bridge": {"sensor_topics": "joint_states", "sample_blocks":
 
 
 def machine_params(config: Path) -> str:
-    """The params file of the machine whose config is ``config`` (a file of the package's config/)."""
+    """The params file of the machine whose config is ``config``: a file of the package's config/ is named through the
+    package share (the launch file expands it), any other by its absolute path."""
+    shipped = config.resolve().parent == config_dir().resolve()
+    config_value = f"{PACKAGE_SHARE}/config/{config.name}" if shipped else str(config.resolve())
     header = (
         f"# Parameters of the hydro_ros nodes on the machine of {config.name}, for launch/machine.launch.py\n"
-        f"# (written by `hydro-ros params --config config/{config.name}`; edit the values, keep the keys).\n"
+        f"# (written by `hydro-ros params --config {f'config/{config.name}' if shipped else config}`; edit the values, keep the keys).\n"
         "# Each comment: what it is [unit] (default; range; read at start or settable while running).\n"
         f"# {PACKAGE_SHARE} is expanded by the launch file; for `--params-file` write the path out.\n"
         "# /**: the same values for these node names in any namespace (-r __ns:=/machine2).\n"
     )
     crane = load_machine_config(config).crane
-    blocks = [params_yaml(name, specs, {"config": f"{PACKAGE_SHARE}/config/{config.name}", **(CRANE_VALUES.get(name, {}) if crane else {})})
+    blocks = [params_yaml(name, specs, {"config": config_value, **(CRANE_VALUES.get(name, {}) if crane else {})})
               .replace(f"{name}:\n", f"/**/{name}:\n", 1)
               for name, specs in BRINGUP.items()]
     return header + "\n".join(blocks)

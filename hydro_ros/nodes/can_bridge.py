@@ -48,8 +48,16 @@ from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.nodes.common import (SAMPLE_OUTPUT_PARAMETERS, SENSOR_QOS, VALVE_COMMAND_TIMEOUT, checked_valve_commands,
-                                    destroy_entities, publishes_sensor_topic, relative, run_node)
+from hydro_ros.nodes.common import (
+    SAMPLE_OUTPUT_PARAMETERS,
+    SENSOR_QOS,
+    VALVE_COMMAND_TIMEOUT,
+    checked_valve_commands,
+    destroy_entities,
+    publishes_sensor_topic,
+    relative,
+    run_node,
+)
 from hydro_ros.nodes.parameters import Parameters, Spec
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3

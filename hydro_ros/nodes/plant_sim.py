@@ -43,8 +43,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.contract.names import INJECTION_UNITS, Injection
 from hydro_ros.contract.samples import Samples
-from hydro_ros.nodes.common import (CLOCK_QOS, SAMPLE_OUTPUT_PARAMETERS, SENSOR_QOS, checked_valve_commands, publishes_sensor_topic,
-                                    relative, run_node)
+from hydro_ros.nodes.common import CLOCK_QOS, SAMPLE_OUTPUT_PARAMETERS, SENSOR_QOS, checked_valve_commands, publishes_sensor_topic, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.sim.scenario import Scenario, start
 

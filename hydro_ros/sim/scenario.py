@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
+from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
-from hydro_ros.contract.samples import Samples
+from hydro_ros.contract.samples import PER_ACTUATOR, Samples
 from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.sim.excitation import OperatorReference
 from hydro_ros.sim.sensors import SensorModel
@@ -89,3 +91,46 @@ def simulate(machine: Machine, scenario: Scenario) -> Samples:
     parts = [measured for _, _, measured in run_blocks(machine, scenario)]
     return Samples(**{f.name: None if getattr(parts[0], f.name) is None else np.concatenate([getattr(p, f.name) for p in parts])
                       for f in fields(Samples)}).as_columns()
+
+
+class MachineRun:
+    """Every actuator of a config in the SAM's layout stepped together into one block of (n, A) columns.
+
+    Each actuator is a boom of its own: its cylinder, valve and configured ``load``, its operator and sensors. One
+    actuator's motion does not load another (an arm's weight on a moving boom is its configured load, not coupled
+    dynamics). Actuator i draws its noise from ``seed + i``, so the first keeps a one-actuator machine's seed.
+    """
+
+    def __init__(self, machine: Machine, injections: Mapping[str, Sequence[Injection]], seed: int = 0) -> None:
+        unknown = sorted(set(injections) - set(machine.actuator_names))
+        if unknown:
+            raise InputError(f"fault or effect on {', '.join(unknown)}: no such actuator (actuators: {', '.join(machine.actuator_names)})")
+        self.actuators = machine.actuator_names
+        self.runs = [start(machine, Scenario(math.inf, tuple(injections.get(name, ())), seed=seed + i, actuator=name))
+                     for i, name in enumerate(self.actuators)]
+
+    @property
+    def time(self) -> float:
+        return self.runs[0].plant.time
+
+    @property
+    def sample_index(self) -> int:
+        return self.runs[0].plant.sample_index
+
+    def step(self, n: int, commands: np.ndarray | None = None) -> Samples:
+        """``n`` samples of every actuator; ``commands`` (n, A) valve commands, None: the simulated operators drive."""
+        parts = [run.step(n, None if commands is None else commands[:, i])[2] for i, run in enumerate(self.runs)]
+        first = parts[0]
+        return Samples(**{f.name: (None if getattr(first, f.name) is None else
+                                   np.column_stack([getattr(p, f.name) for p in parts]) if f.name in PER_ACTUATOR else getattr(first, f.name))
+                          for f in fields(Samples)})
+
+    def blocks(self, duration_s: float, progress: Callable[[int], None] | None = None) -> Iterator[Samples]:
+        total = int(round(duration_s * self.runs[0].plant.model.sample_rate))
+        done = 0
+        while done < total:
+            n = min(BLOCK, total - done)
+            yield self.step(n)
+            done += n
+            if progress is not None:
+                progress(n)

@@ -39,6 +39,7 @@ import yaml
 
 from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.reader import read_bag
+from hydro_ros.contract.config import plain_data
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.samples import Samples
@@ -363,7 +364,7 @@ def write_config(config: Path, out: Path, block: dict[str, Any]) -> None:
     text = (f"# commissioned by `hydro-ros commission` on {block['date']} from {len(block['recordings'])} recording(s).\n"
             "# The commissioned block replaces the monitor's model (commissioned.model) on top of the config it extends.\n"
             "# Regenerate, do not edit.\n"
-            + yaml.safe_dump({"extends": relative, "commissioned": block}, sort_keys=False, width=120))
+            + yaml.safe_dump(plain_data({"extends": relative, "commissioned": block}), sort_keys=False, width=120))
     partial = out.with_name(out.name + ".partial")
     partial.write_text(text)
     partial.replace(out)

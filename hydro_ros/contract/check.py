@@ -1,0 +1,272 @@
+"""Every problem of a machine config at once, each naming its key path, value, unit and the rule it breaks.
+
+:func:`config_problems` runs on the merged mapping before it is typed (``machine.parse_machine`` refuses
+a config with any), so every command that reads a machine says the same thing. ``hydro-ros machine
+check`` prints the list, and :func:`annotated_values` the values the file marks as not measured.
+The ranges are physical plausibility for heavy-duty hydraulics in SI units, wide on purpose: they
+catch a value in the wrong unit (a bore in mm, a pressure in bar) or with the wrong sign, not a design.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+NOTCHES = ("PA", "PB", "AT", "BT")
+ANNOTATIONS = ("PLACEHOLDER", "INFERRED")
+
+
+@dataclass(frozen=True)
+class Rule:
+    unit: str
+    low: float | None = None  # inclusive unless open_low
+    high: float | None = None
+    open_low: bool = False
+    hint: str = ""  # what a value outside usually means
+
+    def broken(self, value: float) -> str | None:
+        if not math.isfinite(value):
+            return "must be finite"
+        if self.low is not None and (value < self.low or (self.open_low and value == self.low)):
+            return f"must be {'>' if self.open_low else '>='} {self.low:g} {self.unit}".rstrip() + (f" ({self.hint})" if self.hint else "")
+        if self.high is not None and value > self.high:
+            return f"must be <= {self.high:g} {self.unit}".rstrip() + (f" ({self.hint})" if self.hint else "")
+        return None
+
+
+def _positive(unit: str, high: float | None = None, hint: str = "") -> Rule:
+    return Rule(unit, 0.0, high, open_low=True, hint=hint)
+
+
+def _nonnegative(unit: str, high: float | None = None, hint: str = "") -> Rule:
+    return Rule(unit, 0.0, high, hint=hint)
+
+
+PRESSURE = Rule("Pa", 1.0e5, 7.0e7, hint="SI: 10 MPa is 10.0e+6; a smaller value looks like MPa or bar")
+TOP = {"sample_rate_hz": _positive("Hz", 1.0e5), "supply_pressure": PRESSURE, "tank_pressure": _nonnegative("Pa", 1.0e7)}
+CYLINDER = {"piston_diameter": Rule("m", 0.005, 1.0, hint="SI: an 80 mm bore is 0.080"),
+            "rod_diameter": _positive("m", 1.0, hint="SI: a 45 mm rod is 0.045"),
+            "stroke": _positive("m", 20.0, hint="SI: metres"),
+            "dead_volume_a": _nonnegative("m^3", 0.1), "dead_volume_b": _nonnegative("m^3", 0.1)}
+TRIANGLE = {"l1": _positive("m", 50.0), "l2": _positive("m", 50.0), "l3": _positive("m", 50.0), "theta_offset": Rule("rad", -7.0, 7.0),
+            "sign": Rule("", -1.0, 1.0)}
+LINEAR = {"ratio": Rule("m per joint unit", -100.0, 100.0), "theta_offset": Rule("joint unit", -100.0, 100.0)}
+VALVE = {"natural_frequency": _positive("rad/s", 1.0e4), "damping": _positive("", 100.0), "laminar_band": _positive("Pa", 1.0e7),
+         "nominal_flow": _positive("m^3/s", 0.1, hint="SI: 24 L/min is 4.0e-4"), "nominal_pressure_drop": Rule("Pa", 1.0e4, 7.0e7)}
+MOBILE_VALVE = {"compensator_pressure_drop": Rule("Pa", 1.0e4, 1.0e7), "pilot_pressure_max": Rule("Pa", 1.0e4, 1.0e7),
+                "deadzone": Rule("of travel", 0.0, 0.9)}
+FLUID = {"oil_bulk_modulus": Rule("Pa", 1.0e7, 1.0e10, hint="SI: 1.4 GPa is 1.4e+9"), "hose_bulk_modulus": Rule("Pa", 1.0e6, 1.0e11),
+         "hose_volume": _nonnegative("m^3", 0.1)}
+FRICTION = {"viscous": _nonnegative("N s/m"), "static": _nonnegative("N"), "coulomb": _nonnegative("N"),
+            "stribeck_velocity": _positive("m/s", 10.0), "bristle_stiffness": _positive("N/m")}
+LOAD = {"boom_mass": _nonnegative("kg", 1.0e6), "boom_length": _positive("m", 100.0), "boom_cog_distance": Rule("m", -100.0, 100.0),
+        "left_mass": _nonnegative("kg", 1.0e6), "right_mass": _nonnegative("kg", 1.0e6), "load_distance": Rule("m", -100.0, 100.0)}
+SENSORS = {"pressure_noise_std": _nonnegative("Pa", 1.0e7), "encoder_resolution": _nonnegative("rad", 0.5),
+           "velocity_filter_hz": _positive("Hz", 1.0e4), "joint_velocity_max": _positive("rad/s", 100.0), "frozen_s": _positive("s", 3600.0),
+           "pilot_pressure_noise_std": _nonnegative("Pa", 1.0e7)}
+MEMS = {"inclination_resolution": _nonnegative("rad"), "inclination_noise_std": _nonnegative("rad"), "gyro_resolution": _nonnegative("rad/s"),
+        "gyro_noise_std": _nonnegative("rad/s"), "gyro_bias": Rule("rad/s", -1.0, 1.0), "k_p": _positive("1/s"), "k_i": _nonnegative("1/s^2")}
+SIMULATION = {"substeps": Rule("", 1.0, 1000.0), "end_stop_lower": _nonnegative("m", 20.0), "end_stop_upper": _positive("m", 20.0),
+              "end_stop_stiffness": _positive("N/m"), "end_stop_damping": _nonnegative("N s/m"), "cavitation_pressure": Rule("Pa", -1.0e5, 0.0),
+              "initial_joint_position": Rule("rad", -7.0, 7.0), "gravity": _nonnegative("m/s^2", 100.0)}
+EXCITATION = {"gain": _positive("1/rad"), "max_command": Rule("", 0.0, 1.0, open_low=True)}
+PAIRS = {"sensors": ("pressure_range", "joint_range"), "excitation": ("joint_range", "move_speed", "rest_time")}
+
+ACTUATOR_KEYS = {"joint", "can_slot", "cylinder", "mount", "valve", "fluid", "friction", "load"}
+VALVE_KEYS = set(VALVE) | set(MOBILE_VALVE) | {"type", "command_range", "kv_poly", "centre_leakage"}
+SECTION_KEYS = {"sensors": set(SENSORS) | {"pressure_range", "joint_range", "motion_sensor", "mems"}, "simulation": set(SIMULATION),
+                "excitation": set(EXCITATION) | set(PAIRS["excitation"])}
+# a crane config also holds its planner's sections (models/crane.py reads and checks them)
+CRANE_KEYS = {"kind", "base_rotation", "gravity", "links", "joints", "masses", "extension_friction", "hydraulics", "dp", "paths", "controller",
+              "payload", "limits"}
+TOP_KEYS = set(TOP) | {"machine", "actuators", "sensors", "simulation", "excitation", "effects", "effect_forms", "can", "fdi"} | CRANE_KEYS
+
+
+class _Problems:
+    def __init__(self) -> None:
+        self.found: list[str] = []
+
+    def add(self, path: str, message: str) -> None:
+        self.found.append(f"{path}: {message}")
+
+    def unknown(self, node: dict, path: str, known: set[str]) -> None:
+        for key in node:
+            if str(key) not in known:
+                near = difflib.get_close_matches(str(key), sorted(known), n=1, cutoff=0.6)
+                self.add(_join(path, key), "unknown key" + (f" (did you mean {near[0]}?)" if near else f" (known: {', '.join(sorted(known))})"))
+
+    def numbers(self, node: Any, path: str, rules: dict[str, Rule], required: tuple[str, ...] = ()) -> dict[str, float]:
+        """The numbers of ``node`` checked against ``rules``; missing required ones and non-numbers reported."""
+        if not isinstance(node, dict):
+            self.add(path, "must be a mapping")
+            return {}
+        values = {}
+        for key, rule in rules.items():
+            if key not in node:
+                if key in required:
+                    self.add(_join(path, key), f"missing [{rule.unit}]" if rule.unit else "missing")
+                continue
+            value = _number(node[key])
+            if value is None:
+                self.add(_join(path, key), f"{node[key]!r} is not a number")
+                continue
+            broken = rule.broken(value)
+            if broken:
+                self.add(_join(path, key), f"{value:g} {rule.unit}: {broken}".replace("  ", " "))
+            values[key] = value
+        return values
+
+    def pair(self, node: dict, path: str, key: str) -> None:
+        if key not in node:
+            return
+        value = node[key]
+        numbers = [_number(v) for v in value] if isinstance(value, (list, tuple)) else []
+        if len(numbers) != 2 or None in numbers:
+            self.add(_join(path, key), f"{value!r}: expected [low, high]")
+        elif not numbers[0] < numbers[1]:  # type: ignore[operator]
+            self.add(_join(path, key), f"{value!r}: low must be below high")
+
+
+def _join(path: str, key: Any) -> str:
+    return f"{path}.{key}" if path else str(key)
+
+
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool):
+        return None
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def config_problems(config: dict[str, Any]) -> list[str]:
+    """Every rule the merged machine config breaks, one ``key.path: value unit: rule`` line each."""
+    found = _Problems()
+    crane = config.get("kind") == "crane"
+    found.unknown(config, "", TOP_KEYS)
+    top = found.numbers(config, "", TOP, required=tuple(TOP))
+    if "supply_pressure" in top and "tank_pressure" in top and top["tank_pressure"] >= top["supply_pressure"]:
+        found.add("tank_pressure", f"{top['tank_pressure']:g} Pa: must be below supply_pressure ({top['supply_pressure']:g} Pa)")
+    actuators = config.get("actuators")
+    if not isinstance(actuators, dict) or not actuators:
+        found.add("actuators", "must name at least one actuator")
+        actuators = {}
+    simulation = config.get("simulation") if isinstance(config.get("simulation"), dict) else {}
+    for name, actuator in actuators.items():
+        _actuator(found, f"actuators.{name}", actuator, crane, _number(simulation.get("end_stop_upper")))
+    joints = [a.get("joint") for a in actuators.values() if isinstance(a, dict)]
+    for joint in sorted({j for j in joints if joints.count(j) > 1}, key=str):
+        found.add("actuators", f"joint {joint!r} is driven by more than one actuator")
+    for section, rules in (("sensors", SENSORS), ("simulation", SIMULATION), ("excitation", EXCITATION)):
+        node = config.get(section, {} if section != "sensors" else None)
+        if node is None:
+            found.add(section, "missing")
+            continue
+        found.numbers(node, section, rules, required=("pressure_noise_std", "encoder_resolution") if section == "sensors" else ())
+        if isinstance(node, dict):
+            found.unknown(node, section, SECTION_KEYS[section])
+            for key in PAIRS.get(section, ()):
+                found.pair(node, section, key)
+    sensors = config.get("sensors")
+    if isinstance(sensors, dict):
+        if "pressure_range" not in sensors:
+            found.add("sensors.pressure_range", "missing [Pa]")
+        if sensors.get("motion_sensor", "encoder") not in ("encoder", "mems"):
+            found.add("sensors.motion_sensor", f"{sensors['motion_sensor']!r}: expected encoder or mems")
+        if sensors.get("motion_sensor") == "mems":
+            found.numbers(sensors.get("mems"), "sensors.mems", MEMS, required=tuple(MEMS))
+    return found.found
+
+
+def _actuator(found: _Problems, path: str, node: Any, crane: bool, end_stop_upper: float | None) -> None:
+    if not isinstance(node, dict):
+        found.add(path, "must be a mapping")
+        return
+    found.unknown(node, path, ACTUATOR_KEYS)
+    if "joint" not in node:
+        found.add(f"{path}.joint", "missing (its name in /joint_states)")
+    cylinder = found.numbers(node.get("cylinder"), f"{path}.cylinder", CYLINDER, required=tuple(CYLINDER))
+    if isinstance(node.get("cylinder"), dict):
+        found.unknown(node["cylinder"], f"{path}.cylinder", set(CYLINDER))
+    if {"rod_diameter", "piston_diameter"} <= set(cylinder) and cylinder["rod_diameter"] >= cylinder["piston_diameter"]:
+        found.add(f"{path}.cylinder.rod_diameter", f"{cylinder['rod_diameter']:g} m: must be smaller than piston_diameter "
+                                                   f"({cylinder['piston_diameter']:g} m)")
+    _mount(found, f"{path}.mount", node.get("mount"), end_stop_upper or cylinder.get("stroke"))
+    _valve(found, f"{path}.valve", node.get("valve"))
+    for key, rules in (("fluid", FLUID), ("friction", FRICTION)) + ((("load", LOAD),) if not crane else ()):
+        found.numbers(node.get(key), f"{path}.{key}", rules, required=tuple(rules))
+        if isinstance(node.get(key), dict):
+            found.unknown(node[key], f"{path}.{key}", set(rules))
+
+
+def _mount(found: _Problems, path: str, node: Any, travel: float | None) -> None:
+    if not isinstance(node, dict):
+        found.add(path, "missing" if node is None else "must be a mapping")
+        return
+    kind = node.get("kind", "triangle")
+    if kind not in ("triangle", "linear"):
+        found.add(f"{path}.kind", f"{kind!r}: expected triangle or linear")
+        return
+    rules = TRIANGLE if kind == "triangle" else LINEAR
+    found.unknown(node, path, set(rules) | {"kind"})
+    values = found.numbers(node, path, rules, required=tuple(k for k in rules if k != "sign"))
+    if "sign" in values and values["sign"] not in (1.0, -1.0):
+        found.add(f"{path}.sign", f"{values['sign']:g}: expected 1 or -1")
+    if kind == "triangle" and {"l1", "l2", "l3"} <= set(values) and travel is not None:
+        shortest, longest = abs(values["l1"] - values["l2"]), values["l1"] + values["l2"]
+        if values["l3"] < shortest or values["l3"] + travel > longest:
+            found.add(path, f"the cylinder, {values['l3']:g} to {values['l3'] + travel:g} m long over its travel, cannot reach between "
+                            f"mounts l1 = {values['l1']:g} m and l2 = {values['l2']:g} m from the joint (needs {shortest:g} to {longest:g} m)")
+
+
+def _valve(found: _Problems, path: str, node: Any) -> None:
+    if not isinstance(node, dict):
+        found.add(path, "missing" if node is None else "must be a mapping")
+        return
+    found.unknown(node, path, VALVE_KEYS)
+    kind = node.get("type", "proportional")
+    if kind not in ("proportional", "mobile"):
+        found.add(f"{path}.type", f"{kind!r}: expected proportional or mobile")
+    rules = {**VALVE, **(MOBILE_VALVE if kind == "mobile" else {})}
+    found.numbers(node, path, rules, required=tuple(k for k in rules if k != "deadzone"))
+    for section, rule in (("kv_poly", None), ("centre_leakage", _nonnegative("m^3/(s Pa)", 1.0e-6))):
+        table = node.get(section)
+        if not isinstance(table, dict):
+            found.add(f"{path}.{section}", "missing: one entry per notch (PA, PB, AT, BT)")
+            continue
+        found.unknown(table, f"{path}.{section}", set(NOTCHES))
+        for notch in NOTCHES:
+            if notch not in table:
+                found.add(f"{path}.{section}.{notch}", "missing")
+            elif rule is not None:
+                found.numbers(table, f"{path}.{section}", {notch: rule})
+            else:
+                poly = table[notch]
+                numbers = [_number(c) for c in poly] if isinstance(poly, (list, tuple)) else []
+                if len(numbers) != 4 or None in numbers:
+                    found.add(f"{path}.kv_poly.{notch}", f"{poly!r}: expected 4 numbers [c3, c2, c1, c0] (m^3/(s Pa^0.5))")
+                elif sum(numbers) <= 0.0:  # type: ignore[arg-type]
+                    found.add(f"{path}.kv_poly.{notch}", f"{poly!r}: the notch passes no flow at full opening (K_v(1) <= 0)")
+
+
+def annotated_values(path: str | Path) -> list[str]:
+    """``key.path: comment`` for every value whose comment in the file says PLACEHOLDER or INFERRED (this file only,
+    not the one it extends)."""
+    out, stack = [], []  # stack: (indent, key)
+    for line in Path(path).read_text().splitlines():
+        match = re.match(r"^(\s*)(?:- )?([A-Za-z_][\w.]*|'[^']*'|\"[^\"]*\")\s*:(.*)$", line)
+        if not match or line.lstrip().startswith("#"):
+            continue
+        indent, key, rest = len(match.group(1)), match.group(2).strip("'\""), match.group(3)
+        while stack and stack[-1][0] >= indent:
+            stack.pop()
+        stack.append((indent, key))
+        comment = rest.partition("#")[2].strip()
+        if any(word in comment for word in ANNOTATIONS):
+            out.append(f"{'.'.join(k for _, k in stack)}: {comment}")
+    return out
