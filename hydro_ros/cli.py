@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import shutil
 import sys
 import time
@@ -101,7 +102,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         with writer, tqdm(total=total, unit="sample", desc="simulate", disable=args.quiet) as bar:
             writer.set_truth({"machine": machine.name, "config": machine.source.name, "seed": args.seed, "duration_s": args.duration,
                               "actuators": machine.actuator_names, **truth})
-            for block in plant.blocks(args.duration, progress=bar.update):
+            for _, block in plant.blocks(args.duration, progress=bar.update):
                 writer.write_machine_block(block)
     plot = plot_bag(read_bag(args.out), Path(str(args.out).rstrip("/") + ".png"))
     print(json.dumps({"bag": str(args.out), "messages": writer.messages, "plot": str(plot)}))
@@ -506,6 +507,77 @@ def cmd_bag_info(args: argparse.Namespace) -> int:
     return 1 if info["errors"] else 0
 
 
+def cmd_machine_check(args: argparse.Namespace) -> int:
+    from hydro_ros.contract.check import annotated_values, config_problems
+    from hydro_ros.contract.config import read_config
+
+    config = read_config(args.config, required=(), nonempty="machine")
+    problems = config_problems(config)
+    for problem in problems:
+        print(f"{args.config}: {problem}")
+    if not problems:
+        from hydro_ros.fdi.settings import unset_threshold
+
+        machine = load_machine_config(args.config)
+        print(f"{args.config}: {machine.name}: {len(machine.actuators)} actuator(s) "
+              f"({', '.join(f'{a.name} on {a.joint}' for a in machine.actuators)}), {machine.sample_rate_hz:g} Hz, "
+              f"supply {machine.supply_pressure / 1e6:g} MPa: ok")
+        advice = unset_threshold(machine)
+        if advice:
+            print(f"{args.config}: warning: {advice}")
+    notes = annotated_values(args.config)
+    if notes and not args.quiet:
+        print(f"{len(notes)} value(s) the file marks as not measured (replace them with your data sheet's or your measurement):")
+        for note in notes:
+            print(f"  {note}")
+    return 1 if problems else 0
+
+
+def cmd_machine_threshold(args: argparse.Namespace) -> int:
+    import yaml
+
+    from hydro_ros.fdi.settings import FdiSettings
+    from hydro_ros.studies.fdi_evaluation import MISMATCH_SPREAD, calibrate_threshold_constant
+
+    machine = load_machine_config(args.config)
+    if FdiSettings.from_machine(machine).method != "ukf":
+        raise InputError(f"{args.config}: the parity method's thresholds are fitted by `hydro-ros fdi-fit`, not derived here")
+    if args.variants < 1 or args.duration <= 0:
+        raise InputError(f"--variants {args.variants} --duration {args.duration}: need at least one variant and a positive duration")
+    c0 = calibrate_threshold_constant(machine, range(1000, 1000 + args.variants), args.duration, margin=args.margin)
+    print(f"{machine.name}: threshold_constant {c0:.4f} MPa: {args.margin:g} x the largest fault-free 5 s mean residual above the "
+          f"quadratic term on {args.variants} variants of this machine ({MISMATCH_SPREAD}), {args.duration:g} s each")
+    if args.out:
+        out = Path(args.out)
+        if out.resolve() == Path(args.config).resolve():
+            raise InputError(f"--out {out}: is the config itself; write a config that extends it")
+        relative = os.path.relpath(Path(args.config).resolve(), out.resolve().parent)
+        out.write_text(f"# {machine.name} with a threshold derived by `hydro-ros machine threshold` from {args.variants} simulated "
+                       "variants;\n# safe until `hydro-ros commission` identifies the machine. Regenerate, do not edit.\n"
+                       + yaml.safe_dump({"extends": relative, "fdi": {"threshold_constant": round(c0, 4)}}, sort_keys=False))
+        print(f"{out}: written")
+    return 0
+
+
+def cmd_machine_new(args: argparse.Namespace) -> int:
+    from hydro_ros.contract.config import default_config_path
+
+    out = Path(args.out)
+    if out.exists():
+        raise InputError(f"--out {out}: exists; choose a new file")
+    if not out.parent.is_dir():
+        raise InputError(f"--out {out}: directory {out.parent} does not exist")
+    source = default_config_path(args.like)
+    text = source.read_text()
+    if "\nextends:" in "\n" + text:
+        raise InputError(f"--like {args.like}: extends another config; start from the one it extends")
+    header = (f"# Your machine, started from hydro_ros's {source.name} (`hydro-ros machine new --like {args.like}`).\n"
+              f"# Replace every value with your machine's, then run `hydro-ros machine check {out}`.\n")
+    out.write_text(header + text.replace(f"machine: {args.like}\n", f"machine: {out.stem}\n", 1))
+    print(f"{out}: written from {source.name}; next: hydro-ros machine check {out}")
+    return 0
+
+
 def cmd_params(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bringup import machine_params
 
@@ -725,10 +797,38 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("--json", action="store_true", help="print JSON")
     info.set_defaults(func=cmd_bag_info)
 
+    machine_cmd = sub.add_parser("machine", help="describe your own machine: check a config, start a new one",
+                                 description="A machine config describes every actuator (cylinder, mount, valve, load), "
+                                 "the sensors and the supply, in SI units.")
+    machine_sub = machine_cmd.add_subparsers(dest="machine_command", required=True)
+    check = machine_sub.add_parser("check", help="every problem of a machine config at once, and the values it marks as not measured",
+                                   description="Exit 1 when the config breaks a rule (each printed with its key path, value, unit "
+                                   "and rule); every other command refuses such a config with the same messages.")
+    check.add_argument("config", help="machine config (YAML)")
+    check.add_argument("--quiet", action="store_true", help="only the problems, not the PLACEHOLDER / INFERRED values")
+    check.set_defaults(func=cmd_machine_check)
+    threshold = machine_sub.add_parser("threshold", help="a safe threshold before commissioning, derived from the machine's own "
+                                       "description", description="Simulate fault-free variants of the machine (each notch, bulk "
+                                       "modulus and friction drawn off its configured value, as an unidentified machine differs from "
+                                       "its data sheet) and take a margin over the largest 5 s mean residual: the UKF monitor's "
+                                       "fdi.threshold_constant until `hydro-ros commission` replaces it.")
+    threshold.add_argument("config", help="machine config (YAML)")
+    threshold.add_argument("--variants", type=int, default=8, help="simulated variants (default 8)")
+    threshold.add_argument("--duration", type=float, default=120.0, help="[s] simulated per variant (default 120)")
+    threshold.add_argument("--margin", type=float, default=1.25, help="factor over the largest excess (default 1.25)")
+    threshold.add_argument("--out", default=None, help="write a config that extends CONFIG with this threshold")
+    threshold.set_defaults(func=cmd_machine_threshold)
+    new = machine_sub.add_parser("new", help="write a commented starting point for your machine's config",
+                                 description="Copy a shipped config with its comments (units, where each value comes from).")
+    new.add_argument("--like", required=True, choices=("sam", "boom_arm", "k70m"),
+                     help="sam: one boom; boom_arm: several joints, each a cylinder; k70m: a redundant crane (the planner's)")
+    new.add_argument("--out", required=True, help="the new config file")
+    new.set_defaults(func=cmd_machine_new)
+
     params = sub.add_parser("params", help="the commented params file of a machine's bring-up (can_bridge, fdi_node, hmi)",
                             description="Print the ros__parameters of the nodes launch/machine.launch.py starts, every "
                             "parameter with its unit, default and range, from the nodes' own tables.")
-    params.add_argument("--config", required=True, help="machine config of the package's config/, e.g. config/sam.yaml")
+    params.add_argument("--config", required=True, help="machine config, e.g. config/sam.yaml or your own")
     params.set_defaults(func=cmd_params)
 
     alarms = sub.add_parser("alarms", help="fdi_node's alarm log")

@@ -67,3 +67,12 @@ class FdiSettings:
         if settings.residual not in ("posterior", "prior"):
             raise InputError(f"fdi.residual {settings.residual!r}: expected posterior or prior")
         return settings
+
+
+def unset_threshold(machine: Machine) -> str | None:
+    """Why a UKF monitor of ``machine`` would run on a threshold nobody chose for it, or None."""
+    if FdiSettings.from_machine(machine).method != "ukf" or "threshold_constant" in machine.fdi:
+        return None
+    return (f"fdi.threshold_constant: not set: the monitor uses P-II's {FdiSettings.threshold_constant:g} MPa, fitted to P-II's own "
+            f"identified rig, and will raise false alarms on another machine; derive this machine's with "
+            f"`hydro-ros machine threshold {machine.source}` (or commission it)")

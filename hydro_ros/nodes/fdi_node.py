@@ -58,6 +58,7 @@ from hydro_ros.contract.samples import PER_ACTUATOR
 from hydro_ros.fdi.alarm_log import AlarmLog
 from hydro_ros.fdi.monitor import ERROR, OK, STALE, WARN, FdiMonitor
 from hydro_ros.fdi.residuals import GENERATORS
+from hydro_ros.fdi.settings import unset_threshold
 from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, SENSOR_QOS, SERVICE_QOS, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.sim.scenario import Scenario, run_blocks
@@ -96,6 +97,8 @@ class FdiNode(Node):
         self.params = Parameters(self, PARAMETERS, self._on_parameter)
         self.machine_config = load_machine_config(self.params["config"])
         self.monitor = FdiMonitor(self.machine_config, self.params["method"] or None)
+        if self.monitor.method == "ukf" and unset_threshold(self.machine_config):
+            self.get_logger().warning(unset_threshold(self.machine_config))
         self.machine = self.machine_config.name
         self.stale_timeout = self.params["stale_timeout"]
         self.alarm_log = AlarmLog(self.params["alarm_log"], self.machine) if self.params["alarm_log"] else None

@@ -3,8 +3,10 @@
 Publishes the measured topics of contract section 1 (raw CDR, the same bytes a bag holds),
 optionally /clock. Valve commands come from the simulated operator (`excitation: operator`,
 then they are published on /hydraulics/valve_commands as the machine would) or from that topic
-(`excitation: topic`). Faults and effects are injected at run time by setting the parameters
-`fault.<name>` (units: `hydro-ros sim --help`). Health on /diagnostics as `hydro_ros/plant_sim`.
+(`excitation: topic`). Every actuator of a config in the SAM's layout is simulated, each a boom of its
+own (``sim.scenario.MachineRun``). Faults and effects are injected at run time by setting the parameters
+`fault.<name>`, or `fault.<actuator>.<name>` on a machine of several actuators (units: `hydro-ros sim
+--help`). Health on /diagnostics as `hydro_ros/plant_sim`.
 
 Crane mode (a config with ``kind: crane`` and an actuator per planar joint, e.g. config/k70m.yaml):
 the crane's cylinders with their valves (``hydro_ros.sim.crane_cylinders``), every joint in one
@@ -36,7 +38,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.cdr import encode_sample_block
-from hydro_ros.bags.writer import block_machine_payloads, sample_payloads, sample_topics
+from hydro_ros.bags.writer import block_machine_payloads
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
@@ -45,7 +47,7 @@ from hydro_ros.contract.names import INJECTION_UNITS, Injection
 from hydro_ros.contract.samples import Samples
 from hydro_ros.nodes.common import CLOCK_QOS, SAMPLE_OUTPUT_PARAMETERS, SENSOR_QOS, checked_valve_commands, publishes_sensor_topic, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
-from hydro_ros.sim.scenario import Scenario, start
+from hydro_ros.sim.scenario import MachineRun
 
 COMMAND_TIMEOUT_S = 0.5  # a valve command older than this closes the valve (fail safe)
 MAX_CATCH_UP_S = 0.25  # simulate at most this much per tick; beyond it the node reports lag
@@ -76,39 +78,47 @@ PARAMETERS = {
 
 
 class SamSource:
-    """The one-actuator machine of a SAM-style config: the operator's or the topic's commands through its plant."""
+    """The actuators of a config in the SAM's layout (each a boom of its own, ``sim.scenario.MachineRun``): the
+    operators' or the topic's commands through their plants; faults per actuator."""
+
+    not_per_cylinder: dict[str, str] = {}
 
     def __init__(self, machine: Machine, seed: int) -> None:
-        self.actuator, self.joint = machine.first.name, machine.first.joint
-        self.actuators = [self.actuator]
-        self.joints = {self.actuator: self.joint}
-        self.run = start(machine, Scenario(float("inf"), (), seed=seed, actuator=self.actuator))
-        self.mobile = self.run.plant.model.mobile_valve
-        self.topics = sample_topics(self.actuator, mobile=self.mobile)
+        self.plant = MachineRun(machine, {}, seed=seed)
+        self.actuators = machine.actuator_names
+        self.joints = {a.name: a.joint for a in machine.actuators}
+        self.mobile = machine.mobile
+        self.topics = tuple(topics.sensor_topics(self.actuators, mobile=self.mobile))
 
     @property
     def time(self) -> float:
-        return self.run.plant.time
+        return self.plant.time
 
     @property
     def sample_index(self) -> int:
-        return self.run.plant.sample_index
+        return self.plant.sample_index
 
     def step(self, n: int, commands: np.ndarray | None) -> Samples:
-        return self.run.step(n, None if commands is None else commands[:, 0])[2]
+        return self.plant.step(n, commands)
 
     def payloads(self, block: Samples, k: int, stamp: int, variance: float) -> list[tuple[str, bytes]]:
-        return list(zip(self.topics, sample_payloads(block, k, stamp, self.actuator, self.joint, variance)))
+        return block_machine_payloads(block, k, stamp, self.joints, variance, self.mobile)
 
     def set_fault(self, actuator: str, name: str, value: float, now: float) -> None:
-        for holder in (self.run.plant.injections, self.run.sensors.injections):
+        run = self.plant.runs[self.actuators.index(actuator)]
+        for holder in (run.plant.injections, run.sensors.injections):
             _replace(holder, name, value, now)
 
     def active_faults(self) -> list[str]:
-        return sorted({f"{i.name}={i.value:g}" for i in self.run.plant.injections + self.run.sensors.injections})
+        named = len(self.actuators) > 1
+        return sorted({f"{actuator + ':' if named else ''}{i.name}={i.value:g}" for actuator, run in zip(self.actuators, self.plant.runs)
+                       for i in run.plant.injections + run.sensors.injections})
 
     def fault_parameter(self, name: str) -> tuple[str, str]:
-        return self.actuator, name.removeprefix("fault.")
+        if len(self.actuators) == 1:
+            return self.actuators[0], name.removeprefix("fault.")
+        actuator, _, fault = name.removeprefix("fault.").partition(".")
+        return actuator, fault
 
 
 class CraneSource:
@@ -178,11 +188,20 @@ class PlantSim(Node):
             if self.excitation == "trajectory":
                 raise InputError(f"parameter excitation=trajectory: config {self.params['config']} is not a crane (kind: crane)")
             self.source = SamSource(self.machine, self.params["seed"])
+        if len(self.source.actuators) > 1:
+            # faults name their cylinder: fault.<actuator>.<name>, declared once the config says which cylinders there are
+            self.add_on_set_parameters_callback(self._refuse_unnamed_cylinder)
+            self.cylinder_params = Parameters(self, {
+                f"fault.{actuator}.{name}": Spec(0.0, f"[{unit}] size of {name} in {actuator}'s cylinder from the moment it is set; "
+                                                      "0: none", read_only=False)
+                for actuator in self.source.actuators for name, unit in sorted(INJECTION_UNITS.items())
+                if name not in self.source.not_per_cylinder
+            }, self._on_parameter)
         # faults given at start act from the start
-        for params in (self.params, getattr(self, "crane_params", None)):
+        for params in (self.params, getattr(self, "cylinder_params", None)):
             for name, value in (params.values.items() if params else ()):
                 if name.startswith("fault.") and value:
-                    if self.machine.crane and name.count(".") == 1:
+                    if len(self.source.actuators) > 1 and name.count(".") == 1:
                         raise InputError(f"parameter {self._unnamed_cylinder(name)}")
                     self._pending[name] = value
         self.variance = self.machine.sensors.pressure_noise_std ** 2
@@ -247,16 +266,9 @@ class PlantSim(Node):
                 extension = start_position(crane, samples, DpGrid.for_path(crane, samples, tuple(config["dp"]["grid"])))
             start_joints = dict(zip(crane.names, path_start_state(config, path, extension).tolist()))
         source = CraneSource(self.machine, crane, config, self.params["seed"], start_joints)
-        self.add_on_set_parameters_callback(self._refuse_unnamed_cylinder)
         if self.excitation == "trajectory":
             source.plant.hold()
             self.create_subscription(JointTrajectory, self.params["trajectory_topic"], self._on_trajectory, 10)
-        # faults name their cylinder: fault.<actuator>.<name>, declared once the config says which cylinders there are
-        self.crane_params = Parameters(self, {
-            f"fault.{actuator}.{name}": Spec(0.0, f"[{unit}] size of {name} in {actuator}'s cylinder from the moment it is set; 0: none",
-                                             read_only=False)
-            for actuator in source.actuators for name, unit in sorted(INJECTION_UNITS.items()) if name not in source.not_per_cylinder
-        }, self._on_parameter)
         return source
 
     def _publishes(self, topic: str) -> bool:
@@ -266,7 +278,8 @@ class PlantSim(Node):
         return publishes_sensor_topic(self.params["sensor_topics"], topic)
 
     def _unnamed_cylinder(self, name: str) -> str:
-        return (f"{name} refused: a crane's fault names its cylinder, fault.<actuator>.{name.removeprefix('fault.')} "
+        return (f"{name} refused: on a machine of several actuators a fault names its cylinder, "
+                f"fault.<actuator>.{name.removeprefix('fault.')} "
                 f"(actuators: {', '.join(self.machine.actuator_names)})")
 
     def _refuse_unnamed_cylinder(self, parameters: list) -> SetParametersResult:

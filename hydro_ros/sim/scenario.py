@@ -117,20 +117,35 @@ class MachineRun:
     def sample_index(self) -> int:
         return self.runs[0].plant.sample_index
 
-    def step(self, n: int, commands: np.ndarray | None = None) -> Samples:
-        """``n`` samples of every actuator; ``commands`` (n, A) valve commands, None: the simulated operators drive."""
-        parts = [run.step(n, None if commands is None else commands[:, i])[2] for i, run in enumerate(self.runs)]
+    def advance(self, n: int, commands: np.ndarray | None = None) -> tuple[list[np.ndarray], Samples]:
+        """``n`` samples of every actuator: each one's true states and the measurements as (n, A) columns; ``commands``
+        (n, A) valve commands, None: the simulated operators drive."""
+        steps = [run.step(n, None if commands is None else commands[:, i]) for i, run in enumerate(self.runs)]
+        parts = [measured for _, _, measured in steps]
         first = parts[0]
-        return Samples(**{f.name: (None if getattr(first, f.name) is None else
-                                   np.column_stack([getattr(p, f.name) for p in parts]) if f.name in PER_ACTUATOR else getattr(first, f.name))
-                          for f in fields(Samples)})
+        return [states for _, states, _ in steps], Samples(**{
+            f.name: (None if getattr(first, f.name) is None else
+                     np.column_stack([getattr(p, f.name) for p in parts]) if f.name in PER_ACTUATOR else getattr(first, f.name))
+            for f in fields(Samples)})
 
-    def blocks(self, duration_s: float, progress: Callable[[int], None] | None = None) -> Iterator[Samples]:
+    def step(self, n: int, commands: np.ndarray | None = None) -> Samples:
+        return self.advance(n, commands)[1]
+
+    def blocks(self, duration_s: float, progress: Callable[[int], None] | None = None) -> Iterator[tuple[list[np.ndarray], Samples]]:
+        """(true states per actuator, measurements) per block until ``duration_s``."""
         total = int(round(duration_s * self.runs[0].plant.model.sample_rate))
         done = 0
         while done < total:
             n = min(BLOCK, total - done)
-            yield self.step(n)
+            yield self.advance(n)
             done += n
             if progress is not None:
                 progress(n)
+
+
+def simulate_machine(machine: Machine, duration_s: float, injections: Mapping[str, Sequence[Injection]] | None = None,
+                     seed: int = 0) -> Samples:
+    """Every actuator's measurements over ``duration_s`` as (n, A) columns (the monitor's layout)."""
+    parts = [measured for _, measured in MachineRun(machine, injections or {}, seed).blocks(duration_s)]
+    return Samples(**{f.name: None if getattr(parts[0], f.name) is None else np.concatenate([getattr(p, f.name) for p in parts])
+                      for f in fields(Samples)})

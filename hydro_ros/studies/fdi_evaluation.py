@@ -14,7 +14,7 @@ from concurrent.futures import ProcessPoolExecutor
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -24,7 +24,7 @@ from hydro_ros.fdi.isolation import code_string
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.fdi.settings import FdiSettings
-from hydro_ros.sim.scenario import Scenario, run_blocks, simulate
+from hydro_ros.sim.scenario import MachineRun, simulate_machine
 from hydro_ros.studies.commissioning import threshold_excess
 
 # Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order
@@ -37,6 +37,7 @@ MISMATCH = {
     "friction": 0.3,
     "pressure_noise_std": 0.3,
 }
+MISMATCH_SPREAD = ", ".join(f"{name.replace('_', ' ')} +-{spread:.0%}" for name, spread in MISMATCH.items())
 
 LEAKS = ("external_leakage_a", "external_leakage_b", "external_leakage_ab", "internal_leakage")
 LEAK_SIZES = (0.1, 0.2, 0.3, 0.5, 1.0, 2.0)  # [L/min at 10 MPa]
@@ -81,6 +82,7 @@ class Case:
     onset_s: float = 20.0
     duration_s: float = 60.0
     mismatch: float = 1.0
+    actuator: str | None = None  # where the fault is; None: the machine's first actuator
 
 
 @dataclass
@@ -113,12 +115,13 @@ def _leak_flow_l_min(fault: str, value: float, states: np.ndarray) -> np.ndarray
 
 
 def _blocks(machine: Machine, case: Case, monitor: FdiMonitor):
-    """(true states, monitor result) per block of the case's mismatched plant."""
+    """(true states of the faulted actuator, monitor result) per block of the case's mismatched plant (every actuator)."""
     plant_config = mismatched_config(machine, case.seed, case.mismatch)
-    injections = [Injection(case.fault, case.value, case.onset_s)] if case.fault else []
-    scenario = Scenario(case.duration_s, injections, seed=case.seed, actuator=monitor.actuators[0])
-    for _, states, measured in run_blocks(plant_config, scenario):
-        yield states, monitor.process(measured.as_columns())
+    actuator = case.actuator or machine.first.name
+    injections = {actuator: [Injection(case.fault, case.value, case.onset_s)]} if case.fault else {}
+    index = machine.actuator_names.index(actuator)
+    for states, measured in MachineRun(plant_config, injections, case.seed).blocks(case.duration_s):
+        yield states[index], monitor.process(measured)
 
 
 def calibrate_threshold_constant(machine: Machine, seeds: Iterable[int], duration_s: float = 120.0,
@@ -129,25 +132,28 @@ def calibrate_threshold_constant(machine: Machine, seeds: Iterable[int], duratio
     excess of a fault-free 5 s mean residual over the quadratic term, times a safety margin, over
     training seeds that the evaluation does not use.
     """
-    worst = max(threshold_excess(FdiMonitor(machine), simulate(mismatched_config(machine, seed),
-                                                               Scenario(duration_s, seed=seed, actuator=machine.first.name)))
+    worst = max(threshold_excess(FdiMonitor(machine), simulate_machine(mismatched_config(machine, seed), duration_s, seed=seed))
                 for seed in seeds)
     return margin * max(worst, 0.0)
 
 
 def run_case(machine: Machine, case: Case) -> Outcome:
+    """One case on every actuator of the machine: an alarm before the onset, or on an actuator without the fault, is false."""
     monitor = FdiMonitor(machine)
+    actuator = case.actuator or machine.first.name
+    index = machine.actuator_names.index(actuator)
     first: float | None = None
     early = False
     episodes = 0
-    crossing = False
+    crossing = np.zeros(len(machine.actuators), dtype=bool)
     leak: list[np.ndarray] = []
     for states, result in _blocks(machine, case, monitor):
         times = result.times
-        new, crossing = crossing_episodes(result.code[:, 0], previous=crossing)
-        episodes += new
+        for i in range(len(machine.actuators)):
+            new, crossing[i] = crossing_episodes(result.code[:, i], previous=bool(crossing[i]))
+            episodes += new
         for alarm in result.alarms:
-            if alarm.time_s < case.onset_s or case.fault is None:
+            if alarm.time_s < case.onset_s or case.fault is None or alarm.actuator != actuator:
                 early = True
             elif first is None:
                 first = alarm.time_s
@@ -155,7 +161,7 @@ def run_case(machine: Machine, case: Case) -> Outcome:
             after = times >= case.onset_s
             if after.any():
                 leak.append(_leak_flow_l_min(case.fault, case.value, states[after]))
-    status = monitor.status(0)
+    status = monitor.status(index)
     isolated = status.fault.value if status.fault is not None else None
     detected = first is not None
     return Outcome(
@@ -191,9 +197,12 @@ INJECTION_UNITS_SHORT = {"velocity_sensor_bias": "rad/s", "pressure_sensor_bias_
                          "compensator_pressure_sensor_bias": "Pa", "pilot_pressure_sensor_bias": "Pa"}
 
 
-def scenario_matrix(seeds: Iterable[int], leak_sizes: Iterable[float] = LEAK_SIZES, duration_s: float = 60.0) -> list[Case]:
-    cases = [Case(f, v, s, duration_s=duration_s) for f in LEAKS for v in leak_sizes for s in seeds]
-    cases += [Case(f, v, s, duration_s=duration_s) for f, v in VALVE_FAULTS for s in seeds]
+def scenario_matrix(seeds: Iterable[int], leak_sizes: Iterable[float] = LEAK_SIZES, duration_s: float = 60.0,
+                    actuators: Sequence[str | None] = (None,)) -> list[Case]:
+    """Every leak size and valve fault x seed, in each of ``actuators`` (None: the first)."""
+    seeds = list(seeds)
+    cases = [Case(f, v, s, duration_s=duration_s, actuator=a) for a in actuators for f in LEAKS for v in leak_sizes for s in seeds]
+    cases += [Case(f, v, s, duration_s=duration_s, actuator=a) for a in actuators for f, v in VALVE_FAULTS for s in seeds]
     return cases
 
 
@@ -245,7 +254,7 @@ def evaluate(machine: Machine, *, seeds: int = 5, calibration_seeds: int = 10, d
                                workers=workers, progress=progress)
     c0 = calibrate_threshold_constant(machine, range(100, 100 + calibration_seeds))
     calibrated = machine.with_overrides({"fdi": {"threshold_constant": c0}})
-    cases = scenario_matrix(range(seeds), leak_sizes, duration_s)
+    cases = scenario_matrix(range(seeds), leak_sizes, duration_s, machine.actuator_names)
     runs = max(1, int(round(fault_free_minutes * 60.0 / 600.0)))
     free = [Case(None, 0.0, 200 + s, duration_s=fault_free_minutes * 60.0 / runs) for s in range(runs)]
     paper_free = [Case(None, 0.0, 200 + s, duration_s=fault_free_minutes * 60.0 / runs) for s in range(runs)]
@@ -266,18 +275,21 @@ def evaluate(machine: Machine, *, seeds: int = 5, calibration_seeds: int = 10, d
     return summary
 
 
-def parity_matrix(seeds: Iterable[int], duration_s: float) -> list[Case]:
-    """The P-IV fault list at its signature size and at about half of it (sensor biases: 0.5 and 0.3 MPa)."""
+def parity_matrix(seeds: Iterable[int], duration_s: float, actuators: Sequence[str | None] = (None,)) -> list[Case]:
+    """The P-IV fault list at its signature size and at about half of it (sensor biases: 0.5 and 0.3 MPa), in each of
+    ``actuators`` (None: the first)."""
+    seeds = list(seeds)
     cases = []
-    for fault, value in PARITY_FAULTS:
-        sizes = (value,) if fault.endswith("locking") else ((value, 3e5) if value == 5e5 else (value, value / 2))
-        cases += [Case(fault, size, s, duration_s=duration_s) for size in sizes for s in seeds]
+    for actuator in actuators:
+        for fault, value in PARITY_FAULTS:
+            sizes = (value,) if fault.endswith("locking") else ((value, 3e5) if value == 5e5 else (value, value / 2))
+            cases += [Case(fault, size, s, duration_s=duration_s, actuator=actuator) for size in sizes for s in seeds]
     return cases
 
 
 def evaluate_parity(machine: Machine, *, seeds: int, duration_s: float, fault_free_minutes: float, workers: int,
                     progress: Callable[[int], None] | None) -> dict[str, Any]:
-    cases = parity_matrix(range(seeds), duration_s)
+    cases = parity_matrix(range(seeds), duration_s, machine.actuator_names)
     runs = max(1, int(round(fault_free_minutes * 60.0 / 600.0)))
     free = [Case(None, 0.0, 200 + s, duration_s=fault_free_minutes * 60.0 / runs) for s in range(runs)]
     outcomes = run_cases(machine, cases + free, workers=workers, progress=progress)
@@ -328,7 +340,8 @@ def _parity_records(machine: Machine, case: Case) -> tuple[np.ndarray, np.ndarra
     """Armed (mean residual (n, 2), operating point (n, 3), mean command (n,), times (n,)) of one run."""
     probe = machine.with_overrides({"fdi": {"parity_thresholds": ParityThresholds.probe(), "parity_signatures": []}})
     monitor = FdiMonitor(probe, "parity")
-    parts = [(r.mean_residual[:, 0], r.operating_point[:, 0], r.mean_command[:, 0], r.times) for _, r in _blocks(probe, case, monitor)]
+    i = machine.actuator_names.index(case.actuator or machine.first.name)
+    parts = [(r.mean_residual[:, i], r.operating_point[:, i], r.mean_command[:, i], r.times) for _, r in _blocks(probe, case, monitor)]
     residual, point, command, times = (np.concatenate([p[i] for p in parts]) for i in range(4))
     armed = np.arange(len(times)) >= monitor.window - 1
     return residual[armed], point[armed], command[armed], times[armed]
