@@ -291,7 +291,8 @@ def cmd_can_convert(args: argparse.Namespace) -> int:
     machine = load_machine_config(args.config)
     if Path(args.out).exists():
         raise InputError(f"--out {args.out}: already exists, refusing to overwrite")
-    report = convert_log(args.logfile, machine, args.out)
+    with _bag_or_nothing(args.out):
+        report = convert_log(args.logfile, machine, args.out, dbc=args.dbc)
     print(json.dumps({"bag": str(args.out), **report.to_json()}))
     return 0
 
@@ -699,9 +700,11 @@ def build_parser() -> argparse.ArgumentParser:
     can_cmd = sub.add_parser("can", help="CAN bus tools")
     can_sub = can_cmd.add_subparsers(dest="can_command", required=True)
     convert = can_sub.add_parser("convert", help="a machine's CAN log (candump .log, .asc, .blf) -> contract bag",
-                                 description="Decode a CAN log with config/machine_bus.dbc; bad frames are counted, never written.")
+                                 description="Decode a CAN log through the machine config's signal map (can: dbc, map); bad "
+                                 "frames are counted, never written.")
     convert.add_argument("logfile", help="candump .log, Vector .asc or .blf")
-    convert.add_argument("--config", required=True, help="machine config (its actuators' can_slot map the DBC slots)")
+    convert.add_argument("--config", required=True, help="machine config (its can: section maps the DBC's signals)")
+    convert.add_argument("--dbc", default=None, help="the bus's DBC file, instead of the config's can.dbc")
     convert.add_argument("--out", required=True, help="bag directory to create (must not exist)")
     convert.set_defaults(func=cmd_can_convert)
 

@@ -1,11 +1,20 @@
-"""The machine's CAN bus (config/machine_bus.dbc) <-> contract samples, with every frame checked.
+"""A machine's CAN bus <-> contract samples, with every frame checked, through a map of DBC signals.
 
-Bus layout: per sensor cycle one frame per joint (JOINTn_STATE), per cylinder (CYLn_PRESSURE),
-per valve (VALVEn_STATE) and one SUPPLY_STATE; slot n of a machine-config actuator is its
-`can_slot` (default: its position, 1-based). Every frame carries a 4-bit rolling counter shared by
-the frames of one cycle (byte 6 low nibble) and a CRC-8/SAE-J1850 in byte 7 computed over the
-11-bit ID (2 bytes, little endian) and bytes 0-6, AUTOSAR-E2E style. Signals are encoded and
-decoded with cantools; the framing checks are ours.
+The machine config's ``can:`` section names the DBC (``dbc``) and, in ``map``, which DBC signal carries
+each quantity: ``supply_pressure`` (and ``ls_pressure`` on mobile valves) machine-wide, and per actuator
+``joint_position``, ``joint_velocity`` (optional: derived from the angle and low-pass filtered at
+``sensors.velocity_filter_hz`` when the bus has none), ``pressure_a``, ``pressure_b``, ``valve_command``,
+mobile valves' ``pilot_pressure_1``, ``pilot_pressure_2``, ``compensator_pressure``, and ``valve_request``
+(where can_bridge sends commands), each as ``MESSAGE.SIGNAL``. Units are converted from the DBC's (bar,
+kPa, MPa, psi, deg, deg/s, mm, %...). ``counters`` and ``checksums`` ({MESSAGE: SIGNAL}) name the rolling
+counters (4 bit) and CRC-8/SAE-J1850 checksums (over the ID's two low bytes and the other data bytes,
+AUTOSAR-E2E style) where the bus has them, and only there are they checked. Without counters the frames of a
+cycle are grouped by time (a message seen again starts the next cycle). 11- and 29-bit ids (J1939: the DBC's
+extended ids) and either byte order, as cantools reads them.
+
+Without ``map`` the bus is hydro_ros's own layout (config/machine_bus.dbc): per cycle JOINTn_STATE,
+CYLn_PRESSURE, VALVEn_STATE per actuator slot n (its ``can_slot``) and SUPPLY_STATE, every frame with a
+counter and a checksum in byte 7.
 """
 
 from __future__ import annotations
@@ -13,7 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import cantools
 import numpy as np
@@ -22,8 +31,21 @@ from hydro_ros.contract.config import config_dir
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
 
-DLC = 8
 COUNTER_MODULO = 16
+PRESSURE_UNITS = {"Pa": 1.0, "kPa": 1e3, "MPa": 1e6, "bar": 1e5, "mbar": 1e2, "psi": 6894.757}
+UNITS = {  # quantity -> DBC unit -> factor to SI
+    "joint_position": {"rad": 1.0, "deg": math.pi / 180.0, "m": 1.0, "mm": 1e-3},
+    "joint_velocity": {"rad/s": 1.0, "deg/s": math.pi / 180.0, "m/s": 1.0, "mm/s": 1e-3},
+    "valve_command": {"": 1.0, "-": 1.0, "1": 1.0, "%": 0.01},
+    "valve_request": {"": 1.0, "-": 1.0, "1": 1.0, "%": 0.01},
+    **{q: PRESSURE_UNITS for q in ("supply_pressure", "ls_pressure", "pressure_a", "pressure_b", "pilot_pressure_1",
+                                   "pilot_pressure_2", "compensator_pressure")},
+}
+MACHINE_WIDE = ("supply_pressure", "ls_pressure")
+PER_ACTUATOR = ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command", "pilot_pressure_1",
+                "pilot_pressure_2", "compensator_pressure", "valve_request")
+MOBILE_ONLY = ("ls_pressure", "pilot_pressure_1", "pilot_pressure_2", "compensator_pressure")
+OPTIONAL = ("joint_velocity", "valve_request")
 
 
 def _crc_table() -> list[int]:
@@ -39,10 +61,10 @@ def _crc_table() -> list[int]:
 _CRC = _crc_table()
 
 
-def crc8(frame_id: int, payload: bytes) -> int:
-    """CRC-8/SAE-J1850 (poly 0x1D, init and xorout 0xFF) over the ID and the first 7 data bytes."""
+def crc8(frame_id: int, payload: bytes, at: int = 7) -> int:
+    """CRC-8/SAE-J1850 (poly 0x1D, init and xorout 0xFF) over the ID's two low bytes and every data byte but byte ``at``."""
     crc = 0xFF
-    for byte in (frame_id & 0xFF, (frame_id >> 8) & 0xFF, *payload[:7]):
+    for byte in (frame_id & 0xFF, (frame_id >> 8) & 0xFF, *payload[:at], *payload[at + 1:]):
         crc = _CRC[crc ^ byte]
     return crc ^ 0xFF
 
@@ -63,11 +85,19 @@ class Slot:
     mobile: bool
 
 
+@dataclass(frozen=True)
+class MappedSignal:
+    message: str
+    signal: str
+    scale: float
+    """SI per DBC unit"""
+
+
 @dataclass
 class Cycle:
     """The frames of one sensor cycle, decoded; ``stamp_ns`` = timestamp of its first frame."""
 
-    counter: int
+    counter: int | None
     stamp_ns: int
     values: dict[str, dict[str, float]] = field(default_factory=dict)  # message name -> signals
 
@@ -75,84 +105,171 @@ class Cycle:
         return expected <= self.values.keys()
 
 
+def _default_map(machine: Machine, db: Any) -> dict[str, Any]:
+    """hydro_ros's own bus layout (config/machine_bus.dbc) as a map."""
+    actuators = {}
+    for actuator in machine.actuators:
+        n = actuator.can_slot
+        entry = {"joint_position": f"JOINT{n}_STATE.JOINT{n}_ANGLE", "joint_velocity": f"JOINT{n}_STATE.JOINT{n}_RATE",
+                 "pressure_a": f"CYL{n}_PRESSURE.CYL{n}_P_A", "pressure_b": f"CYL{n}_PRESSURE.CYL{n}_P_B",
+                 "valve_command": f"VALVE{n}_STATE.VALVE{n}_COMMAND", "valve_request": f"VALVE{n}_REQUEST.REQ{n}_COMMAND"}
+        if actuator.valve.mobile:
+            entry.update({"compensator_pressure": f"CYL{n}_PRESSURE.CYL{n}_P_COMP", "pilot_pressure_1": f"VALVE{n}_STATE.VALVE{n}_PILOT_1",
+                          "pilot_pressure_2": f"VALVE{n}_STATE.VALVE{n}_PILOT_2"})
+        actuators[actuator.name] = entry
+    framing = {kind: {m.name: s.name for m in db.messages for s in m.signals if s.name.endswith(suffix)}
+               for kind, suffix in (("counters", "_COUNTER"), ("checksums", "_CHECKSUM"))}
+    return {"supply_pressure": "SUPPLY_STATE.SUPPLY_P_S", "ls_pressure": "SUPPLY_STATE.SUPPLY_P_LS", "actuators": actuators, **framing}
+
+
 class MachineBus:
-    """Encoding and checked decoding of one machine's frames."""
+    """Encoding and checked decoding of one machine's frames through its signal map."""
 
     def __init__(self, machine: Machine, dbc: str | Path | None = None) -> None:
-        path = Path(dbc) if dbc else config_dir() / machine.dbc
+        path = Path(dbc) if dbc else machine.source.parent / machine.dbc
+        if not path.is_file() and not dbc:
+            path = config_dir() / machine.dbc  # a config outside the package on the shipped bus
         try:
             self.db = cantools.database.load_file(str(path))
-        except (OSError, cantools.database.UnsupportedDatabaseFormatError) as exc:
+        except (OSError, cantools.database.UnsupportedDatabaseFormatError, ValueError) as exc:
             raise InputError(f"dbc {path}: cannot load ({exc})") from None
         self.dbc_path = path
-        self.slots = []
-        for actuator in machine.actuators:
-            self.slots.append(Slot(actuator.name, actuator.joint, actuator.can_slot, actuator.valve.mobile))
+        self.slots = [Slot(a.name, a.joint, a.can_slot, a.valve.mobile) for a in machine.actuators]
         self.by_id = {m.frame_id: m for m in self.db.messages}
-        # every frame's counter and checksum signals, by message name
-        self.framing = {m.name: (next(g.name for g in m.signals if g.name.endswith("_COUNTER")),
-                                 next(g.name for g in m.signals if g.name.endswith("_CHECKSUM"))) for m in self.db.messages}
-        names = ["SUPPLY_STATE"]
+        self.by_name = {m.name: m for m in self.db.messages}
+        raw = dict(machine.can_map) if machine.can_map else _default_map(machine, self.db)
+        where = "can.map" if machine.can_map else "the default bus layout"
+        self.machine_wide: dict[str, MappedSignal] = {}
+        self.per_actuator: dict[str, dict[str, MappedSignal]] = {}
+        for quantity in MACHINE_WIDE:
+            if quantity in raw and (machine.mobile or quantity not in MOBILE_ONLY):
+                self.machine_wide[quantity] = self._signal(raw[quantity], quantity, f"{where}.{quantity}")
+        if "supply_pressure" not in self.machine_wide:
+            raise InputError(f"dbc {path}: {where} names no supply_pressure signal")
+        if machine.mobile and "ls_pressure" not in self.machine_wide:
+            raise InputError(f"dbc {path}: {where} names no ls_pressure signal (the machine's valves are mobile)")
+        table = raw.get("actuators") or {}
         for slot in self.slots:
-            names += [f"JOINT{slot.number}_STATE", f"CYL{slot.number}_PRESSURE", f"VALVE{slot.number}_STATE"]
-        missing = [n for n in names if n not in {m.name for m in self.db.messages}]
-        if missing:
-            raise InputError(f"dbc {path}: no message(s) {', '.join(missing)} for this machine's slots")
-        self.expected = frozenset(names)
-        self.cycle_ms = {name: self.db.get_message_by_name(name).cycle_time or 0 for name in names}
+            entry = table.get(slot.actuator) or {}
+            required = [q for q in PER_ACTUATOR if q not in OPTIONAL and (slot.mobile or q not in MOBILE_ONLY)]
+            missing = [q for q in required if q not in entry]
+            if missing:
+                raise InputError(f"dbc {path}: {where}.actuators.{slot.actuator} names no {', '.join(missing)} signal")
+            self.per_actuator[slot.actuator] = {q: self._signal(entry[q], q, f"{where}.actuators.{slot.actuator}.{q}")
+                                                for q in PER_ACTUATOR if q in entry and (slot.mobile or q not in MOBILE_ONLY)}
+        self.counters = self._framing(raw.get("counters") or {}, where, "counters")
+        self.checksums = self._framing(raw.get("checksums") or {}, where, "checksums")
+        sensors = [*self.machine_wide.values(), *(s for m in self.per_actuator.values() for q, s in m.items() if q != "valve_request")]
+        self.expected = frozenset(s.message for s in sensors)
+        self.by_counter = self.expected <= self.counters.keys()  # else cycles are grouped by time
+        period_ms = 1000.0 / machine.sample_rate_hz
+        self.cycle_ms = {name: self.by_name[name].cycle_time or period_ms for name in self.expected}
+        self._velocity_filter_hz = machine.sensors.velocity_filter_hz
+        self._last_position: dict[str, tuple[int, float, float]] = {}  # joint -> (stamp, position, filtered rate)
+
+    def _signal(self, text: Any, quantity: str, key: str) -> MappedSignal:
+        message_name, _, signal_name = str(text).partition(".")
+        message = self.by_name.get(message_name)
+        if message is None:
+            raise InputError(f"dbc {self.dbc_path}: no message {message_name!r} (named by {key})")
+        signal = next((s for s in message.signals if s.name == signal_name), None)
+        if signal is None:
+            raise InputError(f"dbc {self.dbc_path}: message {message_name} has no signal {signal_name!r} (named by {key}; "
+                             f"it has {', '.join(s.name for s in message.signals)})")
+        unit = (signal.unit or "").strip()
+        if unit not in UNITS[quantity]:
+            raise InputError(f"dbc {self.dbc_path}: {message_name}.{signal_name} is in {unit!r}, not a unit of {quantity} "
+                             f"({', '.join(repr(u) for u in UNITS[quantity])}) (named by {key})")
+        return MappedSignal(message_name, signal_name, UNITS[quantity][unit])
+
+    def _framing(self, table: Mapping[str, Any], where: str, kind: str) -> dict[str, str]:
+        for message_name, signal_name in table.items():
+            message = self.by_name.get(message_name)
+            if message is None or not any(s.name == signal_name for s in message.signals):
+                raise InputError(f"dbc {self.dbc_path}: no signal {message_name}.{signal_name} (named by {where}.{kind})")
+        return {str(k): str(v) for k, v in table.items()}
+
+    def is_extended(self, frame_id: int) -> bool:
+        return bool(self.by_id[frame_id].is_extended_frame)
 
     # encoding ----------------------------------------------------------------------------------
-    def _frame(self, name: str, signals: dict[str, float], counter: int) -> tuple[int, bytes]:
-        message = self.db.get_message_by_name(name)
-        counter_signal, checksum_signal = self.framing[name]
-        values = dict(signals)
-        values[counter_signal] = counter
-        values[checksum_signal] = 0
+    def _frame(self, name: str, physical: dict[str, float], counter: int) -> tuple[int, bytes]:
+        """A frame of message ``name`` from its signals' values in DBC units; unnamed signals 0 (or their minimum)."""
+        message = self.by_name[name]
+        values = {}
+        for signal in message.signals:
+            low = signal.minimum if signal.minimum is not None else -math.inf
+            high = signal.maximum if signal.maximum is not None else math.inf
+            values[signal.name] = _clip(physical.get(signal.name, 0.0), low, high)
+        if name in self.counters:
+            values[self.counters[name]] = counter % COUNTER_MODULO
+        checksum = self.checksums.get(name)
+        if checksum is not None:
+            values[checksum] = 0
         data = bytearray(message.encode(values, strict=True))
-        data[7] = crc8(message.frame_id, bytes(data))
+        if checksum is not None:
+            at = message.get_signal_by_name(checksum).start // 8
+            data[at] = crc8(message.frame_id, bytes(data), at)
         return message.frame_id, bytes(data)
 
     def encode_cycle(self, sample: dict[str, Any], counter: int) -> list[tuple[int, bytes]]:
-        """Frames of one cycle from {'joint_position': {joint: v}, 'pressure_a': {act: v}, ...}."""
-        frames = [self._frame("SUPPLY_STATE", {"SUPPLY_P_S": _clip(sample["supply_pressure"], 0, 32767500),
-                                               "SUPPLY_P_LS": _clip(sample.get("ls_pressure") or 0.0, 0, 32767500)}, counter)]
+        """Frames of one cycle from {'joint_position': {joint: v}, 'pressure_a': {act: v}, 'supply_pressure': v, ...} [SI]."""
+        messages: dict[str, dict[str, float]] = {name: {} for name in sorted(self.expected)}
+        for quantity, mapped in self.machine_wide.items():
+            messages[mapped.message][mapped.signal] = float(sample.get(quantity) or 0.0) / mapped.scale
         for slot in self.slots:
-            n = slot.number
-            frames.append(self._frame(f"JOINT{n}_STATE", {f"JOINT{n}_ANGLE": sample["joint_position"][slot.joint],
-                                                          f"JOINT{n}_RATE": _clip(sample["joint_velocity"][slot.joint], -3.2767, 3.2767)}, counter))
-            frames.append(self._frame(f"CYL{n}_PRESSURE", {
-                f"CYL{n}_P_A": _clip(sample["pressure_a"][slot.actuator], 0, 32767500),
-                f"CYL{n}_P_B": _clip(sample["pressure_b"][slot.actuator], 0, 32767500),
-                f"CYL{n}_P_COMP": _clip((sample.get("compensator_pressure") or {}).get(slot.actuator, 0.0), 0, 32767500)}, counter))
-            frames.append(self._frame(f"VALVE{n}_STATE", {
-                f"VALVE{n}_COMMAND": _clip(sample["valve_command"][slot.actuator], -1.09, 1.09),
-                f"VALVE{n}_PILOT_1": _clip((sample.get("pilot_pressure_1") or {}).get(slot.actuator, 0.0), 0, 6553500),
-                f"VALVE{n}_PILOT_2": _clip((sample.get("pilot_pressure_2") or {}).get(slot.actuator, 0.0), 0, 6553500)}, counter))
-        return frames
+            for quantity, mapped in self.per_actuator[slot.actuator].items():
+                if quantity == "valve_request":
+                    continue
+                values = sample.get(quantity) or {}
+                value = values.get(slot.joint if quantity.startswith("joint_") else slot.actuator, 0.0)
+                messages[mapped.message][mapped.signal] = float(value) / mapped.scale
+        return [self._frame(name, physical, counter) for name, physical in messages.items()]
 
-    def encode_request(self, slot_number: int, command: float, counter: int) -> tuple[int, bytes]:
-        return self._frame(f"VALVE{slot_number}_REQUEST", {f"REQ{slot_number}_COMMAND": _clip(command, -1.0, 1.0)}, counter)
+    def encode_request(self, actuator: str, command: float, counter: int) -> tuple[int, bytes]:
+        mapped = self.per_actuator[actuator].get("valve_request")
+        if mapped is None:
+            raise InputError(f"dbc {self.dbc_path}: no valve_request signal for {actuator}: valve commands cannot be sent")
+        return self._frame(mapped.message, {mapped.signal: _clip(command, -1.0, 1.0) / mapped.scale}, counter)
+
+    def requests_missing(self) -> list[str]:
+        """Actuators whose valve commands the map cannot send."""
+        return [a for a, signals in self.per_actuator.items() if "valve_request" not in signals]
 
     # decoding ----------------------------------------------------------------------------------
-    def decode(self, frame_id: int, data: bytes) -> tuple[str, int, dict[str, float]]:
-        """(message name, counter, physical signals) of a valid frame; FrameError otherwise."""
+    def decode(self, frame_id: int, data: bytes) -> tuple[str, int | None, dict[str, float]]:
+        """(message name, counter or None, signals in DBC units) of a valid frame; FrameError otherwise."""
         message = self.by_id.get(frame_id)
         if message is None:
             raise FrameError("unknown_id", f"unknown frame id 0x{frame_id:X}")
         if len(data) != message.length:
             raise FrameError("wrong_dlc", f"{message.name}: {len(data)} data bytes, expected {message.length}")
-        if data[7] != crc8(frame_id, data):
-            raise FrameError("bad_checksum", f"{message.name}: checksum mismatch")
+        checksum = self.checksums.get(message.name)
+        if checksum is not None:
+            at = message.get_signal_by_name(checksum).start // 8
+            if data[at] != crc8(frame_id, data, at):
+                raise FrameError("bad_checksum", f"{message.name}: checksum mismatch")
         try:
             values = message.decode(bytes(data), decode_choices=False)
         except Exception as exc:  # noqa: BLE001 - cantools raises several types on bad payloads
             raise FrameError("undecodable", f"{message.name}: {exc}") from None
-        counter_signal, checksum_signal = self.framing[message.name]
-        counter = int(values.pop(counter_signal))
-        values.pop(checksum_signal)
+        counter = int(values.pop(self.counters[message.name])) if message.name in self.counters else None
+        if checksum is not None:
+            values.pop(checksum)
         if not all(math.isfinite(float(v)) for v in values.values()):
             raise FrameError("undecodable", f"{message.name}: non-finite value")
         return message.name, counter, {k: float(v) for k, v in values.items()}
+
+    def derived_rate(self, joint: str, stamp_ns: int, position: float) -> float:
+        """The joint rate a bus without one implies: the angle differentiated and low-pass filtered, as an encoder's."""
+        last = self._last_position.get(joint)
+        rate = 0.0
+        if last is not None and stamp_ns > last[0]:
+            dt = (stamp_ns - last[0]) * 1e-9
+            alpha = dt / (dt + 1.0 / (2.0 * math.pi * self._velocity_filter_hz))
+            rate = last[2] + alpha * ((position - last[1]) / dt - last[2])
+        self._last_position[joint] = (stamp_ns, position, rate)
+        return rate
 
 
 def _clip(value: float, low: float, high: float) -> float:
@@ -166,7 +283,9 @@ class CounterCheck:
     last: dict[str, int] = field(default_factory=dict)
     gaps: dict[str, int] = field(default_factory=dict)
 
-    def __call__(self, name: str, counter: int) -> None:
+    def __call__(self, name: str, counter: int | None) -> None:
+        if counter is None:
+            return
         previous = self.last.get(name)
         if previous is not None and counter != (previous + 1) % COUNTER_MODULO:
             self.gaps[name] = self.gaps.get(name, 0) + 1
@@ -174,17 +293,22 @@ class CounterCheck:
 
 
 class CycleAssembler:
-    """Groups valid frames into cycles by their shared counter; a cycle is released complete, or
-    incomplete once ``horizon`` newer cycles have started (its missing frames are counted)."""
+    """Groups valid frames into cycles by their shared counter, or without counters by time (a message seen again
+    starts the next cycle); a cycle is released complete, or incomplete once ``horizon`` newer cycles have started
+    (its missing frames are counted)."""
 
-    def __init__(self, expected: frozenset[str], horizon: int = 4) -> None:
+    def __init__(self, expected: frozenset[str], horizon: int = 4, *, by_counter: bool = True) -> None:
         self.expected = expected
-        self.horizon = horizon
+        self.horizon = horizon if by_counter else 1
+        self.by_counter = by_counter
         self.open: list[Cycle] = []
         self.incomplete = 0
 
-    def add(self, name: str, counter: int, values: dict[str, float], stamp_ns: int) -> list[Cycle]:
-        cycle = next((c for c in self.open if c.counter == counter and name not in c.values), None)
+    def add(self, name: str, counter: int | None, values: dict[str, float], stamp_ns: int) -> list[Cycle]:
+        if self.by_counter:
+            cycle = next((c for c in self.open if c.counter == counter and name not in c.values), None)
+        else:
+            cycle = self.open[-1] if self.open and name not in self.open[-1].values else None
         if cycle is None:
             cycle = Cycle(counter, stamp_ns)
             self.open.append(cycle)
@@ -204,31 +328,21 @@ class CycleAssembler:
 
 
 def cycle_values(bus: MachineBus, cycle: Cycle) -> dict[str, Any]:
-    """Contract quantities of a cycle, only from frames that arrived (the rest stays absent)."""
-    out: dict[str, Any] = {"joint_position": {}, "joint_velocity": {}, "pressure_a": {}, "pressure_b": {}, "valve_command": {},
-                           "pilot_pressure_1": {}, "pilot_pressure_2": {}, "compensator_pressure": {}}
-    supply = cycle.values.get("SUPPLY_STATE")
-    if supply is not None:
-        out["supply_pressure"] = supply["SUPPLY_P_S"]
-        out["ls_pressure"] = supply["SUPPLY_P_LS"]
+    """Contract quantities of a cycle in SI, only from frames that arrived (the rest stays absent); a joint rate the bus
+    does not carry is derived from the angle."""
+    out: dict[str, Any] = {q: {} for q in PER_ACTUATOR if q != "valve_request"}
+    for quantity, mapped in bus.machine_wide.items():
+        frame = cycle.values.get(mapped.message)
+        if frame is not None:
+            out[quantity] = frame[mapped.signal] * mapped.scale
     for slot in bus.slots:
-        n = slot.number
-        joint = cycle.values.get(f"JOINT{n}_STATE")
-        if joint is not None:
-            out["joint_position"][slot.joint] = joint[f"JOINT{n}_ANGLE"]
-            out["joint_velocity"][slot.joint] = joint[f"JOINT{n}_RATE"]
-        cylinder = cycle.values.get(f"CYL{n}_PRESSURE")
-        if cylinder is not None:
-            out["pressure_a"][slot.actuator] = cylinder[f"CYL{n}_P_A"]
-            out["pressure_b"][slot.actuator] = cylinder[f"CYL{n}_P_B"]
-            if slot.mobile:
-                out["compensator_pressure"][slot.actuator] = cylinder[f"CYL{n}_P_COMP"]
-        valve = cycle.values.get(f"VALVE{n}_STATE")
-        if valve is not None:
-            out["valve_command"][slot.actuator] = valve[f"VALVE{n}_COMMAND"]
-            if slot.mobile:
-                out["pilot_pressure_1"][slot.actuator] = valve[f"VALVE{n}_PILOT_1"]
-                out["pilot_pressure_2"][slot.actuator] = valve[f"VALVE{n}_PILOT_2"]
+        signals = bus.per_actuator[slot.actuator]
+        for quantity, mapped in signals.items():
+            frame = cycle.values.get(mapped.message)
+            if frame is not None and quantity != "valve_request":
+                out[quantity][slot.joint if quantity.startswith("joint_") else slot.actuator] = frame[mapped.signal] * mapped.scale
+        if "joint_velocity" not in signals and slot.joint in out["joint_position"]:
+            out["joint_velocity"][slot.joint] = bus.derived_rate(slot.joint, cycle.stamp_ns, out["joint_position"][slot.joint])
     return out
 
 

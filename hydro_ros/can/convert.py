@@ -1,7 +1,8 @@
 """`hydro-ros can convert`: a machine's CAN log (candump .log, Vector .asc, .blf) -> contract bag.
 
-Every frame goes through the same checks as on the live bus (MachineBus.decode, counters,
-cycle grouping); only complete cycles become samples, stamped with their first frame's time.
+Every frame goes through the same checks as on the live bus (MachineBus.decode through the machine's
+signal map, counters and checksums where the map names them, cycle grouping); only complete cycles
+become samples, stamped with their first frame's time.
 Bad frames are counted by kind and reported, never written.
 """
 
@@ -68,16 +69,18 @@ def _kept_in_time_order(stamps: np.ndarray, rows: list[dict[str, Any]], slots: l
     return np.asarray(keep, dtype=np.int64)
 
 
-def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Callable[[int], None] | None = None) -> ConversionReport:
+def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Callable[[int], None] | None = None,
+                dbc: str | Path | None = None) -> ConversionReport:
+    """Every frame of ``log`` checked and decoded through the machine's signal map (``dbc``: another file for its DBC)."""
     log = Path(log)
     if not log.is_file():
         raise InputError(f"log {log}: no such file")
     if log.suffix.lower() not in LOG_SUFFIXES:
         raise InputError(f"log {log}: unsupported format {log.suffix!r}; expected candump .log, .asc or .blf")
-    bus = MachineBus(machine)
+    bus = MachineBus(machine, dbc)
     slots = bus.slots
     mobile = machine.mobile
-    assembler = CycleAssembler(bus.expected)
+    assembler = CycleAssembler(bus.expected, by_counter=bus.by_counter)
     counters = CounterCheck()
     report = ConversionReport()
     rows: list[dict[str, Any]] = []

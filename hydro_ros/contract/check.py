@@ -76,6 +76,8 @@ SIMULATION = {"substeps": Rule("", 1.0, 1000.0), "end_stop_lower": _nonnegative(
 EXCITATION = {"gain": _positive("1/rad"), "max_command": Rule("", 0.0, 1.0, open_low=True)}
 PAIRS = {"sensors": ("pressure_range", "joint_range"), "excitation": ("joint_range", "move_speed", "rest_time")}
 
+CAN_QUANTITIES = {"joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command", "pilot_pressure_1", "pilot_pressure_2",
+                  "compensator_pressure", "valve_request"}
 ACTUATOR_KEYS = {"joint", "can_slot", "cylinder", "mount", "valve", "fluid", "friction", "load"}
 VALVE_KEYS = set(VALVE) | set(MOBILE_VALVE) | {"type", "command_range", "kv_poly", "centre_leakage"}
 SECTION_KEYS = {"sensors": set(SENSORS) | {"pressure_range", "joint_range", "motion_sensor", "mems"}, "simulation": set(SIMULATION),
@@ -172,6 +174,20 @@ def config_problems(config: dict[str, Any]) -> list[str]:
             found.unknown(node, section, SECTION_KEYS[section])
             for key in PAIRS.get(section, ()):
                 found.pair(node, section, key)
+    can = config.get("can", {})
+    if not isinstance(can, dict):
+        found.add("can", "must be a mapping (dbc, map)")
+    else:
+        found.unknown(can, "can", {"dbc", "map"})
+        if "map" in can and not isinstance(can["map"], dict):
+            found.add("can.map", "must be a mapping (hydro_ros.can.codec names its keys)")
+        elif isinstance(can.get("map"), dict):
+            found.unknown(can["map"], "can.map", {"supply_pressure", "ls_pressure", "actuators", "counters", "checksums"})
+            for name, entry in (can["map"].get("actuators") or {}).items():
+                if name not in actuators:
+                    found.add(f"can.map.actuators.{name}", f"no such actuator (actuators: {', '.join(map(str, actuators))})")
+                elif isinstance(entry, dict):
+                    found.unknown(entry, f"can.map.actuators.{name}", CAN_QUANTITIES)
     sensors = config.get("sensors")
     if isinstance(sensors, dict):
         if "pressure_range" not in sensors:

@@ -64,6 +64,7 @@ def _read_merged(path: Path) -> dict[str, Any]:
         raise ConfigError(f"config {path}: not valid YAML ({first_line})") from None
     if not isinstance(raw, dict):
         raise ConfigError(f"config {path}: expected a mapping at the top level")
+    raw = unshared(raw)
     if "extends" in raw:
         # a variant of another machine config: that file, with this file's keys merged over it
         base_path = path.parent / str(raw.pop("extends"))
@@ -84,16 +85,26 @@ def _read_merged(path: Path) -> dict[str, Any]:
     return raw
 
 
+def unshared(node: Any) -> Any:
+    """A copy in which no mapping or list appears twice. YAML anchors (``valve: *valve``) and ``copy.deepcopy`` share
+    one object between actuators, and a patch of one actuator's entry would then change every actuator's."""
+    if isinstance(node, dict):
+        return {key: unshared(value) for key, value in node.items()}
+    if isinstance(node, list):
+        return [unshared(value) for value in node]
+    return copy.copy(node)
+
+
 def with_overrides(config: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
-    """Deep copy of ``config`` with nested ``overrides`` merged in (used for model mismatch)."""
-    merged = copy.deepcopy(config)
+    """Copy of ``config`` with nested ``overrides`` merged in (model mismatch, calibration, commissioning)."""
+    merged = unshared(config)
 
     def merge(target: dict[str, Any], patch: dict[str, Any]) -> None:
         for key, value in patch.items():
             if isinstance(value, dict) and isinstance(target.get(key), dict):
                 merge(target[key], value)
             else:
-                target[key] = value
+                target[key] = unshared(value)
 
     merge(merged, overrides)
     return merged

@@ -10,14 +10,13 @@ merged file the machine was parsed from, which tools write back.
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 from hydro_ros.contract.check import config_problems
-from hydro_ros.contract.config import ConfigError, read_config, with_overrides
+from hydro_ros.contract.config import ConfigError, read_config, unshared, with_overrides
 from hydro_ros.contract.names import EFFECT_FORMS, first_form
 
 NOTCHES = ("PA", "PB", "AT", "BT")
@@ -302,7 +301,9 @@ class Machine:
     fdi: Mapping[str, Any]
     """the ``fdi:`` section; :class:`hydro_ros.fdi.settings.FdiSettings` types it with the method it tunes"""
     dbc: str
-    """the machine bus description, relative to the config directory"""
+    """the machine bus description (DBC), relative to the config's directory"""
+    can_map: Mapping[str, Any] | None
+    """which DBC signal carries each quantity (``hydro_ros.can.codec``); None: hydro_ros's own bus layout"""
     mapping: Mapping[str, Any] = field(repr=False, compare=False)
     """the merged file this machine was parsed from (plain dicts here and above: a Machine crosses process pools)"""
 
@@ -337,7 +338,7 @@ class Machine:
 
     def to_yaml_mapping(self) -> dict[str, Any]:
         """A deep, writable copy of the merged config (what ``yaml.safe_dump`` writes back)."""
-        return copy.deepcopy(dict(self.mapping))
+        return unshared(dict(self.mapping))
 
 
 def load_machine_config(path: str | Path) -> Machine:
@@ -406,6 +407,7 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
         effect_forms=_effect_forms(top.section("effect_forms", optional=True)),
         fdi=dict(dict(top.section("fdi", optional=True).node)),
         dbc=can.text("dbc", "machine_bus.dbc"),
+        can_map=dict(can.node["map"]) if isinstance(can.node.get("map"), dict) else None,
         mapping=dict(config),
     )
 

@@ -67,9 +67,10 @@ QUEUE_LIMIT = 200_000  # frames; beyond this the oldest are dropped and counted 
 class BusReader(threading.Thread):
     """Owns the python-can bus: receives into a deque, reconnects with back-off when it fails."""
 
-    def __init__(self, open_bus: Any, backoff: tuple[float, float]) -> None:
+    def __init__(self, open_bus: Any, backoff: tuple[float, float], extended_ids: frozenset[int] = frozenset()) -> None:
         super().__init__(daemon=True, name="can-reader")
         self.open_bus = open_bus
+        self.extended_ids = extended_ids  # 29-bit frames (J1939) among those this bridge sends
         self.backoff_min, self.backoff_max = backoff
         self.frames: collections.deque = collections.deque(maxlen=QUEUE_LIMIT)
         self.bus: can.BusABC | None = None
@@ -117,7 +118,7 @@ class BusReader(threading.Thread):
             if self.bus is None:
                 return False
             try:
-                self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+                self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=frame_id in self.extended_ids))
                 return True
             except can.CanError as exc:
                 self.last_error = f"send: {exc}"
@@ -157,13 +158,16 @@ class CanBridge(LifecycleNode):
         self.codec = MachineBus(machine, self.params["dbc"] or None)
         self.machine = machine.name
         self.forward = self.params["forward_commands"]
+        if self.forward and self.codec.requests_missing():
+            raise InputError(f"parameter forward_commands=true: the bus map names no valve_request for "
+                             f"{', '.join(self.codec.requests_missing())} (can.map.actuators.<name>.valve_request)")
         self.bus_name = f"{self.params['interface']}:{self.params['channel']}"
         self.active = False
         self.reader: BusReader | None = None
         self._entities: list[Any] = []  # publishers, timers and the subscription of the configured state
         self._request_counter = 0
         self.command_timeout = self.params["command_timeout"]
-        self.command_time: dict[int, float] = {}  # valve slot -> monotonic time of its last command (or neutral request)
+        self.command_time: dict[str, float] = {}  # actuator -> monotonic time of its last command (or neutral request)
         self.refused_commands = 0
         self.deadman_neutrals = 0
         self._forward_since = time.monotonic()
@@ -178,10 +182,12 @@ class CanBridge(LifecycleNode):
         if interface not in ("virtual", "udp_multicast"):
             kwargs["bitrate"] = self.params["bitrate"]
         if self.params["hardware_filters"]:
-            kwargs["can_filters"] = [{"can_id": frame_id, "can_mask": 0x7FF, "extended": False}
+            kwargs["can_filters"] = [{"can_id": frame_id, "can_mask": 0x1FFFFFFF if m.is_extended_frame else 0x7FF,
+                                      "extended": bool(m.is_extended_frame)}
                                      for frame_id, m in self.codec.by_id.items() if m.name in self.codec.expected]
         backoff = self.params["reconnect_backoff"]
-        self.reader = BusReader(lambda: can.Bus(**kwargs), (backoff[0], backoff[1]))
+        extended = frozenset(frame_id for frame_id, message in self.codec.by_id.items() if message.is_extended_frame)
+        self.reader = BusReader(lambda: can.Bus(**kwargs), (backoff[0], backoff[1]), extended)
 
         mobile = any(slot.mobile for slot in self.codec.slots)
         types = topics.sensor_topics([s.actuator for s in self.codec.slots], mobile=mobile)
@@ -197,7 +203,7 @@ class CanBridge(LifecycleNode):
         if self.forward:
             self._entities.append(self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._forward, SENSOR_QOS))
 
-        self.assembler = CycleAssembler(self.codec.expected)
+        self.assembler = CycleAssembler(self.codec.expected, by_counter=self.codec.by_counter)
         self.counters = CounterCheck()
         self.rejected: collections.Counter = collections.Counter()
         self.frames_per_message: collections.Counter = collections.Counter()
@@ -247,7 +253,7 @@ class CanBridge(LifecycleNode):
             return
         self.active = False
         if self.forward and self.reader is not None:
-            sent = [self.reader.send(*self.codec.encode_request(slot.number, 0.0, self._request_counter)) for slot in self.codec.slots]
+            sent = [self.reader.send(*self.codec.encode_request(slot.actuator, 0.0, self._request_counter)) for slot in self.codec.slots]
             self._request_counter = (self._request_counter + 1) % 16
             if all(sent):
                 self.get_logger().info("neutral valve requests sent")
@@ -328,18 +334,18 @@ class CanBridge(LifecycleNode):
         for slot in self.codec.slots:
             if slot.actuator in accepted or slot.actuator in refused:
                 command = accepted.get(slot.actuator, 0.0)
-                self.reader.send(*self.codec.encode_request(slot.number, command, self._request_counter))
-                self.command_time[slot.number] = now
+                self.reader.send(*self.codec.encode_request(slot.actuator, command, self._request_counter))
+                self.command_time[slot.actuator] = now
         self._request_counter = (self._request_counter + 1) % 16
 
     def _deadman(self, now: float) -> None:
         """Neutral requests for every valve whose last command is older than command_timeout (a dead or silent controller)."""
-        stale = [slot for slot in self.codec.slots if now - self.command_time.get(slot.number, self._forward_since) > self.command_timeout]
+        stale = [slot for slot in self.codec.slots if now - self.command_time.get(slot.actuator, self._forward_since) > self.command_timeout]
         if not stale or self.reader is None:
             return
         for slot in stale:
-            self.reader.send(*self.codec.encode_request(slot.number, 0.0, self._request_counter))
-            self.command_time[slot.number] = now
+            self.reader.send(*self.codec.encode_request(slot.actuator, 0.0, self._request_counter))
+            self.command_time[slot.actuator] = now
         self._request_counter = (self._request_counter + 1) % 16
         self.deadman_neutrals += 1
         self.get_logger().warning(f"no valve command for {self.command_timeout:g} s: {', '.join(s.actuator for s in stale)} "

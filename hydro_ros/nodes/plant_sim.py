@@ -389,7 +389,7 @@ class PlantSim(Node):
 
         for k in range(len(block.times)):
             for frame_id, data in self.can_codec.encode_cycle(sample_values(block, k, self.source.joints), self.can_counter):
-                self.can_bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+                self.can_bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=self.can_codec.is_extended(frame_id)))
             self.can_counter = (self.can_counter + 1) % 16
 
     def destroy_node(self) -> None:

@@ -1,0 +1,214 @@
+"""A machine none of the shipped configs describes, brought up as its maker would: `machine new`, edited, `machine check`,
+a safe threshold derived, its own J1939-style bus (29-bit ids, bar and degrees, Motorola signals, no counter, no CRC, no
+joint rate) read through `can convert` and can_bridge, commissioned, and a leak in its second cylinder named there.
+
+The recordings come from a plant that is not the config: every notch, bulk modulus and friction drawn off the
+described value (fdi_evaluation.mismatched_config), with sensor noise, as a real machine differs from its data sheet.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+import yaml
+from sensor_msgs.msg import FluidPressure, JointState
+
+from hydro_ros.can.codec import MachineBus, sample_values
+from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.contract.names import Injection
+from hydro_ros.sim.scenario import MachineRun
+from hydro_ros.studies.fdi_evaluation import mismatched_config
+from test.ros_graph import node_process, probe_node, spin_until
+
+# J1939: priority 3, PDU2 PGNs 0xFF10.. of the proprietary range, source address 0x21; DBC ids carry bit 31 for extended
+J1939 = {name: 0x80000000 | (3 << 26) | ((0xFF10 + i) << 8) | 0x21
+         for i, name in enumerate(("LIFT_ANGLE", "LIFT_HYD", "DIPPER_ANGLE", "DIPPER_HYD", "PUMP"))}
+DBC = f"""VERSION ""
+
+NS_ :
+
+BS_:
+
+BU_: ECU BRIDGE
+
+BO_ {J1939['LIFT_ANGLE']} LIFT_ANGLE: 8 ECU
+ SG_ ANGLE : 7|16@0- (0.005,0) [-163.84|163.835] "deg" BRIDGE
+ SG_ SPOOL : 23|16@0- (0.01,0) [-327.68|327.67] "%" BRIDGE
+
+BO_ {J1939['LIFT_HYD']} LIFT_HYD: 8 ECU
+ SG_ HEAD : 7|16@0+ (0.01,0) [0|655.35] "bar" BRIDGE
+ SG_ ROD : 23|16@0+ (0.01,0) [0|655.35] "bar" BRIDGE
+
+BO_ {J1939['DIPPER_ANGLE']} DIPPER_ANGLE: 8 ECU
+ SG_ ANGLE : 7|16@0- (0.005,0) [-163.84|163.835] "deg" BRIDGE
+ SG_ SPOOL : 23|16@0- (0.01,0) [-327.68|327.67] "%" BRIDGE
+
+BO_ {J1939['DIPPER_HYD']} DIPPER_HYD: 8 ECU
+ SG_ HEAD : 7|16@0+ (0.01,0) [0|655.35] "bar" BRIDGE
+ SG_ ROD : 23|16@0+ (0.01,0) [0|655.35] "bar" BRIDGE
+
+BO_ {J1939['PUMP']} PUMP: 8 ECU
+ SG_ P_SUPPLY : 7|16@0+ (0.01,0) [0|655.35] "bar" BRIDGE
+"""
+CAN_MAP = {
+    "supply_pressure": "PUMP.P_SUPPLY",
+    "actuators": {
+        "lift": {"joint_position": "LIFT_ANGLE.ANGLE", "valve_command": "LIFT_ANGLE.SPOOL",
+                 "pressure_a": "LIFT_HYD.HEAD", "pressure_b": "LIFT_HYD.ROD"},
+        "dipper": {"joint_position": "DIPPER_ANGLE.ANGLE", "valve_command": "DIPPER_ANGLE.SPOOL",
+                   "pressure_a": "DIPPER_HYD.HEAD", "pressure_b": "DIPPER_HYD.ROD"},
+    },
+}
+LEAK_ONSET_S = 20.0
+
+
+def hydro_ros(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "hydro_ros.cli", *args], capture_output=True, text=True, timeout=600)
+
+
+def write_log(bus: MachineBus, plant, path: Path, seconds: float, injections: dict, seed: int) -> None:
+    """The plant's sensors as the machine's frames in a candump log, in time order, as a recording would hold them."""
+    joints = {a.name: a.joint for a in plant.actuators}
+    writer = can.Logger(str(path))
+    try:
+        for _, samples in MachineRun(plant, injections, seed).blocks(seconds):
+            for k in range(len(samples.times)):
+                for i, (frame_id, data) in enumerate(bus.encode_cycle(sample_values(samples, k, joints), 0)):
+                    writer.on_message_received(can.Message(timestamp=1.7e9 + samples.times[k] + i * 1e-5, arbitration_id=frame_id,
+                                                           data=data, is_extended_id=True))
+    finally:
+        writer.stop()
+
+
+@pytest.fixture(scope="module")
+def excavator(tmp_path_factory) -> Path:
+    """`machine new --like boom_arm`, then made into another machine: other cylinders, mounts and masses, 18 MPa, 250 Hz,
+    its actuators renamed, its own bus, and a threshold derived from its description."""
+    folder = tmp_path_factory.mktemp("own_machine")
+    config = folder / "excavator.yaml"
+    made = hydro_ros("machine", "new", "--like", "boom_arm", "--out", str(config))
+    assert made.returncode == 0, made.stderr
+    assert "PLACEHOLDER" in config.read_text()  # the starting point says what is not measured
+    text = yaml.safe_load(config.read_text())
+    text["machine"], text["sample_rate_hz"], text["supply_pressure"] = "excavator", 250, 18.0e6
+    boom, arm = text["actuators"].pop("boom"), text["actuators"].pop("arm")
+    boom["joint"], arm["joint"] = "lift_joint", "dipper_joint"
+    boom["cylinder"].update(piston_diameter=0.110, rod_diameter=0.063, stroke=0.55)
+    boom["mount"].update(l1=0.40, l2=1.30, l3=1.05)
+    boom["load"].update(boom_mass=520.0, left_mass=420.0, load_distance=3.4)
+    arm["cylinder"].update(piston_diameter=0.090, rod_diameter=0.050)
+    arm["load"].update(boom_mass=300.0, left_mass=150.0)
+    text["actuators"] = {"lift": boom, "dipper": arm}
+    text["can"] = {"dbc": "excavator.dbc", "map": CAN_MAP}
+    del text["fdi"]
+    config.write_text(yaml.safe_dump(text, sort_keys=False))
+    (folder / "excavator.dbc").write_text(DBC)
+    return config
+
+
+def test_a_described_machine_is_checked_and_a_bad_one_refused_in_one_line_per_problem(excavator, tmp_path):
+    checked = hydro_ros("machine", "check", str(excavator))
+    assert checked.returncode == 0, checked.stdout + checked.stderr
+    assert "excavator: 2 actuator(s) (lift on lift_joint, dipper on dipper_joint)" in checked.stdout
+    assert "fdi.threshold_constant: not set" in checked.stdout  # never a silent code default
+
+    broken = yaml.safe_load(excavator.read_text())
+    broken["sample_rate_hz"] = 0
+    broken["actuators"]["lift"]["cylinder"].update(piston_diameter=110, rod_diameter=0.2)
+    broken["actuators"]["dipper"]["cylinder"]["strok"] = broken["actuators"]["dipper"]["cylinder"].pop("stroke")
+    broken["actuators"]["lift"]["mount"]["l3"] = 3.0
+    broken["sensors"]["pressure_noise_std"] = -1.0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(broken))
+    checked = hydro_ros("machine", "check", str(bad), "--quiet")
+    lines = checked.stdout.strip().splitlines()
+    assert checked.returncode == 1 and "Traceback" not in checked.stderr
+    for expected in ("sample_rate_hz: 0 Hz: must be > 0", "lift.cylinder.piston_diameter: 110 m: must be <= 1 m (SI",
+                     "dipper.cylinder.strok: unknown key (did you mean stroke?)", "dipper.cylinder.stroke: missing [m]",
+                     "lift.mount: the cylinder", "sensors.pressure_noise_std: -1 Pa: must be >= 0"):
+        assert sum(expected in line for line in lines) == 1, (expected, lines)
+    simulated = hydro_ros("sim", "--config", str(bad), "--duration", "1", "--out", str(tmp_path / "bag"))
+    assert simulated.returncode == 1 and len(simulated.stderr.strip().splitlines()) == 1 and "piston_diameter" in simulated.stderr
+    assert not (tmp_path / "bag").exists()
+
+
+@pytest.mark.slow
+def test_own_bus_commissioning_and_a_leak_named_on_its_second_cylinder(excavator, tmp_path):
+    derived = excavator.with_name("excavator_safe.yaml")
+    threshold = hydro_ros("machine", "threshold", str(excavator), "--variants", "3", "--duration", "60", "--out", str(derived))
+    assert threshold.returncode == 0, threshold.stderr
+    machine = load_machine_config(derived)
+    assert machine.fdi["threshold_constant"] > 0.012  # this machine's own, not P-II's
+
+    plant = mismatched_config(machine, seed=3)  # the real machine: not the data sheet
+    bus = MachineBus(machine)
+    assert bus.expected == frozenset(J1939) and not bus.by_counter
+    healthy_log, leak_log = tmp_path / "healthy.log", tmp_path / "leak.log"
+    write_log(bus, plant, healthy_log, 150.0, {}, seed=21)
+    write_log(bus, plant, leak_log, 60.0, {"dipper": [Injection("external_leakage_b", 1.0, LEAK_ONSET_S)]}, seed=22)
+
+    for log in (healthy_log, leak_log):
+        converted = hydro_ros("can", "convert", str(log), "--config", str(derived), "--dbc", str(excavator.with_suffix(".dbc")),
+                              "--out", str(log.with_suffix("")))
+        assert converted.returncode == 0, converted.stderr
+        report = json.loads(converted.stdout)
+        assert report["incomplete_cycles"] <= 1 and not report["rejected_frames"], report
+
+    commissioned = tmp_path / "excavator_commissioned.yaml"
+    done = hydro_ros("commission", "--bag", str(healthy_log.with_suffix("")), "--config", str(derived), "--out", str(commissioned),
+                     "--quiet")
+    assert done.returncode == 0, done.stderr
+    monitored = hydro_ros("fdi", "--bag", str(leak_log.with_suffix("")), "--config", str(commissioned), "--json", str(tmp_path / "fdi.json"),
+                          "--quiet")
+    assert monitored.returncode == 0, monitored.stderr
+    result = json.loads((tmp_path / "fdi.json").read_text())
+    assert result["actuators"]["dipper"]["fault"] == "external_leakage_b", result["actuators"]
+    assert result["actuators"]["lift"]["fault"] == "none"
+    assert all(alarm["actuator"] == "dipper" and alarm["time_s"] > LEAK_ONSET_S for alarm in result["alarms"]), result["alarms"]
+
+
+def test_can_bridge_reads_the_machines_own_bus(excavator, ros_domain):
+    """Frames on a UDP-multicast bus (this test's stand-in for CAN): /joint_states in rad with a rate derived from the angle,
+    pressures in Pa, from a bus in degrees and bar without counters."""
+    machine = load_machine_config(excavator)
+    bus = MachineBus(machine)
+    group = f"239.75.{ros_domain % 250}.{os.getpid() % 250}"
+    joints: list[JointState] = []
+    dipper_b: list[FluidPressure] = []
+    with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={excavator}", "-p", "interface:=udp_multicast",
+                      "-p", f"channel:={group}"), probe_node("probe") as node, can.Bus(interface="udp_multicast", channel=group) as wire:
+        node.create_subscription(JointState, "/joint_states", joints.append, 100)
+        node.create_subscription(FluidPressure, "/hydraulics/dipper/pressure_b", dipper_b.append, 100)
+        cycle = 0
+
+        def send_cycle() -> bool:
+            nonlocal cycle
+            angle = 0.2 + 0.1 * cycle / 250.0  # 0.1 rad/s on the lift
+            sample = {"joint_position": {"lift_joint": angle, "dipper_joint": -0.3}, "joint_velocity": {},
+                      "pressure_a": {"lift": 9.0e6, "dipper": 4.0e6}, "pressure_b": {"lift": 2.0e6, "dipper": 5.5e6},
+                      "valve_command": {"lift": 0.25, "dipper": -0.1}, "supply_pressure": 18.0e6}
+            for frame_id, data in bus.encode_cycle(sample, 0):
+                wire.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=True))
+            cycle += 1
+            time.sleep(0.004)
+            return len(joints) > 150
+
+        assert spin_until(node, send_cycle, 40), f"{len(joints)} joint states"
+    last = joints[-1]
+    position = dict(zip(last.name, last.position))
+    velocity = dict(zip(last.name, last.velocity))
+    assert set(position) == {"lift_joint", "dipper_joint"}
+    assert position["dipper_joint"] == pytest.approx(-0.3, abs=math.radians(0.005))
+    assert velocity["dipper_joint"] == pytest.approx(0.0, abs=1e-6)
+    assert velocity["lift_joint"] > 0.0  # derived from the angle, the bus has no rate
+    assert dipper_b[-1].fluid_pressure == pytest.approx(5.5e6, abs=1e3)
+    assert np.isfinite([m.fluid_pressure for m in dipper_b]).all()
