@@ -62,6 +62,16 @@ def _actuator_injections(args: argparse.Namespace, machine, machine_wide: dict[s
     return by_actuator, shared, truth
 
 
+def _one_actuator(machine, name: str | None, study: str):
+    """The machine restricted to the actuator a one-cylinder study looks at: named with --actuator where there are several."""
+    if name is None:
+        if len(machine.actuators) > 1:
+            raise InputError(f"--actuator: {study} looks at one cylinder and {machine.name} has {len(machine.actuators)} "
+                             f"({', '.join(machine.actuator_names)}); name one")
+        return machine
+    return machine.only(name)
+
+
 @contextlib.contextmanager
 def _bag_or_nothing(out: str) -> Iterator[None]:
     """A bag folder this command creates is removed if the run fails, so the rerun is not refused as an existing bag."""
@@ -303,7 +313,7 @@ def cmd_gsa(args: argparse.Namespace) -> int:
     from hydro_ros.studies.gsa import LEAKS, PARAMETERS, interaction, ranking, sobol_indices
     from hydro_ros.studies.plots import plot_gsa
 
-    machine = load_machine_config(args.config)
+    machine = _one_actuator(load_machine_config(args.config), args.actuator, "gsa")
     if args.samples < 2 or args.samples & (args.samples - 1):
         raise InputError(f"--samples {args.samples}: must be a power of two >= 2 (Sobol' sequence)")
     if args.workers < 1:
@@ -333,7 +343,7 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     from hydro_ros.bags.reader import read_bag
     from hydro_ros.studies.discrepancy import progress_steps, run
 
-    machine = load_machine_config(args.config)
+    machine = _one_actuator(load_machine_config(args.config), args.actuator, "discrepancy")
     data = read_bag(args.bag)
     out = Path(args.out)
     with tqdm(total=progress_steps(), unit="fit", desc="discrepancy", disable=args.quiet) as bar:
@@ -713,6 +723,7 @@ def build_parser() -> argparse.ArgumentParser:
     gsa.add_argument("--samples", type=int, default=1024, help="Sobol' base sample N (power of two); runs = N (k + 2)")
     gsa.add_argument("--workers", type=int, default=2, help="parallel processes")
     gsa.add_argument("--json", required=True, help="output JSON; the plot goes beside it as .png")
+    gsa.add_argument("--actuator", default=None, help="the cylinder to study, on a machine of several")
     gsa.add_argument("--quiet", action="store_true", help="no progress bar")
     gsa.set_defaults(func=cmd_gsa)
 
@@ -720,6 +731,7 @@ def build_parser() -> argparse.ArgumentParser:
     disc.add_argument("--bag", required=True, help="measured contract bag")
     disc.add_argument("--config", required=True, help="the model's machine config")
     disc.add_argument("--out", required=True, help="directory for report.json, model.yaml and plots")
+    disc.add_argument("--actuator", default=None, help="the cylinder to compare, on a machine of several")
     disc.add_argument("--quiet", action="store_true", help="no progress bar")
     disc.set_defaults(func=cmd_discrepancy)
 

@@ -332,6 +332,16 @@ class Machine:
         """Whether the valves are pressure-compensated mobile valves (pilot and compensator pressures measured)."""
         return any(a.valve.mobile for a in self.actuators)
 
+    def only(self, actuator: str) -> "Machine":
+        """This machine with only ``actuator`` (a study of one cylinder on a machine of several)."""
+        self.actuator(actuator)
+        mapping = unshared(dict(self.mapping))
+        mapping["actuators"] = {actuator: mapping["actuators"][actuator]}
+        can_map = (mapping.get("can") or {}).get("map") or {}
+        if "actuators" in can_map:
+            can_map["actuators"] = {name: entry for name, entry in can_map["actuators"].items() if name == actuator}
+        return parse_machine(mapping, self.source)
+
     def with_overrides(self, overrides: Mapping[str, Any]) -> "Machine":
         """This machine with a nested patch in the config file's terms merged in (model mismatch, calibration, effects)."""
         return parse_machine(with_overrides(dict(self.mapping), overrides), self.source)
