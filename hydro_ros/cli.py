@@ -536,12 +536,37 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
         advice = unset_threshold(machine)
         if advice:
             print(f"{args.config}: warning: {advice}")
+        for warning in _reach_warnings(machine):
+            print(f"{args.config}: warning: {warning}")
+        if args.plot:
+            from hydro_ros.studies.plots import plot_machine
+
+            print(f"{args.config}: picture {plot_machine(machine, args.plot)}")
     notes = annotated_values(args.config)
     if notes and not args.quiet:
         print(f"{len(notes)} value(s) the file marks as not measured (replace them with your data sheet's or your measurement):")
         for note in notes:
             print(f"  {note}")
     return 1 if problems else 0
+
+
+def _reach_warnings(machine) -> list[str]:
+    """Where the joint travel the cylinders allow and the ranges the config gives for it disagree."""
+    from hydro_ros.models.kinematics import joint_reach
+    from hydro_ros.models.sam import SamModel
+
+    out = []
+    plausible = machine.sensors.joint_range
+    operator = machine.excitation.joint_range
+    for actuator in machine.actuators:
+        model = SamModel(machine, actuator.name)
+        low, high = joint_reach(model.mount, *model.end_stops)
+        reach = f"{actuator.name}'s cylinder moves its joint {low:.3f} to {high:.3f}"
+        if low < plausible[0] or high > plausible[1]:
+            out.append(f"sensors.joint_range {list(plausible)}: {reach}; a reading in that travel would be called implausible")
+        if not machine.crane and (operator[0] < low or operator[1] > high):
+            out.append(f"excitation.joint_range {list(operator)}: {reach}; the simulated operator drives it into the end stops")
+    return out
 
 
 def cmd_machine_threshold(args: argparse.Namespace) -> int:
@@ -821,6 +846,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and rule); every other command refuses such a config with the same messages.")
     check.add_argument("config", help="machine config (YAML)")
     check.add_argument("--quiet", action="store_true", help="only the problems, not the PLACEHOLDER / INFERRED values")
+    check.add_argument("--plot", default=None, help="draw the machine as configured (links at their reach, cylinders) to this PNG")
     check.set_defaults(func=cmd_machine_check)
     threshold = machine_sub.add_parser("threshold", help="a safe threshold before commissioning, derived from the machine's own "
                                        "description", description="Simulate fault-free variants of the machine (each notch, bulk "

@@ -72,3 +72,10 @@ def mount_joint(x, kind, l1, l2, l3, offset, sign, ratio):
     if kind == LINEAR:
         return x / ratio - offset
     return sign * (triangle_angle(x, l1, l2, l3) - offset)
+
+
+def joint_reach(mount: tuple, low: float, high: float) -> tuple[float, float]:
+    """The joint positions at the pistons ``low`` and ``high`` (its end stops), in increasing order; ``mount`` as
+    SamModel.mount."""
+    ends = sorted((float(mount_joint(low, *mount)), float(mount_joint(high, *mount))))
+    return ends[0], ends[1]

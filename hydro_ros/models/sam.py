@@ -444,6 +444,11 @@ class SamModel:
         p = self.base
         return (int(p[MOUNT_KIND]), p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3], p[THETA_OFFSET], p[MOUNT_SIGN], p[MOUNT_RATIO])
 
+    @property
+    def end_stops(self) -> tuple[float, float]:
+        """[m] the piston positions of the retracted and extended end stops."""
+        return float(self.base[STOP_LOWER]), float(self.base[STOP_UPPER])
+
     def joint_from_piston(self, x: np.ndarray | float) -> np.ndarray:
         return np.array([mount_joint(v, *self.mount) for v in np.atleast_1d(np.asarray(x, dtype=float))])
 

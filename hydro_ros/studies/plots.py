@@ -257,3 +257,40 @@ def plot_commissioning(report: dict, machine: Machine, out: str | Path) -> Path:
     fig.savefig(out, dpi=100)
     plt.close(fig)
     return out
+
+
+def plot_machine(machine: Machine, out: str | Path) -> Path:
+    """Each actuator of a machine as configured: its link at both ends of its reach and in the middle, the cylinder between
+    its mounts (a telescope as a bar), and the load; one panel per actuator (each a boom of its own, as simulated)."""
+    from hydro_ros.models.kinematics import LINEAR, joint_reach
+
+    out = Path(out)
+    fig, axes = plt.subplots(1, len(machine.actuators), figsize=(4.5 * len(machine.actuators), 4.2), squeeze=False)
+    for ax, actuator in zip(axes[0], machine.actuators):
+        model = SamModel(machine, actuator.name)
+        kind, l1, l2, _, offset, sign, _ = model.mount
+        low, high = joint_reach(model.mount, *model.end_stops)
+        length = actuator.load.boom_length if not machine.crane else max(l1, l2) * 2.0
+        for joint, style in ((low, ":"), (0.5 * (low + high), "-"), (high, "--")):
+            if kind == LINEAR:  # a telescope: the joint is its extension
+                ax.plot([0, joint], [0, 0], "k" + style, lw=2, label=f"extended {joint:.2f} m")
+                continue
+            tip = length * np.array([np.cos(joint), np.sin(joint)])
+            upper = l1 * np.array([np.cos(joint), np.sin(joint)])
+            lower = l2 * np.array([np.cos(joint - sign * joint - offset), np.sin(joint - sign * joint - offset)])
+            ax.plot([0, tip[0]], [0, tip[1]], "k" + style, lw=2, label=f"link at {np.degrees(joint):.0f} deg")
+            ax.plot([lower[0], upper[0]], [lower[1], upper[1]], "C1" + style, lw=4, alpha=0.8)
+            if not machine.crane:
+                load = actuator.load.load_distance * np.array([np.cos(joint), np.sin(joint)])
+                ax.plot(*load, "C3o", ms=6)
+        ax.plot(0, 0, "ks", ms=7)
+        ax.set_aspect("equal")
+        ax.grid(alpha=0.3)
+        reach = f"{low:.2f} to {high:.2f} m" if kind == LINEAR else f"{np.degrees(low):.0f} to {np.degrees(high):.0f} deg"
+        ax.set_title(f"{actuator.name} ({actuator.joint}): reach {reach}", fontsize=9)
+        ax.legend(fontsize=7, loc="best")
+    fig.suptitle(f"{machine.name}: links (black), cylinders (orange), load (red); pivot at the square", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
