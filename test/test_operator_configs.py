@@ -26,7 +26,8 @@ def _published_status_names() -> list[str]:
         names += [f"{prefix}{actuator}" for actuator in config.actuator_names
                   for prefix in (topics.FDI_STATUS_PREFIX, topics.SENSOR_STATUS_PREFIX)]
     names += [f"hydro_ros/can_bridge/{message}" for message in MachineBus(load_machine_config(SAM_CONFIG)).expected]
-    return names
+    names.append("hydro_ros/trajectory_executor")
+    return names + [f"machine1/{name}" for name in names]  # a machine in a namespace (nodes.common.namespaced_statuses)
 
 
 def _matches(analyzer: dict, name: str) -> bool:

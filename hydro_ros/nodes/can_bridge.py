@@ -1,4 +1,4 @@
-"""can_bridge: the machine's CAN bus (config/machine_bus.dbc) -> the contract topics, with health.
+"""can_bridge: the machine's CAN bus (its config's can: dbc and map) -> the contract topics, with health.
 
 A reader thread takes frames off a python-can bus (any interface: socketcan on a machine,
 virtual / udp_multicast in tests) into a queue; a timer decodes them with the checked codec,
@@ -21,10 +21,12 @@ than ``command_timeout`` gets neutral requests (again every ``command_timeout`` 
 a controller that dies (SIGKILL) cannot leave a valve open. A non-finite or out-of-range command is
 refused, counted (``refused_commands``) and that valve sent neutral: nothing is clamped to a full opening.
 
-A lifecycle node (ros2_socketcan's habit): configure opens the bus, activate starts publishing and
-forwarding, deactivate stops them and sends the neutral requests, cleanup closes the bus.
+A lifecycle node (ros2_socketcan's habit): configure reads the hardware parameters, loads the bus map
+and opens the bus, and fails (FAILURE, the reason logged and on /diagnostics) when it cannot;
+activate starts publishing and forwarding, deactivate stops them and sends the neutral requests,
+cleanup closes the bus, so cleanup, a new ``channel`` and configure move the bridge to another bus.
 ``autostart`` (default true) runs configure and activate at start, for machines without a
-lifecycle manager.
+lifecycle manager, and retries configure with ``reconnect_backoff`` while the bus cannot be opened.
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ from hydro_ros.nodes.common import (
     VALVE_COMMAND_TIMEOUT,
     checked_valve_commands,
     destroy_entities,
+    namespaced_statuses,
     publishes_sensor_topic,
     relative,
     run_node,
@@ -67,9 +70,11 @@ QUEUE_LIMIT = 200_000  # frames; beyond this the oldest are dropped and counted 
 class BusReader(threading.Thread):
     """Owns the python-can bus: receives into a deque, reconnects with back-off when it fails."""
 
-    def __init__(self, open_bus: Any, backoff: tuple[float, float], extended_ids: frozenset[int] = frozenset()) -> None:
+    def __init__(self, open_bus: Any, backoff: tuple[float, float], extended_ids: frozenset[int] = frozenset(),
+                 bus: can.BusABC | None = None) -> None:
         super().__init__(daemon=True, name="can-reader")
         self.open_bus = open_bus
+        self.opened = bus  # the bus configure opened; reopened with open_bus once lost
         self.extended_ids = extended_ids  # 29-bit frames (J1939) among those this bridge sends
         self.backoff_min, self.backoff_max = backoff
         self.frames: collections.deque = collections.deque(maxlen=QUEUE_LIMIT)
@@ -87,7 +92,7 @@ class BusReader(threading.Thread):
         while not self.stopping.is_set():
             try:
                 with self.lock:
-                    self.bus = self.open_bus()
+                    self.bus, self.opened = self.opened or self.open_bus(), None
                 self.connected = True
                 delay = self.backoff_min
                 while not self.stopping.is_set():
@@ -125,18 +130,22 @@ class BusReader(threading.Thread):
                 return False
 
 
+AT_CONFIGURE = " (read at configure: set it, then cleanup and configure)"
 PARAMETERS = {
-    "config": Spec(str(default_config_path("sam")), "machine config (YAML) whose sensors are on the bus", existing_file=True),
-    "dbc": Spec("", "DBC file of the bus; empty: the config's (config/machine_bus.dbc)", existing_file=True),
-    "interface": Spec("socketcan", "python-can interface (socketcan, pcan, kvaser, virtual, udp_multicast, ...)"),
-    "channel": Spec("can0", "channel of the interface"),
-    "bitrate": Spec(500000, "[bit/s] bus bit rate (not used by virtual and udp_multicast)", 10000, 1000000),
-    "hardware_filters": Spec(True, "let the interface pass only the DBC's sensor frames"),
+    "config": Spec(str(default_config_path("sam")), "machine config (YAML) whose sensors are on the bus" + AT_CONFIGURE, existing_file=True,
+                   read_only=False),
+    "dbc": Spec("", "DBC file of the bus; empty: the config's can.dbc" + AT_CONFIGURE, existing_file=True, read_only=False),
+    "interface": Spec("socketcan", "python-can interface (socketcan, pcan, kvaser, virtual, udp_multicast, ...)" + AT_CONFIGURE,
+                      read_only=False),
+    "channel": Spec("can0", "channel of the interface" + AT_CONFIGURE, read_only=False),
+    "bitrate": Spec(500000, "[bit/s] bus bit rate (not used by virtual and udp_multicast)" + AT_CONFIGURE, 10000, 1000000, read_only=False),
+    "hardware_filters": Spec(True, "let the interface pass only the DBC's sensor frames" + AT_CONFIGURE, read_only=False),
     "forward_commands": Spec(False, "while active, send /hydraulics/valve_commands as valve request frames (this drives "
-                                    "the machine); deactivating sends neutral requests"),
+                                    "the machine); deactivating sends neutral requests" + AT_CONFIGURE, read_only=False),
     "command_timeout": VALVE_COMMAND_TIMEOUT,
     **SAMPLE_OUTPUT_PARAMETERS,
-    "autostart": Spec(True, "configure and activate at start; false: wait for a lifecycle manager"),
+    "autostart": Spec(True, "configure and activate at start, and retry configure (reconnect_backoff) while the bus cannot be "
+                            "opened; false: wait for a lifecycle manager"),
     "process_period": Spec(0.01, "[s] period of decoding the received frames", 0.001, 1.0),
     "diagnostics_period": Spec(1.0, "[s] period of /diagnostics", 0.05, 60.0),
     "stale_cycles": Spec(50, "[cycles] a message missing this many DBC cycles is STALE", 1, 100000),
@@ -154,14 +163,14 @@ class CanBridge(LifecycleNode):
         backoff = self.params["reconnect_backoff"]
         if not 0 < backoff[0] <= backoff[1]:
             raise InputError(f"parameter reconnect_backoff={backoff}: expected [first, longest] with 0 < first <= longest")
-        machine = load_machine_config(self.params["config"])
-        self.codec = MachineBus(machine, self.params["dbc"] or None)
-        self.machine = machine.name
-        self.forward = self.params["forward_commands"]
-        if self.forward and self.codec.requests_missing():
-            raise InputError(f"parameter forward_commands=true: the bus map names no valve_request for "
-                             f"{', '.join(self.codec.requests_missing())} (can.map.actuators.<name>.valve_request)")
+        self.machine = load_machine_config(self.params["config"]).name
+        self.forward = False
         self.bus_name = f"{self.params['interface']}:{self.params['channel']}"
+        # /diagnostics in every state: a bus that cannot be opened is reported while the node waits unconfigured
+        self.pub_diag = self.create_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
+        self.configure_error = ""
+        self.configure_attempts = 0
+        self._retry = None
         self.active = False
         self.reader: BusReader | None = None
         self._entities: list[Any] = []  # publishers, timers and the subscription of the configured state
@@ -172,22 +181,59 @@ class CanBridge(LifecycleNode):
         self.deadman_neutrals = 0
         self._forward_since = time.monotonic()
         if self.params["autostart"]:
-            self.trigger_configure()
+            self._autostart(backoff[0])
+
+    def _autostart(self, delay: float) -> None:
+        """Configure and activate; while the bus cannot be opened, stay unconfigured, say so and try again."""
+        if self._retry is not None:
+            self.destroy_timer(self._retry)
+            self._retry = None
+        if self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
             self.trigger_activate()
+            return
+        self._publish_unconfigured()
+        retry_in = min(delay, self.params["reconnect_backoff"][1])
+        self._retry = self.create_timer(retry_in, lambda: self._autostart(min(2.0 * retry_in, self.params["reconnect_backoff"][1])),
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _publish_unconfigured(self) -> None:
+        status = self._status("hydro_ros/can_bridge/bus", ERROR, f"unconfigured: {self.configure_error}",
+                              {"connected": "False", "reconnects": str(self.configure_attempts), "last_error": self.configure_error})
+        array = DiagnosticArray(status=namespaced_statuses(self, [status]))
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(array)
 
     # life cycle ----------------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Read the hardware parameters, load the machine's bus map and open the bus; FAILURE (with the reason logged and
+        on /diagnostics) when any of that fails, as ros2_socketcan does, so a lifecycle manager sees it."""
+        self.configure_attempts += 1
         interface = self.params["interface"]
-        kwargs: dict[str, Any] = {"interface": interface, "channel": self.params["channel"]}
-        if interface not in ("virtual", "udp_multicast"):
-            kwargs["bitrate"] = self.params["bitrate"]
-        if self.params["hardware_filters"]:
-            kwargs["can_filters"] = [{"can_id": frame_id, "can_mask": 0x1FFFFFFF if m.is_extended_frame else 0x7FF,
-                                      "extended": bool(m.is_extended_frame)}
-                                     for frame_id, m in self.codec.by_id.items() if m.name in self.codec.expected]
+        self.bus_name = f"{interface}:{self.params['channel']}"
+        try:
+            machine = load_machine_config(self.params["config"])
+            self.codec = MachineBus(machine, self.params["dbc"] or None)
+            self.forward = self.params["forward_commands"]
+            if self.forward and self.codec.requests_missing():
+                raise InputError(f"parameter forward_commands=true: the bus map names no valve_request for "
+                                 f"{', '.join(self.codec.requests_missing())} (can.map.actuators.<name>.valve_request)")
+            kwargs: dict[str, Any] = {"interface": interface, "channel": self.params["channel"]}
+            if interface not in ("virtual", "udp_multicast"):
+                kwargs["bitrate"] = self.params["bitrate"]
+            if self.params["hardware_filters"]:
+                kwargs["can_filters"] = [{"can_id": frame_id, "can_mask": 0x1FFFFFFF if m.is_extended_frame else 0x7FF,
+                                          "extended": bool(m.is_extended_frame)}
+                                         for frame_id, m in self.codec.by_id.items() if m.name in self.codec.expected]
+            opened = can.Bus(**kwargs)
+        except (InputError, can.CanError, OSError, ValueError, ImportError, NotImplementedError) as exc:
+            self.configure_error = f"bus {self.bus_name} cannot be opened: {type(exc).__name__}: {exc}"
+            self.get_logger().error(self.configure_error, throttle_duration_sec=30.0)
+            return TransitionCallbackReturn.FAILURE
+        self.machine = machine.name
+        self.configure_error = ""
         backoff = self.params["reconnect_backoff"]
         extended = frozenset(frame_id for frame_id, message in self.codec.by_id.items() if message.is_extended_frame)
-        self.reader = BusReader(lambda: can.Bus(**kwargs), (backoff[0], backoff[1]), extended)
+        self.reader = BusReader(lambda: can.Bus(**kwargs), (backoff[0], backoff[1]), extended, bus=opened)
 
         mobile = any(slot.mobile for slot in self.codec.slots)
         types = topics.sensor_topics([s.actuator for s in self.codec.slots], mobile=mobile)
@@ -198,8 +244,7 @@ class CanBridge(LifecycleNode):
         self.layout = SampleLayout([slot.actuator for slot in self.codec.slots], [slot.joint for slot in self.codec.slots], mobile=mobile)
         self.pub_block = (self.create_lifecycle_publisher(PointCloud2, relative(topics.SAMPLE_BLOCK), SENSOR_QOS)
                           if self.params["sample_blocks"] else None)
-        self.pub_diag = self.create_lifecycle_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
-        self._entities = [*self.pubs.values(), self.pub_diag] + ([self.pub_block] if self.pub_block else [])
+        self._entities = [*self.pubs.values()] + ([self.pub_block] if self.pub_block else [])
         if self.forward:
             self._entities.append(self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._forward, SENSOR_QOS))
 
@@ -235,6 +280,7 @@ class CanBridge(LifecycleNode):
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._close_bus()
+        self.get_logger().info(f"bus {self.bus_name} closed")
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -387,7 +433,7 @@ class CanBridge(LifecycleNode):
             problems.append(f"{sum(self.rejected.values())} bad frames")
             bus_level = max(bus_level, WARN)
         statuses.append(self._status("hydro_ros/can_bridge/bus", bus_level, "; ".join(problems) or "ok", bus_values))
-        array = DiagnosticArray(status=statuses)
+        array = DiagnosticArray(status=namespaced_statuses(self, statuses))
         array.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(array)
 

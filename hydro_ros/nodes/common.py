@@ -83,8 +83,28 @@ def publishes_sensor_topic(chosen: str, topic: str) -> bool:
 
 
 def relative(topic: str) -> str:
-    """A contract topic as a name the node's namespace applies to (/joint_states -> joint_states)."""
-    return topic.lstrip("/")
+    """A contract topic as a name the node's namespace applies to (/joint_states -> joint_states). /diagnostics stays
+    absolute, as diagnostic_updater keeps it: the aggregator, rqt_robot_monitor and Foxglove read it in the root
+    namespace, and :func:`namespaced_statuses` keeps the machines on it apart."""
+    return topic if topic == topics.DIAGNOSTICS else topic.lstrip("/")
+
+
+def namespaced_statuses(node: Node, statuses: list) -> list:
+    """``statuses`` named for the graph: in a namespace, ``machine1/hydro_ros/fdi/boom`` (two machines share one
+    /diagnostics); in the root namespace as they are."""
+    prefix = node.get_namespace().strip("/")
+    if prefix:
+        for status in statuses:
+            status.name = f"{prefix}/{status.name}"
+    return statuses
+
+
+def own_statuses(node: Node, statuses: list) -> list:
+    """The statuses on /diagnostics of the machine in ``node``'s namespace, their names as in the root namespace."""
+    prefix = node.get_namespace().strip("/")
+    if not prefix:
+        return [s for s in statuses if s.name.startswith("hydro_ros/")]
+    return [s for s in statuses if s.name.startswith(f"{prefix}/hydro_ros/")]
 
 
 def message_class(type_name: str) -> Any:

@@ -59,7 +59,7 @@ from hydro_ros.fdi.alarm_log import AlarmLog
 from hydro_ros.fdi.monitor import ERROR, OK, STALE, WARN, FdiMonitor
 from hydro_ros.fdi.residuals import GENERATORS
 from hydro_ros.fdi.settings import unset_threshold
-from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, SENSOR_QOS, SERVICE_QOS, relative, run_node
+from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, SENSOR_QOS, SERVICE_QOS, namespaced_statuses, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
@@ -407,7 +407,7 @@ class FdiNode(Node):
         self._publish_diagnostics()
 
     def _publish_diagnostics(self) -> None:
-        array = DiagnosticArray(status=self.statuses())
+        array = DiagnosticArray(status=namespaced_statuses(self, self.statuses()))
         array.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(array)
 

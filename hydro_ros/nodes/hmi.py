@@ -36,7 +36,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.hmi.server import GUARD_KEY, create_app
 from hydro_ros.hmi.state import HmiState, StatusReport
-from hydro_ros.nodes.common import LATCHED_QOS, LATEST_ONLY_QOS, relative, run_node
+from hydro_ros.nodes.common import LATCHED_QOS, LATEST_ONLY_QOS, namespaced_statuses, own_statuses, relative, run_node
 from hydro_ros.nodes.foxglove_live import FoxgloveLive
 from hydro_ros.nodes.parameters import Parameters, Spec
 
@@ -183,17 +183,18 @@ class HmiNode(Node):
                   "foxglove_forwarded": str(self.foxglove.forwarded) if self.foxglove else "0"}
         status = DiagnosticStatus(level=level, name=HMI_STATUS, message=message, hardware_id=self.machine,
                                   values=[KeyValue(key=key, value=value) for key, value in values.items()])
-        array = DiagnosticArray(status=[status])
+        array = DiagnosticArray(status=namespaced_statuses(self, [status]))
         array.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(array)
 
     # -- graph -> state ----------------------------------------------------------------------
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        prefix = len(self.get_namespace().strip("/") + "/") if self.get_namespace() != "/" else 0
         self.state.on_diagnostics(stamp, [
-            StatusReport(s.name, s.level[0], s.message, s.hardware_id,  # `byte level` is bytes in rclpy
+            StatusReport(s.name[prefix:], s.level[0], s.message, s.hardware_id,  # `byte level` is bytes in rclpy
                          {v.key: v.value for v in s.values})
-            for s in msg.status])
+            for s in own_statuses(self, msg.status)])
 
     def _on_residuals(self, msg: JointState) -> None:
         self.state.on_residuals(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, list(msg.name), list(msg.position))

@@ -45,7 +45,16 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.contract.names import INJECTION_UNITS, Injection
 from hydro_ros.contract.samples import Samples
-from hydro_ros.nodes.common import CLOCK_QOS, SAMPLE_OUTPUT_PARAMETERS, SENSOR_QOS, checked_valve_commands, publishes_sensor_topic, relative, run_node
+from hydro_ros.nodes.common import (
+    CLOCK_QOS,
+    SAMPLE_OUTPUT_PARAMETERS,
+    SENSOR_QOS,
+    checked_valve_commands,
+    namespaced_statuses,
+    publishes_sensor_topic,
+    relative,
+    run_node,
+)
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.sim.scenario import MachineRun
 
@@ -416,7 +425,7 @@ class PlantSim(Node):
             KeyValue(key="real_time_factor", value=f"{achieved:.2f}"),
             KeyValue(key="active_faults", value=",".join(self.source.active_faults()) or "none"),
         ]
-        array = DiagnosticArray(status=[status])
+        array = DiagnosticArray(status=namespaced_statuses(self, [status]))
         array.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(array)
 
