@@ -495,7 +495,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     split_bytes = None if args.split_size is None else int(args.split_size * 1e6)
     with tqdm(unit="msg", desc="record", disable=args.quiet) as bar:
         summary = record(machine, Path(args.out), duration_s=args.duration, split_duration_s=args.split_duration,
-                         split_size_bytes=split_bytes, outputs=args.outputs, progress=lambda n: bar.update(n - bar.n))
+                         split_size_bytes=split_bytes, outputs=args.outputs, progress=lambda n: bar.update(n - bar.n),
+                         ros_args=args.ros_args)
     print(json.dumps(summary))
     return 0
 
@@ -653,7 +654,7 @@ def cmd_foxglove_layout(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bag_player import replay
 
-    return replay(args.bag, rate=args.rate, loop=args.loop, clock=not args.no_clock)
+    return replay(args.bag, rate=args.rate, loop=args.loop, clock=args.clock, ros_args=args.ros_args)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -891,7 +892,9 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("bag", help="bag directory")
     replay.add_argument("--rate", type=float, default=1.0, help="playback rate (1 = recorded speed)")
     replay.add_argument("--loop", action="store_true", help="start again at the end")
-    replay.add_argument("--no-clock", action="store_true", help="do not publish /clock")
+    replay.add_argument("--clock", action="store_true", help="publish /clock with the bag's log times (for use_sim_time nodes; off "
+                        "by default, as ros2 bag play)")
+    replay.add_argument("--no-clock", action="store_true", help=argparse.SUPPRESS)  # the old spelling: /clock is now off by default
     replay.set_defaults(func=cmd_replay)
 
     demo = sub.add_parser("demo", help="the main job: simulate a developing leak and run it through the nodes")
@@ -904,9 +907,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+ROS_COMMANDS = ("record", "replay")  # the commands that run a ROS node in this process take --ros-args as ros2 run does
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ros_args = argv[argv.index("--ros-args") + 1:] if "--ros-args" in argv else []
+    args = parser.parse_args(argv[:argv.index("--ros-args")] if "--ros-args" in argv else argv)
+    args.ros_args = ros_args
+    if "--ros-args" in argv and args.command not in ROS_COMMANDS:
+        parser.error(f"--ros-args: only {', '.join(ROS_COMMANDS)} start ROS nodes")
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         return func(args)

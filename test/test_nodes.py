@@ -66,7 +66,8 @@ def test_bag_player_replays_contract_types_with_clock(ros_domain, short_bag):
         node.create_subscription(JointState, topics.VALVE_COMMANDS, lambda m: got["cmd"].append(m), SENSOR_QOS)
         node.create_subscription(Clock, topics.CLOCK, lambda m: got["clock"].append(m), CLOCK_QOS)
         # every one of the 2000 messages is counted: on a loaded machine discovery can outlast the default 1 s delay
-        with node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={short_bag}", "-p", "rate:=0.5", "-p", "start_delay:=5.0"):
+        with node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={short_bag}", "-p", "rate:=0.5", "-p", "start_delay:=5.0",
+                          "-p", "publish_clock:=true"):
             assert spin_until(node, lambda: len(got["pa"]) >= 2000 and len(got["cmd"]) >= 2000, 45)
         assert got["cmd"][0].name == ["boom"] and -1.0 <= got["cmd"][0].position[0] <= 1.0
         assert got["clock"] and got["clock"][-1].clock.sec * 1e9 + got["clock"][-1].clock.nanosec <= 2.0e9
@@ -114,3 +115,26 @@ def test_record_of_a_live_plant_is_a_split_contract_bag_the_monitor_reads(ros_do
     result = json.loads(out.read_text())
     assert result["errors"] == [] and result["partial"] is False
     assert result["actuators"]["boom"]["fault"] == "none" and result["alarms"] == []
+
+
+def test_record_in_a_namespace_takes_the_sample_blocks_and_the_bag_reads_whole(ros_domain, tmp_path):
+    """A machine in namespace /machine1 whose simulator sends sample blocks and only /joint_states per sample (the crane's
+    bring-up): hydro-ros record with --ros-args -r __ns:=/machine1 records the blocks, and the bag reads as every column."""
+    import json
+    import subprocess
+    import sys
+
+    from hydro_ros.bags.reader import read_bag
+
+    bag = tmp_path / "recorded"
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=0.5", "-p", "seed:=2",
+                      "-p", "sample_blocks:=true", "-p", "sensor_topics:=joint_states", "-r", "__ns:=/machine1"):
+        recorded = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "record", "--config", str(SAM_CONFIG), "--out", str(bag),
+                                   "--duration", "6", "--quiet", "--ros-args", "-r", "__ns:=/machine1"],
+                                  capture_output=True, text=True, timeout=120)
+    assert recorded.returncode == 0, recorded.stderr
+    summary = json.loads(recorded.stdout)
+    assert summary["topics"][topics.SAMPLE_BLOCK] > 10 and summary["topics"][topics.pressure_a("boom")] == 0
+    data = read_bag(bag)
+    assert len(data.stamps_ns) > 1000 and not data.errors
+    assert np.all(np.isfinite(data.pressure_a["boom"])) and np.all(np.isfinite(data.valve_command["boom"]))

@@ -17,7 +17,7 @@ import numpy as np
 import yaml
 
 from hydro_ros.bags.align import Column, SampleAligner, SampleLayout
-from hydro_ros.bags.cdr import CdrError, decode_joint_state
+from hydro_ros.bags.cdr import CdrError, decode_joint_state, decode_sample_block
 from hydro_ros.bags.mcap_scan import (
     McapDamage,
     McapScanner,
@@ -244,6 +244,19 @@ class _JointStateChannel:
                 vel.add([stamp], [vel_values[i] if i < len(vel_values) else np.nan])
 
 
+def _add_blocks(batch: MessageBatch, blocks: dict[Column, _Series], bad: list[int]) -> None:
+    """The columns of sample blocks (field ``<joint or actuator>/<quantity>``, or a machine-wide quantity)."""
+    for k in range(len(batch.starts)):
+        try:
+            names, stamps, rows = decode_sample_block(bytes(batch.buffer[batch.starts[k] : batch.ends[k]]))
+        except CdrError:
+            bad[0] += 1
+            continue
+        for j, name in enumerate(names):
+            owner, _, quantity = name.rpartition("/")
+            blocks.setdefault((quantity, owner), _Series()).add(stamps, rows[:, j])
+
+
 def read_bag(path: str | Path) -> BagData:
     """Every readable message of every file of the bag; what could not be read is listed in ``errors``."""
     path = Path(path)
@@ -252,6 +265,7 @@ def read_bag(path: str | Path) -> BagData:
     truth = _read_truth(path, errors)
     joint_channels: dict[tuple[int, int], tuple[str, _JointStateChannel]] = {}
     pressures: dict[str, _Series] = {}
+    blocks: dict[Column, _Series] = {}  # /hydraulics/sample_block columns: where a bag has them, they are its samples
     counts: dict[str, int] = {}
     total = 0
     for index, file in enumerate(files):
@@ -275,6 +289,8 @@ def read_bag(path: str | Path) -> BagData:
                         if key not in joint_channels:
                             joint_channels[key] = (channel.topic, _JointStateChannel())
                         joint_channels[key][1].add(batch, bad)
+                    elif channel.topic == topics.SAMPLE_BLOCK:
+                        _add_blocks(batch, blocks, bad)
         except Exception as exc:  # noqa: BLE001 - any damage (McapDamage, zstd, struct) ends this file, not the caller
             done = scanner.messages if scanner is not None else 0
             errors.append(f"{file}: damaged after {done} messages ({exc})")
@@ -293,7 +309,7 @@ def read_bag(path: str | Path) -> BagData:
                 entry = joint.setdefault(name, {"position": _Series(), "velocity": _Series()})
                 entry["position"].extend(pos)
                 entry["velocity"].extend(vel)
-    if not joint:
+    if not joint and not blocks:
         if total == 0 and errors:
             raise BagError(errors[-1])
         raise BagError(f"bag {path}: no {topics.JOINT_STATES} samples; not a contract bag")
@@ -312,6 +328,7 @@ def read_bag(path: str | Path) -> BagData:
             series[("ls_pressure", "")] = pressure
         elif len(parts) == 3 and parts[0] == "hydraulics" and parts[2] in ("pressure_a", "pressure_b", *topics.MOBILE_VALVE_PRESSURES):
             series[(parts[2], parts[1])] = pressure
+    series.update(blocks)
     columns = list(series)
     # a bag's samples are the /joint_states stamps; a value at another stamp belongs to no sample
     aligner = SampleAligner(len(columns), key_columns=[k for k, (quantity, _) in enumerate(columns) if quantity == "joint_position"])

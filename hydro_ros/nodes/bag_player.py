@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Sequence
 
 import rclpy
 from rclpy.clock import Clock, ClockType
@@ -28,7 +28,8 @@ PARAMETERS = {
     "bag": Spec("", "bag directory (or one .mcap file) to play; a split bag is played whole"),
     "rate": Spec(1.0, "[-] playback speed, bag seconds per wall second", 0.01, 100.0),
     "loop": Spec(False, "start again at the end"),
-    "publish_clock": Spec(True, "publish /clock with each message's log time (for use_sim_time nodes)"),
+    "publish_clock": Spec(False, "publish /clock with each message's log time, for use_sim_time nodes (off by default, as in "
+                                 "ros2 bag play without --clock)"),
     "tick_period": Spec(0.005, "[s] wall time between publishing the messages due", 0.0005, 1.0),
     # like `ros2 bag play --delay`: give subscribers time to match before the first message
     "start_delay": Spec(1.0, "[s] wait before the first message", 0.0, 60.0),
@@ -115,9 +116,10 @@ class BagPlayer(Node):
                 self.get_logger().info(f"played {self.published} messages from {self.path}")
 
 
-def replay(bag: str, *, rate: float = 1.0, loop: bool = False, clock: bool = True) -> int:
-    """Play ``bag`` to the end (forever with ``loop``); returns 0, or 1 if the bag was damaged."""
-    rclpy.init()
+def replay(bag: str, *, rate: float = 1.0, loop: bool = False, clock: bool = False, ros_args: Sequence[str] = ()) -> int:
+    """Play ``bag`` to the end (forever with ``loop``); returns 0, or 1 if the bag was damaged. ``ros_args``: what followed
+    --ros-args on the command line (a namespace, remaps, a log level)."""
+    rclpy.init(args=["hydro-ros", *ros_args])
     node = BagPlayer(bag, rate, loop, clock)
     try:
         while rclpy.ok() and not node.finished:

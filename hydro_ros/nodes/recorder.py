@@ -15,7 +15,7 @@ import signal
 import struct
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import rclpy
 from rclpy.node import Node
@@ -81,13 +81,15 @@ def _interrupt(*_: Any) -> None:
 
 
 def record(machine: Machine, out: Path, *, duration_s: float | None, split_duration_s: float | None,
-           split_size_bytes: int | None, outputs: bool, progress: Any = None) -> dict[str, Any]:
-    """Record until ``duration_s`` of wall time has passed (None: until Ctrl-C / SIGTERM)."""
+           split_size_bytes: int | None, outputs: bool, progress: Any = None, ros_args: Sequence[str] = ()) -> dict[str, Any]:
+    """Record until ``duration_s`` of wall time has passed (None: until Ctrl-C / SIGTERM). ``ros_args``: what followed
+    --ros-args on the command line (a namespace, remaps). /hydraulics/sample_block is recorded where a node publishes it
+    (a crane's bridge or simulator at 1 kHz sends its samples that way)."""
     wanted = topics.sensor_topics(machine.actuator_names, mobile=machine.mobile)
     if outputs:
         wanted.update({topics.DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray"})
     previous = signal.signal(signal.SIGTERM, _interrupt)
-    rclpy.init()
+    rclpy.init(args=["hydro-ros", *ros_args])
     began = time.monotonic()
     try:
         with BagWriter(out, split_size_bytes=split_size_bytes) as writer:
@@ -97,6 +99,8 @@ def record(machine: Machine, out: Path, *, duration_s: float | None, split_durat
                 end = began + DISCOVERY_S
                 while time.monotonic() < end:
                     rclpy.spin_once(node, timeout_sec=0.1)
+                if node.get_publishers_info_by_topic(node.resolve_topic_name(relative(topics.SAMPLE_BLOCK))):
+                    node.wanted[topics.SAMPLE_BLOCK] = topics.POINT_CLOUD2_TYPE
                 node.subscribe_all()
                 started = time.monotonic()
                 stop = math.inf if duration_s is None else started + duration_s
