@@ -33,8 +33,10 @@ class _Share(_Recorded):  # FindPackageShare("hydro_ros") -> the repository
 
 
 def _fake_launch(monkeypatch) -> None:
-    names = {"launch": ["LaunchDescription"], "launch.actions": ["DeclareLaunchArgument"], "launch.conditions": ["IfCondition"],
-             "launch.substitutions": ["LaunchConfiguration", "PathJoinSubstitution"], "launch_ros.actions": ["Node"],
+    names = {"launch": ["LaunchDescription"], "launch.actions": ["DeclareLaunchArgument", "EmitEvent", "RegisterEventHandler"],
+             "launch.conditions": ["IfCondition"], "launch.events": [], "launch.substitutions": ["LaunchConfiguration", "PathJoinSubstitution"],
+             "launch_ros.actions": ["Node", "LifecycleNode"], "launch_ros.event_handlers": ["OnStateTransition"],
+             "launch_ros.events": [], "launch_ros.events.lifecycle": ["ChangeState"],
              "launch_ros.parameter_descriptions": ["ParameterFile"], "launch_ros.substitutions": []}
     for module_name, classes in names.items():
         module = types.ModuleType(module_name)
@@ -42,6 +44,7 @@ def _fake_launch(monkeypatch) -> None:
             setattr(module, cls, type(cls, (_Recorded,), {}))
         monkeypatch.setitem(sys.modules, module_name, module)
     sys.modules["launch_ros.substitutions"].FindPackageShare = _Share
+    sys.modules["launch.events"].matches_action = lambda action: ("matches", action)
 
 
 def _resolve(value, arguments: dict[str, object]) -> object:
@@ -65,8 +68,28 @@ def _launch(path: Path, monkeypatch):
     spec.loader.exec_module(module)
     entities = module.generate_launch_description().args[0]
     arguments = {e.args[0]: e.kwargs.get("default_value") for e in entities if type(e).__name__ == "DeclareLaunchArgument"}
-    nodes = [e for e in entities if type(e).__name__ == "Node"]
+    nodes = [e for e in entities if type(e).__name__ in ("Node", "LifecycleNode")]
     return arguments, nodes
+
+
+def _transitions(path: Path, monkeypatch) -> dict[str, set[int]]:
+    """Which transitions the launch file emits for each lifecycle node (by executable), directly or once it is inactive."""
+    _fake_launch(monkeypatch)
+    spec = importlib.util.spec_from_file_location(path.stem.replace(".", "_"), path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    out: dict[str, set[int]] = {}
+    for entity in module.generate_launch_description().args[0]:
+        events = [entity] if type(entity).__name__ == "EmitEvent" else []
+        if type(entity).__name__ == "RegisterEventHandler":
+            handler = entity.args[0]
+            assert handler.kwargs["goal_state"] == "inactive"
+            events = handler.kwargs["entities"]
+        for event in events:
+            change = event.kwargs["event"]
+            target = change.kwargs["lifecycle_node_matcher"][1]
+            out.setdefault(target.kwargs["executable"], set()).add(change.kwargs["transition_id"])
+    return out
 
 
 @pytest.mark.parametrize("launch_file", sorted((REPO / "launch").glob("*.launch.py")), ids=lambda p: p.name)
@@ -95,7 +118,27 @@ def test_machine_launch_takes_namespace_params_file_sim_time_and_node_choices(mo
     assert {"namespace", "params_file", "use_sim_time", "start_can_bridge", "start_fdi_node", "start_hmi",
             "start_diagnostic_aggregator"} <= set(arguments)
     assert {node.kwargs["executable"] for node in nodes} == {"can_bridge", "fdi_node", "hmi", "aggregator_node"}
-    assert all(type(node.kwargs["namespace"]).__name__ == "LaunchConfiguration" for node in nodes)
+    # the aggregator reads the absolute /diagnostics; the machine's nodes live in its namespace
+    assert all(type(node.kwargs["namespace"]).__name__ == "LaunchConfiguration" for node in nodes if node.kwargs["name"] != "analyzers")
+    assert {"interface", "channel", "log_level", "auto_configure", "auto_activate"} <= set(arguments)
+
+
+def test_lifecycle_nodes_are_driven_by_launch_not_by_their_own_autostart(monkeypatch):
+    from lifecycle_msgs.msg import Transition
+
+    for launch_file, lifecycle in (("machine.launch.py", "can_bridge"), ("crane_motion.launch.py", "trajectory_executor")):
+        arguments, nodes = _launch(REPO / "launch" / launch_file, monkeypatch)
+        node = next(n for n in nodes if n.kwargs["executable"] == lifecycle)
+        assert type(node).__name__ == "LifecycleNode"
+        assert any(isinstance(p, dict) and p.get("autostart") is False for p in node.kwargs["parameters"])
+        assert _transitions(REPO / "launch" / launch_file, monkeypatch)[lifecycle] == {Transition.TRANSITION_CONFIGURE,
+                                                                                       Transition.TRANSITION_ACTIVATE}
+        assert {"auto_configure", "auto_activate", "log_level"} <= set(arguments)
+    arguments, nodes = _launch(REPO / "launch" / "crane_motion.launch.py", monkeypatch)
+    server = next(n for n in nodes if n.kwargs["executable"] == "trajectory_server")
+    executor = next(n for n in nodes if n.kwargs["executable"] == "trajectory_executor")
+    assert server.kwargs["parameters"][0]["output_topic"] == "trajectory_executor/joint_trajectory"  # the executor's input
+    assert executor.kwargs["parameters"][0]["require_monitor"] is True
 
 
 @pytest.mark.parametrize("machine", ["sam", "sam_mobile", "sam_mems", "k70m"])

@@ -14,8 +14,10 @@ from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.nodes import can_bridge, fdi_node, hmi
 from hydro_ros.nodes.parameters import PACKAGE_SHARE, Spec, params_yaml
 
+# the bus a bridge opens is machine.launch.py's `interface` and `channel` arguments, so it is said in one place
+LAUNCH_ARGUMENTS = {"can_bridge": ("interface", "channel")}
 BRINGUP: dict[str, dict[str, Spec]] = {
-    "can_bridge": can_bridge.PARAMETERS,
+    "can_bridge": {name: spec for name, spec in can_bridge.PARAMETERS.items() if name not in LAUNCH_ARGUMENTS["can_bridge"]},
     "fdi_node": fdi_node.PARAMETERS,
     "hmi": hmi.PARAMETERS,
 }
