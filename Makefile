@@ -1,4 +1,4 @@
-# make demo | make test | make bench | make bags   (each sets up .venv first)
+# make demo | make test | make test-fast | make bench | make bags | make docs   (each sets up .venv first)
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -9,7 +9,7 @@ CHROMIUM := /usr/bin/chromium
 # make demo HMI_LINGER=600 keeps the graph and its HMI page up 10 min after the replay
 HMI_LINGER ?= 0
 
-.PHONY: setup test demo bench bags clean
+.PHONY: setup lint test test-fast demo bench bags docs clean
 
 $(VENV)/.installed: requirements.txt setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -26,8 +26,16 @@ $(CHROMIUM):
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium fonts-dejavu-core >/dev/null; \
 	else echo "make: the HMI browser test needs Debian's chromium: sudo apt-get install chromium fonts-dejavu-core" >&2; fi
 
-test: setup $(CHROMIUM)
+lint: setup
+	$(VENV)/bin/ruff check hydro_ros test launch bench scripts
+
+# every tier: what CI runs
+test: lint $(CHROMIUM)
 	$(PY) -m pytest -q test
+
+# the library tests without a ROS graph, a browser or a long study: the loop while changing code
+test-fast: lint
+	$(PY) -m pytest -q -m "not ros_graph and not browser and not slow" test
 
 demo: setup
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-42} $(VENV)/bin/hydro-ros demo --out out/demo --linger $(HMI_LINGER)
@@ -43,6 +51,9 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/crane_monitoring.py --out bench/crane_monitoring.json
 	$(PY) bench/crane_cpu.py --out bench/crane_cpu.json
 	$(PY) bench/crane_commissioning.py --out bench/crane_commissioning.json
+
+docs: setup
+	$(PY) -m hydro_ros.docgen docs
 
 bags: setup
 	$(PY) scripts/make_sample_bags.py --out bags

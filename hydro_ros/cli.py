@@ -676,11 +676,11 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--config", required=True, help="machine config, e.g. config/sam.yaml")
     sim.add_argument("--duration", type=float, required=True, help="simulated seconds")
     sim.add_argument("--fault", action="append", default=[], metavar="NAME=VALUE@T[:RAMP]",
-                     help="fault switched on at T s, developing linearly over RAMP s (repeatable); on a crane "
-                          "ACTUATOR:NAME=VALUE@T[:RAMP], e.g. lift:external_leakage_a=1.0@20")
+                     help="fault switched on at T s, developing linearly over RAMP s (repeatable); on a machine of several "
+                          "actuators ACTUATOR:NAME=VALUE@T[:RAMP], e.g. lift:external_leakage_a=1.0@20")
     sim.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
-                     help="physical effect present from the start (repeatable); on a crane ACTUATOR:NAME=VALUE, and "
-                          "payload_mass=KG (also as a timed --fault) at the tip")
+                     help="physical effect present from the start (repeatable); on a machine of several actuators "
+                          "ACTUATOR:NAME=VALUE; on a crane payload_mass=KG (also as a timed --fault) at the tip")
     sim.add_argument("--seed", type=int, default=0, help="random seed of operator and sensor noise")
     sim.add_argument("--path", default=None, help="crane only: work this path id's trajectory (forwards, hold, back, hold) in "
                                                 "place of the random operator")

@@ -27,6 +27,9 @@ from hydro_ros.studies.crane_monitoring import CraneCase, commissioning_recordin
 from hydro_ros.studies.fdi_evaluation import mismatched_config
 from test.conftest import K70M
 
+# studies of minutes of simulated data each: make test runs them, make test-fast does not
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def crane_machine():

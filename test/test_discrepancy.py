@@ -16,6 +16,9 @@ from hydro_ros.sim.scenario import Scenario, run_blocks
 from hydro_ros.studies.fdi_evaluation import mismatched_config
 from test.conftest import SAM_CONFIG
 
+# studies of minutes of simulated data each: make test runs them, make test-fast does not
+pytestmark = pytest.mark.slow
+
 PLANT_MISMATCH = 0.4  # of fdi-eval's model mismatch
 SEED = 3
 

@@ -1,4 +1,4 @@
-"""The package's fixed outside face (shared/spec/contract.md): topic names, fault and effect names,
+"""The package's fixed outside face (docs/interface.md): topic names, fault and effect names,
 sample and trajectory types, the typed machine config, and the one error family for bad input."""
 
 from hydro_ros.contract.config import ConfigError, config_dir, default_config_path, read_config, with_overrides

@@ -1,4 +1,4 @@
-"""Fault and effect names of the interface contract (shared/spec/contract.md section 4).
+"""Fault and effect names of the interface contract (docs/interface.md section 4).
 
 One Enum each, so a misspelt name fails at the boundary with a clear message instead of
 silently simulating a healthy machine.

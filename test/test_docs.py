@@ -1,0 +1,30 @@
+"""The documentation stays true: generated reference pages equal what the code generates, the README stays short and
+points only at files that exist, and nothing cites a file outside the repository."""
+
+from __future__ import annotations
+
+import re
+
+from hydro_ros.docgen import PAGES, rendered
+from test.conftest import REPO
+
+
+def test_the_reference_pages_are_what_the_code_generates():
+    for name, generate in PAGES.items():
+        page = REPO / "docs" / name
+        assert page.read_text() == rendered(page, generate), f"{page}: run `make docs`"
+
+
+def test_the_readme_is_short_and_its_links_lead_somewhere():
+    readme = (REPO / "README.md").read_text()
+    assert len(readme.splitlines()) <= 250
+    docs = list((REPO / "docs").rglob("*.md"))
+    for page in [REPO / "README.md", *docs]:
+        for target in re.findall(r"\]\(([^)#:]+)(?:#[^)]*)?\)", page.read_text()):
+            assert (page.parent / target).exists(), f"{page.relative_to(REPO)} links to {target}, which does not exist"
+
+
+def test_nothing_cites_files_the_repository_does_not_ship():
+    for path in [REPO / "README.md", *(REPO / "docs").rglob("*.md"), *(REPO / "hydro_ros").rglob("*.py")]:
+        text = path.read_text()
+        assert "shared/spec" not in text and "shared/seeds" not in text, path.relative_to(REPO)
