@@ -158,7 +158,7 @@ def test_commission_cli_writes_a_config_the_monitor_loads_and_refuses_what_it_ca
 
 def test_live_commissioned_monitor_names_a_leak_the_shipped_threshold_cannot_see(sam_config, commissioned, ros_domain, tmp_path):
     """plant_sim runs the mismatched plant, fdi_node the config commissioned on it; a 0.5 L/min B leak
-    (undetected at the shipped c0: README evaluation) is injected through plant_sim's parameter."""
+    (undetected at the shipped c0: docs/monitoring.md, evaluation) is injected through plant_sim's parameter."""
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient

@@ -2,7 +2,7 @@
 
 A leak injected into the running plant turns the boom's tile WARN with the fault's name; the
 acknowledge button is refused without the operator token and clears the latch with it; a catalog
-entry's Request button reaches the trajectory server's request topic. The screenshot in the README
+entry's Request button reaches the trajectory server's request topic. The screenshot in docs/hmi.md
 is the one this test writes (out/hmi.png).
 """
 

@@ -60,7 +60,7 @@ def test_parity_on_mismatched_plants(mobile, fault, value, isolated):
     if isolated is not None:
         assert outcome.isolated == isolated
     # else: detected only; its pattern is shared with other faults of the table (P-IV: only a
-    # subset of the fault list is isolable; the README's evaluation table gives the rates)
+    # subset of the fault list is isolable; docs/monitoring.md's evaluation table gives the rates)
 
 
 def test_a_pilot_at_tank_read_by_a_transmitter_clipped_at_zero_does_not_shrink_the_opening(mobile):

@@ -80,7 +80,7 @@ def test_halving_the_step_changes_the_result_little(sam_config):
         plant = SamPlant(SamModel(config), initial_joint=-0.3)
         results.append(plant.advance(len(commands), commands=commands)[1])
     coarse, fine = results
-    # stated tolerance (README): 1 kPa on pressures, 1 um on position over a 10 s manoeuvre
+    # stated tolerance (docs/monitoring.md): 1 kPa on pressures, 1 um on position over a 10 s manoeuvre
     assert np.max(np.abs(coarse[:, :2] - fine[:, :2])) < 1e3
     assert np.max(np.abs(coarse[:, 4] - fine[:, 4])) < 1e-6
 
@@ -166,7 +166,7 @@ def test_natural_frequency_matches_hydraulic_spring(sam_config, joint):
 
 def test_natural_frequency_within_seed_maximum_over_the_upper_stroke(sam_config):
     """Seed (L2673): <= 4.5 Hz. sam_nominal's INFERRED hose values meet it for x >= 0.32 m;
-    towards full retraction the small chamber-A volume gives up to 6.4 Hz (README, deviations)."""
+    towards full retraction the small chamber-A volume gives up to 6.4 Hz (docs/reproduction.md)."""
     model = SamModel(sam_config)
     upper = [hydraulic_natural_frequency(model, x) for x in np.linspace(0.32, 0.45, 14)]
     assert max(upper) <= 4.5

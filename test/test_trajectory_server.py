@@ -15,6 +15,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from hydro_ros.contract import topics
 from hydro_ros.models.crane import Crane
 from hydro_ros.nodes.common import HALT_QOS, LATCHED_QOS
+from hydro_ros.nodes.trajectory_server import RESULT_QOS
 from hydro_ros.planning.catalog import build, plan_units
 from hydro_ros.planning.database import TrajectoryDatabase
 from hydro_ros.planning.serving import path_start_state
@@ -53,7 +54,7 @@ def test_server_serves_from_the_clients_joint_state_and_refuses_unknown_paths(ro
     with node_process("hydro_ros.nodes.trajectory_server", "-p", f"database:={db_path}", "-p", f"config:={K70M}",
                       "-p", "output_topic:=/crane/joint_trajectory") as proc, probe_node("client") as node:
         node.create_subscription(String, "/trajectory_server/catalog", lambda m: received["catalog"].append(m), LATCHED_QOS)
-        node.create_subscription(String, "/trajectory_server/result", lambda m: received["result"].append(json.loads(m.data)), LATCHED_QOS)
+        node.create_subscription(String, "/trajectory_server/result", lambda m: received["result"].append(json.loads(m.data)), RESULT_QOS)
         node.create_subscription(JointTrajectory, "/trajectory_server/trajectory", lambda m: received["trajectory"].append(m), LATCHED_QOS)
         # volatile, as a ros2_control controller subscribes (a latched subscription would not match)
         node.create_subscription(JointTrajectory, "/crane/joint_trajectory", lambda m: received["output"].append(m), 10)
@@ -111,6 +112,21 @@ def test_server_serves_from_the_clients_joint_state_and_refuses_unknown_paths(ro
         assert spin_until(node, lambda: len(received["result"]) > count, 10)
         assert received["result"][-1] == {"path": "nowhere", "id": "", "ok": False, "error": received["result"][-1]["error"]}
         assert "not in the database" in received["result"][-1]["error"]
+
+        # a null or a number is refused as a name, never served as 'None' or 'inf'
+        for text, why in (('{"path": null}', "path null"), ('{"path": 1e400}', "path Infinity"), ('{"path": "horizontal", "id": null}', "id null")):
+            count = len(received["result"])
+            requests.publish(String(data=text))
+            assert spin_until(node, lambda: len(received["result"]) > count, 10)
+            assert not received["result"][-1]["ok"] and why in received["result"][-1]["error"], received["result"][-1]
+        # a burst: every request answered (the depth-10 queue answered 14 of 500)
+        count = len(received["result"])
+        burst = node.create_publisher(String, "/trajectory_server/request", 1000)
+        assert spin_until(node, lambda: burst.get_subscription_count() > 0, 10)
+        for k in range(300):
+            burst.publish(String(data=json.dumps({"path": "nowhere", "id": f"b{k}"})))
+        assert spin_until(node, lambda: len(received["result"]) >= count + 300, 60), len(received["result"]) - count
+        assert {r["id"] for r in received["result"][count:]} == {f"b{k}" for k in range(300)}
 
 
 def config_joint_names(config: dict) -> list[str]:

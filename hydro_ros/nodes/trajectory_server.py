@@ -45,6 +45,11 @@ from hydro_ros.planning.problem import METHODS
 from hydro_ros.planning.serving import JointStateSample, Served, ServeError, TrajectoryService
 
 _MAX_REQUEST_CHARS = 256
+REQUEST_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+# results of a burst reach a live requester whole (a writer keeping one would overwrite unacknowledged answers);
+# a late joiner gets the recent ones
+RESULT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _REQUEST_ID = re.compile(r"[A-Za-z0-9_.\-]{0,64}")
 OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
@@ -77,13 +82,14 @@ class TrajectoryServer(Node):
         self.machine = self._machine_of_config()
 
         self.catalog_pub = self.create_publisher(String, "~/catalog", LATCHED_QOS)
-        self.result_pub = self.create_publisher(String, "~/result", LATCHED_QOS)
+        self.result_pub = self.create_publisher(String, "~/result", RESULT_QOS)
         self.trajectory_pub = self.create_publisher(JointTrajectory, "~/trajectory", LATCHED_QOS)
         # volatile, as a ros2_control JointTrajectoryController subscribes: a controller that (re)starts must
         # never receive an old trajectory and move the machine
         self.output_pub = self.create_publisher(JointTrajectory, self.output_topic, OUTPUT_QOS) if self.output_topic else None
         self.served: tuple[str, str, list[str]] | None = None  # (request id, path, joints) of the trajectory last served
-        self.create_subscription(String, "~/request", self._on_request, 10)
+        # every request of a burst is kept and answered (rclpy's depth 10 dropped the rest unanswered)
+        self.create_subscription(String, "~/request", self._on_request, REQUEST_QOS)
         self.create_subscription(JointState, relative(topics.JOINT_STATES), self._on_joint_state, SENSOR_QOS,
                                  qos_overriding_options=QoSOverridingOptions.with_default_policies())
 
@@ -169,12 +175,17 @@ class TrajectoryServer(Node):
             raise ServeError(f"request {text[:40]!r}: not JSON") from None
         if not isinstance(request, dict) or not ("path" in request or "cancel" in request):
             raise ServeError(f"request {text[:40]!r}: JSON without a \"path\" (or \"cancel\")")
-        request_id = str(request.get("id", request.get("cancel", "")))
+        for key in ("path", "method", "id", "cancel"):  # a null or a number is not a name: it is refused, never made one
+            if key in request and not isinstance(request[key], str):
+                raise ServeError(f"request {key} {json.dumps(request[key])[:40]}: expected a string")
+        request_id = request.get("id", request.get("cancel", ""))
         if not _REQUEST_ID.fullmatch(request_id):
             raise ServeError(f"request id {request_id[:40]!r}: expected at most 64 of [A-Za-z0-9_.-]")
         if "cancel" in request:
             return {"cancel": request_id}
-        return {"path": str(request["path"]), "method": str(request.get("method", self.default_method)), "id": request_id}
+        if not request["path"].strip():
+            raise ServeError("request path \"\": expected a path id")
+        return {"path": request["path"], "method": request.get("method", self.default_method), "id": request_id}
 
     def _current_state(self) -> JointStateSample:
         if self.joint_state is None or self.joint_state_time is None:

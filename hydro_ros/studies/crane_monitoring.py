@@ -37,7 +37,7 @@ from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun, simulate_cra
 from hydro_ros.studies.commissioning import Recording
 from hydro_ros.studies.fdi_evaluation import mismatched_config, parallel_map
 
-FLOW_FRACTION = 0.1  # k: the notch coefficients' tolerance the allowance covers: twice MISMATCH's +-5 % (INFERRED; see the README)
+FLOW_FRACTION = 0.1  # k: the notch coefficients' tolerance the allowance covers: twice MISMATCH's +-5 % (INFERRED; see docs/monitoring.md)
 MARGIN = 1.5  # c = margin x the largest held-out factor of the bin (the evaluation's plants are others again)
 FACTOR_FLOOR = 3.0  # [sigma] no bin's c below margin x this, however quiet its held-out data
 PAYLOAD_KG = 300.0  # a log in the grapple (INFERRED, as the SAM's payload steps)
