@@ -50,7 +50,7 @@ def _actuator_injections(args: argparse.Namespace, machine, machine_wide: dict[s
                 if len(machine.actuators) > 1:
                     form = "ACTUATOR:NAME=VALUE@T[:RAMP]" if kind == "fault" else "ACTUATOR:NAME=VALUE"
                     alone = "".join(f"; {name} alone is {where}" for name, where in machine_wide.items())
-                    raise InputError(f"--{kind} {text!r}: on a machine of several actuators a {kind} names its actuator: {form} "
+                    raise InputError(f"--{kind} {text!r}: on a machine of several actuators a {kind} names its cylinder: {form} "
                                      f"(actuators: {', '.join(machine.actuator_names)}{alone})")
                 actuator, spec = machine.first.name, text
             if actuator not in machine.actuator_names:
