@@ -221,3 +221,36 @@ def test_a_crane_log_converts_to_a_bag_of_every_cylinder(tmp_path):
     assert np.allclose(read.compensator_pressure, samples.compensator_pressure[kept], atol=250)
     assert np.allclose(read.joint_position, samples.joint_position[kept], atol=1e-6)
     assert np.allclose(np.diff(read.times), np.diff(samples.times[kept]), atol=1e-6)
+
+
+def test_a_garbage_frame_with_a_valid_checksum_is_caught_by_its_rate_and_a_forward_jump_is_reported(sam_config, tmp_path):
+    """A CYL1_PRESSURE frame of one cycle carries 21.4 MPa (checksum valid, inside the transmitters' range) where its
+    neighbours read ~9: no cylinder changes 12 MPa in 1 ms, so the sample is rejected as an implausible change; a log
+    whose second half is stamped an hour later reports the forward jump as it reports a backward one."""
+    bus = MachineBus(sam_config)
+    actuator, joint = sam_config.first.name, sam_config.first.joint
+    log = tmp_path / "garbage.log"
+    writer = can.Logger(str(log))
+    pressure_id = bus.db.get_message_by_name("CYL1_PRESSURE").frame_id
+    k_total = 0
+    try:
+        for times, _, samples in run_blocks(sam_config, Scenario(2.0, (), seed=4)):
+            for k in range(len(times)):
+                sample = sample_values(samples, k, {actuator: joint})
+                frames = bus.encode_cycle(sample, k_total % 16)
+                if k_total == 700:
+                    garbage = dict(sample, pressure_a={actuator: 21.37e6})
+                    frames = [f if f[0] != pressure_id else next(g for g in bus.encode_cycle(garbage, k_total % 16) if g[0] == pressure_id)
+                              for f in frames]
+                shift = 3600.0 if k_total >= 1000 else 0.0
+                for i, (frame_id, data) in enumerate(frames):
+                    writer.on_message_received(can.Message(timestamp=1.7e9 + shift + times[k] + i * 1e-5, arbitration_id=frame_id,
+                                                           data=data, is_extended_id=False))
+                k_total += 1
+    finally:
+        writer.stop()
+    report = convert_log(log, sam_config, tmp_path / "bag").to_json()
+    assert report["rejected_samples"]["implausible_change"] == 1, report
+    assert report["forward_time_jumps"] == 1 and report["samples"] == 1999
+    data = read_bag(tmp_path / "bag")
+    assert np.max(np.abs(np.diff(data.pressure_a["boom"]))) < 3e6

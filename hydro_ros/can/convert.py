@@ -23,6 +23,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
 
 LOG_SUFFIXES = (".log", ".asc", ".blf")
+FORWARD_JUMP_S = 1.0
 
 
 @dataclass
@@ -35,24 +36,29 @@ class ConversionReport:
     error_frames: int = 0
     out_of_order_cycles: int = 0  # cycles stamped before an earlier one: put back in time order
     rejected_samples: Counter = field(default_factory=Counter)  # complete cycles not written, by reason
+    forward_time_jumps: int = 0  # gaps of more than FORWARD_JUMP_S between two cycles (a clock step, a log spliced)
 
     def to_json(self) -> dict[str, Any]:
         return {"frames": self.frames, "samples": self.cycles, "incomplete_cycles": self.incomplete_cycles,
                 "rejected_frames": dict(self.rejected), "counter_gaps": self.counter_gaps, "error_frames": self.error_frames,
-                "out_of_order_cycles": self.out_of_order_cycles, "rejected_samples": dict(self.rejected_samples)}
+                "out_of_order_cycles": self.out_of_order_cycles, "forward_time_jumps": self.forward_time_jumps,
+                "rejected_samples": dict(self.rejected_samples)}
 
 
 def _kept_in_time_order(stamps: np.ndarray, rows: list[dict[str, Any]], slots: list[Any], machine: Machine,
                         report: ConversionReport) -> np.ndarray:
     """Indices of the cycles to write, in time order: a second cycle at one stamp and a physically
-    impossible reading (a garbage frame whose CRC-8 matched by chance) are rejected and counted."""
+    impossible reading (a garbage frame whose CRC-8 matched by chance: a value outside the sensors' range, or a
+    change from the last kept sample faster than the machine can move) are rejected and counted."""
     report.out_of_order_cycles = int(np.count_nonzero(np.diff(stamps) < 0))
+    report.forward_time_jumps = int(np.count_nonzero(np.diff(stamps) > FORWARD_JUMP_S * 1e9))
     order = np.argsort(stamps, kind="stable")
     duplicate = np.concatenate([[False], np.diff(stamps[order]) == 0])
     report.rejected_samples["duplicate_stamp"] = int(np.count_nonzero(duplicate))
     sensors = machine.sensors
     low, high = sensors.pressure_range
-    keep = []
+    keep: list[int] = []
+    last: tuple[int, list[float], list[float]] | None = None  # the last kept sample: stamp, positions, pressures
     for i in order[~duplicate]:
         row = rows[i]
         positions = [row["joint_position"][slot.joint] for slot in slots]
@@ -64,9 +70,20 @@ def _kept_in_time_order(stamps: np.ndarray, rows: list[dict[str, Any]], slots: l
               or any(abs(v) > sensors.joint_velocity_max for v in velocities)
               or not all(low <= p <= high for p in pressures)):
             report.rejected_samples["implausible"] += 1
+        elif last is not None and _too_fast(last, stamps[i], positions, pressures, sensors):
+            report.rejected_samples["implausible_change"] += 1
         else:
             keep.append(i)
+            last = (int(stamps[i]), positions, pressures)
     return np.asarray(keep, dtype=np.int64)
+
+
+def _too_fast(last: tuple[int, list[float], list[float]], stamp: int, positions: list[float], pressures: list[float],
+              sensors: Any) -> bool:
+    """Whether a sample moved from the last kept one faster than the sensors' limits allow."""
+    dt = max((int(stamp) - last[0]) * 1e-9, 1e-6)
+    return (any(abs(p - q) > sensors.pressure_rate_max * dt for p, q in zip(pressures, last[2]))
+            or any(abs(p - q) > sensors.joint_velocity_max * dt + 2.0 * sensors.encoder_resolution for p, q in zip(positions, last[1])))
 
 
 def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Callable[[int], None] | None = None,

@@ -67,7 +67,7 @@ LOAD = {"boom_mass": _nonnegative("kg", 1.0e6), "boom_length": _positive("m", 10
         "left_mass": _nonnegative("kg", 1.0e6), "right_mass": _nonnegative("kg", 1.0e6), "load_distance": Rule("m", -100.0, 100.0)}
 SENSORS = {"pressure_noise_std": _nonnegative("Pa", 1.0e7), "encoder_resolution": _nonnegative("rad", 0.5),
            "velocity_filter_hz": _positive("Hz", 1.0e4), "joint_velocity_max": _positive("rad/s", 100.0), "frozen_s": _positive("s", 3600.0),
-           "pilot_pressure_noise_std": _nonnegative("Pa", 1.0e7)}
+           "pilot_pressure_noise_std": _nonnegative("Pa", 1.0e7), "pressure_rate_max": _positive("Pa/s")}
 MEMS = {"inclination_resolution": _nonnegative("rad"), "inclination_noise_std": _nonnegative("rad"), "gyro_resolution": _nonnegative("rad/s"),
         "gyro_noise_std": _nonnegative("rad/s"), "gyro_bias": Rule("rad/s", -1.0, 1.0), "k_p": _positive("1/s"), "k_i": _nonnegative("1/s^2")}
 SIMULATION = {"substeps": Rule("", 1.0, 1000.0), "end_stop_lower": _nonnegative("m", 20.0), "end_stop_upper": _positive("m", 20.0),

@@ -238,6 +238,8 @@ class Sensors:
     """[rad/s] a joint rate reading beyond this is implausible"""
     frozen_s: float = 1.0
     """[s] a pressure reading repeating the same value this long, inside its range, is a frozen sensor"""
+    pressure_rate_max: float = 5.0e9
+    """[Pa/s] a pressure changing faster than this between two samples is implausible (a garbage frame, not hydraulics)"""
 
 
 @dataclass(frozen=True)
@@ -395,6 +397,7 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
             joint_range=sensors.numbers("joint_range", 2) if "joint_range" in sensors.node else (-math.pi, math.pi),  # type: ignore[arg-type]
             joint_velocity_max=sensors.number("joint_velocity_max", 5.0),
             frozen_s=sensors.number("frozen_s", 1.0),
+            pressure_rate_max=sensors.number("pressure_rate_max", 5.0e9),
         ),
         simulation=Simulation(
             substeps=int(simulation.number("substeps", 10)),
