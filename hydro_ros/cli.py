@@ -615,6 +615,25 @@ def cmd_machine_new(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fleet_analyse(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hydro_ros.studies.fleet import analyse
+
+    if not args.service_limit > 0:
+        raise InputError(f"--service-limit {args.service_limit}: must be > 0 L/min")
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers {args.workers}: must be >= 1")
+    with tqdm(unit="recording", desc="fleet", disable=args.quiet) as bar:
+        report = analyse(Path(args.dir), Path(args.out), scheduler=args.scheduler, workers=args.workers, limit=args.service_limit,
+                         progress=lambda _: bar.update())
+    flagged = [f"{name}/{actuator}" for name, machine in report["machines"].items() for actuator in machine["flagged"]]
+    print(json.dumps({"fleet": str(Path(args.out) / "fleet.json"), "analysed": report["analysed"],
+                      "already_analysed": report["already_analysed"], "unreadable": len(report["unreadable"]), "flagged": flagged,
+                      "ran_on": report["ran_on"]}))
+    return 0
+
+
 def cmd_params(args: argparse.Namespace) -> int:
     from hydro_ros.nodes.bringup import machine_params
 
@@ -866,6 +885,21 @@ def build_parser() -> argparse.ArgumentParser:
                      help="sam: one boom; boom_arm: several joints, each a cylinder; k70m: a redundant crane (the planner's)")
     new.add_argument("--out", required=True, help="the new config file")
     new.set_defaults(func=cmd_machine_new)
+
+    fleet = sub.add_parser("fleet", help="a fleet's recordings: leak trends per cylinder and when each needs service")
+    fleet_sub = fleet.add_subparsers(dest="fleet_command", required=True)
+    fleet_analyse = fleet_sub.add_parser(
+        "analyse", help="every machine's recordings: alarms, leak estimates, trends, projected service dates",
+        description="DIR holds one folder per machine, named by its id, with its config as machine.yaml and its recordings "
+        "(bag folders or .mcap files) below it. Each recording is analysed once (keyed by its content hash in OUT/fleet.sqlite) "
+        "on local processes or a Dask cluster; OUT/fleet.json, fleet.csv and fleet.html are written from everything analysed.")
+    fleet_analyse.add_argument("dir", help="the fleet folder")
+    fleet_analyse.add_argument("--out", required=True, help="output folder (the store lives here: a rerun analyses only new recordings)")
+    fleet_analyse.add_argument("--scheduler", default=None, help="Dask scheduler address (default: local processes)")
+    fleet_analyse.add_argument("--workers", type=int, default=None, help="local processes (default: one per core)")
+    fleet_analyse.add_argument("--service-limit", type=float, default=0.5, help="[L/min at 10 MPa] a leak that needs service")
+    fleet_analyse.add_argument("--quiet", action="store_true", help="no progress bar")
+    fleet_analyse.set_defaults(func=cmd_fleet_analyse)
 
     params = sub.add_parser("params", help="the commented params file of a machine's bring-up (can_bridge, fdi_node, hmi)",
                             description="Print the ros__parameters of the nodes launch/machine.launch.py starts, every "

@@ -147,7 +147,7 @@ def build(
     skipped = [unit.key for unit in units if stored.get(unit.key) == unit.inputs_hash]
     computed: list[tuple[str, str, str]] = []
     with ExitStack() as stack:
-        executor, name = _executor(stack, scheduler, workers, len(todo))
+        executor, name = work_executor(stack, scheduler, workers, len(todo))
         if executor is None:
             for unit in todo:
                 db.put_solution(compute_entry(unit))
@@ -169,7 +169,9 @@ def build(
     return BuildReport(computed, skipped, time.perf_counter() - began, name)
 
 
-def _executor(stack: ExitStack, scheduler: str | None, workers: int | None, n_units: int) -> tuple[Executor | None, str]:
+def work_executor(stack: ExitStack, scheduler: str | None, workers: int | None, n_units: int) -> tuple[Executor | None, str]:
+    """Where independent units of work run: the Dask cluster at ``scheduler``, else ``workers`` local processes (default
+    one per core), else this process (None) for one unit or one worker; and its name for the report."""
     if scheduler:
         distributed = optional_module("distributed")
         try:

@@ -1,0 +1,105 @@
+"""A small fleet of boom-and-arm machines, each differing from its config (its own mismatch) and working with payload
+steps and sensor noise, a month of recordings each: one machine's arm leaks more in every later recording. The fleet
+analysis flags that cylinder with a rising trend and an estimate near the truth, flags nothing else, reports a damaged
+recording without stopping, analyses nothing new on a rerun, and gives the same results on a Dask LocalCluster."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from hydro_ros.bags.writer import ContractBagWriter
+from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.contract.names import Injection
+from hydro_ros.sim.scenario import MachineRun
+from hydro_ros.studies.commissioning import commission, load_recordings, write_config
+from hydro_ros.studies.fdi_evaluation import mismatched_config
+from hydro_ros.studies.fleet import analyse
+from test.conftest import REPO
+
+pytestmark = pytest.mark.slow
+
+DAY_S = 86400.0
+EPOCH_S = 1.75e9  # recordings stamped in wall time, as a recorder does
+ARM_LEAK = (0.1, 0.3, 0.5, 0.7)  # [L/min at 10 MPa] machine m2's arm, one recording every ten days
+
+
+def write_recording(plant, path: Path, start_s: float, injections: dict, seed: int, seconds: float = 60.0) -> None:
+    with ContractBagWriter(path, actuators={a.name: a.joint for a in plant.actuators}, pressure_variance=plant.sensors.pressure_noise_std ** 2,
+                           mobile=plant.mobile) as writer:
+        for _, block in MachineRun(plant, injections, seed).blocks(seconds):
+            writer.write_machine_block(replace(block, times=block.times + start_s))
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("fleet")
+    config = REPO / "config" / "boom_arm.yaml"
+    commissioning = tmp_path_factory.mktemp("commissioning")
+    for index, name in enumerate(("m1", "m2", "m3")):
+        folder = root / name
+        (folder / "2026-11").mkdir(parents=True)
+        machine = load_machine_config(config)
+        plant = mismatched_config(machine, seed=40 + index)
+        # each machine commissioned on a fault-free recording of its own, as it left the factory
+        write_recording(plant, commissioning / name, 0.0, {}, seed=900 + index, seconds=150.0)
+        block, _ = commission(machine, load_recordings([commissioning / name], machine))
+        write_config(config, folder / "machine.yaml", block)
+        for k in range(len(ARM_LEAK)):
+            injections = {"boom": [Injection("payload_mass", 150.0, 30.0)]}  # a payload gripped half-way
+            if name == "m2":
+                injections["arm"] = [Injection("external_leakage_b", ARM_LEAK[k], 0.0)]
+            write_recording(plant, folder / "2026-11" / f"run{k}", EPOCH_S + k * 10 * DAY_S, injections, seed=100 * index + k)
+    damaged = root / "m3" / "2026-11" / "broken.mcap"
+    damaged.write_bytes(b"\x89MCAP0\r\n" + bytes(range(256)) * 40)
+    return root
+
+
+def test_a_growing_leak_is_flagged_on_its_cylinder_and_dated_and_a_rerun_analyses_nothing_new(fleet, tmp_path):
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "fleet", "analyse", str(fleet), "--out", str(out), "--workers", "2",
+                           "--quiet"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["analysed"] == 13 and summary["unreadable"] == 1 and summary["flagged"] == ["m2/arm"], summary
+    report = json.loads((out / "fleet.json").read_text())
+    arm = report["machines"]["m2"]["actuators"]["arm"]
+    assert arm["flagged"] == ["b"] and arm["trend"]["b"]["growing"]
+    latest = arm["recordings"][-1]
+    assert latest["leak_l_min"]["b"] == pytest.approx(ARM_LEAK[-1], abs=0.1), latest
+    assert latest["alarm"] is not None and latest["alarm"]["fault"] == "external_leakage_b"
+    per_day = arm["trend"]["b"]["slope_l_min_per_day"]
+    assert per_day == pytest.approx(0.02, abs=0.01)  # 0.2 L/min every ten days
+    assert arm["service_by_unix_s"] is not None and arm["service_by_unix_s"] <= latest["start_unix_s"] + 1.0  # already above 0.5
+    for name in ("m1", "m3"):
+        assert report["machines"][name]["flagged"] == []
+    assert "broken.mcap" in report["unreadable"][0]["bag"] and report["unreadable"][0]["error"]
+    assert (out / "fleet.csv").read_text().count("\n") == 1 + 12 * 2
+    assert "m2: arm" in (out / "fleet.html").read_text()
+
+    again = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "fleet", "analyse", str(fleet), "--out", str(out), "--quiet"],
+                           capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0 and json.loads(again.stdout)["analysed"] == 0, again.stdout + again.stderr
+    assert json.loads((out / "fleet.json").read_text())["machines"] == report["machines"]
+
+
+def test_the_same_results_on_a_dask_cluster(fleet, tmp_path):
+    from distributed import LocalCluster
+
+    local = analyse(fleet, tmp_path / "local", workers=1)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        dask = analyse(fleet, tmp_path / "dask", scheduler=cluster.scheduler_address)
+    assert dask["ran_on"].startswith("Dask") and dask["analysed"] == 13
+    for name, machine in local["machines"].items():
+        assert dask["machines"][name]["flagged"] == machine["flagged"]
+        for actuator, entry in machine["actuators"].items():
+            other = dask["machines"][name]["actuators"][actuator]
+            for mine, theirs in zip(entry["recordings"], other["recordings"]):
+                assert mine["alarm"] == theirs["alarm"] and mine["start_unix_s"] == theirs["start_unix_s"]
+                for leak, value in mine["leak_l_min"].items():  # another process's BLAS may round the last digits otherwise
+                    assert theirs["leak_l_min"][leak] == pytest.approx(value, abs=1e-9)
