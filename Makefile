@@ -51,6 +51,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/crane_monitoring.py --out bench/crane_monitoring.json
 	$(PY) bench/crane_cpu.py --out bench/crane_cpu.json
 	$(PY) bench/crane_commissioning.py --out bench/crane_commissioning.json
+	$(PY) bench/fleet.py --out bench/fleet.json
 
 docs: setup
 	$(PY) -m hydro_ros.docgen docs
