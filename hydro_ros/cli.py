@@ -345,6 +345,11 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
 
     machine = _one_actuator(load_machine_config(args.config), args.actuator, "discrepancy")
     data = read_bag(args.bag)
+    if not data.complete and not args.partial_ok:
+        raise InputError(f"bag {args.bag}: {data.errors[0]} ({len(data.errors)} problem(s)); an effect named from part of a "
+                         "recording can be wrong: repair the bag, or name effects from what is intact with --partial-ok")
+    for error in data.errors:
+        print(f"hydro-ros discrepancy: warning: {error}", file=sys.stderr)
     out = Path(args.out)
     with tqdm(total=progress_steps(), unit="fit", desc="discrepancy", disable=args.quiet) as bar:
         report = run(data, machine, out, progress=bar.update)
@@ -777,6 +782,8 @@ def build_parser() -> argparse.ArgumentParser:
     disc.add_argument("--config", required=True, help="the model's machine config")
     disc.add_argument("--out", required=True, help="directory for report.json, model.yaml and plots")
     disc.add_argument("--actuator", default=None, help="the cylinder to compare, on a machine of several")
+    disc.add_argument("--partial-ok", action="store_true", help="go on with what is intact of a damaged or incomplete bag "
+                      "(refused by default: an effect named from part of a recording can be wrong)")
     disc.add_argument("--quiet", action="store_true", help="no progress bar")
     disc.set_defaults(func=cmd_discrepancy)
 

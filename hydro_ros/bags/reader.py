@@ -99,8 +99,11 @@ def mcap_files(path: Path, errors: list[str] | None = None) -> list[Path]:
     present = sorted([*path.glob("*.mcap"), *path.glob("*/*.mcap")], key=_natural)
     if not present:
         raise BagError(f"bag {path}: no .mcap file in the directory (only MCAP storage is supported)")
-    listed = [path / name for name in _metadata(path).get("relative_file_paths") or [] if str(name).endswith(".mcap")]
+    meta = _metadata(path)
+    listed = [path / name for name in meta.get("relative_file_paths") or [] if str(name).endswith(".mcap")]
     if errors is not None:
+        if (path / "metadata.yaml").exists() and not meta:
+            errors.append(f"{path / 'metadata.yaml'}: not a rosbag2 metadata mapping; the .mcap files are read without it")
         errors += [f"{file}: listed in metadata.yaml but missing" for file in listed if not file.is_file()]
     ordered = [file for file in listed if file.is_file()]
     return ordered + [file for file in present if file not in ordered]

@@ -51,6 +51,7 @@ class BagPlayer(Node):
         for error in self.errors:
             self.get_logger().error(error)
         self.publishers_by_topic: dict[str, object] = {}
+        self.skipped_topics: list[str] = []
         self.clock_pub = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.params["publish_clock"] else None
         self.finished = False
         self.published = 0
@@ -84,10 +85,18 @@ class BagPlayer(Node):
         self._delay = 0.0
 
     def _publisher(self, topic: str, type_name: str):
-        pub = self.publishers_by_topic.get(topic)
-        if pub is None:
+        """The topic's publisher; None (with one warning) for a type this machine has no package for, or a record too
+        damaged to name one: its messages are skipped and the rest plays, as ros2 bag play does."""
+        if topic in self.publishers_by_topic:
+            return self.publishers_by_topic[topic]
+        try:
             pub = self.create_publisher(message_class(type_name), relative(topic), SENSOR_QOS)
-            self.publishers_by_topic[topic] = pub
+        except (ImportError, AttributeError, ValueError) as exc:
+            self.get_logger().warning(f"{topic}: message type {type_name!r} cannot be played here ({type(exc).__name__}: {exc}); "
+                                      "its messages are skipped")
+            self.skipped_topics.append(topic)
+            pub = None
+        self.publishers_by_topic[topic] = pub
         return pub
 
     def _tick(self) -> None:
@@ -100,8 +109,10 @@ class BagPlayer(Node):
         last = None
         while self._next is not None and self._next[2] <= play_until:
             topic, type_name, log_time, data = self._next
-            self._publisher(topic, type_name).publish(data)
-            self.published += 1
+            publisher = self._publisher(topic, type_name)
+            if publisher is not None:
+                publisher.publish(data)
+                self.published += 1
             last = log_time
             self._next = next(self._stream, None)
         if last is not None and self.clock_pub is not None:

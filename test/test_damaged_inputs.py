@@ -1,0 +1,92 @@
+"""Damaged and foreign bags: every reader says what it skipped in one line and goes on with what is intact, or refuses
+by name where going on could mislead; never a traceback."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from mcap.reader import make_reader
+from mcap.writer import Writer
+from sensor_msgs.msg import JointState
+
+from hydro_ros.nodes.common import SENSOR_QOS
+from test.conftest import SAM_CONFIG
+from test.ros_graph import probe_node, spin_until
+
+CLI = [sys.executable, "-m", "hydro_ros.cli"]
+
+
+@pytest.fixture(scope="module")
+def short_bag(tmp_path_factory) -> Path:
+    bag = tmp_path_factory.mktemp("damaged") / "short"
+    made = subprocess.run([*CLI, "sim", "--config", str(SAM_CONFIG), "--duration", "3", "--out", str(bag), "--quiet"],
+                          capture_output=True, text=True, timeout=120)
+    assert made.returncode == 0, made.stderr
+    return bag
+
+
+def _metadata(bag: Path) -> dict:
+    return yaml.safe_load((bag / "metadata.yaml").read_text())
+
+
+def test_discrepancy_refuses_a_bag_with_a_missing_part_unless_told_to_go_on(short_bag, tmp_path):
+    bag = tmp_path / "split"
+    shutil.copytree(short_bag, bag)
+    meta = _metadata(bag)
+    meta["rosbag2_bagfile_information"]["relative_file_paths"].append("split_1.mcap")  # a part that never arrived
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    refused = subprocess.run([*CLI, "discrepancy", "--bag", str(bag), "--config", str(SAM_CONFIG), "--out", str(tmp_path / "out"),
+                              "--quiet"], capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 1 and "Traceback" not in refused.stderr
+    assert len(refused.stderr.strip().splitlines()) == 1 and "split_1.mcap" in refused.stderr and "--partial-ok" in refused.stderr
+
+
+def _with_foreign_topic(source: Path, target: Path) -> Path:
+    """A copy of a bag with one more topic whose message package no machine here has (rosbag2's own test_msgs)."""
+    target.mkdir()
+    mcap = next(source.glob("*.mcap"))
+    with mcap.open("rb") as stream:
+        messages = list(make_reader(stream).iter_messages())
+    with (target / mcap.name).open("wb") as out:
+        writer = Writer(out)
+        writer.start("ros2", "test")
+        ids: dict[int, int] = {}
+        foreign = writer.register_channel("/test_topic", "cdr", writer.register_schema("test_msgs/msg/BasicTypes", "ros2msg", b"bool bool_value"))
+        for schema, channel, message in messages:
+            if channel.id not in ids:
+                ids[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                          writer.register_schema(schema.name, schema.encoding, schema.data))
+            writer.add_message(ids[channel.id], message.log_time, message.data, message.publish_time)
+            writer.add_message(foreign, message.log_time, b"\x00\x01\x00\x00\x01", message.publish_time)
+        writer.finish()
+    meta = _metadata(source)
+    meta["rosbag2_bagfile_information"]["topics_with_message_count"].append(
+        {"topic_metadata": {"name": "/test_topic", "type": "test_msgs/msg/BasicTypes", "serialization_format": "cdr"}, "message_count": 1})
+    (target / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    return target
+
+
+def test_replay_skips_a_topic_whose_type_is_not_installed_and_plays_the_rest(short_bag, tmp_path, ros_domain):
+    bag = _with_foreign_topic(short_bag, tmp_path / "foreign")
+    joint_states: list[JointState] = []
+    with probe_node("probe") as node:
+        node.create_subscription(JointState, "/joint_states", joint_states.append, SENSOR_QOS)
+        player = subprocess.Popen([*CLI, "replay", str(bag), "--rate", "0.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert spin_until(node, lambda: len(joint_states) > 100, 30), "nothing played"
+        _, stderr = player.communicate(timeout=60)
+    assert player.returncode == 0, stderr
+    assert "Traceback" not in stderr and stderr.count("test_msgs/msg/BasicTypes") == 1 and "skipped" in stderr
+
+
+def test_replay_of_a_bag_whose_metadata_is_not_a_mapping_says_so_and_fails(short_bag, tmp_path, ros_domain):
+    bag = tmp_path / "listmeta"
+    shutil.copytree(short_bag, bag)
+    (bag / "metadata.yaml").write_text("- just\n- a list\n")
+    played = subprocess.run([*CLI, "replay", str(bag), "--rate", "20"], capture_output=True, text=True, timeout=120)
+    assert played.returncode == 1 and "Traceback" not in played.stderr
+    assert "not a rosbag2 metadata mapping" in played.stderr
