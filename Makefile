@@ -52,6 +52,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/crane_cpu.py --out bench/crane_cpu.json
 	$(PY) bench/crane_commissioning.py --out bench/crane_commissioning.json
 	$(PY) bench/fleet.py --out bench/fleet.json
+	$(PY) bench/mems.py --out bench/mems.json
 
 docs: setup
 	$(PY) -m hydro_ros.docgen docs

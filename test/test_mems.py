@@ -48,3 +48,17 @@ def test_mems_monitor_detects_leaks_and_stays_quiet_without(fault, value):
     outcome = run_case(load_machine_config(MEMS_CONFIG), Case(fault, value, seed=7, duration_s=50.0, mismatch=0.0))
     assert not outcome.early_alarm
     assert outcome.isolated == fault
+
+
+@pytest.mark.slow
+def test_p3_tables_the_mems_residuals_exceed_the_encoders_and_both_find_the_leaks():
+    """P-III Table I's finding on plants that differ from the model: the MEMS sensor's fault-free residuals are larger
+    than the encoder's in both chambers; both sensors detect P-III's two leaks (bench/mems.py has the tables)."""
+    from hydro_ros.studies.mems import tables
+
+    result = tables(seeds=3)
+    for residual in ("pA", "pB"):
+        assert result["table_1"]["mems"][residual] > result["table_1"]["encoder"][residual], result["table_1"]
+    for fault, delays in result["delays_s"].items():
+        for sensor in ("encoder", "mems"):
+            assert delays[sensor]["detected"] >= 2 and delays[sensor]["early"] == 0, (fault, sensor, delays)
