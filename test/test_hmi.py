@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 from aiohttp.test_utils import TestClient, TestServer
 
-from hydro_ros.hmi.server import GUARD_KEY, MAX_BODY_BYTES, TOKEN_FAILURES, TOKEN_WINDOW_S, create_app
+from hydro_ros.hmi.server import GLOBAL_TOKEN_FAILURES, GUARD_KEY, MAX_BODY_BYTES, TOKEN_FAILURES, TOKEN_WINDOW_S, create_app
 from hydro_ros.hmi.state import MAX_ACTIONS, MAX_DETAIL_CHARS, MAX_REFUSALS, HmiState, StatusReport
 
 TOKEN = "s3cret-operator-token"
@@ -259,19 +259,53 @@ def test_refused_requests_cannot_flood_the_page_or_flush_the_operator_log():
     assert max(len(line) for line in log) < 300
 
 
-def test_token_guesses_are_rate_limited_per_client():
+def test_token_guesses_are_slowed_from_any_address_and_the_right_token_always_gets_in():
+    """Past TOKEN_FAILURES wrong tokens a client's checks wait, one at a time; a guesser rotating its source addresses
+    slows every check once GLOBAL_TOKEN_FAILURES have failed; the right token is accepted throughout."""
     async def check(client, _state):
+        guard = client.app[GUARD_KEY]
+        guard.tarpit_s = 0.05
         for _ in range(TOKEN_FAILURES):
             assert (await client.post("/api/acknowledge", json={}, headers=_bearer("guess"))).status == 401
-        limited = await client.post("/api/acknowledge", json={}, headers=_bearer(TOKEN))  # even the right token waits
-        assert limited.status == 429 and "try again" in (await limited.json())["error"]
-        guard = client.app[GUARD_KEY]
-        assert guard.counts["token_failures"] == TOKEN_FAILURES and guard.counts["rate_limited"] == 1
-        guard.clock = lambda: time.monotonic() + TOKEN_WINDOW_S + 0.1  # the window has passed
+        began = time.monotonic()
+        assert (await client.post("/api/acknowledge", json={}, headers=_bearer(TOKEN))).status == 200  # slowed, never refused
+        assert time.monotonic() - began >= guard.tarpit_s and guard.counts["rate_limited"] == 1
+        guard.clock = lambda: time.monotonic() + TOKEN_WINDOW_S + 0.1  # the window has passed: at full speed again
+        assert guard.wait_s("127.0.0.1") == 0.0
+        guard.clock = time.monotonic
+        for k in range(GLOBAL_TOKEN_FAILURES):  # as many guesses, each from another address
+            guard.failed(f"127.0.{k // 250}.{k % 250 + 1}")
+        assert guard.guessed() and guard.wait_s("127.9.9.9") == 0.0
+        began = time.monotonic()
+        answers = await asyncio.gather(*(client.post("/api/acknowledge", json={}, headers=_bearer("guess")) for _ in range(8)))
+        assert all(a.status == 401 for a in answers)
+        assert time.monotonic() - began >= 8 * guard.tarpit_s  # one check at a time: the guess rate is bounded
         assert (await client.post("/api/acknowledge", json={}, headers=_bearer(TOKEN))).status == 200
 
     actions, _, _ = _serve(TOKEN, check)
-    assert actions.calls == [("acknowledge",)]
+    assert actions.calls == [("acknowledge",), ("acknowledge",)]
+
+
+def test_malformed_requests_are_logged_once_per_interval_without_a_traceback():
+    import logging
+
+    from hydro_ros.hmi.server import QUIET_LOG_S, QuietBadRequests
+
+    now = [0.0]
+    quiet = QuietBadRequests(clock=lambda: now[0])
+    records = []
+    for k in range(100):
+        try:
+            raise ValueError("Invalid header value char")
+        except ValueError:
+            import sys
+
+            record = logging.LogRecord("aiohttp.server", logging.ERROR, __file__, 1, "Error handling request", (), sys.exc_info())
+        now[0] = k * QUIET_LOG_S / 50
+        if quiet.filter(record):
+            records.append(record)
+    assert len(records) == 2 and all(r.exc_info is None for r in records)
+    assert "ValueError" in records[0].getMessage() and "49 more" in records[1].getMessage()
 
 
 def test_the_alarm_log_is_served_paged_and_read_only(tmp_path):

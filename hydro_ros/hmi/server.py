@@ -12,8 +12,12 @@ Security by default, because the page can reach a machine that moves:
   hostile site whose DNS name is re-bound to this address cannot read the machine's state;
 - what a request without the token can put on the page or in the log is clipped and printable, and
   kept apart from the operator's actions (bounded, repeats counted, never pushing actions out);
-- failed token attempts are rate limited per client (``TOKEN_FAILURES`` in ``TOKEN_WINDOW_S``, then
-  429 until the window has passed), and every refusal is counted for the node's /diagnostics.
+- failed token attempts slow the checks down: past ``TOKEN_FAILURES`` wrong tokens in ``TOKEN_WINDOW_S`` from one
+  address, or ``GLOBAL_TOKEN_FAILURES`` from all of them (a guesser rotating its source addresses), every check waits
+  ``TARPIT_S`` and they run one at a time, so the server answers at most one guess per ``TARPIT_S`` from anywhere;
+  the right token is still checked and accepted, never refused, so a guesser cannot lock the operator out; every
+  refusal is counted for the node's /diagnostics, and malformed requests the HTTP parser rejects are logged once per
+  ``QUIET_LOG_S`` with their count, never a traceback each.
 Binding to localhost is the node's default (parameter ``host``).
 """
 
@@ -23,6 +27,8 @@ import asyncio
 import collections
 import hmac
 import json
+import logging
+import math
 import re
 import time
 from dataclasses import dataclass, field
@@ -49,8 +55,11 @@ SECURITY_HEADERS = {
 }
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 ALARM_PAGE_MAX = 100
-TOKEN_FAILURES = 5  # wrong tokens a client may send per window before it is refused without a check
+TOKEN_FAILURES = 5  # wrong tokens an address may send per window before its checks are slowed
+GLOBAL_TOKEN_FAILURES = 20  # ... and from all addresses together
 TOKEN_WINDOW_S = 10.0
+TARPIT_S = 1.0  # [s] each token check waits this long, one at a time, while the server is being guessed
+QUIET_LOG_S = 60.0
 STATIC_DIR = Path(str(resources.files("hydro_ros.hmi") / "static"))
 STATE_KEY = web.AppKey("state", HmiState)
 SETTINGS_KEY = web.AppKey("settings", dict)
@@ -63,7 +72,10 @@ class Guard:
     allowed_hosts: frozenset[str]
     counts: collections.Counter = field(default_factory=collections.Counter)
     failures: dict[str, collections.deque] = field(default_factory=dict)
+    recent: collections.deque = field(default_factory=lambda: collections.deque(maxlen=GLOBAL_TOKEN_FAILURES))
     clock: Callable[[], float] = time.monotonic
+    tarpit_s: float = TARPIT_S
+    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
 
     def host_allowed(self, host_header: str) -> bool:
         if host_header.startswith("["):  # [::1]:8080
@@ -84,14 +96,44 @@ class Guard:
             return 0.0
         return TOKEN_WINDOW_S - (self.clock() - recent[0]) if len(recent) >= TOKEN_FAILURES else 0.0
 
+    def guessed(self) -> bool:
+        """Whether the server as a whole is being guessed at (GLOBAL_TOKEN_FAILURES within the window)."""
+        return len(self.recent) >= GLOBAL_TOKEN_FAILURES and self.clock() - self.recent[0] <= TOKEN_WINDOW_S
+
     def failed(self, client: str) -> None:
         if len(self.failures) > 10_000:  # a flood of fresh addresses must not grow the memory without bound
             self.failures.clear()
         self.failures.setdefault(client, collections.deque(maxlen=TOKEN_FAILURES)).append(self.clock())
+        self.recent.append(self.clock())
         self.counts["token_failures"] += 1
 
 
 GUARD_KEY = web.AppKey("guard", Guard)
+
+
+class QuietBadRequests(logging.Filter):
+    """aiohttp logs each request its parser rejects (control characters in a header) with a traceback: a flood of them
+    would fill the node's log. One line per QUIET_LOG_S with the count instead."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        super().__init__()
+        self.clock = clock
+        self.since = -math.inf
+        self.dropped = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < logging.ERROR and not record.exc_info:
+            return True
+        now = self.clock()
+        if now - self.since < QUIET_LOG_S:
+            self.dropped += 1
+            return False
+        error = record.exc_info[1] if record.exc_info else None
+        record.msg = (f"malformed request refused ({type(error).__name__ if error else record.getMessage()[:80]}); "
+                      f"{self.dropped} more since the last such line")
+        record.args, record.exc_info, record.exc_text = (), None, None
+        self.since, self.dropped = now, 0
+        return True
 
 
 class OperatorActions(Protocol):
@@ -259,15 +301,18 @@ async def _authorised_body(request: web.Request, action: str) -> tuple[dict[str,
     if not settings["token"]:
         raise refuse(web.HTTPForbidden, "read-only HMI: no operator token is configured (parameter operator_token or "
                                         "HYDRO_ROS_HMI_TOKEN)")
-    wait = guard.wait_s(client)
-    if wait > 0:
-        guard.counts["rate_limited"] += 1
-        raise refuse(web.HTTPTooManyRequests, f"{TOKEN_FAILURES} wrong tokens within {TOKEN_WINDOW_S:g} s: "
-                                              f"try again in {wait:.0f} s")
     supplied = request.headers.get("Authorization", "")
     if not supplied.startswith("Bearer ") or not supplied[len("Bearer "):]:
         raise refuse(web.HTTPUnauthorized, "operator token required")
-    if not hmac.compare_digest(supplied[len("Bearer "):].encode(), settings["token"].encode()):
+    if guard.wait_s(client) > 0 or guard.guessed():
+        # slowed, not refused: one check per tarpit_s from anywhere, and the right token still gets in
+        guard.counts["rate_limited"] += 1
+        async with guard.lock:
+            await asyncio.sleep(guard.tarpit_s)
+            right = hmac.compare_digest(supplied[len("Bearer "):].encode(), settings["token"].encode())
+    else:
+        right = hmac.compare_digest(supplied[len("Bearer "):].encode(), settings["token"].encode())
+    if not right:
         guard.failed(client)
         raise refuse(web.HTTPUnauthorized, "operator token rejected")
     refuse = _refuser(request, action)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import json
+import logging
 import os
 import threading
 from pathlib import Path
@@ -34,7 +35,7 @@ from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path, read_config
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.hmi.server import GUARD_KEY, create_app
+from hydro_ros.hmi.server import GUARD_KEY, QuietBadRequests, create_app
 from hydro_ros.hmi.state import HmiState, StatusReport
 from hydro_ros.nodes.common import LATCHED_QOS, LATEST_ONLY_QOS, namespaced_statuses, own_statuses, relative, run_node
 from hydro_ros.nodes.foxglove_live import FoxgloveLive
@@ -48,6 +49,7 @@ class WebServerThread:
 
     def __init__(self, app: web.Application, host: str, port: int) -> None:
         self.loop = asyncio.new_event_loop()
+        logging.getLogger("aiohttp.server").addFilter(QuietBadRequests())
         self.runner = web.AppRunner(app, access_log=None, handle_signals=False)
         self.loop.run_until_complete(self.runner.setup())
         site = web.TCPSite(self.runner, host, port)
@@ -177,7 +179,9 @@ class HmiNode(Node):
     def _publish_diagnostics(self) -> None:
         counts = dict(self.guard.counts)
         limited = sum(1 for client in list(self.guard.failures) if self.guard.wait_s(client) > 0)
-        level, message = (WARN, f"token guesses rate limited from {limited} client(s)") if limited else (OK, "ok")
+        guessed = self.guard.guessed()
+        level, message = ((WARN, "token guesses from many addresses: every check slowed" if guessed else
+                           f"token guesses slowed from {limited} client(s)") if limited or guessed else (OK, "ok"))
         values = {"url": self.url, **{key: str(counts.get(key, 0)) for key in REFUSAL_COUNTS}, "clients_rate_limited": str(limited),
                   "foxglove_port": str(self.foxglove.port) if self.foxglove else "off",
                   "foxglove_forwarded": str(self.foxglove.forwarded) if self.foxglove else "0"}
