@@ -124,6 +124,7 @@ def test_commissioning_refuses_a_leaking_machine_and_a_recording_without_retract
         identify(SamModel(sam_config), flow_regression(SamModel(sam_config), samples), "extending only")
 
 
+@pytest.mark.slow
 def test_commission_cli_writes_a_config_the_monitor_loads_and_refuses_what_it_cannot_fit(sam_config, tmp_path):
     plant, _, _ = _plant(sam_config)
     plant_config = tmp_path / "plant.yaml"

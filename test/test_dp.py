@@ -191,6 +191,7 @@ def test_direct_collocation_converges_near_the_dp_optimum() -> None:
     assert direct.evaluation["cp_energy_J"] == pytest.approx(dp.evaluation["cp_energy_J"], rel=0.01)
 
 
+@pytest.mark.slow
 def test_dp_compare_cli_ranks_the_methods_like_the_papers(tmp_path) -> None:
     out = tmp_path / "compare.json"
     code = main(["dp", "compare", "--config", str(default_config_path("k70m")), "--path", "horizontal",

@@ -12,6 +12,9 @@ import pytest
 from hydro_ros.studies.gsa import LEAKS, PARAMETERS, TIMES, run_once, sobol_indices
 from test.conftest import SAM_CONFIG
 
+# Sobol' sampling of the SAM model: tens of seconds; make test runs it, make test-fast does not
+pytestmark = pytest.mark.slow
+
 NOTCH = ("q_n_pa", "dp_n_pa", "q_n_bt", "dp_n_bt")
 
 
