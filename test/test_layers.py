@@ -22,6 +22,7 @@ LAYER = {
     "nodes": 6,
     "demo": 7,
     "cli": 8,
+    "docgen": 9,  # documents the nodes' tables and the CLI's parser
 }
 SCIENCE = {"contract", "bags", "can", "models", "sim", "fdi", "planning", "studies", "hmi"}
 ROS_MODULES = ("rclpy", "rosidl", "rmw", "std_msgs", "sensor_msgs", "diagnostic_msgs", "trajectory_msgs", "std_srvs",

@@ -62,7 +62,7 @@ MOBILE_VALVE = {"compensator_pressure_drop": Rule("Pa", 1.0e4, 1.0e7), "pilot_pr
 FLUID = {"oil_bulk_modulus": Rule("Pa", 1.0e7, 1.0e10, hint="SI: 1.4 GPa is 1.4e+9"), "hose_bulk_modulus": Rule("Pa", 1.0e6, 1.0e11),
          "hose_volume": _nonnegative("m^3", 0.1)}
 FRICTION = {"viscous": _nonnegative("N s/m"), "static": _nonnegative("N"), "coulomb": _nonnegative("N"),
-            "stribeck_velocity": _positive("m/s", 10.0), "bristle_stiffness": _positive("N/m")}
+            "stribeck_velocity": _positive("m/s", 10.0), "bristle_stiffness": _nonnegative("N/m")}
 LOAD = {"boom_mass": _nonnegative("kg", 1.0e6), "boom_length": _positive("m", 100.0), "boom_cog_distance": Rule("m", -100.0, 100.0),
         "left_mass": _nonnegative("kg", 1.0e6), "right_mass": _nonnegative("kg", 1.0e6), "load_distance": Rule("m", -100.0, 100.0)}
 SENSORS = {"pressure_noise_std": _nonnegative("Pa", 1.0e7), "encoder_resolution": _nonnegative("rad", 0.5),

@@ -402,9 +402,9 @@ def load_crane(path: str | Path) -> tuple[Crane, dict[str, Any]]:
     config["_path"] = str(Path(path).resolve())  # error messages of the crane's parts name their file
     if config.get("kind") != "crane":
         joints = len(config.get("actuators") or {})
-        raise ConfigError(f"config {path}: the planner needs one redundant degree of freedom along a planar tip path: a lift, a "
-                          f"tilt and a telescope (a kind: crane config with links, joints and paths, as k70m.yaml); this machine "
-                          f"has {joints} joint(s) and no crane description"
+        raise ConfigError(f"config {path}: not a crane config (kind: crane): the planner needs one redundant degree of freedom "
+                          f"along a planar tip path (a lift, a tilt and a telescope, with links, joints and paths as in k70m.yaml); "
+                          f"this machine has {joints} joint(s) and no crane description"
                           + ("; a planar tip path fixes two joints, so it has nothing to optimise" if joints <= 2 else ""))
     missing = [key for key in _REQUIRED_KEYS if not config.get(key)]
     if missing:
