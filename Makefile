@@ -53,6 +53,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/crane_commissioning.py --out bench/crane_commissioning.json
 	$(PY) bench/fleet.py --out bench/fleet.json
 	$(PY) bench/mems.py --out bench/mems.json
+	$(PY) bench/savings_map.py --out bench/savings_map.json
 
 docs: setup
 	$(PY) -m hydro_ros.docgen docs

@@ -222,3 +222,17 @@ def test_dp_solve_cli_writes_a_joint_trajectory_and_rejects_bad_input(tmp_path, 
     assert "path 'square': not in config crane3dof (known: triangle)" in capsys.readouterr().err
     assert main(["dp", "solve", "--config", str(default_config_path("sam")), "--path", "triangle", "--cost", "cp", "--json", str(out)]) == 1
     assert "not a crane config" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_savings_map_finds_the_telescope_paying_on_a_horizontal_line_and_not_on_a_vertical_one_at_the_tilt_limit():
+    """P-VI's paths moved across the K70M's workspace: on the horizontal line the DP saves more than 10 % over the better
+    pseudo-inverse, on the vertical line at x 3.5 m, where the tilt limit decides the motion, nothing (bench/savings_map)."""
+    from hydro_ros.contract.config import default_config_path
+    from hydro_ros.models.crane import load_crane
+    from hydro_ros.studies.savings_map import line_paths, savings
+
+    crane, config = load_crane(default_config_path("k70m"))
+    rows = {row["path"]: row for row in savings(crane, config, line_paths([3.5], [0.5], [1.5], [3.0]))}
+    assert rows["horizontal_x3_y1.5"]["saving_cp"] > 0.1 and rows["horizontal_x3_y1.5"]["saving_ls"] > 0.1
+    assert abs(rows["vertical_x3.5_y0.5"]["saving_cp"]) < 0.02
