@@ -66,6 +66,30 @@ async def _watch(port: int, wanted: tuple[str, ...], seconds: float) -> tuple[di
     return info, channels, received, statuses
 
 
+async def _hostile(port: int) -> dict[str, int]:
+    """The status each hostile connection attempt gets from the Foxglove gate."""
+    from hydro_ros.hmi.server import MAX_FOXGLOVE_CLIENTS
+
+    url = f"http://127.0.0.1:{port}/"
+    out = {}
+    async with aiohttp.ClientSession() as session:
+        for case, headers in (("origin", {"Origin": "http://evil.example"}), ("host", {"Host": "evil.example"})):
+            try:
+                async with session.ws_connect(url, protocols=["foxglove.sdk.v1"], headers=headers):
+                    out[case] = 101
+            except aiohttp.WSServerHandshakeError as exc:
+                out[case] = exc.status
+        admitted = [await session.ws_connect(url, protocols=["foxglove.sdk.v1"]) for _ in range(MAX_FOXGLOVE_CLIENTS)]
+        try:
+            async with session.ws_connect(url, protocols=["foxglove.sdk.v1"]):
+                out["over_cap"] = 101
+        except aiohttp.WSServerHandshakeError as exc:
+            out["over_cap"] = exc.status
+        for ws in admitted:
+            await ws.close()
+    return out
+
+
 def test_a_foxglove_client_receives_diagnostics_and_residuals_and_cannot_publish(ros_domain):
     port = free_port()
     wanted = (topics.DIAGNOSTICS, topics.FDI_RESIDUALS, topics.pressure_a("boom"))
@@ -73,6 +97,9 @@ def test_a_foxglove_client_receives_diagnostics_and_residuals_and_cannot_publish
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), \
             node_process("hydro_ros.nodes.hmi", "-p", f"config:={SAM_CONFIG}", "-p", "port:=0", "-p", f"foxglove_port:={port}"):
         info, channels, received, statuses = asyncio.run(_watch(port, wanted, 60.0))
+        refused = asyncio.run(_hostile(port))
+    # a page from another site in the operator's browser, a rebound DNS name, a flood of connections: refused
+    assert refused == {"origin": 403, "host": 421, "over_cap": 503}, refused
     assert info["capabilities"] == []  # read-only: no client publish, no services, no parameters
     assert any("clientPublish" in status["message"] for status in statuses)
     for topic in wanted:

@@ -36,7 +36,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Awaitable, Callable, Protocol
 
-from aiohttp import WSMsgType, web
+from aiohttp import ClientSession, WSMsgType, web
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.fdi.alarm_log import read_events
@@ -363,3 +363,60 @@ async def _perform(request: web.Request, action: str, outcome: Awaitable[tuple[b
         on_success()
     request.app[STATE_KEY].record_action(action, ok, detail, client)
     return web.json_response({"ok": ok, "detail" if ok else "error": detail}, status=200 if ok else 502)
+
+
+FOXGLOVE_PROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
+MAX_FOXGLOVE_CLIENTS = 8
+
+
+def foxglove_gate(upstream_port: int, *, allowed_hosts: frozenset[str] = LOOPBACK_NAMES,
+                  allowed_origins: frozenset[str] = frozenset()) -> web.Application:
+    """The door of the read-only Foxglove server (foxglove-sdk, listening on loopback at ``upstream_port``): the same Host
+    check as the page (DNS rebinding), an Origin allow-list (clients without an Origin, such as the desktop app, and
+    loopback origins, plus ``allowed_origins``), and at most MAX_FOXGLOVE_CLIENTS at once; an admitted client's frames are
+    relayed both ways unchanged (the server itself refuses a client that tries to publish)."""
+    app = web.Application(middlewares=[_host_check])
+    guard = app[GUARD_KEY] = Guard(frozenset(name.strip("[]").lower() for name in allowed_hosts) | LOOPBACK_NAMES)
+    clients: set[web.WebSocketResponse] = set()
+
+    def origin_allowed(origin: str) -> bool:
+        from urllib.parse import urlsplit
+
+        return origin.lower() in allowed_origins or (urlsplit(origin).hostname or "").lower() in LOOPBACK_NAMES
+
+    async def relay(request: web.Request) -> web.StreamResponse:
+        origin = request.headers.get("Origin")
+        if origin is not None and not origin_allowed(origin):
+            guard.counts["refused_origins"] += 1
+            raise _error(web.HTTPForbidden, f"origin {clip(origin, 64)!r} may not connect")
+        if len(clients) >= MAX_FOXGLOVE_CLIENTS:
+            guard.counts["refused_connections"] += 1
+            raise _error(web.HTTPServiceUnavailable, f"{MAX_FOXGLOVE_CLIENTS} Foxglove clients connected already")
+        ws = web.WebSocketResponse(protocols=FOXGLOVE_PROTOCOLS, max_msg_size=MAX_BODY_BYTES * 64)
+        await ws.prepare(request)
+        clients.add(ws)
+        try:
+            async with ClientSession() as session, session.ws_connect(
+                    f"http://127.0.0.1:{upstream_port}/", protocols=[ws.ws_protocol or FOXGLOVE_PROTOCOLS[0]], max_msg_size=0) as upstream:
+                async def pump(source: Any, sink: Any) -> None:
+                    async for message in source:
+                        if message.type == WSMsgType.TEXT:
+                            await sink.send_str(message.data)
+                        elif message.type == WSMsgType.BINARY:
+                            await sink.send_bytes(message.data)
+                        else:
+                            break
+
+                tasks = [asyncio.ensure_future(pump(upstream, ws)), asyncio.ensure_future(pump(ws, upstream))]
+                _, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+                for task in pending:
+                    task.cancel()
+        except OSError:
+            pass  # the upstream server is gone (the node stopping): the client's socket closes below
+        finally:
+            clients.discard(ws)
+            await ws.close()
+        return ws
+
+    app.router.add_get("/", relay)
+    return app

@@ -6,20 +6,19 @@ with their ros2msg schemas, forwarding the raw CDR the node receives (nothing is
 the 1 kHz sensor streams are sampled at ``rate_hz`` (the newest message of each, as the HMI page
 samples /joint_states), a rate a person can watch. Read-only: the server offers no capability, so
 clients can neither publish nor call services (the SDK answers a client advertise with an error
-status). TLS when a certificate and key are given. foxglove-sdk is an optional extra (no rosdep key).
+status). It listens on loopback only; the hmi node's gate admits clients (Host and Origin checks, a
+connection cap, TLS when a certificate and key are given). foxglove-sdk is an optional extra (no rosdep key).
 """
 
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Any
 
 from rclpy.node import Node
 
 from hydro_ros.bags.writer import TYPESTORE
 from hydro_ros.contract import topics
-from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.extras import optional_module
 from hydro_ros.nodes.common import LATCHED_QOS, LATEST_ONLY_QOS, message_class, relative
 
@@ -30,16 +29,14 @@ FORWARDED = {topics.DIAGNOSTICS: ("diagnostic_msgs/msg/DiagnosticArray", 50), to
 class FoxgloveLive:
     """The server, one channel per topic, and the subscriptions that feed it."""
 
-    def __init__(self, node: Node, sampler: Node, sensor_topics: dict[str, str], *, host: str, port: int, rate_hz: float,
-                 tls_cert: str = "", tls_key: str = "") -> None:
+    def __init__(self, node: Node, sampler: Node, sensor_topics: dict[str, str], *, rate_hz: float) -> None:
         foxglove = optional_module("foxglove")
-        if bool(tls_cert) != bool(tls_key):
-            raise InputError("parameters foxglove_tls_cert and foxglove_tls_key: give both or neither")
-        tls = {"tls_cert": Path(tls_cert).read_bytes(), "tls_key": Path(tls_key).read_bytes()} if tls_cert else {}
         self.node = node
         self.context = foxglove.Context()
-        self.server = foxglove.start_server(name=f"hydro_ros {node.get_fully_qualified_name()}", host=host, port=port,
-                                            capabilities=[], context=self.context, **tls)
+        # on loopback only: clients reach it through the hmi's gate (hmi.server.foxglove_gate), which checks Host and
+        # Origin and caps the connections (the SDK has no hook for either), and carries the TLS
+        self.server = foxglove.start_server(name=f"hydro_ros {node.get_fully_qualified_name()}", host="127.0.0.1", port=0,
+                                            capabilities=[], context=self.context)
         self.port = self.server.port
         self.forwarded = 0
         self.channels: dict[str, Any] = {}

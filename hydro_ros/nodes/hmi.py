@@ -35,7 +35,7 @@ from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path, read_config
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.hmi.server import GUARD_KEY, QuietBadRequests, create_app
+from hydro_ros.hmi.server import GUARD_KEY, QuietBadRequests, create_app, foxglove_gate
 from hydro_ros.hmi.state import HmiState, StatusReport
 from hydro_ros.nodes.common import LATCHED_QOS, LATEST_ONLY_QOS, namespaced_statuses, own_statuses, relative, run_node
 from hydro_ros.nodes.foxglove_live import FoxgloveLive
@@ -47,12 +47,12 @@ TOKEN_ENV = "HYDRO_ROS_HMI_TOKEN"
 class WebServerThread:
     """An aiohttp application on its own event loop thread; bind errors surface in the constructor."""
 
-    def __init__(self, app: web.Application, host: str, port: int) -> None:
+    def __init__(self, app: web.Application, host: str, port: int, ssl_context: Any = None) -> None:
         self.loop = asyncio.new_event_loop()
         logging.getLogger("aiohttp.server").addFilter(QuietBadRequests())
         self.runner = web.AppRunner(app, access_log=None, handle_signals=False)
         self.loop.run_until_complete(self.runner.setup())
-        site = web.TCPSite(self.runner, host, port)
+        site = web.TCPSite(self.runner, host, port, ssl_context=ssl_context)
         try:
             self.loop.run_until_complete(site.start())
         except OSError as exc:
@@ -92,6 +92,9 @@ PARAMETERS = {
     "foxglove_port": Spec(8765, "TCP port of the read-only Foxglove WebSocket server (0: any free port, -1: no server; "
                                 "needs the optional foxglove-sdk)", -1, 65535),
     "foxglove_host": Spec("127.0.0.1", "address the Foxglove server listens on"),
+    "foxglove_origins": Spec("", "comma-separated Origin values a browser may connect to the Foxglove server from (e.g. "
+                                 "https://app.foxglove.dev); clients without an Origin (the desktop app) and loopback origins "
+                                 "are always admitted, any other origin refused (a hostile page in the operator's browser)"),
     "foxglove_rate": Spec(10.0, "[Hz] rate the 1 kHz sensor topics are sampled at for Foxglove", 0.1, 100.0),
     "foxglove_tls_cert": Spec("", "PEM certificate for TLS on the Foxglove server (with foxglove_tls_key); empty: plain",
                               existing_file=True),
@@ -140,8 +143,11 @@ class HmiNode(Node):
         allowed = {name.strip() for name in self.params["allowed_hosts"].split(",") if name.strip()}
         if not _is_wildcard(host):
             allowed.add(host)
+        if not _is_wildcard(self.params["foxglove_host"]):
+            allowed.add(self.params["foxglove_host"])
+        self.allowed_hosts = frozenset(allowed)
         app = create_app(self.state, self, token=token, update_period_s=1.0 / update_rate, log=self.get_logger().info,
-                         allowed_hosts=frozenset(allowed), alarm_log=Path(self.params["alarm_log"]) if self.params["alarm_log"] else None)
+                         allowed_hosts=self.allowed_hosts, alarm_log=Path(self.params["alarm_log"]) if self.params["alarm_log"] else None)
         self.guard = app[GUARD_KEY]
         self.machine = str(config["machine"])
         self.pub_diag = self.create_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
@@ -163,17 +169,34 @@ class HmiNode(Node):
             sensors = topics.sensor_topics(machine.actuator_names, mobile=machine.mobile)
         except InputError:  # a crane config without actuators (crane3dof): its joints, supply and commands
             sensors = topics.sensor_topics([])
+        cert, key = self.params["foxglove_tls_cert"], self.params["foxglove_tls_key"]
         try:
-            live = FoxgloveLive(self, self._sampler, sensors, host=self.params["foxglove_host"], port=self.params["foxglove_port"],
-                                rate_hz=self.params["foxglove_rate"], tls_cert=self.params["foxglove_tls_cert"],
-                                tls_key=self.params["foxglove_tls_key"])
+            if bool(cert) != bool(key):
+                raise InputError("parameters foxglove_tls_cert and foxglove_tls_key: give both or neither")
+            live = FoxgloveLive(self, self._sampler, sensors, rate_hz=self.params["foxglove_rate"])
         except InputError as exc:
             self.get_logger().warning(f"no Foxglove server: {exc}")
             return None
-        except RuntimeError as exc:  # foxglove-sdk: the port is taken
-            self.get_logger().warning(f"no Foxglove server on {self.params['foxglove_host']}:{self.params['foxglove_port']}: {exc}")
+        except RuntimeError as exc:  # foxglove-sdk could not start
+            self.get_logger().warning(f"no Foxglove server: {exc}")
             return None
-        self.get_logger().info(f"Foxglove: ws://{self.params['foxglove_host']}:{live.port} (read-only, {len(live.channels)} topics)")
+        context = None
+        if cert:
+            import ssl
+
+            context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+            context.load_cert_chain(cert, key)
+        origins = frozenset(o.strip().lower() for o in self.params["foxglove_origins"].split(",") if o.strip())
+        try:
+            self.foxglove_gate = WebServerThread(foxglove_gate(live.port, allowed_hosts=self.allowed_hosts, allowed_origins=origins),
+                                                 self.params["foxglove_host"], self.params["foxglove_port"], context)
+        except InputError as exc:
+            live.close()
+            self.get_logger().warning(f"no Foxglove server: {exc}")
+            return None
+        live.port = self.foxglove_gate.port
+        scheme = "wss" if cert else "ws"
+        self.get_logger().info(f"Foxglove: {scheme}://{self.params['foxglove_host']}:{live.port} (read-only, {len(live.channels)} topics)")
         return live
 
     def _publish_diagnostics(self) -> None:
@@ -240,6 +263,7 @@ class HmiNode(Node):
 
     def destroy_node(self) -> None:
         if self.foxglove is not None:
+            self.foxglove_gate.close()
             self.foxglove.close()
         self.web.close()
         self._sampler.destroy_node()
