@@ -90,3 +90,28 @@ def test_replay_of_a_bag_whose_metadata_is_not_a_mapping_says_so_and_fails(short
     played = subprocess.run([*CLI, "replay", str(bag), "--rate", "20"], capture_output=True, text=True, timeout=120)
     assert played.returncode == 1 and "Traceback" not in played.stderr
     assert "not a rosbag2 metadata mapping" in played.stderr
+
+
+def test_a_damaged_first_chunk_costs_only_its_own_messages(short_bag, tmp_path):
+    """The first chunk holds the channel and schema records; the file's summary repeats them. A flipped byte there
+    (its CRC fails) loses that chunk's messages and no others: the rest of the bag is read and monitored."""
+    from mcap.reader import make_reader
+
+    from hydro_ros.bags.reader import read_bag
+
+    bag = tmp_path / "flipped"
+    shutil.copytree(short_bag, bag)
+    mcap = next(bag.glob("*.mcap"))
+    with mcap.open("rb") as stream:
+        chunks = [index for index in make_reader(stream).get_summary().chunk_indexes]
+    assert len(chunks) >= 2
+    data = bytearray(mcap.read_bytes())
+    data[chunks[0].chunk_start_offset + 200] ^= 0xFF
+    mcap.write_bytes(bytes(data))
+    whole, damaged = read_bag(short_bag), read_bag(bag)
+    assert damaged.errors and "damaged chunk" in damaged.errors[0]
+    assert 0 < len(damaged.stamps_ns) < len(whole.stamps_ns) and damaged.stamps_ns[-1] == whole.stamps_ns[-1]
+    monitored = subprocess.run([*CLI, "fdi", "--bag", str(bag), "--config", str(SAM_CONFIG), "--json", str(tmp_path / "fdi.json"), "--quiet"],
+                               capture_output=True, text=True, timeout=120)
+    assert monitored.returncode == 0 and "Traceback" not in monitored.stderr, monitored.stderr
+    assert "damaged chunk" in monitored.stderr

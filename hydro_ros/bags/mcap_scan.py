@@ -290,6 +290,35 @@ class McapScanner:
             topic, _ = _string(content, 4)
             self.channels[channel_id] = Channel(topic, self.schemas.get(schema_id, ""))
 
+    def _summary_channels(self, size: int) -> None:
+        """The schemas and channels the file's summary section repeats, read first: a damaged chunk that defined them
+        then costs only its own messages, not every later message of its channels."""
+        footer = size - len(MAGIC) - 29  # the footer record: opcode, length 20, summary start, summary offset start, CRC
+        if footer <= len(MAGIC):
+            return
+        self.stream.seek(footer)
+        head = self.stream.read(29)
+        if len(head) < 29 or head[0] != OP_FOOTER:
+            return
+        (summary_start,) = struct.unpack_from("<Q", head, 9)
+        if not len(MAGIC) < summary_start < footer:
+            return
+        self.stream.seek(summary_start)
+        summary = self.stream.read(footer - summary_start)
+        position = 0
+        while position + 9 <= len(summary):
+            op = summary[position]
+            (length,) = struct.unpack_from("<Q", summary, position + 1)
+            content = summary[position + 9 : position + 9 + length]
+            if len(content) < length:
+                return
+            if op in (OP_SCHEMA, OP_CHANNEL):
+                try:
+                    self._metadata(op, content)
+                except (struct.error, UnicodeDecodeError):
+                    return
+            position += 9 + length
+
     def batches(self) -> Iterator[MessageBatch]:
         """Message batches in file order; raises McapDamage where the stream stops making sense.
 
@@ -300,6 +329,8 @@ class McapScanner:
         self.stream.seek(0)
         if self.stream.read(8) != MAGIC:
             raise McapDamage("not an MCAP file (bad magic)")
+        self._summary_channels(size)
+        self.stream.seek(8)
         while True:
             position = self.stream.tell()
             head = self.stream.read(9)
