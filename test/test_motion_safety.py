@@ -169,3 +169,18 @@ def test_the_executor_takes_orders_only_from_its_sources_and_never_steps_a_valve
             assert all(not c.any() for t, c in after if t >= first_neutral)
         finally:
             spoof.destroy_node()
+
+
+def test_the_follow_joint_trajectory_action_is_offered_only_where_control_msgs_is_and_says_why_not():
+    """control_msgs has no wheel here: the guard names it and the topic path; where it is installed the type is the
+    action's (a ROS machine; the action itself is not exercised here)."""
+    from hydro_ros.nodes.trajectory_executor import PARAMETERS, follow_joint_trajectory_action
+
+    action, why_not = follow_joint_trajectory_action()
+    try:
+        import control_msgs  # noqa: F401
+    except ImportError:
+        assert action is None and "control_msgs" in why_not and "~/joint_trajectory" in why_not
+    else:
+        assert action.__name__ == "FollowJointTrajectory" and not why_not
+    assert PARAMETERS["follow_joint_trajectory"].default is False  # goals from any client: off unless asked for

@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.task import Future
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
@@ -80,7 +81,20 @@ PARAMETERS = {
     "max_points": Spec(10000, "a trajectory with more points is refused before it is decoded", 2, 1000000),
     "command_slew_rate": Spec(5.0, "[1/s] largest change of a valve command per second while one trajectory takes over from "
                                    "another", 0.1, 1000.0),
+    "follow_joint_trajectory": Spec(False, "also offer the FollowJointTrajectory action ~/follow_joint_trajectory (MoveIt, "
+                                           "ros2_control clients) where control_msgs is installed; its goals are taken from any "
+                                           "client SROS2 lets call it, so it is off unless asked for"),
 }
+
+
+def follow_joint_trajectory_action() -> tuple[Any, str]:
+    """control_msgs' FollowJointTrajectory action type, or None and why it is not there."""
+    try:
+        from control_msgs.action import FollowJointTrajectory
+    except ImportError:
+        return None, ("control_msgs is not installed (ros-kilted-control-msgs on a ROS machine): no FollowJointTrajectory "
+                      "action; trajectories go to ~/joint_trajectory, the JointTrajectoryController topic")
+    return FollowJointTrajectory, ""
 
 
 class TrajectoryExecutor(LifecycleNode):
@@ -154,7 +168,39 @@ class TrajectoryExecutor(LifecycleNode):
         if not self.require_monitor:
             self.get_logger().warning("require_monitor is false: trajectories run without a condition monitor vouching for "
                                       "the machine (only a halt request stops them)")
+        if self.params["follow_joint_trajectory"]:
+            self._offer_action()
         return TransitionCallbackReturn.SUCCESS
+
+    def _offer_action(self) -> None:
+        """FollowJointTrajectory where control_msgs is installed: a goal's trajectory goes through the same checks and the
+        same control loop as one on ~/joint_trajectory; the goal ends when the executor is idle (succeeded) or has
+        stopped or refused it (aborted). Without control_msgs the reason is said once and the topic path stays."""
+        action, why_not = follow_joint_trajectory_action()
+        if action is None:
+            self.get_logger().warning(f"follow_joint_trajectory: {why_not}")
+            return
+        from rclpy.action import ActionServer
+        from rclpy.serialization import serialize_message
+
+        async def execute(goal_handle: Any) -> Any:
+            result = action.Result()
+            self._goal_done = Future()
+            try:
+                self.incoming.put_nowait(serialize_message(goal_handle.request.trajectory))
+            except queue.Full:
+                self._goal_done.set_result(("refused", "trajectories arrive faster than they are checked"))
+            state, reason = await self._goal_done
+            if state == "idle":
+                goal_handle.succeed()
+            else:
+                goal_handle.abort()
+                result.error_code, result.error_string = action.Result.INVALID_GOAL, f"{state}: {reason}"
+            return result
+
+        self._entities.append(ActionServer(self, action, "~/follow_joint_trajectory", execute))
+        self.get_logger().warning("follow_joint_trajectory: offered; its goals are taken from any client the SROS2 policy "
+                                  "lets call it (the topic takes only trajectory_source's)")
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.active = True
@@ -394,6 +440,9 @@ class TrajectoryExecutor(LifecycleNode):
         if state == self.state and not extra and state != "refused" and not force:
             return
         self.state, self.reason = state, reason
+        goal = getattr(self, "_goal_done", None)
+        if goal is not None and not goal.done() and state in ("idle", "stopped", "refused", "inactive"):
+            goal.set_result((state, reason))
         foreign = self._foreign_publishers()
         status = {"state": state, "reason": reason, **extra, **({"foreign_publishers": foreign} if foreign else {})}
         self.status_pub.publish(String(data=json.dumps(status)))
