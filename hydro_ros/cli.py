@@ -669,7 +669,7 @@ def cmd_alarms_export(args: argparse.Namespace) -> int:
 def cmd_foxglove_layout(args: argparse.Namespace) -> int:
     from hydro_ros.hmi.foxglove_layout import foxglove_layout
 
-    layout = foxglove_layout(load_machine_config(args.config))
+    layout = foxglove_layout(load_machine_config(args.config), args.namespace)
     Path(args.out).write_text(json.dumps(layout, indent=2) + "\n")
     print(json.dumps({"layout": args.out, "panels": len(layout["configById"])}))
     return 0
@@ -927,6 +927,7 @@ def build_parser() -> argparse.ArgumentParser:
                             description="Write the Foxglove layout of a machine config (import it in Foxglove: Layouts, Import).")
     layout.add_argument("--config", required=True, help="machine config, e.g. config/sam.yaml")
     layout.add_argument("--out", required=True, help="layout JSON to write")
+    layout.add_argument("--namespace", default="", help="the machine's namespace (machine.launch.py's namespace argument)")
     layout.set_defaults(func=cmd_foxglove_layout)
 
     replay = sub.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")

@@ -35,3 +35,16 @@ def test_colcon_build_installs_executables_in_the_ament_index(tmp_path):
     pages = list(prefix.glob("lib/python3*/site-packages/hydro_ros/hmi/static/index.html"))
     assert pages and (pages[0].parent / "hmi.js").is_file()  # the HMI's page travels with the package
     assert (prefix / "share" / "hydro_ros" / "package.xml").is_file()
+    assert (prefix / "share" / "hydro_ros" / "launch" / "crane_motion.launch.py").is_file()
+
+    # the README's ROS-machine steps: the installed command (what `ros2 run hydro_ros hydro-ros` starts) on a user's config
+    site = next(prefix.glob("lib/python3*/site-packages"))
+    installed = dict(env, AMENT_PREFIX_PATH=str(prefix), PYTHONPATH=str(site))
+    cli = [str(prefix / "lib" / "hydro_ros" / "hydro-ros")]
+    own = tmp_path / "my_machine.yaml"
+    made = subprocess.run([*cli, "machine", "new", "--like", "boom_arm", "--out", str(own)], env=installed, capture_output=True,
+                          text=True, timeout=120)
+    assert made.returncode == 0, made.stderr
+    params = subprocess.run([*cli, "params", "--config", str(own)], env=installed, capture_output=True, text=True, timeout=120)
+    assert params.returncode == 0, params.stderr
+    assert f'config: "{own}"' in params.stdout and "find-pkg-share" not in params.stdout.split("ros__parameters")[1]

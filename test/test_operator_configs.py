@@ -81,3 +81,12 @@ def test_the_shipped_layout_is_the_generated_one_and_follows_the_config():
     mobile = foxglove_layout(load_machine_config(REPO / "config" / "sam_mobile.yaml"))
     labels = [series["label"] for panel in mobile["configById"].values() for series in panel.get("paths", []) if "position" in series["value"]]
     assert labels and all("[L/min]" in label for label in labels)  # parity residuals are flows
+
+
+def test_a_layout_for_a_machine_in_a_namespace_reads_its_topics_and_its_namespaced_statuses():
+    from hydro_ros.hmi.foxglove_layout import foxglove_layout
+
+    layout = json.dumps(foxglove_layout(load_machine_config(SAM_CONFIG), "/machine1"))
+    assert '"/machine1/fdi/halt.data"' in layout and '/machine1/fdi/residuals.position[' in layout
+    assert f'"machine1/{topics.FDI_STATUS_PREFIX}boom"' in layout
+    assert f'"topicToRender": "{topics.DIAGNOSTICS}"' in layout  # /diagnostics stays absolute

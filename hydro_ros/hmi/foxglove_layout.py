@@ -17,8 +17,8 @@ from hydro_ros.contract.machine import Machine
 RESIDUAL_COLOR, THRESHOLD_COLOR = "#1565c0", "#c62828"
 
 
-def _series(index: int, label: str, color: str, negative: bool = False) -> dict[str, Any]:
-    return {"value": f"{topics.FDI_RESIDUALS}.position[{index}]" + (".@negative" if negative else ""),
+def _series(residuals: str, index: int, label: str, color: str, negative: bool = False) -> dict[str, Any]:
+    return {"value": f"{residuals}.position[{index}]" + (".@negative" if negative else ""),
             "label": label + (" (negative)" if negative else ""), "enabled": True, "timestampMethod": "headerStamp", "color": color}
 
 
@@ -29,12 +29,16 @@ def _stack(ids: list[Any], direction: str = "column") -> Any:
     return {"direction": direction, "first": ids[0], "second": _stack(ids[1:], direction), "splitPercentage": round(100 / len(ids))}
 
 
-def foxglove_layout(machine: Machine) -> dict[str, Any]:
+def foxglove_layout(machine: Machine, namespace: str = "") -> dict[str, Any]:
+    """The layout of ``machine``; in ``namespace`` its topics are there and its statuses on the absolute /diagnostics carry
+    the namespace in their names (nodes.common.namespaced_statuses)."""
+    ns = namespace.strip("/")
+    halt, residuals = (f"/{ns}{topic}" if ns else topic for topic in (topics.FDI_HALT, topics.FDI_RESIDUALS))
     actuators = machine.actuator_names
     channels = topics.fdi_residual_channels(actuators, mobile=machine.mobile)
     unit = "L/min" if machine.mobile else "MPa"
     panels: dict[str, Any] = {
-        "Indicator!halt": {"title": f"Halt request ({topics.FDI_HALT})", "path": f"{topics.FDI_HALT}.data", "style": "background",
+        "Indicator!halt": {"title": f"Halt request ({halt})", "path": f"{halt}.data", "style": "background",
                            "fallbackColor": "#2e7d32", "fallbackLabel": "no halt request",
                            "rules": [{"operator": "=", "rawValue": "true", "color": "#c62828", "label": "HALT REQUESTED: severe fault"}]},
         "DiagnosticSummary!hydro_ros": {"topicToRender": topics.DIAGNOSTICS, "minLevel": 0, "pinnedIds": [], "hardwareIdFilter": "",
@@ -42,7 +46,7 @@ def foxglove_layout(machine: Machine) -> dict[str, Any]:
     }
     status_column, plots = [], []
     for actuator in actuators:
-        name = f"{topics.FDI_STATUS_PREFIX}{actuator}"
+        name = f"{ns + '/' if ns else ''}{topics.FDI_STATUS_PREFIX}{actuator}"
         panels[f"DiagnosticStatusPanel!{actuator}"] = {"topicToRender": topics.DIAGNOSTICS, "selectedHardwareId": machine.name,
                                                        "selectedName": name}
         panels[f"StateTransitions!{actuator}"] = {
@@ -56,9 +60,9 @@ def foxglove_layout(machine: Machine) -> dict[str, Any]:
             panel = f"Plot!{actuator}_{chamber}"
             panels[panel] = {
                 "title": f"{actuator} chamber {chamber}: residual against its adaptive threshold",
-                "paths": [_series(residual, f"{channels[residual]} [{unit}]", RESIDUAL_COLOR),
-                          _series(threshold, f"{channels[threshold]} [{unit}]", THRESHOLD_COLOR),
-                          _series(threshold, f"{channels[threshold]} [{unit}]", THRESHOLD_COLOR, negative=True)],
+                "paths": [_series(residuals, residual, f"{channels[residual]} [{unit}]", RESIDUAL_COLOR),
+                          _series(residuals, threshold, f"{channels[threshold]} [{unit}]", THRESHOLD_COLOR),
+                          _series(residuals, threshold, f"{channels[threshold]} [{unit}]", THRESHOLD_COLOR, negative=True)],
                 "showXAxisLabels": True, "showYAxisLabels": True, "showLegend": True, "legendDisplay": "floating", "isSynced": True,
                 "xAxisVal": "timestamp", "followingViewWidth": 60}
             plots.append(panel)
