@@ -47,4 +47,5 @@ def test_colcon_build_installs_executables_in_the_ament_index(tmp_path):
     assert made.returncode == 0, made.stderr
     params = subprocess.run([*cli, "params", "--config", str(own)], env=installed, capture_output=True, text=True, timeout=120)
     assert params.returncode == 0, params.stderr
-    assert f'config: "{own}"' in params.stdout and "find-pkg-share" not in params.stdout.split("ros__parameters")[1]
+    values = [line.strip() for line in params.stdout.splitlines() if line.strip().startswith("config:")]
+    assert values and all(value == f'config: "{own}"' for value in values), values  # the path it was given, in every node

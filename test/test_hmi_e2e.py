@@ -15,6 +15,7 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
+from std_srvs.srv import Trigger
 
 from hydro_ros.contract import topics
 from hydro_ros.nodes.common import LATCHED_QOS
@@ -112,7 +113,14 @@ def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_doma
         _tile_is(page, "WARN", "external_leakage_a", timeout_s=1)  # refused: still latched
         page.fill("#token", TOKEN)
         assert _click_and_read_status(page, "#acknowledge").startswith("done: acknowledged: boom: external_leakage_a")
-        _tile_is(page, "OK", "ok", timeout_s=15)
+        # an acknowledgement silences the alarm, never clears it: the latched fault stays shown until a reset
+        page.wait_for_timeout(2_000)
+        _tile_is(page, "WARN", "external_leakage_a", timeout_s=1)
+        reset = node.create_client(Trigger, "/fdi_node/reset")  # maintenance's reset (its SROS2 enclave on a machine)
+        assert reset.wait_for_service(timeout_sec=10)
+        answer = reset.call_async(Trigger.Request())
+        assert wait_for(answer.done, 10) and answer.result().success, answer.result()
+        _tile_is(page, "OK", "ok", timeout_s=60)  # once the re-armed monitor has looked again and found the leak gone
         alarm = page.text_content("#alarms tbody tr")
         assert "cleared" in alarm and "acknowledged" in alarm
         # the alarm log, newest first: the acknowledgement, and below it the alarm as raised
