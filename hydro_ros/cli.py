@@ -8,14 +8,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import os
 import shutil
 import sys
 import time
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
-from hydro_ros.contract.config import plain_data
+from hydro_ros.contract.config import plain_data, write_extending
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import INJECTION_UNITS, parse_injection
@@ -576,7 +575,6 @@ def _reach_warnings(machine) -> list[str]:
 
 
 def cmd_machine_threshold(args: argparse.Namespace) -> int:
-    import yaml
 
     from hydro_ros.fdi.settings import FdiSettings
     from hydro_ros.studies.fdi_evaluation import MISMATCH_SPREAD, calibrate_threshold_constant
@@ -593,10 +591,9 @@ def cmd_machine_threshold(args: argparse.Namespace) -> int:
         out = Path(args.out)
         if out.resolve() == Path(args.config).resolve():
             raise InputError(f"--out {out}: is the config itself; write a config that extends it")
-        relative = os.path.relpath(Path(args.config).resolve(), out.resolve().parent)
-        out.write_text(f"# {machine.name} with a threshold derived by `hydro-ros machine threshold` from {args.variants} simulated "
-                       "variants;\n# safe until `hydro-ros commission` identifies the machine. Regenerate, do not edit.\n"
-                       + yaml.safe_dump({"extends": relative, "fdi": {"threshold_constant": round(c0, 4)}}, sort_keys=False))
+        write_extending(Path(args.config), out, f"# {machine.name} with a threshold derived by `hydro-ros machine threshold` from "
+                        f"{args.variants} simulated variants;\n# safe until `hydro-ros commission` identifies the machine. "
+                        "Regenerate, do not edit.\n", {"fdi": {"threshold_constant": round(c0, 4)}})
         print(f"{out}: written")
     return 0
 

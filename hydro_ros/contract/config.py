@@ -95,6 +95,18 @@ def unshared(node: Any) -> Any:
     return copy.copy(node)
 
 
+def write_extending(base: Path, out: Path, header: str, patch: dict[str, Any]) -> None:
+    """A config that extends ``base`` (by its path relative to ``out``) with ``patch``, under a comment ``header``;
+    written whole or not at all."""
+    import os
+
+    relative = os.path.relpath(Path(base).resolve(), Path(out).resolve().parent)
+    text = header + yaml.safe_dump(plain_data({"extends": relative, **patch}), sort_keys=False, width=120)
+    partial = Path(out).with_name(Path(out).name + ".partial")
+    partial.write_text(text)
+    partial.replace(out)
+
+
 def with_overrides(config: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
     """Copy of ``config`` with nested ``overrides`` merged in (model mismatch, calibration, commissioning)."""
     merged = unshared(config)

@@ -29,17 +29,15 @@ the method's own, because each is what the thesis validated with its residual:
 from __future__ import annotations
 
 import datetime
-import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
-import yaml
 
 from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.reader import read_bag
-from hydro_ros.contract.config import plain_data
+from hydro_ros.contract.config import write_extending
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.samples import Samples
@@ -365,11 +363,6 @@ def commission(machine: Machine, recordings: Sequence[Recording], progress: Call
 
 def write_config(config: Path, out: Path, block: dict[str, Any]) -> None:
     """A machine config that extends ``config`` with the commissioned block, written whole or not at all."""
-    relative = os.path.relpath(config.resolve(), out.resolve().parent)
-    text = (f"# commissioned by `hydro-ros commission` on {block['date']} from {len(block['recordings'])} recording(s).\n"
-            "# The commissioned block replaces the monitor's model (commissioned.model) on top of the config it extends.\n"
-            "# Regenerate, do not edit.\n"
-            + yaml.safe_dump(plain_data({"extends": relative, "commissioned": block}), sort_keys=False, width=120))
-    partial = out.with_name(out.name + ".partial")
-    partial.write_text(text)
-    partial.replace(out)
+    write_extending(config, out, f"# commissioned by `hydro-ros commission` on {block['date']} from {len(block['recordings'])} "
+                                 "recording(s).\n# The commissioned block replaces the monitor's model (commissioned.model) on top of "
+                                 "the config it extends.\n# Regenerate, do not edit.\n", {"commissioned": block})
