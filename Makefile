@@ -48,6 +48,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/hmi.py --out bench/hmi.json
 	$(PY) bench/commissioning.py --out bench/commissioning.json
 	$(PY) bench/commissioning.py --config config/sam_mobile.yaml --out bench/commissioning_mobile.json
+	$(PY) bench/commissioning_memory.py --out bench/commissioning_memory.json
 	$(PY) bench/crane_monitoring.py --out bench/crane_monitoring.json
 	$(PY) bench/crane_cpu.py --out bench/crane_cpu.json
 	$(PY) bench/crane_commissioning.py --out bench/crane_commissioning.json

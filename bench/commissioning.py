@@ -25,7 +25,6 @@ import numpy as np
 from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
 
 from hydro_ros.contract.machine import load_machine_config  # noqa: E402
 from hydro_ros.contract.names import Injection  # noqa: E402

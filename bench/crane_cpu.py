@@ -19,10 +19,8 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "bench"))
 
-from run import live_graph  # noqa: E402
+from hydro_ros.nodes.processes import live_cpu_share  # noqa: E402
 
 K70M = REPO / "config" / "k70m.yaml"
 TOPICS_REAL_TIME_FACTOR = 0.25
@@ -32,7 +30,7 @@ GOAL = 0.5  # of one core, the issue's target for every cylinder at 1 kHz
 def measure(domain: int, plant_args: list[str], fdi_input: str, measure_s: float) -> dict:
     commands = [["hydro_ros.nodes.plant_sim", "-p", f"config:={K70M}", *plant_args],
                 ["hydro_ros.nodes.fdi_node", "-p", f"config:={K70M}", "-p", f"input:={fdi_input}"]]
-    cpu, wall, v0, v1 = live_graph(domain, commands, "hydro_ros/fdi/lift", "samples", measure_s)
+    cpu, wall, v0, v1 = live_cpu_share(domain, commands, "hydro_ros/fdi/lift", "samples", measure_s)
     processed = int(v1["samples"]) - int(v0["samples"])
     return {"cpu_share_of_one_core": cpu, "samples_processed_per_s": processed / wall, "wall_s": wall,
             "gap_samples": int(v1["gap_samples"]), "incomplete_samples": int(v1["incomplete_samples"]),

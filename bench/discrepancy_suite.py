@@ -23,14 +23,12 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
 from hydro_ros.bags.reader import BagData, read_bag  # noqa: E402
 from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E402
 from hydro_ros.contract.names import first_form  # noqa: E402
 from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, run, simulate  # noqa: E402
-from test.test_discrepancy import hidden_effect_bag, plant_config  # noqa: E402
+from hydro_ros.studies.hidden_effects import hidden_effect_bag, hidden_effect_plant  # noqa: E402
 
 OWN_FORM = [(None, 0.0), ("internal_leakage", 1.5), ("external_leakage_a", 2.0), ("external_leakage_b", 2.0),
             ("valve_deadzone", 0.08), ("spool_offset", 0.04), ("valve_delay", 0.05), ("valve_delay", 0.1), ("valve_flow_gain", 0.25),
@@ -54,7 +52,7 @@ def floor(config: Machine, data: BagData, effects: dict[str, float], forms: dict
     """Validation gap of the plant's own model on the validation part run() uses."""
     rec = Recording.from_bag(data, config)
     validation = rec.part(slice(int(FIT_SHARE * len(rec.times)), None))
-    return gap(simulate(plant_config(config, forms=forms, also=effects), validation))
+    return gap(simulate(hidden_effect_plant(config, forms=forms, also=effects), validation))
 
 
 def _form(name: str, forms: dict[str, str]) -> str | None:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 from contextlib import ExitStack
 from pathlib import Path
@@ -22,17 +21,11 @@ import numpy as np
 import psutil
 
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
 
-from test.browser import CHROMIUM, CHROMIUM_ARGS  # noqa: E402
-from test.ros_graph import free_port, node_process  # noqa: E402
+from hydro_ros.hmi.headless import CHROMIUM, CHROMIUM_ARGS  # noqa: E402
+from hydro_ros.nodes.processes import cpu_seconds, free_port, node_process  # noqa: E402
 
 SAM = str(REPO / "config" / "sam.yaml")
-
-
-def _cpu_seconds(process: psutil.Process) -> float:
-    times = process.cpu_times()
-    return times.user + times.system
 
 
 def _percentiles(samples: list[float], scale: float = 1.0) -> dict:
@@ -73,11 +66,11 @@ def measure(phase_s: float, clients: tuple[int, ...]) -> dict:
                 time.sleep(2.0)
                 for page in pages:  # count from here
                     page.evaluate("() => { window.hmiLatencies = []; window.hmiBytes = 0; window.hmiRenderMs = []; window.hmiDrawMs = []; }")
-                start_cpu = {name: _cpu_seconds(p) for name, p in processes.items()}
+                start_cpu = {name: cpu_seconds(p) for name, p in processes.items()}
                 start = time.monotonic()
                 time.sleep(phase_s)
                 wall = time.monotonic() - start
-                share = {name: (_cpu_seconds(p) - start_cpu[name]) / wall for name, p in processes.items()}
+                share = {name: (cpu_seconds(p) - start_cpu[name]) / wall for name, p in processes.items()}
                 latencies, render, draw, rates = [], [], [], []
                 for page in pages:
                     sample = page.evaluate("() => [window.hmiLatencies, window.hmiBytes, window.hmiRenderMs, window.hmiDrawMs]")

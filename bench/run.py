@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -22,6 +21,7 @@ from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.models.sam import SamModel, SamPlant
+from hydro_ros.nodes.processes import live_cpu_share
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
 
@@ -117,47 +117,10 @@ def fdi_offline(config: Machine, seconds: float = 60.0) -> dict:
             "monitor_real_time_factor": seconds / monitoring, "target_real_time_factor": 200.0}
 
 
-def _cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def live_graph(domain: int, commands: list[list[str]], status: str, progress_key: str, measure_s: float) -> tuple[float, float, dict, dict]:
-    """Start node processes (module, ROS args), wait until ``status`` reports progress, then measure
-    the last process's CPU time over ``measure_s``: (CPU share of one core, wall s, first and last values)."""
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    procs = [subprocess.Popen([sys.executable, "-m", c[0], "--ros-args", *c[1:]], env=env, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL) for c in commands]
-    rclpy.init()
-    node = rclpy.create_node("bench_probe")
-    statuses: list = []
-    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: statuses.extend(s for s in m.status if s.name == status), 10)
-    try:
-        end = time.monotonic() + 30.0
-        while time.monotonic() < end and not any(int({v.key: v.value for v in s.values}[progress_key]) > 2000 for s in statuses):
-            rclpy.spin_once(node, timeout_sec=0.1)
-        cpu0, wall0, first = _cpu_seconds(procs[-1].pid), time.monotonic(), statuses[-1]
-        while time.monotonic() < wall0 + measure_s:
-            rclpy.spin_once(node, timeout_sec=0.1)
-        cpu1, wall1, last = _cpu_seconds(procs[-1].pid), time.monotonic(), statuses[-1]
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
-        for proc in procs:
-            proc.terminate()
-            proc.wait(timeout=10)
-    values = [{v.key: v.value for v in s.values} for s in (first, last)]
-    return (cpu1 - cpu0) / (wall1 - wall0), wall1 - wall0, values[0], values[1]
-
-
 def fdi_node_live(config_path: Path, measure_s: float = 20.0) -> dict:
     """plant_sim at 1 kHz -> fdi_node, both real processes on a private localhost domain."""
     commands = [[f"hydro_ros.nodes.{name}", "-p", f"config:={config_path}"] for name in ("plant_sim", "fdi_node")]
-    cpu, wall, v0, v1 = live_graph(151, commands, "hydro_ros/fdi/boom", "samples", measure_s)
+    cpu, wall, v0, v1 = live_cpu_share(151, commands, "hydro_ros/fdi/boom", "samples", measure_s)
     processed = int(v1["samples"]) - int(v0["samples"])
     return {"cpu_share_of_one_core": cpu, "samples_processed_per_s": processed / wall,
             "gap_samples": int(v1["gap_samples"]), "incomplete_samples": int(v1["incomplete_samples"]),
@@ -195,7 +158,7 @@ def can_bridge_live(config_path: Path, measure_s: float = 15.0) -> dict:
                          "/hydraulics/valve_commands") for a in ("-r", f"{t}:=/sim{t}")]
     commands = [["hydro_ros.nodes.plant_sim", "-p", f"config:={config_path}", "-p", "can_interface:=udp_multicast", "-p", f"can_channel:={group}", *aside],
                 ["hydro_ros.nodes.can_bridge", "-p", f"config:={config_path}", "-p", "interface:=udp_multicast", "-p", f"channel:={group}"]]
-    cpu, wall, v0, v1 = live_graph(152, commands, "hydro_ros/can_bridge/bus", "published_cycles", measure_s)
+    cpu, wall, v0, v1 = live_cpu_share(152, commands, "hydro_ros/can_bridge/bus", "published_cycles", measure_s)
     return {"cpu_share_of_one_core": cpu,
             "cycles_published_per_s": (int(v1["published_cycles"]) - int(v0["published_cycles"])) / wall,
             "frames_per_s": (int(v1["frames_received"]) - int(v0["frames_received"])) / wall,

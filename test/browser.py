@@ -3,17 +3,10 @@
 from __future__ import annotations
 
 import os
-import shutil
-from contextlib import contextmanager
-from pathlib import Path
-from typing import Iterator
 
 import pytest
 
-CHROMIUM = Path(shutil.which("chromium") or "/usr/bin/chromium")
-# no sync, no update checks, no QUIC: this machine's closed network refuses them, many at a time
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+from hydro_ros.hmi.headless import CHROMIUM
 
 
 def require_chromium() -> None:
@@ -23,15 +16,3 @@ def require_chromium() -> None:
         if os.environ.get("CI"):
             pytest.fail(message)
         pytest.skip(message)
-
-
-@contextmanager
-def chromium_page(width: int = 1280, height: int = 1000) -> Iterator:
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        try:
-            yield browser.new_page(viewport={"width": width, "height": height})
-        finally:
-            browser.close()

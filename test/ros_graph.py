@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import os
 import socket
-import subprocess
-import sys
 import threading
 import time
 from contextlib import contextmanager
@@ -14,19 +11,7 @@ from typing import Any, Callable, Iterator
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
-
-@contextmanager
-def node_process(module: str, *ros_args: str) -> Iterator[subprocess.Popen]:
-    proc = subprocess.Popen([sys.executable, "-m", module, "--ros-args", *ros_args], env=dict(os.environ),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        yield proc
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+from hydro_ros.nodes.processes import free_port, node_process  # noqa: F401 - the tests take them from here
 
 
 @contextmanager
@@ -78,12 +63,6 @@ def port_open(port: int, host: str = "127.0.0.1") -> bool:
             return True
     except OSError:
         return False
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
 
 
 def change_state(node: rclpy.node.Node, lifecycle_node: str, transition_id: int) -> bool:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydro_ros.bags.align import SampleAligner, SampleLayout
+from hydro_ros.bags.align import SampleAligner, SampleLayout, place_at_keys
 from hydro_ros.bags.reader import read_bag
 from test.conftest import REPO
 
@@ -51,13 +51,10 @@ def test_a_nan_value_is_a_value_that_arrived():
     assert list(stamps) == [MS, 2 * MS] and np.isnan(rows[0, 0]) and aligner.incomplete == 0
 
 
-def test_key_columns_decide_which_stamps_are_samples():
-    aligner = SampleAligner(2, key_columns=[0])
-    aligner.add(0, np.array([1, 2, 3]) * MS, np.array([1.0, 2.0, 3.0]))
-    aligner.add(1, np.array([2, 3, 4]) * MS, np.array([20.0, 30.0, 40.0]))
-    stamps, rows = aligner.take(final=True)
-    assert list(stamps) == [MS, 2 * MS, 3 * MS]
-    assert np.isnan(rows[0, 1]) and list(rows[1:, 1]) == [20.0, 30.0]
+def test_the_key_stamps_decide_which_values_are_samples():
+    column = np.full(3, np.nan)
+    place_at_keys(column, np.array([1, 2, 3]) * MS, np.array([2, 3, 4, 3]) * MS, np.array([20.0, 30.0, 40.0, 31.0]))
+    assert np.isnan(column[0]) and list(column[1:]) == [20.0, 31.0]
 
 
 def test_layout_rows_become_per_actuator_samples():

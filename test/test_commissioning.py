@@ -203,3 +203,42 @@ def test_a_leak_that_begins_in_the_held_out_part_is_refused_never_learnt(sam_con
         commission(strict, fault_free)
     block, report = commission(strict, fault_free, force=True)
     assert block["threshold"]["forced"] and block["model"]["fdi"]["threshold_constant"] > 0.001
+
+
+def test_long_recordings_give_rows_at_the_row_rate_and_the_blocks_do_not_change_the_fit(sam_config, monkeypatch):
+    """A long recording is fitted from ROW_RATE_HZ rows per second, computed in blocks: memory that does not grow with
+    the sample rate, and a fit the block edges do not move."""
+    from hydro_ros.models import identification
+
+    model = SamModel(sam_config)
+    samples = _samples(sam_config, 4, 150.0)
+    whole = flow_regression(model, samples)
+    assert len(whole.flows) <= 2 * identification.ROW_RATE_HZ * whole.seconds + 2
+    monkeypatch.setattr(identification, "BLOCK_S", 7.0)
+    blocked = flow_regression(model, samples)
+    assert blocked.seconds == pytest.approx(whole.seconds) and blocked.open_s == pytest.approx(whole.open_s, abs=0.01)
+    assert len(blocked.flows) == pytest.approx(len(whole.flows), rel=0.01)
+    gains = [identify(model, regression, "run4").notch_gain for regression in (whole, blocked)]
+    for notch in NOTCHES:
+        assert gains[0][notch] == pytest.approx(gains[1][notch], rel=2e-3), notch
+
+
+MEASURE_PEAK = ("import resource, sys\nfrom hydro_ros.cli import main\ncode = main(sys.argv[1:])\n"
+                "print('MAXRSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\nsys.exit(code)")
+
+
+@pytest.mark.slow
+def test_commissioning_memory_grows_little_with_the_recording(tmp_path):
+    """Peak memory of `hydro-ros commission` over 1 and 4 min recordings: it grew 1.2 MB per recorded second when every
+    sample was a regression row (10 GB for 2 h); the samples themselves take 0.06 MB/s (bench/commissioning_memory)."""
+    config, peaks = REPO / "config" / "sam.yaml", {}
+    for duration in (60, 240):
+        bag = tmp_path / f"run{duration}"
+        subprocess.run([sys.executable, "-m", "hydro_ros.cli", "sim", "--config", str(config), "--duration", str(duration),
+                        "--seed", "1", "--out", str(bag), "--quiet"], check=True, capture_output=True)
+        done = subprocess.run([sys.executable, "-c", MEASURE_PEAK, "commission", "--bag", str(bag), "--config", str(config),
+                               "--out", str(tmp_path / f"c{duration}.yaml"), "--quiet", "--force"], check=True, capture_output=True,
+                              text=True)
+        peaks[duration] = next(int(line.split()[1]) for line in done.stdout.splitlines() if line.startswith("MAXRSS_KB")) / 1024
+    growth_mb_per_s = (peaks[240] - peaks[60]) / 180.0
+    assert growth_mb_per_s < 0.4, peaks

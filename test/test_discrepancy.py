@@ -9,34 +9,14 @@ import sys
 
 import pytest
 
-from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, run_blocks
-from hydro_ros.studies.fdi_evaluation import mismatched_config
+from hydro_ros.studies.hidden_effects import hidden_effect_bag, hidden_effect_plant
 from test.conftest import SAM_CONFIG
 
 # studies of minutes of simulated data each: make test runs them, make test-fast does not
 pytestmark = pytest.mark.slow
-
-PLANT_MISMATCH = 0.4  # of fdi-eval's model mismatch
-SEED = 3
-
-
-def plant_config(config, effect=None, value=0.0, seed=SEED, forms=None, also=None):
-    """The plant's config: 40 % of fdi-eval's mismatch drawn for ``seed`` and (maybe) effects the model lacks:
-    ``effect`` at ``value``, the effects ``also`` holds, in ``forms`` (names.EFFECT_FORMS) where given."""
-    effects = ({effect: value} if effect else {}) | (also or {})
-    return mismatched_config(config, seed, PLANT_MISMATCH).with_overrides({"effects": effects, "effect_forms": forms or {}})
-
-
-def hidden_effect_bag(config, path, effect=None, value=0.0, seed=SEED, duration=40.0, forms=None, also=None):
-    """The plant carries the mismatch, sensor noise and (maybe) effects the model lacks."""
-    plant = plant_config(config, effect, value, seed, forms, also)
-    with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
-        for _, _, block in run_blocks(plant, Scenario(duration, [], seed=seed)):
-            writer.write_block("boom", block)
-    return path
 
 
 @pytest.mark.parametrize(("effect", "value"), [(None, 0.0), ("internal_leakage", 1.5), ("spool_offset", 0.04), ("valve_delay", 0.05),
@@ -70,7 +50,7 @@ def test_the_plants_own_model_fits_its_own_validation_data(sam_config, tmp_path,
 
     rec = Recording.from_bag(read_bag(hidden_effect_bag(sam_config, tmp_path / "bag", effect, value)), sam_config)
     validation = rec.part(slice(int(FIT_SHARE * len(rec.times)), None))
-    assert gap(simulate(plant_config(sam_config, effect, value), validation)) < 0.8
+    assert gap(simulate(hidden_effect_plant(sam_config, effect, value), validation)) < 0.8
 
 
 def test_discrepancy_refuses_a_bag_without_the_actuator(tmp_path):
@@ -85,7 +65,7 @@ def test_load_independent_localisation_separates_hydraulic_from_load_side_effect
 
     from hydro_ros.studies.discrepancy import Recording, load_independent_error, localise
 
-    plant = mismatched_config(sam_config, 3, 0.4).with_overrides({"effects": {effect: value}})
+    plant = hidden_effect_plant(sam_config, effect, value)
     blocks = [(m.times, m.joint_position, m.joint_velocity, m.pressure_a, m.pressure_b, m.valve_command, m.supply_pressure)
               for _, _, m in run_blocks(plant, Scenario(20.0, [], seed=3))]
     rec = Recording(*(np.concatenate(part) for part in zip(*blocks)))

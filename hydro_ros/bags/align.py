@@ -76,22 +76,29 @@ class SampleLayout:
         return Samples(times=times, supply_pressure=rows[:, -1], **arrays)
 
 
+def place_at_keys(column: np.ndarray, keys: np.ndarray, stamps: np.ndarray, values: np.ndarray) -> None:
+    """Writes into ``column`` (one value per sorted unique key stamp: a bag's /joint_states stamps) the ``values`` whose
+    stamp is a key; a value at another stamp belongs to no sample, and of two at one stamp the later counts."""
+    if len(keys) and len(stamps):
+        where = np.searchsorted(keys, stamps)
+        known = where < len(keys)
+        known[known] = keys[where[known]] == stamps[known]
+        column[where[known]] = values[known]
+
+
 class SampleAligner:
     """Collects column values by stamp and releases complete rows in stamp order.
 
     A row is released when every column has a value, or, still incomplete, once a complete row
     ``sync_window_ns`` newer exists (counted in ``incomplete``: the monitor sees a gap). Values
     stamped at or before the last released row arrive too late and are dropped (``out_of_order``).
-    ``take(final=True)`` releases everything, as at the end of a bag. With ``key_columns``, rows
-    exist only at the stamps of those columns (a bag's samples are the /joint_states stamps).
+    ``take(final=True)`` releases everything.
     """
 
-    def __init__(self, columns: int, *, sync_window_ns: int = 0, max_pending_ns: int = 5_000_000_000,
-                 key_columns: Sequence[int] | None = None) -> None:
+    def __init__(self, columns: int, *, sync_window_ns: int = 0, max_pending_ns: int = 5_000_000_000) -> None:
         self.width = columns
         self.sync_window_ns = sync_window_ns
         self.max_pending_ns = max_pending_ns
-        self.key_columns = None if key_columns is None else np.asarray(key_columns)
         self.out_of_order = 0
         self.incomplete = 0
         self.restart()
@@ -151,11 +158,7 @@ class SampleAligner:
             return self._pending_stamps, self._pending_rows, self._pending_present
         columns, stamps, values = (np.concatenate(parts) for parts in (self._columns, self._stamps, self._values))
         self._columns, self._stamps, self._values = [], [], []
-        if self.key_columns is not None:
-            keys = np.unique(stamps[np.isin(columns, self.key_columns)])
-            all_stamps = np.union1d(self._pending_stamps, keys)
-        else:
-            all_stamps = np.union1d(self._pending_stamps, stamps)
+        all_stamps = np.union1d(self._pending_stamps, stamps)
         rows = np.full((len(all_stamps), self.width), np.nan)
         present = np.zeros(rows.shape, dtype=bool)
         earlier = np.searchsorted(all_stamps, self._pending_stamps)

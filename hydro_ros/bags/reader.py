@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from hydro_ros.bags.align import Column, SampleAligner, SampleLayout
+from hydro_ros.bags.align import Column, SampleLayout, place_at_keys
 from hydro_ros.bags.cdr import CdrError, decode_joint_state, decode_sample_block
 from hydro_ros.bags.mcap_scan import (
     McapDamage,
@@ -202,8 +202,15 @@ class _Series:
         self.stamps += other.stamps
         self.values += other.values
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        return np.concatenate(self.stamps), np.concatenate(self.values)
+    def at_keys(self, keys: np.ndarray) -> np.ndarray:
+        """The values at the sorted unique ``keys`` stamps, NaN where there is none; the parts are let go as they are placed
+        (a long bag is aligned in little more memory than its columns)."""
+        column = np.full(len(keys), np.nan)
+        self.stamps.reverse()
+        self.values.reverse()
+        while self.stamps:
+            place_at_keys(column, keys, self.stamps.pop(), self.values.pop())
+        return column
 
 
 class _JointStateChannel:
@@ -231,10 +238,11 @@ class _JointStateChannel:
                 return
         stamps, ranges, position, velocity, ok = decode_joint_states(buf, starts, ends, len(self.names))
         same = same_bytes(buf, ranges, self.reference) & ok
+        stamps = stamps[same]  # one array for every joint's position and velocity
         for j, name in enumerate(self.names):
             pos, vel = self.series.setdefault(name, (_Series(), _Series()))
-            pos.add(stamps[same], position[same, j])
-            vel.add(stamps[same], velocity[same, j])
+            pos.add(stamps, position[same, j])
+            vel.add(stamps, velocity[same, j])
         for k in np.flatnonzero(~same):  # other names or malformed: the per-message decoder decides
             try:
                 stamp, names, pos_values, vel_values = decode_joint_state(bytes(buf[starts[k] : ends[k]]))
@@ -332,16 +340,16 @@ def read_bag(path: str | Path) -> BagData:
         elif len(parts) == 3 and parts[0] == "hydraulics" and parts[2] in ("pressure_a", "pressure_b", *topics.MOBILE_VALVE_PRESSURES):
             series[(parts[2], parts[1])] = pressure
     series.update(blocks)
-    columns = list(series)
-    # a bag's samples are the /joint_states stamps; a value at another stamp belongs to no sample
-    aligner = SampleAligner(len(columns), key_columns=[k for k, (quantity, _) in enumerate(columns) if quantity == "joint_position"])
-    for k, column in enumerate(columns):
-        aligner.add(k, *series[column].arrays())
-    stamps, rows = aligner.take(final=True)
-    data = BagData(path=path, stamps_ns=stamps, truth=truth, message_count=total, topic_counts=counts, errors=errors)
-    for k, (quantity, name) in enumerate(columns):
+    # a bag's samples are the /joint_states stamps; each column is placed and let go in turn (a long bag in bounded memory)
+    keys = np.concatenate([stamps for column in series if column[0] == "joint_position" for stamps in series[column].stamps]
+                          or [np.zeros(0, dtype=np.int64)])
+    if len(keys) > 1 and not np.all(keys[1:] > keys[:-1]):  # one joint's stamps in order need no sort
+        keys = np.unique(keys)
+    data = BagData(path=path, stamps_ns=keys, truth=truth, message_count=total, topic_counts=counts, errors=errors)
+    for quantity, name in list(series):
+        values = series.pop((quantity, name)).at_keys(keys)
         if quantity in ("supply_pressure", "ls_pressure"):
-            setattr(data, quantity, rows[:, k])
+            setattr(data, quantity, values)
         else:
-            getattr(data, quantity)[name] = rows[:, k]
+            getattr(data, quantity)[name] = values
     return data

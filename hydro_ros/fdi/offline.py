@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -56,13 +56,19 @@ def blocks_from_bag(data: BagData, monitor: FdiMonitor) -> Samples:
     return data.samples(SampleLayout(monitor.actuators, monitor.joints, mobile=monitor.generator.needs_mobile_pressures))
 
 
-def run_monitor(monitor: FdiMonitor, samples: Samples, progress: Callable[[int], None] | None = None) -> FdiRun:
-    results: list[BlockResult] = []
+def monitor_blocks(monitor: FdiMonitor, samples: Samples, progress: Callable[[int], None] | None = None
+                   ) -> Iterator[tuple[int, BlockResult]]:
+    """The monitor over ``samples`` a block at a time, each with the index of its first sample (a long recording need not
+    be held as results)."""
     for start in range(0, len(samples), BLOCK):
         block = samples.slice(slice(start, start + BLOCK))
-        results.append(monitor.process(block))
+        yield start, monitor.process(block)
         if progress is not None:
             progress(len(block))
+
+
+def run_monitor(monitor: FdiMonitor, samples: Samples, progress: Callable[[int], None] | None = None) -> FdiRun:
+    results = [result for _, result in monitor_blocks(monitor, samples, progress)]
     if not results:
         raise BagError("no samples to analyse")
     return FdiRun(

@@ -65,6 +65,12 @@ EXCLUSION_GUARD_S = 0.3  # [s] ... and those this close to a left-out one: a cav
 # in milliseconds, and the low-pass spreads that rate into its neighbours. Measured on the crane's lift (its B cavitates
 # while lowering): a fault-free cylinder fitted leaks of 0.19 L/min (B, internal) without the guard, <= 0.04 with 0.3 s
 OPEN = 0.1  # a notch counts as open beyond this opening
+# Long recordings in bounded memory: the rows are low-passed at FILTER_HZ, so one every 1/ROW_RATE_HZ carries what the
+# others do (6x the cut-off), and a long stretch is computed in blocks of BLOCK_S read with EDGE_S more on each side,
+# where the filter's and the simulated spool's start settle (each well under a second)
+ROW_RATE_HZ = 50.0
+BLOCK_S = 60.0
+EDGE_S = 2.0
 LEAKS = ("external_leakage_a", "external_leakage_b", "internal_leakage")
 COLUMNS = ([f"{notch}_c{3 - k}" for notch in NOTCHES for k in range(4)] + ["oil_compliance", "hose_capacitance"]
            + [f"{notch}_centre" for notch in NOTCHES] + list(LEAKS))
@@ -104,23 +110,36 @@ def _signed_root(dp: np.ndarray) -> np.ndarray:
 
 def stretch_rows(model: SamModel, joint: np.ndarray, p_a: np.ndarray, p_b: np.ndarray, drive: np.ndarray,
                  feed: np.ndarray) -> FlowRegression:
-    """The continuity rows of one contiguous stretch of samples at the model's rate.
+    """The continuity rows of one contiguous stretch of samples at the model's rate, ROW_RATE_HZ of them per second.
 
     ``drive`` is what moves the spool (the valve command, or a mobile valve's pilot pressures over
     their maximum), ``feed`` the pressure upstream of the metering notches (supply or compensator).
     """
+    signals = np.stack([np.asarray(s, dtype=float) for s in (joint, p_a, p_b, drive, feed)], axis=1)
+    block, edge = int(BLOCK_S * model.sample_rate), int(EDGE_S * model.sample_rate)
+    parts = []
+    for start in range(0, len(signals), block):
+        begin, end = max(start - edge, 0), min(start + block + edge, len(signals))
+        parts.append(_block_rows(model, signals[begin:end], slice(start - begin, min(start + block, len(signals)) - begin), start))
+    return FlowRegression.concatenate(parts)
+
+
+def _block_rows(model: SamModel, signals: np.ndarray, inner: slice, first: int) -> FlowRegression:
+    """The rows of the samples ``inner`` of ``signals`` (joint, p_A, p_B, drive, feed), the first of them sample ``first``
+    of its stretch (the row grid of ROW_RATE_HZ is the stretch's)."""
     p = model.base
     dt = 1.0 / model.sample_rate
     b, a = butter(2, FILTER_HZ / (model.sample_rate / 2.0))
+    joint, p_a, p_b, drive, feed = signals.T
 
     def low_pass(x: np.ndarray) -> np.ndarray:
         return filtfilt(b, a, x, axis=0)
 
-    x = low_pass(model.piston_from_joint(np.ascontiguousarray(joint, dtype=float)))
+    x = low_pass(model.piston_from_joint(np.ascontiguousarray(joint)))
     velocity = np.gradient(x, dt)
     p_a, p_b, supply = low_pass(p_a), low_pass(p_b), low_pass(feed)
     rate_a, rate_b = np.gradient(p_a, dt), np.gradient(p_b, dt)
-    spool = spool_openings(spool_positions(np.ascontiguousarray(drive, dtype=float), p[SPOOL_OMEGA], p[SPOOL_DAMPING], dt,
+    spool = spool_openings(spool_positions(np.ascontiguousarray(drive), p[SPOOL_OMEGA], p[SPOOL_DAMPING], dt,
                                            model.substeps), p[DEADZONE], p[DEADZONE_PLAIN] < 0.5)
     opening = np.abs(spool)
     powers = np.stack([spool ** 3, spool ** 2, spool, np.ones_like(spool)], axis=1)
@@ -145,11 +164,16 @@ def stretch_rows(model: SamModel, joint: np.ndarray, p_a: np.ndarray, p_b: np.nd
             & (x > p[STOP_LOWER] + STOP_MARGIN) & (x < p[STOP_UPPER] - STOP_MARGIN))
     guard = int(EXCLUSION_GUARD_S * model.sample_rate)
     keep = binary_erosion(keep, np.ones(2 * guard + 1, dtype=bool), border_value=1)
+    outside = np.ones(len(x), dtype=bool)
+    outside[inner] = False
+    keep[outside] = False
+    every = max(int(round(model.sample_rate / ROW_RATE_HZ)), 1)
+    row = keep & ((first - inner.start + np.arange(len(x))) % every == 0)
     seen = {"PA": extending, "BT": extending, "PB": retracting, "AT": retracting}
-    return FlowRegression(np.vstack([low_pass(chamber_a)[keep], low_pass(chamber_b)[keep]]),
-                          np.concatenate([low_pass(p[AREA_A] * velocity)[keep], low_pass(-p[AREA_B] * velocity)[keep]]),
+    return FlowRegression(np.vstack([low_pass(chamber_a)[row], low_pass(chamber_b)[row]]),
+                          np.concatenate([low_pass(p[AREA_A] * velocity)[row], low_pass(-p[AREA_B] * velocity)[row]]),
                           {n: float(np.count_nonzero(keep & seen[n] & (opening > OPEN))) * dt for n in NOTCHES},
-                          {n: float(opening[keep & seen[n]].max(initial=0.0)) for n in NOTCHES}, len(x) * dt)
+                          {n: float(opening[keep & seen[n]].max(initial=0.0)) for n in NOTCHES}, (inner.stop - inner.start) * dt)
 
 
 def flow_regression(model: SamModel, samples: Samples, column: int = 0) -> FlowRegression:

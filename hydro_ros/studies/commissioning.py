@@ -42,7 +42,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.samples import Samples
 from hydro_ros.fdi.monitor import FdiMonitor
-from hydro_ros.fdi.offline import run_monitor
+from hydro_ros.fdi.offline import monitor_blocks
 from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS, ParityThresholds
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.chamber import leak_coefficient
@@ -81,6 +81,7 @@ PARITY_FLOOR_L_MIN = 0.25  # [L/min] no commissioned parity threshold below this
 # windows, and payloads the recordings did not hold move the 5 s means beyond them (the mobile SAM with 300 kg steps: 2 false alarms
 # per hour without the floor, 0 with it, the roots' noise bias in the thresholds either way; bench/commissioning_mobile)
 PARITY_FLOOR = 3.0  # [sigma] no bin's c below margin x this, however quiet its held-out data
+MEAN_RATE_HZ = 100.0  # the 5 s means are kept at this rate for the parity statistics: they move slowly (bounded memory)
 PARITY_MARGIN = 3.0  # c = margin x the largest held-out factor. The bins follow the opening, not the load pressure
 # that the return notch's flow error grows with: on 6 plants commissioned without payload, 300 kg steps reached
 # 1.0-2.6x the held-out factor (bench/commissioning_mobile.json), and 2.0 gave 3 false alarms per hour
@@ -190,12 +191,16 @@ def notch_gain_rows(regression: FlowRegression, model: SamModel, notches: Sequen
 def threshold_excess(monitor: FdiMonitor, samples: Samples) -> float:
     """The largest armed 5 s mean residual above the quadratic term of eq. (25) [MPa] on fault-free samples."""
     settings = monitor.settings
-    run = run_monitor(monitor, samples)
-    armed = slice(monitor.startup + monitor.window, None)  # where the monitor itself arms
-    mean_pressure_sq = (run.threshold[armed] - settings.threshold_constant) / settings.threshold_quadratic
-    excess = np.abs(run.residual_mean[armed]) - settings.threshold_quadratic * mean_pressure_sq
-    excess = excess[np.isfinite(excess)]
-    return float(excess.max()) if excess.size else 0.0
+    arms = monitor.startup + monitor.window  # where the monitor itself arms
+    worst = None
+    for start, block in monitor_blocks(monitor, samples):
+        armed = slice(max(arms - start, 0), None)
+        mean_pressure_sq = (block.threshold[armed] - settings.threshold_constant) / settings.threshold_quadratic
+        excess = np.abs(block.mean_residual[armed]) - settings.threshold_quadratic * mean_pressure_sq
+        excess = excess[np.isfinite(excess)]
+        if excess.size:
+            worst = max(float(excess.max()), -np.inf if worst is None else worst)
+    return 0.0 if worst is None else worst
 
 
 def adaptive_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequence[Samples],
@@ -222,14 +227,21 @@ def adaptive_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Se
 
 
 def armed_parity_residuals(machine: Machine, samples: Samples) -> tuple[np.ndarray, np.ndarray]:
-    """Armed 5 s mean parity residuals (n, 2) [L/min] and operating points (n, 5) of every actuator, thresholds ignored."""
+    """Armed 5 s mean parity residuals (n, 2) [L/min] and operating points (n, 5) of every actuator, thresholds ignored,
+    MEAN_RATE_HZ of them per second."""
     monitor = FdiMonitor(machine.with_overrides({"fdi": {"parity_thresholds": ParityThresholds.probe()}}), "parity")
-    run = run_monitor(monitor, samples)
-    armed = slice(monitor.startup + monitor.window, None)
-    residual = run.residual_mean[armed].reshape(-1, 2)
-    point = run.operating_point[armed].reshape(-1, POINT_CHANNELS)
-    keep = np.all(np.isfinite(residual), axis=1) & np.all(np.isfinite(point), axis=1)
-    return residual[keep], point[keep]
+    arms = monitor.startup + monitor.window
+    every = max(int(round(machine.sample_rate_hz / MEAN_RATE_HZ)), 1)
+    residuals, points = [], []
+    for start, block in monitor_blocks(monitor, samples):
+        index = start + np.arange(len(block.times))
+        pick = (index >= arms) & (index % every == 0)
+        residual = block.mean_residual[pick].reshape(-1, 2)
+        point = block.operating_point[pick].reshape(-1, POINT_CHANNELS)
+        keep = np.all(np.isfinite(residual), axis=1) & np.all(np.isfinite(point), axis=1)
+        residuals.append(residual[keep])
+        points.append(point[keep])
+    return np.concatenate(residuals or [np.zeros((0, 2))]), np.concatenate(points or [np.zeros((0, POINT_CHANNELS))])
 
 
 def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequence[Samples],

@@ -1,0 +1,75 @@
+"""Nodes as separate processes on the local graph, as the tests, the benchmarks and the demo start them."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from contextlib import contextmanager
+from typing import Iterator
+
+import psutil
+
+
+@contextmanager
+def node_process(module: str, *ros_args: str) -> Iterator[subprocess.Popen]:
+    """``python -m module --ros-args ...`` in this environment (its ROS_DOMAIN_ID), terminated on leaving, killed if it
+    will not end."""
+    proc = subprocess.Popen([sys.executable, "-m", module, "--ros-args", *ros_args], env=dict(os.environ),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        yield proc
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def free_port() -> int:
+    """A TCP port on loopback nobody listens on now."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def cpu_seconds(process: psutil.Process) -> float:
+    times = process.cpu_times()
+    return times.user + times.system
+
+
+def live_cpu_share(domain: int, commands: list[list[str]], status: str, progress_key: str, measure_s: float
+                   ) -> tuple[float, float, dict, dict]:
+    """Start node processes (module, ROS args) on a private localhost domain, wait until the ``/diagnostics`` status
+    ``status`` counts ``progress_key`` past 2000, then measure the last process's CPU time over ``measure_s``: (CPU
+    share of one core, wall s, the status's values at the start and at the end)."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    procs = [subprocess.Popen([sys.executable, "-m", c[0], "--ros-args", *c[1:]], env=dict(os.environ), stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL) for c in commands]
+    rclpy.init()
+    node = rclpy.create_node("bench_probe")
+    statuses: list = []
+    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: statuses.extend(s for s in m.status if s.name == status), 10)
+    measured = psutil.Process(procs[-1].pid)
+    try:
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end and not any(int({v.key: v.value for v in s.values}[progress_key]) > 2000 for s in statuses):
+            rclpy.spin_once(node, timeout_sec=0.1)
+        cpu0, wall0, first = cpu_seconds(measured), time.monotonic(), statuses[-1]
+        while time.monotonic() < wall0 + measure_s:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        cpu1, wall1, last = cpu_seconds(measured), time.monotonic(), statuses[-1]
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+        for proc in procs:
+            proc.terminate()
+            proc.wait(timeout=10)
+    values = [{v.key: v.value for v in s.values} for s in (first, last)]
+    return (cpu1 - cpu0) / (wall1 - wall0), wall1 - wall0, values[0], values[1]
