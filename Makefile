@@ -41,20 +41,20 @@ demo: setup
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-42} $(VENV)/bin/hydro-ros demo --out out/demo --linger $(HMI_LINGER)
 
 bench: setup $(CHROMIUM)
-	$(PY) bench/run.py --out bench/results.json
+	$(PY) bench/run.py --out bench/results/results.json
 	$(PY) bench/discrepancy_suite.py
-	$(PY) bench/dp.py --out bench/dp.json
-	$(PY) bench/trajectories.py --out bench/trajectories.json
-	$(PY) bench/hmi.py --out bench/hmi.json
-	$(PY) bench/commissioning.py --out bench/commissioning.json
-	$(PY) bench/commissioning.py --config config/sam_mobile.yaml --out bench/commissioning_mobile.json
-	$(PY) bench/commissioning_memory.py --out bench/commissioning_memory.json
-	$(PY) bench/crane_monitoring.py --out bench/crane_monitoring.json
-	$(PY) bench/crane_cpu.py --out bench/crane_cpu.json
-	$(PY) bench/crane_commissioning.py --out bench/crane_commissioning.json
-	$(PY) bench/fleet.py --out bench/fleet.json
-	$(PY) bench/mems.py --out bench/mems.json
-	$(PY) bench/savings_map.py --out bench/savings_map.json
+	$(PY) bench/dp.py --out bench/results/dp.json
+	$(PY) bench/trajectories.py --out bench/results/trajectories.json
+	$(PY) bench/hmi.py --out bench/results/hmi.json
+	$(PY) bench/commissioning.py --out bench/results/commissioning.json
+	$(PY) bench/commissioning.py --config config/sam_mobile.yaml --out bench/results/commissioning_mobile.json
+	$(PY) bench/commissioning_memory.py --out bench/results/commissioning_memory.json
+	$(PY) bench/crane_monitoring.py --out bench/results/crane_monitoring.json
+	$(PY) bench/crane_cpu.py --out bench/results/crane_cpu.json
+	$(PY) bench/crane_commissioning.py --out bench/results/crane_commissioning.json
+	$(PY) bench/fleet.py --out bench/results/fleet.json
+	$(PY) bench/mems.py --out bench/results/mems.json
+	$(PY) bench/savings_map.py --out bench/results/savings_map.json
 
 docs: setup
 	$(PY) -m hydro_ros.docgen docs

@@ -8,7 +8,7 @@ on 3 x 2 min of its own fault-free operation (operator seeds 1-3). Then, on runs
 - leaks A, B, A+B and internal at 0.1-0.5 L/min at 10 MPa from 20 s in 90 s runs, commissioned
   monitor: detected after onset, the right name and when, and any wrong name shown before it;
 - a 3 % spool offset from 20 s (P-II's table has no row for it): detected, and under which names.
-Writes --out (bench/commissioning.json) and a PNG beside it. On a mobile-valve config the monitor is
+Writes --out (bench/results/commissioning.json) and a PNG beside it. On a mobile-valve config the monitor is
 the parity method and commissioning fits P-IV's per-operating-point thresholds; P-IV's fault list has
 no A+B leak, so that row can only be detected there.
 """
@@ -49,7 +49,7 @@ def samples(machine, seed: int, duration: float, injections=()) -> Samples:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=str(REPO / "config" / "sam.yaml"))
-    parser.add_argument("--out", default="bench/commissioning.json")
+    parser.add_argument("--out", default="bench/results/commissioning.json")
     parser.add_argument("--plants", type=int, default=6)
     parser.add_argument("--fault-free-runs", type=int, default=5, help="2 min runs per plant")
     args = parser.parse_args()

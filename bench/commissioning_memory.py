@@ -3,7 +3,7 @@
 Fault-free SAM recordings of 5 min, 20 min and 2 h (`hydro-ros sim`, cached under out/bench/) are each commissioned by
 the installed CLI in a fresh process; its peak resident set (ru_maxrss) is compared with the 5 min run's in the same
 run, and with the floor of holding the recording's samples (float64 per column and sample). Writes --out
-(bench/commissioning_memory.json) and a PNG beside it. The target: 2 h of recording under 2 GB.
+(bench/results/commissioning_memory.json) and a PNG beside it. The target: 2 h of recording under 2 GB.
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ def plot(summary: dict, png: Path) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=str(REPO / "config" / "sam.yaml"))
-    parser.add_argument("--out", default="bench/commissioning_memory.json")
+    parser.add_argument("--out", default="bench/results/commissioning_memory.json")
     parser.add_argument("--cache", default=str(REPO / "out" / "bench"), help="where the simulated recordings are kept")
     args = parser.parse_args()
     config, cache, out = Path(args.config), Path(args.cache), Path(args.out)

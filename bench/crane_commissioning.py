@@ -9,9 +9,9 @@ seen, of the same plant:
 - fault-free work (the operator and the three paths, 90 s each, payload steps), monitored with the
   shipped config (thresholds for a crane never seen) and with the commissioned one: false alarms;
 - a leak in one cylinder from 20 s while the crane works a path (each plant its own path), 0.25 and
-  0.5 L/min at 10 MPa (the shipped thresholds name none below 1 L/min, bench/crane_monitoring.json):
+  0.5 L/min at 10 MPa (the shipped thresholds name none below 1 L/min, bench/results/crane_monitoring.json):
   detected on that cylinder, named, delay, any alarm on another cylinder or before onset.
-Writes --out (bench/crane_commissioning.json) and a PNG beside it.
+Writes --out (bench/results/crane_commissioning.json) and a PNG beside it.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def thresholds_at_bins(machine) -> list[list[float]]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=str(REPO / "config" / "k70m.yaml"))
-    parser.add_argument("--out", default="bench/crane_commissioning.json")
+    parser.add_argument("--out", default="bench/results/crane_commissioning.json")
     parser.add_argument("--plants", type=int, default=4)
     parser.add_argument("--fault-free-seeds", type=int, default=2, help="per plant: the operator and each path, 90 s each")
     parser.add_argument("--workers", type=int, default=2)

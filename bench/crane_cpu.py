@@ -8,7 +8,7 @@ Both are real processes on a private localhost domain: plant_sim's crane mode ->
   supply, LS, five pressures per cylinder); fdi_node ``input:=topics``. At 1 kHz these are ~19 000
   messages a second, more than either process carries on this machine, so plant_sim runs at 0.25 x real
   time and the CPU share is scaled to 1 kHz (x 4; rclpy's cost is per message).
-Writes --out (bench/crane_cpu.json).
+Writes --out (bench/results/crane_cpu.json).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def measure(domain: int, plant_args: list[str], fdi_input: str, measure_s: float
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="bench/crane_cpu.json")
+    parser.add_argument("--out", default="bench/results/crane_cpu.json")
     parser.add_argument("--seconds", type=float, default=20.0)
     args = parser.parse_args()
     blocks = measure(153, ["-p", "sensor_topics:=none", "-p", "sample_blocks:=true"], "sample_block", args.seconds)

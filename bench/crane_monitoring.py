@@ -12,7 +12,7 @@ seed from seeds no fit has seen, with 300 kg gripped at 1/3 and released at 2/3 
 - fault-free: per seed, 120 s each of the random operator and of each path's work cycle; and again on
   plants drawn with twice the mismatch (each notch +-10 %, bulk moduli +-50 %, centre leakage and
   friction +-60 %), beyond anything the thresholds were fitted on.
-Writes --out (bench/crane_monitoring.json), a Markdown table and a PNG beside it.
+Writes --out (bench/results/crane_monitoring.json), a Markdown table and a PNG beside it.
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def plot(summary: dict, path: Path) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=str(REPO / "config" / "k70m.yaml"))
-    parser.add_argument("--out", default="bench/crane_monitoring.json")
+    parser.add_argument("--out", default="bench/results/crane_monitoring.json")
     parser.add_argument("--seeds", type=int, default=2, help="mismatched plants per cylinder, leak, size and path")
     parser.add_argument("--fault-free-seeds", type=int, default=4, help="plants of fault-free work (operator and every path)")
     parser.add_argument("--workers", type=int, default=2)

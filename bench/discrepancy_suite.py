@@ -8,7 +8,7 @@ effect at its true value), the best any fitted model can do on that bag. The val
 entrained air also run at a second, larger size: at the first, little more than the plant's
 mismatch, half the gap before lies near that floor.
 
-Writes bench/discrepancy_suite.json and bench/discrepancy_example.html (the report of EXAMPLE) and prints a
+Writes bench/results/discrepancy_suite.json and bench/results/discrepancy_example.html (the report of EXAMPLE) and prints a
 markdown table (``python bench/discrepancy_suite.py --table`` prints it from the file).
 """
 
@@ -59,7 +59,7 @@ def _form(name: str, forms: dict[str, str]) -> str | None:
     return forms.get(name, first_form(name))
 
 
-EXAMPLE = ({"valve_delay": 0.1, "valve_deadzone": 0.08}, {})  # its report.html is kept as bench/discrepancy_example.html
+EXAMPLE = ({"valve_delay": 0.1, "valve_deadzone": 0.08}, {})  # its report.html is kept as bench/results/discrepancy_example.html
 
 
 def run_row(config: Machine, effects: dict[str, float], forms: dict[str, str]) -> dict:

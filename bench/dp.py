@@ -1,6 +1,6 @@
 """DP benchmarks (make bench): fast solver against the NumPy reference in the same run, grid convergence,
-and `dp compare` on every placeholder path. Writes bench/dp.json, bench/dp_convergence.png and
-bench/dp_compare_<machine>_<path>.{json,md,png}.
+and `dp compare` on every placeholder path. Writes bench/results/dp.json, bench/results/dp_convergence.png and
+bench/results/dp_compare_<machine>_<path>.{json,md,png}.
 
 Time and peak memory are measured in a fresh process per solver (ru_maxrss of that child), so one
 solver's allocations do not hide the other's; the time after one solve on a tiny grid, which loads
@@ -167,7 +167,7 @@ def window_study() -> dict:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--out", default="bench/dp.json")
+    parser.add_argument("--out", default="bench/results/dp.json")
     parser.add_argument("--parts", default="solver,convergence,compare,window",
                         help="comma-separated parts to run; the others are kept from an existing --out")
     args = parser.parse_args()

@@ -2,7 +2,7 @@
 Dask LocalCluster with one and two workers, in the same run; and the cores a fleet of 100 machines recording 8 h a
 day needs. Each recording is RECORDING_S of the simulated SAM at work (a payload step, sensor noise, a plant that differs
 from the config); rates are scaled to recordings of one hour of 1 kHz data (the analysis is linear in the samples).
-Writes --out (bench/fleet.json) and a bar chart beside it.
+Writes --out (bench/results/fleet.json) and a bar chart beside it.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ def timed(root: Path, out: Path, **where) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="bench/fleet.json")
+    parser.add_argument("--out", default="bench/results/fleet.json")
     args = parser.parse_args()
     from distributed import LocalCluster
 

@@ -5,7 +5,7 @@ Per phase: CPU share of the hmi process, against fdi_node's in the same run (the
 work the HMI watches), latency from a /diagnostics stamp to the tile in the page's DOM, the
 websocket bytes per page and the page's own time per update. fdi_node publishes its diagnostics
 at 5 Hz here (diagnostics_period 0.2 s) so each phase has enough latency samples.
-Writes bench/hmi.json and bench/hmi.png.
+Writes bench/results/hmi.json and bench/results/hmi.png.
 """
 
 from __future__ import annotations
@@ -127,7 +127,7 @@ def _plot(result: dict, target: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default=str(REPO / "bench" / "hmi.json"))
+    parser.add_argument("--out", default=str(REPO / "bench" / "results" / "hmi.json"))
     parser.add_argument("--phase", type=float, default=30.0, help="seconds per phase")
     args = parser.parse_args()
     result = measure(args.phase, (0, 1, 4))

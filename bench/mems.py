@@ -1,5 +1,5 @@
 """P-III's Tables I and II and its detection delays, MEMS motion sensor against the encoder (make bench).
-Writes --out (bench/mems.json), the table beside it (.md) and a bar chart (.png)."""
+Writes --out (bench/results/mems.json), the table beside it (.md) and a bar chart (.png)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from hydro_ros.studies.mems import markdown, tables  # noqa: E402
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="bench/mems.json")
+    parser.add_argument("--out", default="bench/results/mems.json")
     parser.add_argument("--seeds", type=int, default=6, help="runs per case (P-III: six fault-free experiments)")
     args = parser.parse_args()
     result = tables(args.seeds)

@@ -1,7 +1,7 @@
 """`make bench`: speed of the model, the bag reader, the UKF and the FDI (offline and live), each
 against a reference or target measured in the same run, and the FDI evaluation with model mismatch.
 
-Writes bench/results.json and bench/results.png, and bench/fdi_eval.{json,md,png}.
+Writes bench/results/results.json and bench/results/results.png, and bench/results/fdi_eval.{json,md,png}.
 """
 
 from __future__ import annotations
@@ -181,7 +181,7 @@ def fdi_evaluation(config: Machine, out_dir: Path, name: str = "fdi_eval") -> di
 
 
 def gsa(config_path: Path, out_dir: Path, samples: int = 1024) -> dict:
-    """P-I GSA at N = 1024 (runs N (k + 2) over two processes); indices in bench/gsa.json."""
+    """P-I GSA at N = 1024 (runs N (k + 2) over two processes); indices in bench/results/gsa.json."""
     start = time.perf_counter()
     status = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "gsa", "--config", str(config_path), "--samples", str(samples),
                              "--json", str(out_dir / "gsa.json"), "--quiet"], check=False).returncode
@@ -194,7 +194,7 @@ def gsa(config_path: Path, out_dir: Path, samples: int = 1024) -> dict:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--out", default="bench/results.json")
+    parser.add_argument("--out", default="bench/results/results.json")
     args = parser.parse_args()
     config = load_machine_config(default_config_path("sam"))
     out = Path(args.out)

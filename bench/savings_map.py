@@ -1,5 +1,5 @@
 """Where the K70M's telescope redundancy saves energy (make bench): DP against the better pseudo-inverse on P-VI's
-vertical and horizontal lines moved across the workspace, CP and LS. Writes --out (bench/savings_map.json), a table
+vertical and horizontal lines moved across the workspace, CP and LS. Writes --out (bench/results/savings_map.json), a table
 (.md) and the map (.png: each line drawn where it lies, coloured by the DP's CP saving)."""
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ HORIZONTAL_X0 = (2.0, 3.0, 4.0)
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="bench/savings_map.json")
+    parser.add_argument("--out", default="bench/results/savings_map.json")
     args = parser.parse_args()
     crane, config = load_crane(default_config_path("k70m"))
     paths = line_paths(VERTICAL_X, VERTICAL_Y0, HORIZONTAL_Y, HORIZONTAL_X0)

@@ -2,7 +2,7 @@
 process (the reference), on all local cores and on a Dask LocalCluster, in the same run; request ->
 trajectory latency of trajectory_server on a live DDS graph (stored start and re-planned start);
 and the closed-loop execution of every stored solution on the simulated crane (P-VI Table 4 style).
-Writes bench/trajectories.json, bench/execution.md and bench/execution.png.
+Writes bench/results/trajectories.json, bench/results/execution.md and bench/results/execution.png.
 """
 
 from __future__ import annotations
@@ -173,7 +173,7 @@ def _plot(rows: dict, target: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="bench/trajectories.json")
+    parser.add_argument("--out", default="bench/results/trajectories.json")
     args = parser.parse_args()
     out = Path(args.out)
     _, config = load_crane(default_config_path("k70m"))

@@ -132,7 +132,7 @@ def test_commissioning_on_the_cranes_own_work_lowers_its_thresholds_and_names_ha
     payload gripped and released): every notch's gain is recovered, no leak is read into the fault-free
     recordings, the thresholds at rest drop below the shipped ones, and on runs of that crane no fit has
     seen it stays quiet at work and names a 0.5 L/min leak on the telescope (rates per cylinder and size over several
-    plants: bench/crane_commissioning.json)."""
+    plants: bench/results/crane_commissioning.json)."""
     machine, config = crane_machine
     trajectories = path_trajectories(config)
     plant = mismatched_config(machine, 905)

@@ -84,7 +84,7 @@ PARITY_FLOOR = 3.0  # [sigma] no bin's c below margin x this, however quiet its 
 MEAN_RATE_HZ = 100.0  # the 5 s means are kept at this rate for the parity statistics: they move slowly (bounded memory)
 PARITY_MARGIN = 3.0  # c = margin x the largest held-out factor. The bins follow the opening, not the load pressure
 # that the return notch's flow error grows with: on 6 plants commissioned without payload, 300 kg steps reached
-# 1.0-2.6x the held-out factor (bench/commissioning_mobile.json), and 2.0 gave 3 false alarms per hour
+# 1.0-2.6x the held-out factor (bench/results/commissioning_mobile.json), and 2.0 gave 3 false alarms per hour
 MOTION_HINT = {"PA": "extending moves (positive valve command)", "BT": "extending moves (positive valve command)",
                "PB": "retracting moves (negative valve command)", "AT": "retracting moves (negative valve command)"}
 

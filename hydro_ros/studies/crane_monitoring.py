@@ -16,7 +16,7 @@ the notch coefficients (``flow_fraction``, :class:`hydro_ros.fdi.parity.ParityTh
   bins, where the mismatched notches reach 4-7 sigma, and blunt the bins at rest (1-3 sigma), where
   a leak shows best: a held cylinder's chamber has only its leak to explain.
 
-The evaluation (``make bench``, ``bench/crane_monitoring.json``) uses further plants drawn the same
+The evaluation (``make bench``, ``bench/results/crane_monitoring.json``) uses further plants drawn the same
 way and the crane working the three P-VI paths (their DP-CP trajectories) with a leak in one named
 cylinder: detection, isolation to the cylinder and the fault, delay, and false alarms per hour.
 """
