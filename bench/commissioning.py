@@ -26,6 +26,7 @@ from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
 
+from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.machine import load_machine_config  # noqa: E402
 from hydro_ros.contract.names import Injection  # noqa: E402
 from hydro_ros.contract.samples import Samples  # noqa: E402
@@ -130,7 +131,7 @@ def main() -> int:
         "wall_s": round(time.perf_counter() - start, 1), "per_plant": plants,
     }
     out = Path(args.out)
-    out.write_text(json.dumps(summary, indent=2) + "\n")
+    write_result(out, summary)
     plot(summary, out.with_suffix(".png"))
     print(json.dumps({k: v for k, v in summary.items() if k != "per_plant"}, indent=2))
     return 0

@@ -22,6 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from hydro_ros.bags.reader import bag_info  # noqa: E402
+from hydro_ros.benchresults import commit, write_result  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 DURATIONS_S = (300, 1200, 7200)
@@ -85,10 +86,10 @@ def main() -> int:
         run["peak_vs_samples"] = round(run["peak_mb"] / run["samples_mb"], 2)
     longest = runs[-1]
     growth = (longest["peak_mb"] - reference["peak_mb"]) / ((longest["recording_s"] - reference["recording_s"]) / 3600.0)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
-    summary = {"commit": commit or "unknown", "config": str(config), "target_mb": TARGET_MB, "runs": runs,
+    shown = config.resolve().relative_to(REPO) if config.resolve().is_relative_to(REPO) else config
+    summary = {"commit": commit(), "config": str(shown), "target_mb": TARGET_MB, "runs": runs,
                "growth_mb_per_recorded_hour": round(growth, 1), "within_target": longest["peak_mb"] < TARGET_MB}
-    out.write_text(json.dumps(summary, indent=2) + "\n")
+    write_result(out, summary)
     plot(summary, out.with_suffix(".png"))
     print(json.dumps(summary, indent=2))
     return 0 if summary["within_target"] else 1

@@ -27,6 +27,7 @@ from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
 
+from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.errors import InputError  # noqa: E402
 from hydro_ros.contract.machine import load_machine_config  # noqa: E402
 from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS  # noqa: E402
@@ -112,7 +113,7 @@ def main() -> int:
         "wall_s": round(time.perf_counter() - start, 1), "per_plant": plants,
     }
     out = Path(args.out)
-    out.write_text(json.dumps(summary, indent=2) + "\n")
+    write_result(out, summary)
     plot(summary, out.with_suffix(".png"))
     print(json.dumps({k: v for k, v in summary.items() if k != "per_plant"}, indent=2))
     return 0

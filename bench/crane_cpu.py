@@ -20,6 +20,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 
+from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.nodes.processes import live_cpu_share  # noqa: E402
 
 K70M = REPO / "config" / "k70m.yaml"
@@ -48,7 +49,7 @@ def main() -> int:
     result = {"cylinders": 3, "sample_rate_hz": 1000.0, "goal_share_of_one_core": GOAL, "sample_blocks": blocks,
               "per_sample_topics": per_sample,
               "ratio_blocks_to_topics": blocks["cpu_share_of_one_core"] / per_sample["cpu_share_at_1khz"]}
-    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
+    write_result(Path(args.out), result)
     print(json.dumps(result, indent=2))
     return 0
 

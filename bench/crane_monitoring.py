@@ -18,7 +18,6 @@ Writes --out (bench/results/crane_monitoring.json), a Markdown table and a PNG b
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -27,6 +26,7 @@ from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
 
+from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.machine import load_machine_config  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
 from hydro_ros.studies.crane_monitoring import (  # noqa: E402
@@ -112,7 +112,7 @@ def main() -> int:
     summary["false_alarm_runs"] = [{"seed": o.case.seed, "mismatch": o.case.mismatch, "path": o.case.path or "operator", "alarms": o.alarms}
                                    for o in free_outcomes + doubled_outcomes if o.alarms]
     out = Path(args.out)
-    out.write_text(json.dumps(summary, indent=2) + "\n")
+    write_result(out, summary)
     out.with_suffix(".md").write_text(markdown(summary))
     plot(summary, out.with_suffix(".png"))
     print(markdown(summary))

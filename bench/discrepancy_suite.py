@@ -24,12 +24,14 @@ from pathlib import Path
 from tqdm import tqdm
 
 from hydro_ros.bags.reader import BagData, read_bag  # noqa: E402
+from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E402
 from hydro_ros.contract.names import first_form  # noqa: E402
 from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, run, simulate  # noqa: E402
 from hydro_ros.studies.hidden_effects import hidden_effect_bag, hidden_effect_plant  # noqa: E402
 
+RESULTS = Path(__file__).resolve().parent / "results"
 OWN_FORM = [(None, 0.0), ("internal_leakage", 1.5), ("external_leakage_a", 2.0), ("external_leakage_b", 2.0),
             ("valve_deadzone", 0.08), ("spool_offset", 0.04), ("valve_delay", 0.05), ("valve_delay", 0.1), ("valve_flow_gain", 0.25),
             ("entrained_air", 0.03), ("entrained_air", 0.045), ("coulomb_friction", 3000.0), ("viscous_friction", 1.5e5),
@@ -71,7 +73,7 @@ def run_row(config: Machine, effects: dict[str, float], forms: dict[str, str]) -
         wall = time.perf_counter() - start
         best = floor(config, data, effects, forms)
         if (effects, forms) == EXAMPLE:
-            shutil.copy(Path(tmp) / "out" / "report.html", Path(__file__).with_name("discrepancy_example.html"))
+            shutil.copy(Path(tmp) / "out" / "report.html", RESULTS / "discrepancy_example.html")
     named = {e["name"]: e["parameters"] for e in report["effects"]}
     return {"hidden": effects, "forms": {name: _form(name, forms) for name in effects if _form(name, forms)},
             "named": named, "right": set(named) == set(effects),
@@ -83,15 +85,14 @@ def run_row(config: Machine, effects: dict[str, float], forms: dict[str, str]) -
 
 def main() -> int:
     if "--table" in sys.argv:
-        print(table(json.loads(Path(__file__).with_name("discrepancy_suite.json").read_text())))
+        print(table(json.loads((RESULTS / "discrepancy_suite.json").read_text())["rows"]))
         return 0
     config = load_machine_config(default_config_path("sam"))
     rows = []
     for effects, forms in tqdm(SUITE, desc="discrepancy suite", unit="bag"):
         rows.append(run_row(config, effects, forms))
         tqdm.write(json.dumps(rows[-1]))
-    out = Path(__file__).with_name("discrepancy_suite.json")
-    out.write_text(json.dumps(rows, indent=2) + "\n")
+    write_result(RESULTS / "discrepancy_suite.json", {"rows": rows})
     print(table(rows))
     return 0
 

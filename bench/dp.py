@@ -18,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 
+from hydro_ros.benchresults import write_result
+
 _CHILD = """
 import json, resource, sys, time
 from hydro_ros.contract.config import default_config_path
@@ -180,7 +182,7 @@ def main() -> int:
     results = json.loads(out.read_text()) if out.exists() and args.parts != ",".join(parts) else {}
     results.update({name: run() for name, run in parts.items() if name in args.parts.split(",")})
     results["bench_process_peak_rss_MB"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    out.write_text(json.dumps(results, indent=2) + "\n")
+    write_result(out, results)
     print(json.dumps(results["solver"], indent=2))
     return 0
 

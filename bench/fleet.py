@@ -22,6 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from hydro_ros.bags.writer import ContractBagWriter  # noqa: E402
+from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.contract.machine import load_machine_config  # noqa: E402
 from hydro_ros.contract.names import Injection  # noqa: E402
@@ -80,7 +81,7 @@ def main() -> None:
     result = {"recording_s": RECORDING_S, "recordings": RECORDINGS, "cpu_count": os.cpu_count(), "runs": runs,
               "fleet": {"machines": FLEET_MACHINES, "hours_per_day": HOURS_PER_DAY, "recording_hours_per_day": daily,
                         "cores_for_a_day_in_a_day": daily / (best * 24.0)}}
-    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
+    write_result(Path(args.out), result)
     fig, ax = plt.subplots(figsize=(7, 3))
     ax.barh(list(runs), [r["one_hour_recordings_per_core_hour"] for r in runs.values()])
     ax.set_xlabel("1 h recordings of 1 kHz data analysed per core-hour")

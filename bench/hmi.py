@@ -11,7 +11,6 @@ Writes bench/results/hmi.json and bench/results/hmi.png.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from contextlib import ExitStack
@@ -22,6 +21,7 @@ import psutil
 
 REPO = Path(__file__).resolve().parent.parent
 
+from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.hmi.headless import CHROMIUM, CHROMIUM_ARGS  # noqa: E402
 from hydro_ros.nodes.processes import cpu_seconds, free_port, node_process  # noqa: E402
 
@@ -132,7 +132,7 @@ def main() -> None:
     args = parser.parse_args()
     result = measure(args.phase, (0, 1, 4))
     out = Path(args.out)
-    out.write_text(json.dumps(result, indent=2) + "\n")
+    write_result(out, result)
     _plot(result, out.with_suffix(".png"))
     for phase in result["phases"]:
         latency = phase["diagnostics_to_dom_latency_ms"]

@@ -4,7 +4,6 @@ Writes --out (bench/results/mems.json), the table beside it (.md) and a bar char
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import matplotlib
@@ -13,6 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.studies.mems import markdown, tables  # noqa: E402
 
 
@@ -23,7 +23,7 @@ def main() -> None:
     args = parser.parse_args()
     result = tables(args.seeds)
     out = Path(args.out)
-    out.write_text(json.dumps(result, indent=2) + "\n")
+    write_result(out, result)
     out.with_suffix(".md").write_text(markdown(result))
     cases = [("I fault-free", result["table_1"], result["paper"]["table_1"])] + [
         (f"II {fault}", rows, result["paper"]["table_2"][fault]) for fault, rows in result["table_2"].items()]

@@ -18,6 +18,7 @@ import numpy as np
 
 from hydro_ros.bags.reader import mcap_files, read_bag
 from hydro_ros.bags.writer import ContractBagWriter
+from hydro_ros.benchresults import write_result
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.models.sam import SamModel, SamPlant
@@ -173,7 +174,7 @@ def fdi_evaluation(config: Machine, out_dir: Path, name: str = "fdi_eval") -> di
 
     with tqdm(unit="run", desc="fdi-eval") as bar:
         summary = evaluate(config, progress=bar.update)
-    (out_dir / f"{name}.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_result(out_dir / f"{name}.json", summary)
     (out_dir / f"{name}.md").write_text(markdown_table(summary))
     plot_fdi_evaluation(summary, out_dir / f"{name}.png")
     return {"threshold": summary["threshold"], "false_alarms_per_hour": summary["fault_free"]["false_alarms_per_hour"],
@@ -205,7 +206,7 @@ def main() -> int:
                "fdi_evaluation": fdi_evaluation(config, out.parent),
                "fdi_parity_evaluation": fdi_evaluation(load_machine_config(default_config_path("sam_mobile")), out.parent,
                                                        "fdi_parity_eval")}
-    out.write_text(json.dumps(results, indent=2) + "\n")
+    write_result(out, results)
     import matplotlib
 
     matplotlib.use("Agg")

@@ -5,7 +5,6 @@ vertical and horizontal lines moved across the workspace, CP and LS. Writes --ou
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import matplotlib
@@ -14,6 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
+from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
 from hydro_ros.studies.savings_map import line_paths, savings  # noqa: E402
@@ -33,7 +33,7 @@ def main() -> None:
     with tqdm(total=len(paths), unit="line", desc="savings map") as bar:
         rows = savings(crane, config, paths, progress=lambda _: bar.update())
     out = Path(args.out)
-    out.write_text(json.dumps({"machine": "k70m", "rows": rows}, indent=2) + "\n")
+    write_result(out, {"machine": "k70m", "rows": rows})
     lines = ["| line | from | to | DP saving CP | DP saving LS | pseudo-inverses within limits |", "|---|---|---|---|---|---|"]
     for row in rows:
         if row["feasible"]:

@@ -8,7 +8,6 @@ Writes bench/results/trajectories.json, bench/results/execution.md and bench/res
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import tempfile
@@ -19,6 +18,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
 
+from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
 from hydro_ros.planning.catalog import build, plan_units  # noqa: E402
@@ -186,7 +186,7 @@ def main() -> None:
         results["execution"] = executions(config, catalog, out.parent)
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
-    out.write_text(json.dumps(results, indent=2) + "\n")
+    write_result(out, results)
     print(f"wrote {out}")
 
 

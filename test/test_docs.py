@@ -3,6 +3,7 @@ points only at files that exist, and nothing cites a file outside the repository
 
 from __future__ import annotations
 
+import json
 import re
 
 from hydro_ros.docgen import PAGES, rendered
@@ -28,3 +29,13 @@ def test_nothing_cites_files_the_repository_does_not_ship():
     for path in [REPO / "README.md", *(REPO / "docs").rglob("*.md"), *(REPO / "hydro_ros").rglob("*.py")]:
         text = path.read_text()
         assert "shared/spec" not in text and "shared/seeds" not in text, path.relative_to(REPO)
+
+
+def test_a_benchmark_result_carries_its_commit_and_the_page_says_what_a_run_did_not_write(tmp_path, monkeypatch):
+    from hydro_ros import benchresults
+
+    written = json.loads(benchresults.write_result(tmp_path / "crane_cpu.json", {"commit": "typed", "cylinders": 3}).read_text())
+    assert written["commit"] == benchresults.commit() != "typed" and written["cylinders"] == 3
+    monkeypatch.setattr(benchresults, "RESULTS", tmp_path)
+    row = next(line for line in benchresults.benchmarks_markdown().splitlines() if "`crane_cpu.json`" in line)
+    assert "not in bench/results (no 'sample_blocks')" in row and written["commit"] in row

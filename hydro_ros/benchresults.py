@@ -1,0 +1,201 @@
+"""bench/results/: what a benchmark writes there (its JSON stamped with the commit it ran on), and docs/benchmarks.md's
+table written from those files (no figure typed by hand).
+
+Each row reads one measurement and the reference it is compared with in the same run; a file or a key a run did not
+write shows as "not in bench/results". Each file's commit is the one its run recorded (older runs recorded none).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+from typing import Any, Callable
+
+RESULTS = Path(__file__).resolve().parent.parent / "bench" / "results"
+MISSING = "not in bench/results"
+
+
+def commit() -> str:
+    """The checked-out commit, ``+changes`` when the tree differs from it: what a result ran on."""
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=RESULTS.parent, capture_output=True, text=True).stdout.strip()
+
+    head = git("rev-parse", "--short", "HEAD")
+    return (head + ("+changes" if git("status", "--porcelain", "--untracked-files=no") else "")) if head else "unknown"
+
+
+def write_result(path: str | Path, result: dict[str, Any]) -> Path:
+    """``result`` as JSON at ``path``, with the commit it ran on first."""
+    path = Path(path)
+    path.write_text(json.dumps({"commit": commit(), **{k: v for k, v in result.items() if k != "commit"}}, indent=2) + "\n")
+    return path
+
+
+def _load(name: str) -> dict[str, Any] | None:
+    path = RESULTS / f"{name}.json"
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def _commit(data: Any) -> str:
+    return data.get("commit", "commit not recorded") if isinstance(data, dict) else "commit not recorded"
+
+
+def _span(values: list[float], fmt: str) -> str:
+    low, high = min(values), max(values)
+    return format(low, fmt) if format(low, fmt) == format(high, fmt) else f"{format(low, fmt)}-{format(high, fmt)}"
+
+
+def _model(r: dict) -> tuple[str, str, str]:
+    m = r["sam_model_1khz"]
+    return ("SAM model at 1 kHz, one core", f"{m['real_time_factor']:.0f}x real time ({m['simulated_s']:.0f} simulated s in "
+            f"{m['wall_s']:.2f} s)", f"target >= {m['target_real_time_factor']:.0f}x")
+
+
+def _bag(r: dict) -> tuple[str, str, str]:
+    b = r["bag_read"]
+    return ("bag read into aligned arrays", f"{b['hydro_ros_msgs_per_s'] / 1e6:.2f} M msg/s",
+            f"rosbags `AnyReader` deserialising only: {b['rosbags_anyreader_msgs_per_s']:,.0f} msg/s "
+            f"(**{b['speedup_vs_rosbags']:.1f}x**)")
+
+
+def _ukf(r: dict) -> tuple[str, str, str]:
+    u = r["ukf"]
+    return ("UKF steps (P-II filter, one actuator)", f"{u['hydro_ros_steps_per_s'] / 1e6:.2f} M steps/s; "
+            f"{u['hydro_ros_4_actuator_batch_steps_per_s_per_actuator'] / 1e6:.2f} M/s per actuator in a 4-actuator batch",
+            f"filterpy `UnscentedKalmanFilter`, same model: {u['filterpy_steps_per_s']:,.0f} steps/s "
+            f"(**{u['speedup_vs_filterpy']:.0f}x**, target >= {u['target_speedup']:.0f}x); {u['agreement']}")
+
+
+def _fdi_offline(r: dict) -> tuple[str, str, str]:
+    f = r["fdi_offline"]
+    return (f"offline `hydro-ros fdi` on a {f['bag_s']:.0f} s SAM bag", f"**{f['real_time_factor']:.0f}x real time** "
+            f"(read {f['read_real_time_factor']:.0f}x, monitor {f['monitor_real_time_factor']:.0f}x)",
+            f"target >= {f['target_real_time_factor']:.0f}x")
+
+
+def _live(row: dict, what: str, rate: str, progress: str, counts: tuple[str, ...]) -> tuple[str, str, str]:
+    faults = ", ".join(f"{row[key]} {key.replace('_', ' ')}" for key in counts)
+    return (what, f"{row['cpu_share_of_one_core']:.0%} of one core; {row[progress]:.0f}/s processed; {faults}",
+            f"the {row['sample_rate_hz']:.0f} Hz {rate}")
+
+
+def _fdi_live(r: dict) -> tuple[str, str, str]:
+    row = r["fdi_node_live"]
+    return _live(row, f"live fdi_node fed by plant_sim ({row['messages_per_s']:.0f} msg/s)", "sample rate", "samples_processed_per_s",
+                 ("gap_samples", "incomplete_samples", "out_of_order_dropped"))
+
+
+def _can(r: dict) -> tuple[str, str, str]:
+    c = r["can_decode"]
+    return ("CAN frames decoded with every check (DLC, CRC, counter, cycle grouping)", f"{c['checked_frames_per_s']:,.0f} frames/s",
+            f"bare `cantools` decode of the same frames: {c['bare_cantools_frames_per_s']:,.0f}/s (ratio "
+            f"{c['ratio_to_bare_cantools']:.2f}); the SAM needs {c['sam_frames_per_s_needed']:,}/s")
+
+
+def _can_live(r: dict) -> tuple[str, str, str]:
+    row = r["can_bridge_live"]
+    return _live(row, f"live can_bridge, plant_sim on udp_multicast CAN ({row['frames_per_s']:.0f} frames/s)", "cycle",
+                 "cycles_published_per_s", ("incomplete_cycles",))
+
+
+def _dp(d: dict) -> tuple[str, str, str]:
+    s = d["solver"]
+    grid = " x ".join(str(n) for n in s["grid"])
+    cp, ls, ref = s["fast_cp"], s["fast_ls"], s["reference_cp"]
+    return (f"DP backward pass, grid {grid}, N = {s['stages']}",
+            f"CP cost **{cp['seconds']:.2f} s** (best of {len(cp['runs_s'])}: {_span(cp['runs_s'], '.2f')} s), "
+            f"{cp['peak_rss_MB']:.0f} MB peak RSS; LS cost **{ls['seconds']:.2f} s** (best of {len(ls['runs_s'])}: "
+            f"{_span(ls['runs_s'], '.2f')} s)",
+            f"the straightforward NumPy DP (`planning/reference.py`): {ref['seconds']:.0f} s, {ref['peak_rss_MB']:.0f} MB "
+            f"(**{s['speedup_cp']:.0f}x** time, {s['memory_ratio_cp']:.2f}x memory); same cost-to-go: {s['same_cost_to_go']}")
+
+
+def _db(t: dict) -> tuple[str, str, str]:
+    runs = t["throughput"]
+    grid = " x ".join(str(n) for n in runs["grid"])
+    others = [f"{name}: {run['seconds']:.1f} s ({run['units_per_s']:.2f}/s, **{run['speedup_vs_1_process']:.2f}x**)"
+              for name, run in runs.items() if isinstance(run, dict) and "speedup_vs_1_process" in run]
+    return (f"`db build`, {runs['units']} solutions, grid {grid}", "; ".join(others),
+            f"1 process: {runs['1 process']['seconds']:.1f} s ({runs['1 process']['units_per_s']:.2f}/s)")
+
+
+def _catalog(t: dict) -> tuple[str, str, str]:
+    c = t["full_catalog"]
+    grid = " x ".join(str(n) for n in c["grid"])
+    return (f"full-grid catalog ({grid}, {c['units']} solutions)", f"{c['seconds']:.0f} s; {c['size_MB']:.0f} MB file; open + "
+            f"quick_check {c['open_check_s']:.2f} s", "-")
+
+
+def _server(t: dict) -> tuple[str, str, str]:
+    lat = t["latency"]
+    moved, stored = lat["re-planned start"], lat["stored start"]
+    return ("trajectory_server request -> JointTrajectory received (live DDS graph, full-grid catalog)",
+            f"re-planned from a moved start: **p50 {moved['p50_ms']:.1f} ms, p99 {moved['p99_ms']:.1f} ms**, max "
+            f"{moved['max_ms']:.0f} ms ({moved['requests']} requests); stored start: p50 {stored['p50_ms']:.1f} ms, p99 "
+            f"{stored['p99_ms']:.1f} ms; ready {lat['server_ready_s']:.1f} s after its process starts", "target p99 <= 20 ms")
+
+
+def _hmi(h: dict) -> tuple[str, str, str]:
+    phases = h["phases"]
+    clients = " / ".join(str(p["clients"]) for p in phases)
+    shares = " / ".join(f"{p['cpu_share_of_one_core']['hmi']:.1%}" for p in phases)
+    latency = [p["diagnostics_to_dom_latency_ms"] for p in phases if p["diagnostics_to_dom_latency_ms"]["n"]]
+    fdi = [p["cpu_share_of_one_core"]["fdi_node"] for p in phases]
+    ratios = [p["hmi_cpu_vs_fdi_node"] for p in phases]
+    return (f"operator HMI at the SAM's rates, {clients} headless Chromium pages", f"**{shares} of one core**; /diagnostics -> DOM "
+            f"p50 {_span([x['p50'] for x in latency], '.0f')} ms, p95 {_span([x['p95'] for x in latency], '.0f')} ms",
+            f"fdi_node in the same run: {_span(fdi, '.0%')} (HMI {_span(ratios, '.2f')}x)")
+
+
+def _crane_cpu(c: dict) -> tuple[str, str, str]:
+    blocks, topics = c["sample_blocks"], c["per_sample_topics"]
+    return (f"live fdi_node on the K70M's {c['cylinders']} cylinders at {c['sample_rate_hz']:.0f} Hz, `input:=sample_block`",
+            f"**{blocks['cpu_share_of_one_core']:.0%} of one core** (target under {c['goal_share_of_one_core']:.0%}); "
+            f"{blocks['samples_processed_per_s']:.0f} samples/s, {blocks['gap_samples']} gaps",
+            f"the contract's per-sample topics, `input:=topics`: {topics['cpu_share_at_1khz']:.2f} cores scaled to 1 kHz "
+            f"(**blocks {c['ratio_blocks_to_topics']:.2f}x**)")
+
+
+def _fleet(f: dict) -> tuple[str, str, str]:
+    runs = f["runs"]
+    best = max(runs, key=lambda name: runs[name]["one_hour_recordings_per_core_hour"])
+    fleet = f["fleet"]
+    return (f"fleet analysis, {f['recordings']} recordings of {f['recording_s']:.0f} s",
+            "; ".join(f"{name}: {run['one_hour_recordings_per_core_hour']:.0f} recorded hours per core-hour" for name, run in runs.items()),
+            f"a fleet of {fleet['machines']} machines recording {fleet['hours_per_day']:.0f} h a day needs "
+            f"{fleet['cores_for_a_day_in_a_day']:.2f} cores (at the best, {best})")
+
+
+def _memory(m: dict) -> tuple[str, str, str]:
+    runs = m["runs"]
+    return ("`hydro-ros commission`, peak resident memory", "; ".join(f"{run['recording_s'] / 60:.0f} min: {run['peak_mb']:.0f} MB"
+                                                                      for run in runs),
+            f"target {m['target_mb']:.0f} MB for 2 h; the samples themselves: {runs[-1]['samples_mb']:.0f} MB "
+            f"({runs[-1]['peak_vs_samples']:.1f}x); growth {m['growth_mb_per_recorded_hour']:.0f} MB per recorded hour")
+
+
+ROWS: list[tuple[str, Callable[[dict], tuple[str, str, str]]]] = [
+    ("results", _model), ("results", _bag), ("results", _ukf), ("results", _fdi_offline), ("results", _fdi_live), ("results", _can),
+    ("results", _can_live), ("dp", _dp), ("trajectories", _db), ("trajectories", _catalog), ("trajectories", _server), ("hmi", _hmi),
+    ("crane_cpu", _crane_cpu), ("fleet", _fleet), ("commissioning_memory", _memory)]
+
+
+def benchmarks_markdown() -> str:
+    lines = ["| what | measured | reference in the same run | file (commit) |", "|---|---|---|---|"]
+    for name, row in ROWS:
+        data = _load(name)
+        try:
+            what, measured, reference = row(data) if data is not None else (name, MISSING, "-")
+        except KeyError as missing:
+            what, measured, reference = name, f"{MISSING} (no {missing})", "-"
+        commit = _commit(data) if data is not None else "-"
+        cells = (cell.replace("|", "\\|") for cell in (what, measured, reference))
+        lines.append(f"| {' | '.join(cells)} | `{name}.json` ({commit}) |")
+    lines += ["", "Every file `make bench` writes, with the commit its run recorded:", ""]
+    for path in sorted(RESULTS.glob("*")):
+        commit = ""
+        if path.suffix == ".json":
+            commit = f" ({_commit(json.loads(path.read_text()))})"
+        lines.append(f"- [`{path.name}`](../bench/results/{path.name}){commit}")
+    return "\n".join(lines)
