@@ -47,7 +47,9 @@ def chromium() -> None:
 @pytest.fixture
 def ros_domain(worker_id: str = "main") -> int:
     """A test-unique ROS domain on localhost only (brief: never leave the machine, never cross)."""
-    domain = 10 + (os.getpid() + hash(os.environ.get("PYTEST_CURRENT_TEST", ""))) % 200
+    # parallel workers (pytest-xdist: gw0, gw1, ...) draw from ranges of their own
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0) % 2
+    domain = 10 + 110 * worker + (os.getpid() + hash(os.environ.get("PYTEST_CURRENT_TEST", ""))) % 100
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")

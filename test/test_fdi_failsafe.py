@@ -312,18 +312,21 @@ def test_no_halt_is_said_only_while_the_monitor_sees_every_input(ros_domain, lea
         statuses.extend((time.monotonic(), s.message, bool(_values(s)["stale_topics"]))
                         for s in message.status if s.name == "hydro_ros/fdi/boom")
 
+    def ended() -> bool:
+        blind = [t for t, m, _ in statuses if m == "not_monitored"]
+        return bool(blind) and any(stale and t > blind[-1] for t, _, stale in statuses)
+
     with probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 50)
         node.create_subscription(Bool, topics.FDI_HALT, lambda m: halts.append((time.monotonic(), m.data)), HALT_QOS)
-        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), \
-                node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={tampered(leak_bag, tmp_path / 'bag', tamper)}",
-                             "-p", "publish_clock:=false", "-p", "rate:=0.5", "-p", "start_delay:=3.0"):
-            def ended() -> bool:
-                blind = [t for t, m, _ in statuses if m == "not_monitored"]
-                return bool(blind) and any(stale and t > blind[-1] for t, _, stale in statuses)
-
-            assert spin_until(node, ended, 60), statuses[-5:]
-            spin_until(node, lambda: False, 3.0)
+        bag = tampered(leak_bag, tmp_path / "bag", tamper)
+        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"):
+            # the monitor must be up before the bag starts, or it arms after the sensor failed (a loaded machine starts it late)
+            assert spin_until(node, lambda: bool(statuses), 30)
+            statuses.clear()
+            with node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={bag}", "-p", "publish_clock:=false", "-p", "rate:=0.5"):
+                assert spin_until(node, ended, 60), statuses[-5:]
+                spin_until(node, lambda: False, 3.0)
     vouched = [t for t, halt in halts if halt is False]
     blind_at = next(t for t, m, _ in statuses if m == "not_monitored" and any(h < t for h in vouched))
     back_at = next(t for t, m, _ in statuses if t > blind_at and m != "not_monitored")
