@@ -119,7 +119,7 @@ def comparisons(out_dir: Path) -> dict:
         began = time.perf_counter()
         subprocess.run(
             [sys.executable, "-m", "hydro_ros.cli", "dp", "compare", "--config", f"config/{machine}.yaml", "--path", path,
-             "--json", str(target), "--all-methods", "--quiet", "--start", start],
+             "--out", str(target), "--all-methods", "--quiet", "--start", start],
             check=True,
         )
         result = json.loads(target.read_text())

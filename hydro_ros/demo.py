@@ -138,7 +138,7 @@ def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.
     if status:
         return status
     print("2/4 offline FDI over the bag (hydro-ros fdi):")
-    status = cli(["fdi", "--bag", str(bag), "--config", config, "--json", str(out / "fdi.json"), "--quiet"])
+    status = cli(["fdi", "run", "--bag", str(bag), "--config", config, "--out", str(out / "fdi.json"), "--quiet"])
     if status:
         return status
     crane_config = str(default_config_path("k70m"))

@@ -46,14 +46,14 @@ def test_events_are_paged_newest_first_and_exported(tmp_path):
     page, total = read_events(path, offset=10, limit=10)
     assert total == 25 and [event["evidence"]["k"] for event in page] == list(range(14, 4, -1))
     out_csv, out_json = tmp_path / "alarms.csv", tmp_path / "alarms.json"
-    done = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "alarms", "export", "--db", str(path), "--csv", str(out_csv),
-                           "--json", str(out_json)], capture_output=True, text=True, timeout=120)
+    done = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "alarms", "export", "--db", str(path), "--out", str(out_csv),
+                           "--out", str(out_json)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     exported = json.loads(out_json.read_text())
     assert [event["fault"] for event in exported] == [f"fault_{k}" for k in range(25)]
     assert out_csv.read_text().splitlines()[0].startswith("id,wall_time,stamp_s,machine,actuator,event")
     missing = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "alarms", "export", "--db", str(tmp_path / "none"),
-                              "--json", str(out_json)], capture_output=True, text=True, timeout=120)
+                              "--out", str(out_json)], capture_output=True, text=True, timeout=120)
     assert missing.returncode == 1 and missing.stderr.count("\n") == 1 and "no such file" in missing.stderr
 
 

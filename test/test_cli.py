@@ -19,7 +19,7 @@ def run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=300)
 
 
-@pytest.mark.parametrize("sub", ["sim", "replay", "demo", "fdi", "fdi-eval", "fdi-fit", "can"])
+@pytest.mark.parametrize("sub", ["sim", "bag", "demo", "fdi", "commission", "dp", "machine"])
 def test_every_subcommand_has_help(sub):
     result = run(sub, "--help")
     assert result.returncode == 0 and "usage: hydro-ros" in result.stdout
@@ -36,11 +36,11 @@ def test_every_subcommand_has_help(sub):
         (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--path", "horizontal", "--out", "X"], "--path: crane configs only"),
         (["sim", "--config", str(K70M), "--duration", "1", "--hold", "2", "--out", "X"], "--hold: only with --path"),
         (["sim", "--config", str(K70M), "--duration", "1", "--path", "nowhere", "--out", "X"], "path 'nowhere': not in config k70m"),
-        (["fdi", "--bag", "nobag", "--config", str(SAM_CONFIG), "--json", "X"], "bag nobag: no such file or directory"),
-        (["fdi", "--bag", str(BAGS / "fault_free"), "--config", str(SAM_CONFIG), "--method", "parity", "--json", "X"], "pilot pressures"),
-        (["fdi", "--bag", str(BAGS / "fault_free"), "--config", str(SAM_CONFIG), "--json", "nodir/X.json"], "directory nodir does not exist"),
-        (["fdi-eval", "--config", str(SAM_CONFIG), "--seeds", "0", "--out", "X"], "--seeds 0"),
-        (["can", "convert", "missing.blf", "--config", str(SAM_CONFIG), "--out", "X"], "log missing.blf: no such file"),
+        (["fdi", "run", "--bag", "nobag", "--config", str(SAM_CONFIG), "--out", "X"], "bag nobag: no such file or directory"),
+        (["fdi", "run", "--bag", str(BAGS / "fault_free"), "--config", str(SAM_CONFIG), "--method", "parity", "--out", "X"], "pilot pressures"),
+        (["fdi", "run", "--bag", str(BAGS / "fault_free"), "--config", str(SAM_CONFIG), "--out", "nodir/X.json"], "directory nodir does not exist"),
+        (["fdi", "eval", "--config", str(SAM_CONFIG), "--seeds", "0", "--out", "X"], "--seeds 0"),
+        (["bag", "convert", "missing.blf", "--config", str(SAM_CONFIG), "--out", "X"], "log missing.blf: no such file"),
     ],
 )
 def test_bad_input_gives_one_line_error(args, needle, tmp_path):
@@ -65,7 +65,7 @@ def test_sim_writes_bag_and_plot(tmp_path):
 
 def test_fdi_writes_contract_json_and_plot(tmp_path):
     out = tmp_path / "ext_a.json"
-    result = run("fdi", "--bag", str(BAGS / "external_leakage_a"), "--config", str(SAM_CONFIG), "--json", str(out), "--quiet")
+    result = run("fdi", "run", "--bag", str(BAGS / "external_leakage_a"), "--config", str(SAM_CONFIG), "--out", str(out), "--quiet")
     assert result.returncode == 0, result.stderr
     report = json.loads(out.read_text())
     boom = report["actuators"]["boom"]
@@ -88,6 +88,19 @@ def test_fdi_names_a_missing_topic(tmp_path):
         for k in range(100):
             writer.add_message(channel, k, encode_joint_state(k * 1_000_000, "", ["boom_joint"], [0.0], [0.0], []), k)
         writer.finish()
-    result = run("fdi", "--bag", str(bag), "--config", str(SAM_CONFIG), "--json", str(tmp_path / "x.json"))
+    result = run("fdi", "run", "--bag", str(bag), "--config", str(SAM_CONFIG), "--out", str(tmp_path / "x.json"))
     assert result.returncode == 1 and "no /hydraulics/boom/pressure_a" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.parametrize(("old", "new"), [
+    (["fdi", "--bag", str(BAGS / "fault_free"), "--config", str(SAM_CONFIG), "--json", "OUT"], "`fdi` is now `fdi run`"),
+    (["fdi-eval", "--config", str(SAM_CONFIG), "--seeds", "0", "--out", "OUT"], "`fdi-eval` is now `fdi eval`"),
+    (["can", "convert", "missing.blf", "--config", str(SAM_CONFIG), "--out", "OUT"], "`can convert` is now `bag convert`"),
+])
+def test_the_previous_releases_spellings_still_work_and_say_the_new_one(old, new, tmp_path):
+    result = subprocess.run([*CLI, *[str(tmp_path / "x.json") if word == "OUT" else word for word in old]], capture_output=True,
+                            text=True, cwd=tmp_path, timeout=120)
+    assert new in result.stderr and "the old spelling works for one release" in result.stderr
+    assert "invalid choice" not in result.stderr and "unrecognized arguments" not in result.stderr
+    assert result.returncode == (0 if old[0] == "fdi" else 1), result.stderr

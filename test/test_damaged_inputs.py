@@ -76,7 +76,7 @@ def test_replay_skips_a_topic_whose_type_is_not_installed_and_plays_the_rest(sho
     joint_states: list[JointState] = []
     with probe_node("probe") as node:
         node.create_subscription(JointState, "/joint_states", joint_states.append, SENSOR_QOS)
-        player = subprocess.Popen([*CLI, "replay", str(bag), "--rate", "0.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        player = subprocess.Popen([*CLI, "bag", "replay", str(bag), "--rate", "0.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         assert spin_until(node, lambda: len(joint_states) > 100, 30), "nothing played"
         _, stderr = player.communicate(timeout=60)
     assert player.returncode == 0, stderr
@@ -87,7 +87,7 @@ def test_replay_of_a_bag_whose_metadata_is_not_a_mapping_says_so_and_fails(short
     bag = tmp_path / "listmeta"
     shutil.copytree(short_bag, bag)
     (bag / "metadata.yaml").write_text("- just\n- a list\n")
-    played = subprocess.run([*CLI, "replay", str(bag), "--rate", "20"], capture_output=True, text=True, timeout=120)
+    played = subprocess.run([*CLI, "bag", "replay", str(bag), "--rate", "20"], capture_output=True, text=True, timeout=120)
     assert played.returncode == 1 and "Traceback" not in played.stderr
     assert "not a rosbag2 metadata mapping" in played.stderr
 
@@ -111,7 +111,7 @@ def test_a_damaged_first_chunk_costs_only_its_own_messages(short_bag, tmp_path):
     whole, damaged = read_bag(short_bag), read_bag(bag)
     assert damaged.errors and "damaged chunk" in damaged.errors[0]
     assert 0 < len(damaged.stamps_ns) < len(whole.stamps_ns) and damaged.stamps_ns[-1] == whole.stamps_ns[-1]
-    monitored = subprocess.run([*CLI, "fdi", "--bag", str(bag), "--config", str(SAM_CONFIG), "--json", str(tmp_path / "fdi.json"), "--quiet"],
+    monitored = subprocess.run([*CLI, "fdi", "run", "--bag", str(bag), "--config", str(SAM_CONFIG), "--out", str(tmp_path / "fdi.json"), "--quiet"],
                                capture_output=True, text=True, timeout=120)
     assert monitored.returncode == 0 and "Traceback" not in monitored.stderr, monitored.stderr
     assert "damaged chunk" in monitored.stderr

@@ -195,7 +195,7 @@ def test_direct_collocation_converges_near_the_dp_optimum() -> None:
 def test_dp_compare_cli_ranks_the_methods_like_the_papers(tmp_path) -> None:
     out = tmp_path / "compare.json"
     code = main(["dp", "compare", "--config", str(default_config_path("k70m")), "--path", "horizontal",
-                 "--json", str(out), "--quiet"])  # the P-VI grid
+                 "--out", str(out), "--quiet"])  # the P-VI grid
     assert code == 0
     result = json.loads(out.read_text())
     methods = result["methods"]
@@ -214,13 +214,13 @@ def test_dp_compare_cli_ranks_the_methods_like_the_papers(tmp_path) -> None:
 def test_dp_solve_cli_writes_a_joint_trajectory_and_rejects_bad_input(tmp_path, capsys) -> None:
     out = tmp_path / "solve.json"
     config = str(default_config_path("crane3dof"))
-    assert main(["dp", "solve", "--config", config, "--path", "triangle", "--cost", "ls", "--grid", "40", "21", "41", "--json", str(out), "--quiet"]) == 0
+    assert main(["dp", "solve", "--config", config, "--path", "triangle", "--cost", "ls", "--grid", "40", "21", "41", "--out", str(out), "--quiet"]) == 0
     result = json.loads(out.read_text())
     assert result["limits_ok"] and result["trajectory"]["joint_names"] == ["lift", "tilt", "extension"]
     assert len(result["trajectory"]["positions"]) == result["stages"] + 1 == 601
-    assert main(["dp", "solve", "--config", config, "--path", "square", "--cost", "cp", "--json", str(out)]) == 1
+    assert main(["dp", "solve", "--config", config, "--path", "square", "--cost", "cp", "--out", str(out)]) == 1
     assert "path 'square': not in config crane3dof (known: triangle)" in capsys.readouterr().err
-    assert main(["dp", "solve", "--config", str(default_config_path("sam")), "--path", "triangle", "--cost", "cp", "--json", str(out)]) == 1
+    assert main(["dp", "solve", "--config", str(default_config_path("sam")), "--path", "triangle", "--cost", "cp", "--out", str(out)]) == 1
     assert "not a crane config" in capsys.readouterr().err
 
 

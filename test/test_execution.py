@@ -79,7 +79,7 @@ def test_executed_energies_rank_like_the_planned_ones(k70m, horizontal_plans, su
 def test_dp_execute_writes_a_contract_bag_with_the_measures(tmp_path, capsys):
     out = tmp_path / "run"
     assert cli_main(["dp", "execute", "--config", str(K70M), "--path", "vertical", "--method", "pinv_joint", "--supply", "ls",
-                     "--grid", "40", "21", "21", "--out", str(out), "--json", str(tmp_path / "run.json")]) == 0
+                     "--grid", "40", "21", "21", "--out", str(out), "--summary", str(tmp_path / "run.json")]) == 0
     assert "ISO 9283" in capsys.readouterr().out
     summary = json.loads((tmp_path / "run.json").read_text())
     assert summary["supply"] == "ls" and summary["energy_J"] > 0

@@ -126,7 +126,7 @@ def test_shipped_bags_are_isolated_after_onset_and_silent_before(sam_config, bag
 
 @pytest.fixture(scope="module")
 def calibrated(sam_config):
-    # c0 found by `hydro-ros fdi-eval` on training seeds 100-109 of mismatched plants (docs/monitoring.md)
+    # c0 found by `hydro-ros fdi eval` on training seeds 100-109 of mismatched plants (docs/monitoring.md)
     return sam_config.with_overrides({"fdi": {"threshold_constant": 0.063}})
 
 

@@ -265,7 +265,7 @@ def test_alarm_log_round_trip_a_killed_monitor_restores_its_latched_alarm(ros_do
                 spin_until(node, lambda: False, 0.5)  # take what the dead monitor sent before it died off the queue
 
         out = tmp_path / "alarms.json"
-        exported = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "alarms", "export", "--db", str(log), "--json", str(out)],
+        exported = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "alarms", "export", "--db", str(log), "--out", str(out)],
                                   capture_output=True, text=True, timeout=60)
         assert exported.returncode == 0, exported.stderr
         events = json.loads(out.read_text())

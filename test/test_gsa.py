@@ -58,11 +58,11 @@ def test_leak_indices_rank_internal_leakage_first_for_velocity(sam_config):
 def test_gsa_cli_writes_json_and_plot(tmp_path):
     out = tmp_path / "gsa.json"
     result = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "gsa", "--config", str(SAM_CONFIG), "--samples", "8",
-                             "--json", str(out), "--quiet"], capture_output=True, text=True, timeout=600)
+                             "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
     report = json.loads(out.read_text())
     assert set(report["parameters"]["ranking_4s"]) == {"p_a", "p_b", "velocity"}
     assert report["leakages"]["runs"] == 8 * 5 and out.with_suffix(".png").stat().st_size > 10000
     bad = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "gsa", "--config", str(SAM_CONFIG), "--samples", "100",
-                          "--json", str(out)], capture_output=True, text=True, timeout=60)
+                          "--out", str(out)], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 1 and "power of two" in bad.stderr

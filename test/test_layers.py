@@ -22,6 +22,7 @@ LAYER = {
     "nodes": 6,
     "demo": 7,
     "cli": 8,
+    "benchresults": 8,  # bench/results: the benches write it, docgen reads it
     "docgen": 9,  # documents the nodes' tables and the CLI's parser
 }
 SCIENCE = {"contract", "bags", "can", "models", "sim", "fdi", "planning", "studies", "hmi"}

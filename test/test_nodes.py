@@ -76,8 +76,8 @@ def test_bag_player_replays_contract_types_with_clock(ros_domain, short_bag):
 
 
 def test_record_of_a_live_plant_is_a_split_contract_bag_the_monitor_reads(ros_domain, tmp_path):
-    """hydro-ros record on a live plant_sim (best-effort sensor publishers, as many drivers offer), split every 2 s;
-    then hydro-ros bag info and hydro-ros fdi over the recording."""
+    """hydro-ros bag record on a live plant_sim (best-effort sensor publishers, as many drivers offer), split every 2 s;
+    then hydro-ros bag info and hydro-ros fdi run over the recording."""
     import json
     import subprocess
     import sys
@@ -90,7 +90,7 @@ def test_record_of_a_live_plant_is_a_split_contract_bag_the_monitor_reads(ros_do
                    for arg in ("-p", f"qos_overrides.{topic}.publisher.reliability:=best_effort")]
     with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=0.5", "-p", "seed:=2",
                       *best_effort) as plant:
-        recorded = subprocess.run([*cli, "record", "--config", str(SAM_CONFIG), "--out", str(bag), "--duration", "9",
+        recorded = subprocess.run([*cli, "bag", "record", "--config", str(SAM_CONFIG), "--out", str(bag), "--duration", "9",
                                    "--split-duration", "2", "--quiet"], capture_output=True, text=True, timeout=120)
         assert plant.poll() is None
     assert recorded.returncode == 0, recorded.stderr
@@ -109,7 +109,7 @@ def test_record_of_a_live_plant_is_a_split_contract_bag_the_monitor_reads(ros_do
     assert offered[topics.JOINT_STATES][0]["reliability"] == "best_effort"
 
     out = tmp_path / "fdi.json"
-    monitored = subprocess.run([*cli, "fdi", "--bag", str(bag), "--config", str(SAM_CONFIG), "--json", str(out), "--quiet"],
+    monitored = subprocess.run([*cli, "fdi", "run", "--bag", str(bag), "--config", str(SAM_CONFIG), "--out", str(out), "--quiet"],
                                capture_output=True, text=True, timeout=300)
     assert monitored.returncode == 0, monitored.stderr
     result = json.loads(out.read_text())
@@ -119,7 +119,7 @@ def test_record_of_a_live_plant_is_a_split_contract_bag_the_monitor_reads(ros_do
 
 def test_record_in_a_namespace_takes_the_sample_blocks_and_the_bag_reads_whole(ros_domain, tmp_path):
     """A machine in namespace /machine1 whose simulator sends sample blocks and only /joint_states per sample (the crane's
-    bring-up): hydro-ros record with --ros-args -r __ns:=/machine1 records the blocks, and the bag reads as every column."""
+    bring-up): hydro-ros bag record with --ros-args -r __ns:=/machine1 records the blocks, and the bag reads as every column."""
     import json
     import subprocess
     import sys
@@ -129,7 +129,7 @@ def test_record_in_a_namespace_takes_the_sample_blocks_and_the_bag_reads_whole(r
     bag = tmp_path / "recorded"
     with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=0.5", "-p", "seed:=2",
                       "-p", "sample_blocks:=true", "-p", "sensor_topics:=joint_states", "-r", "__ns:=/machine1"):
-        recorded = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "record", "--config", str(SAM_CONFIG), "--out", str(bag),
+        recorded = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "bag", "record", "--config", str(SAM_CONFIG), "--out", str(bag),
                                    "--duration", "6", "--quiet", "--ros-args", "-r", "__ns:=/machine1"],
                                   capture_output=True, text=True, timeout=120)
     assert recorded.returncode == 0, recorded.stderr

@@ -157,7 +157,7 @@ def test_own_bus_commissioning_and_a_leak_named_on_its_second_cylinder(excavator
     write_log(bus, plant, leak_log, 60.0, {"dipper": [Injection("external_leakage_b", 1.0, LEAK_ONSET_S)]}, seed=22)
 
     for log in (healthy_log, leak_log):
-        converted = hydro_ros("can", "convert", str(log), "--config", str(derived), "--dbc", str(excavator.with_suffix(".dbc")),
+        converted = hydro_ros("bag", "convert", str(log), "--config", str(derived), "--dbc", str(excavator.with_suffix(".dbc")),
                               "--out", str(log.with_suffix("")))
         assert converted.returncode == 0, converted.stderr
         report = json.loads(converted.stdout)
@@ -167,7 +167,7 @@ def test_own_bus_commissioning_and_a_leak_named_on_its_second_cylinder(excavator
     done = hydro_ros("commission", "--bag", str(healthy_log.with_suffix("")), "--config", str(derived), "--out", str(commissioned),
                      "--quiet")
     assert done.returncode == 0, done.stderr
-    monitored = hydro_ros("fdi", "--bag", str(leak_log.with_suffix("")), "--config", str(commissioned), "--json", str(tmp_path / "fdi.json"),
+    monitored = hydro_ros("fdi", "run", "--bag", str(leak_log.with_suffix("")), "--config", str(commissioned), "--out", str(tmp_path / "fdi.json"),
                           "--quiet")
     assert monitored.returncode == 0, monitored.stderr
     result = json.loads((tmp_path / "fdi.json").read_text())

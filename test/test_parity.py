@@ -39,7 +39,7 @@ def test_parity_residual_is_the_leak_flow(mobile):
 
 def test_parity_needs_fitted_thresholds(mobile):
     bare = mobile.with_overrides({"fdi": {"parity_thresholds": None}})
-    with pytest.raises(ValueError, match="fdi-fit"):
+    with pytest.raises(ValueError, match="fdi fit"):
         FdiMonitor(bare, "parity")
 
 

@@ -1,4 +1,4 @@
-"""`hydro-ros can convert`: a machine's CAN log (candump .log, Vector .asc, .blf) -> contract bag.
+"""`hydro-ros bag convert`: a machine's CAN log (candump .log, Vector .asc, .blf) -> contract bag.
 
 Every frame goes through the same checks as on the live bus (MachineBus.decode through the machine's
 signal map, counters and checksums where the map names them, cycle grouping); only complete cycles

@@ -72,7 +72,7 @@ def _read_merged(path: Path) -> dict[str, Any]:
             raise ConfigError(f"config {path}: extends itself")
         raw = with_overrides(_read_merged(base_path), raw)
     if "fitted" in raw:
-        # values a tool fitted (hydro-ros fdi-fit) live in their own block at the end of the file
+        # values a tool fitted (hydro-ros fdi fit) live in their own block at the end of the file
         fitted = raw.pop("fitted")
         raw = with_overrides(raw, fitted if isinstance(fitted, dict) else {})
     if "commissioned" in raw:

@@ -204,7 +204,7 @@ class ParityThresholds:
     """Threshold per chamber: |mu_bin| + c sigma_bin + k |Q|_mean + noise bias_mean [L/min].
 
     The statistical part is P-IV's, per bin of the operating point, fitted on fault-free data with ``c``
-    set on held-out data (``hydro-ros fdi-fit``, ``hydro-ros commission``): one c, or one per bin where
+    set on held-out data (``hydro-ros fdi fit``, ``hydro-ros commission``): one c, or one per bin where
     the held-out data reach different factors at rest and in motion. The operating point is the 5 s
     mean opening (``bins: opening``) or each chamber's 5 s mean |modelled valve flow| (``bins: flow``,
     edges in L/min). The flow is the better one where the valve meters against a varying load: it

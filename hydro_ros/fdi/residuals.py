@@ -9,7 +9,7 @@ the 5 s means, the crossing codes and isolation.
 - ``ukf`` (P-II, P-III): chamber-pressure residuals of a batched unscented Kalman filter [MPa];
   adaptive threshold +-(c0 + c2 mu_p^2) (P-II eq. 25); the P-II Table 3 signatures.
 - ``parity`` (P-IV style, mobile valves): chamber-flow balance residuals [L/min]; statistical
-  thresholds per operating point (5 s mean opening) fitted by ``hydro-ros fdi-fit``; a signature
+  thresholds per operating point (5 s mean opening) fitted by ``hydro-ros fdi fit``; a signature
   table built by simulation.
 """
 
@@ -148,7 +148,7 @@ class ParityResiduals(ResidualGenerator):
             raise InputError("fdi method parity: needs pressure-compensated mobile valves (valve.type: mobile) and their "
                              "pilot pressures; this machine has neither")
         if settings.parity_thresholds is None:
-            raise InputError("fdi method parity: the config has no fdi.parity_thresholds (fit them with hydro-ros fdi-fit --write, "
+            raise InputError("fdi method parity: the config has no fdi.parity_thresholds (fit them with hydro-ros fdi fit --write, "
                              "or hydro-ros commission on the machine's recordings)")
         self.generator = ParityGenerator(models)
         self._operating_point_mean = MovingAverage(window, POINT_CHANNELS * len(models))

@@ -44,8 +44,8 @@ class FdiSettings:
     stale_timeout_s: float = 0.2  # [s] a sensor silent this long makes the actuator STALE
     severe_faults: tuple[Fault, ...] = DEFAULT_SEVERE
     ukf: UkfSettings = field(default_factory=UkfSettings)
-    parity_thresholds: ParityThresholds | None = None  # fitted by fdi-fit on fault-free data
-    parity_signatures: tuple[PatternRow, ...] = ()  # built by simulation (fdi-fit)
+    parity_thresholds: ParityThresholds | None = None  # fitted by `fdi fit` on fault-free data
+    parity_signatures: tuple[PatternRow, ...] = ()  # built by simulation (`fdi fit`)
 
     @classmethod
     def from_machine(cls, machine: Machine) -> "FdiSettings":

@@ -3,7 +3,7 @@ and residual plots, each series labelled with its /fdi/residuals channel name.
 
 /fdi/residuals is a JointState whose ``name`` lists the channels (``topics.fdi_residual_channels``);
 Foxglove's message paths index ``position`` by number, so the indices are computed here from the
-same layout the node publishes, never written by hand. ``hydro-ros foxglove-layout`` writes it;
+same layout the node publishes, never written by hand. ``hydro-ros foxglove layout`` writes it;
 config/foxglove_layout.json is the SAM's.
 """
 

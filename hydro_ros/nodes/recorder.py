@@ -1,6 +1,6 @@
 """recorder: the contract topics of a running machine into a bag, for machines without the ros2 CLI.
 
-``hydro-ros record`` runs it. Each topic is subscribed with raw CDR (nothing is deserialised) and
+``hydro-ros bag record`` runs it. Each topic is subscribed with raw CDR (nothing is deserialised) and
 with the reliability its publishers offer, so a best-effort driver is recorded too; the publishers'
 QoS goes into the bag's ``offered_qos_profiles``. Log time is the message's header stamp (contract
 section 2). The bag is split by recording (wall) time, as ``ros2 bag record --max-bag-duration``

@@ -22,7 +22,7 @@ the method's own, because each is what the thesis validated with its residual:
   a flow error whose bias and spread follow the flow, not the opening. mu and sigma come from the identified part of
   the recordings, c from the held-out part. The spool is then the one the pilot pressures drive,
   and the notches are fed by the measured compensator pressure. The signature table stays the
-  config's (built by simulation, ``hydro-ros fdi-fit``): which residual a fault moves is the fault's
+  config's (built by simulation, ``hydro-ros fdi fit``): which residual a fault moves is the fault's
   physics, not this machine's tolerances.
 """
 

@@ -1,4 +1,4 @@
-"""FDI evaluation that is not an inverse crime (``hydro-ros fdi-eval``).
+"""FDI evaluation that is not an inverse crime (``hydro-ros fdi eval``).
 
 The plant that generates the data differs from the monitor's model by a random, per-seed model
 mismatch: every notch's flow coefficient, the oil and hose bulk moduli, the valve centre leakage,
@@ -246,7 +246,7 @@ def evaluate(machine: Machine, *, seeds: int = 5, calibration_seeds: int = 10, d
              leak_sizes: Iterable[float] = LEAK_SIZES) -> dict[str, Any]:
     """Calibrate c0 on training seeds, then score the scenario matrix and long fault-free runs on others.
 
-    A parity config (fitted by fdi-fit on seeds 100+ and 300+) is scored on the P-IV fault list instead.
+    A parity config (fitted by `fdi fit` on seeds 100+ and 300+) is scored on the P-IV fault list instead.
     """
     settings = FdiSettings.from_machine(machine)
     if settings.method == "parity":

@@ -1,6 +1,6 @@
 """Plants that carry what a model lacks: the evaluation data of the discrepancy workflow (its tests and `make bench`).
 
-A plant is the config with 40 % of fdi-eval's model mismatch drawn for a seed, sensor noise, and (maybe) physical
+A plant is the config with 40 % of `fdi eval`'s model mismatch drawn for a seed, sensor noise, and (maybe) physical
 effects the model under test does not have, each in a form of its own (names.EFFECT_FORMS).
 """
 
@@ -13,7 +13,7 @@ from hydro_ros.contract.machine import Machine
 from hydro_ros.sim.scenario import Scenario, run_blocks
 from hydro_ros.studies.fdi_evaluation import mismatched_config
 
-PLANT_MISMATCH = 0.4  # of fdi-eval's model mismatch
+PLANT_MISMATCH = 0.4  # of `fdi eval`'s model mismatch
 SEED = 3
 
 

@@ -1,0 +1,94 @@
+"""What the command families share: the arguments every command spells the same way, and the checks of their values."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import shutil
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.names import parse_injection
+
+
+def add_config(parser: argparse.ArgumentParser, help: str = "machine config, e.g. config/sam.yaml") -> None:  # noqa: A002
+    parser.add_argument("--config", required=True, help=help)
+
+
+def add_out(parser: argparse.ArgumentParser, help: str, *, required: bool = True) -> None:  # noqa: A002
+    """``--out``: where a command writes its file or folder (``--json`` is only ever a print format)."""
+    parser.add_argument("--out", required=required, default=None, help=help)
+
+
+def add_quiet(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def add_actuator(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--actuator", default=None, help=f"the cylinder to {what}, on a machine of several")
+
+
+def add_grid(parser: argparse.ArgumentParser, default: str) -> None:
+    parser.add_argument("--grid", type=int, nargs=3, metavar=("N_C", "N_V", "N_U"), help=f"DP grid (default: {default})")
+
+
+def output_file(value: str, flag: str = "--out") -> Path:
+    """A file to write, in a directory that exists."""
+    out = Path(value)
+    if not out.parent.is_dir():
+        raise InputError(f"{flag} {out}: directory {out.parent} does not exist")
+    return out
+
+
+def new_output(value: str, flag: str = "--out") -> Path:
+    """A file or folder to create, refused if something is there."""
+    out = Path(value)
+    if out.exists():
+        raise InputError(f"{flag} {out}: already exists, refusing to overwrite")
+    return out
+
+
+def write_json(path: Path, data: Any, indent: int = 2) -> None:
+    path.write_text(json.dumps(data, indent=indent) + "\n")
+
+
+def at_least_one(args: argparse.Namespace, *names: str) -> None:
+    for name in names:
+        if getattr(args, name) < 1:
+            raise InputError(f"--{name.replace('_', '-')} {getattr(args, name)}: must be >= 1")
+
+
+def injections(texts: Sequence[str], kind: str, timed: bool) -> list:
+    out = []
+    for text in texts:
+        if not timed and "@" in text:
+            raise InputError(f"--{kind} {text!r}: effects are present from t = 0; use --fault NAME=VALUE@T for timed faults")
+        try:
+            out.append(parse_injection(text))
+        except InputError as exc:
+            raise InputError(f"--{kind} {exc}") from None
+    return out
+
+
+def one_actuator(machine, name: str | None, study: str):  # noqa: ANN001, ANN201 - a Machine, kept lazy
+    """The machine restricted to the actuator a one-cylinder study looks at: named with --actuator where there are several."""
+    if name is None:
+        if len(machine.actuators) > 1:
+            raise InputError(f"--actuator: {study} looks at one cylinder and {machine.name} has {len(machine.actuators)} "
+                             f"({', '.join(machine.actuator_names)}); name one")
+        return machine
+    return machine.only(name)
+
+
+@contextlib.contextmanager
+def bag_or_nothing(out: str | Path) -> Iterator[None]:
+    """A bag folder this command creates is removed if the run fails, so the rerun is not refused as an existing bag."""
+    existed = Path(out).exists()
+    try:
+        yield
+    except BaseException:
+        if not existed:
+            shutil.rmtree(out, ignore_errors=True)
+        raise

@@ -1,0 +1,169 @@
+"""``hydro-ros machine check|new|threshold``, ``hydro-ros params`` and ``hydro-ros foxglove layout``: a machine described,
+checked, given a safe threshold, brought up."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from hydro_ros.cli.common import add_config, add_out, output_file, write_json
+from hydro_ros.contract.config import write_extending
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.machine import load_machine_config
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    machine = sub.add_parser("machine", help="describe your own machine: check a config, start a new one",
+                             description="A machine config describes every actuator (cylinder, mount, valve, load), "
+                             "the sensors and the supply, in SI units.")
+    verbs = machine.add_subparsers(dest="machine_command", required=True)
+    check = verbs.add_parser("check", help="every problem of a machine config at once, and the values it marks as not measured",
+                             description="Exit 1 when the config breaks a rule (each printed with its key path, value, unit "
+                             "and rule); every other command refuses such a config with the same messages.")
+    check.add_argument("config", help="machine config (YAML)")
+    check.add_argument("--quiet", action="store_true", help="only the problems, not the PLACEHOLDER / INFERRED values")
+    check.add_argument("--plot", default=None, help="draw the machine as configured (links at their reach, cylinders) to this PNG")
+    check.set_defaults(func=cmd_machine_check)
+    threshold = verbs.add_parser("threshold", help="a safe threshold before commissioning, derived from the machine's own "
+                                 "description", description="Simulate fault-free variants of the machine (each notch, bulk "
+                                 "modulus and friction drawn off its configured value, as an unidentified machine differs from "
+                                 "its data sheet) and take a margin over the largest 5 s mean residual: the UKF monitor's "
+                                 "fdi.threshold_constant until `hydro-ros commission` replaces it.")
+    threshold.add_argument("config", help="machine config (YAML)")
+    threshold.add_argument("--variants", type=int, default=8, help="simulated variants (default 8)")
+    threshold.add_argument("--duration", type=float, default=120.0, help="[s] simulated per variant (default 120)")
+    threshold.add_argument("--margin", type=float, default=1.25, help="factor over the largest excess (default 1.25)")
+    add_out(threshold, "write a config that extends CONFIG with this threshold", required=False)
+    threshold.set_defaults(func=cmd_machine_threshold)
+    new = verbs.add_parser("new", help="write a commented starting point for your machine's config",
+                           description="Copy a shipped config with its comments (units, where each value comes from).")
+    new.add_argument("--like", required=True, choices=("sam", "boom_arm", "k70m"),
+                     help="sam: one boom; boom_arm: several joints, each a cylinder; k70m: a redundant crane (the planner's)")
+    add_out(new, "the new config file")
+    new.set_defaults(func=cmd_machine_new)
+
+    params = sub.add_parser("params", help="the commented params file of a machine's bring-up (can_bridge, fdi_node, hmi)",
+                            description="Print the ros__parameters of the nodes launch/machine.launch.py starts, every "
+                            "parameter with its unit, default and range, from the nodes' own tables.")
+    add_config(params, "machine config, e.g. config/sam.yaml or your own")
+    params.set_defaults(func=cmd_params)
+
+    foxglove = sub.add_parser("foxglove", help="Foxglove for a machine")
+    verbs = foxglove.add_subparsers(dest="foxglove_command", required=True)
+    layout = verbs.add_parser("layout", help="a Foxglove layout for a machine: every actuator's status and residual plots",
+                              description="Write the Foxglove layout of a machine config (import it in Foxglove: Layouts, Import).")
+    add_config(layout)
+    add_out(layout, "layout JSON to write")
+    layout.add_argument("--namespace", default="", help="the machine's namespace (machine.launch.py's namespace argument)")
+    layout.set_defaults(func=cmd_foxglove_layout)
+
+
+def cmd_machine_check(args: argparse.Namespace) -> int:
+    from hydro_ros.contract.check import annotated_values, config_problems
+    from hydro_ros.contract.config import read_config
+
+    config = read_config(args.config, required=(), nonempty="machine")
+    problems = config_problems(config)
+    for problem in problems:
+        print(f"{args.config}: {problem}")
+    if not problems:
+        from hydro_ros.fdi.settings import unset_threshold
+
+        machine = load_machine_config(args.config)
+        print(f"{args.config}: {machine.name}: {len(machine.actuators)} actuator(s) "
+              f"({', '.join(f'{a.name} on {a.joint}' for a in machine.actuators)}), {machine.sample_rate_hz:g} Hz, "
+              f"supply {machine.supply_pressure / 1e6:g} MPa: ok")
+        advice = unset_threshold(machine)
+        if advice:
+            print(f"{args.config}: warning: {advice}")
+        for warning in reach_warnings(machine):
+            print(f"{args.config}: warning: {warning}")
+        if args.plot:
+            from hydro_ros.studies.plots import plot_machine
+
+            print(f"{args.config}: picture {plot_machine(machine, args.plot)}")
+    notes = annotated_values(args.config)
+    if notes and not args.quiet:
+        print(f"{len(notes)} value(s) the file marks as not measured (replace them with your data sheet's or your measurement):")
+        for note in notes:
+            print(f"  {note}")
+    return 1 if problems else 0
+
+
+def reach_warnings(machine) -> list[str]:
+    """Where the joint travel the cylinders allow and the ranges the config gives for it disagree."""
+    from hydro_ros.models.kinematics import joint_reach
+    from hydro_ros.models.sam import SamModel
+
+    out = []
+    plausible = machine.sensors.joint_range
+    operator = machine.excitation.joint_range
+    for actuator in machine.actuators:
+        model = SamModel(machine, actuator.name)
+        low, high = joint_reach(model.mount, *model.end_stops)
+        reach = f"{actuator.name}'s cylinder moves its joint {low:.3f} to {high:.3f}"
+        if low < plausible[0] or high > plausible[1]:
+            out.append(f"sensors.joint_range {list(plausible)}: {reach}; a reading in that travel would be called implausible")
+        if not machine.crane and (operator[0] < low or operator[1] > high):
+            out.append(f"excitation.joint_range {list(operator)}: {reach}; the simulated operator drives it into the end stops")
+    return out
+
+
+def cmd_machine_threshold(args: argparse.Namespace) -> int:
+    from hydro_ros.fdi.settings import FdiSettings
+    from hydro_ros.studies.fdi_evaluation import MISMATCH_SPREAD, calibrate_threshold_constant
+
+    machine = load_machine_config(args.config)
+    if FdiSettings.from_machine(machine).method != "ukf":
+        raise InputError(f"{args.config}: the parity method's thresholds are fitted by `hydro-ros fdi fit`, not derived here")
+    if args.variants < 1 or args.duration <= 0:
+        raise InputError(f"--variants {args.variants} --duration {args.duration}: need at least one variant and a positive duration")
+    c0 = calibrate_threshold_constant(machine, range(1000, 1000 + args.variants), args.duration, margin=args.margin)
+    print(f"{machine.name}: threshold_constant {c0:.4f} MPa: {args.margin:g} x the largest fault-free 5 s mean residual above the "
+          f"quadratic term on {args.variants} variants of this machine ({MISMATCH_SPREAD}), {args.duration:g} s each")
+    if args.out:
+        out = Path(args.out)
+        if out.resolve() == Path(args.config).resolve():
+            raise InputError(f"--out {out}: is the config itself; write a config that extends it")
+        write_extending(Path(args.config), out, f"# {machine.name} with a threshold derived by `hydro-ros machine threshold` from "
+                        f"{args.variants} simulated variants;\n# safe until `hydro-ros commission` identifies the machine. "
+                        "Regenerate, do not edit.\n", {"fdi": {"threshold_constant": round(c0, 4)}})
+        print(f"{out}: written")
+    return 0
+
+
+def cmd_machine_new(args: argparse.Namespace) -> int:
+    from hydro_ros.contract.config import default_config_path
+
+    out = Path(args.out)
+    if out.exists():
+        raise InputError(f"--out {out}: exists; choose a new file")
+    if not out.parent.is_dir():
+        raise InputError(f"--out {out}: directory {out.parent} does not exist")
+    source = default_config_path(args.like)
+    text = source.read_text()
+    if "\nextends:" in "\n" + text:
+        raise InputError(f"--like {args.like}: extends another config; start from the one it extends")
+    header = (f"# Your machine, started from hydro_ros's {source.name} (`hydro-ros machine new --like {args.like}`).\n"
+              f"# Replace every value with your machine's, then run `hydro-ros machine check {out}`.\n")
+    out.write_text(header + text.replace(f"machine: {args.like}\n", f"machine: {out.stem}\n", 1))
+    print(f"{out}: written from {source.name}; next: hydro-ros machine check {out}")
+    return 0
+
+
+def cmd_params(args: argparse.Namespace) -> int:
+    from hydro_ros.nodes.bringup import machine_params
+
+    load_machine_config(args.config)
+    print(machine_params(Path(args.config)), end="")
+    return 0
+
+
+def cmd_foxglove_layout(args: argparse.Namespace) -> int:
+    from hydro_ros.hmi.foxglove_layout import foxglove_layout
+
+    layout = foxglove_layout(load_machine_config(args.config), args.namespace)
+    write_json(output_file(args.out), layout)
+    print(json.dumps({"layout": args.out, "panels": len(layout["configById"])}))
+    return 0
