@@ -33,7 +33,7 @@ from hydro_ros.contract.samples import Samples  # noqa: E402
 from hydro_ros.fdi.monitor import FdiMonitor  # noqa: E402
 from hydro_ros.fdi.offline import run_monitor  # noqa: E402
 from hydro_ros.sim.scenario import Scenario, simulate  # noqa: E402
-from hydro_ros.studies.commissioning import Recording, commission  # noqa: E402
+from hydro_ros.studies.commissioning import FaultFreeRecording, commission  # noqa: E402
 from hydro_ros.studies.fdi_evaluation import mismatched_config  # noqa: E402
 
 LEAKS = ("external_leakage_a", "external_leakage_b", "external_leakage_ab", "internal_leakage")
@@ -59,7 +59,7 @@ def main() -> int:
     bar = tqdm(total=args.plants * (4 + 2 * args.fault_free_runs + len(LEAKS) * len(SIZES)), unit="run", desc="commissioning")
     for plant_seed in range(500, 500 + args.plants):
         plant = mismatched_config(nominal, plant_seed)
-        recordings = [Recording(f"plant {plant_seed} run {s}", samples(plant, s, 120.0)) for s in (1, 2, 3)]
+        recordings = [FaultFreeRecording(f"plant {plant_seed} run {s}", samples(plant, s, 120.0)) for s in (1, 2, 3)]
         bar.update(3)
         began = time.perf_counter()
         block, report = commission(nominal, recordings)

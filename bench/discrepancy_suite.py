@@ -28,7 +28,7 @@ from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E402
 from hydro_ros.contract.names import first_form  # noqa: E402
-from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, run, simulate  # noqa: E402
+from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, run, simulate_recording  # noqa: E402
 from hydro_ros.studies.hidden_effects import hidden_effect_bag, hidden_effect_plant  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -54,7 +54,7 @@ def floor(config: Machine, data: BagData, effects: dict[str, float], forms: dict
     """Validation gap of the plant's own model on the validation part run() uses."""
     rec = Recording.from_bag(data, config)
     validation = rec.part(slice(int(FIT_SHARE * len(rec.times)), None))
-    return gap(simulate(hidden_effect_plant(config, forms=forms, also=effects), validation))
+    return gap(simulate_recording(hidden_effect_plant(config, forms=forms, also=effects), validation))
 
 
 def _form(name: str, forms: dict[str, str]) -> str | None:

@@ -22,7 +22,7 @@ from hydro_ros.benchresults import write_result
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.models.sam import SamModel, SamPlant
-from hydro_ros.nodes.processes import live_cpu_share
+from hydro_ros.processes import live_cpu_share
 from hydro_ros.sim.scenario import Scenario, run_blocks
 
 
@@ -62,7 +62,7 @@ def bag_read(config: Machine, seconds: float = 30.0) -> dict:
 
 
 def ukf_speed(config: Machine, steps: int = 20000, reference_steps: int = 1500) -> dict:
-    from hydro_ros.fdi.reference import filterpy_twin
+    from hydro_ros.fdi.filterpy_twin import filterpy_twin
     from hydro_ros.fdi.ukf import UkfBank, UkfSettings
 
     model = SamModel(config)

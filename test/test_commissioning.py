@@ -21,7 +21,7 @@ from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.identification import flow_regression
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, simulate
-from hydro_ros.studies.commissioning import PARITY_FLOOR_L_MIN, PARITY_MARGIN, Recording, commission, identify
+from hydro_ros.studies.commissioning import PARITY_FLOOR_L_MIN, PARITY_MARGIN, FaultFreeRecording, commission, identify
 from hydro_ros.studies.fdi_evaluation import mismatched_config
 from test.conftest import REPO
 
@@ -46,7 +46,7 @@ def _samples(machine, seed: int, duration: float, injections=()) -> Samples:
 @pytest.fixture(scope="module")
 def commissioned(sam_config):
     plant, _, _ = _plant(sam_config)
-    recordings = [Recording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2, 3)]
+    recordings = [FaultFreeRecording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2, 3)]
     block, report = commission(sam_config, recordings)
     return plant, block, report
 
@@ -93,7 +93,7 @@ def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_an
     still quiet through payload steps the recordings did not hold."""
     mobile = load_machine_config(REPO / "config" / "sam_mobile.yaml")
     plant, _, _ = _plant(mobile)
-    block, report = commission(mobile, [Recording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2, 3)])
+    block, report = commission(mobile, [FaultFreeRecording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2, 3)])
     (ident,) = report["identification"]
     for notch, factor in NOTCH_FACTORS.items():
         assert ident["notch_gain"][notch] == pytest.approx(factor, rel=0.02), notch
@@ -115,7 +115,7 @@ def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_an
 
 def test_commissioning_refuses_a_leaking_machine_and_a_recording_without_retracting_moves(sam_config):
     plant, _, _ = _plant(sam_config)
-    leaking = [Recording(f"leak{seed}", _samples(plant, seed, 90.0, [Injection("external_leakage_a", 0.5)])) for seed in (1, 2)]
+    leaking = [FaultFreeRecording(f"leak{seed}", _samples(plant, seed, 90.0, [Injection("external_leakage_a", 0.5)])) for seed in (1, 2)]
     with pytest.raises(InputError, match=r"loses oil: external_leakage_a of 0\.[45]\d L/min"):
         commission(sam_config, leaking)
     samples = _samples(plant, 1, 90.0)
@@ -194,10 +194,10 @@ def test_a_leak_that_begins_in_the_held_out_part_is_refused_never_learnt(sam_con
     """The leak starts inside the last third, which only sets the threshold: refused by the held-out leak check, and a
     threshold above the config's safe one is refused unless forced."""
     plant, _, _ = _plant(sam_config)
-    leaking = [Recording("leak_at_200", _samples(plant, 1, 300.0, [Injection("internal_leakage", 1.0, 200.0)]))]
+    leaking = [FaultFreeRecording("leak_at_200", _samples(plant, 1, 300.0, [Injection("internal_leakage", 1.0, 200.0)]))]
     with pytest.raises(InputError, match="held-out part .*internal_leakage"):
         commission(sam_config, leaking)
-    fault_free = [Recording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2)]
+    fault_free = [FaultFreeRecording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2)]
     strict = sam_config.with_overrides({"fdi": {"threshold_constant": 0.001}})  # a config whose own c0 is sharper than the data's
     with pytest.raises(InputError, match="c0 .* above the config's 0.0010 MPa.*--force"):
         commission(strict, fault_free)
@@ -222,23 +222,3 @@ def test_long_recordings_give_rows_at_the_row_rate_and_the_blocks_do_not_change_
     for notch in NOTCHES:
         assert gains[0][notch] == pytest.approx(gains[1][notch], rel=2e-3), notch
 
-
-MEASURE_PEAK = ("import resource, sys\nfrom hydro_ros.cli import main\ncode = main(sys.argv[1:])\n"
-                "print('MAXRSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\nsys.exit(code)")
-
-
-@pytest.mark.slow
-def test_commissioning_memory_grows_little_with_the_recording(tmp_path):
-    """Peak memory of `hydro-ros commission` over 1 and 4 min recordings: it grew 1.2 MB per recorded second when every
-    sample was a regression row (10 GB for 2 h); the samples themselves take 0.06 MB/s (bench/commissioning_memory)."""
-    config, peaks = REPO / "config" / "sam.yaml", {}
-    for duration in (60, 240):
-        bag = tmp_path / f"run{duration}"
-        subprocess.run([sys.executable, "-m", "hydro_ros.cli", "sim", "--config", str(config), "--duration", str(duration),
-                        "--seed", "1", "--out", str(bag), "--quiet"], check=True, capture_output=True)
-        done = subprocess.run([sys.executable, "-c", MEASURE_PEAK, "commission", "--bag", str(bag), "--config", str(config),
-                               "--out", str(tmp_path / f"c{duration}.yaml"), "--quiet", "--force"], check=True, capture_output=True,
-                              text=True)
-        peaks[duration] = next(int(line.split()[1]) for line in done.stdout.splitlines() if line.startswith("MAXRSS_KB")) / 1024
-    growth_mb_per_s = (peaks[240] - peaks[60]) / 180.0
-    assert growth_mb_per_s < 0.4, peaks

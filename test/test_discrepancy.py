@@ -46,11 +46,11 @@ def test_the_plants_own_model_fits_its_own_validation_data(sam_config, tmp_path,
     needs what no sensor gives: the commands a valve delay still applies from before the validation part,
     and the friction's bristle state (with neither, these gaps were 1.4-2.2)."""
     from hydro_ros.bags.reader import read_bag
-    from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, simulate
+    from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, simulate_recording
 
     rec = Recording.from_bag(read_bag(hidden_effect_bag(sam_config, tmp_path / "bag", effect, value)), sam_config)
     validation = rec.part(slice(int(FIT_SHARE * len(rec.times)), None))
-    assert gap(simulate(hidden_effect_plant(sam_config, effect, value), validation)) < 0.8
+    assert gap(simulate_recording(hidden_effect_plant(sam_config, effect, value), validation)) < 0.8
 
 
 def test_discrepancy_refuses_a_bag_without_the_actuator(tmp_path):

@@ -7,10 +7,10 @@ import pytest
 
 from hydro_ros.bags.reader import read_bag
 from hydro_ros.contract.names import Fault, Injection
+from hydro_ros.fdi.filterpy_twin import filterpy_twin
 from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Isolator
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import analyse_bag, blocks_from_bag
-from hydro_ros.fdi.reference import filterpy_twin
 from hydro_ros.fdi.residuals import MovingAverage
 from hydro_ros.fdi.ukf import UkfBank, UkfSettings, unscented_weights
 from hydro_ros.sim.scenario import Scenario, run_blocks

@@ -18,9 +18,9 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from hydro_ros.contract import topics
-from hydro_ros.hmi.headless import chromium_page
 from hydro_ros.nodes.common import LATCHED_QOS
 from hydro_ros.nodes.hmi import TOKEN_ENV
+from test.browser import chromium_page
 from test.conftest import REPO, SAM_CONFIG
 from test.ros_graph import free_port, node_process, port_open, probe_node, spinning, wait_for
 

@@ -21,6 +21,7 @@ LAYER = {
     "studies": 5, "hmi": 5,
     "nodes": 6,
     "demo": 7,
+    "processes": 7,  # node processes as the tests, benches and demo start them
     "cli": 8,
     "benchresults": 8,  # bench/results: the benches write it, docgen reads it
     "docgen": 9,  # documents the nodes' tables and the CLI's parser

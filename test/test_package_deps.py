@@ -16,7 +16,7 @@ ROSDEP = Path(__file__).with_name("rosdep")  # ros/rosdistro at 8468e88: rosdep 
 KEY_OF_IMPORT = {
     "numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml", "matplotlib": "python3-matplotlib",
     "tqdm": "python3-tqdm", "numba": "python3-numba", "rosbags": "python3-rosbags-pip", "aiohttp": "python3-aiohttp",
-    "can": "python3-can", "cantools": "python3-cantools-pip", "filterpy": "python3-filterpy-pip",
+    "can": "python3-can", "cantools": "python3-cantools-pip", "filterpy": "python3-filterpy-pip", "psutil": "python3-psutil",
     # dependencies of rosbags, used through it: its zstd and lz4 chunk codecs
     "backports": "python3-rosbags-pip", "compression": "python3-rosbags-pip", "lz4": "python3-rosbags-pip",
 }
@@ -54,8 +54,8 @@ def test_every_third_party_import_is_declared_or_an_optional_extra():
     for path in sorted((ROOT / "hydro_ros").rglob("*.py")):
         for name in sorted(_imports(path) - stdlib - set(OPTIONAL)):
             key = KEY_OF_IMPORT.get(name, name)  # a ROS package imports as its own name (sensor_msgs, rclpy)
-            # the filterpy twin serves only the tests and the benchmark
-            allowed = testing if path.name == "reference.py" else declared
+            # the filterpy twin and the node processes' CPU probe serve only the tests and the benchmarks
+            allowed = testing if path.name in ("filterpy_twin.py", "processes.py") else declared
             if key not in allowed:
                 undeclared.append(f"{path.relative_to(ROOT)}: {name} ({key})")
     assert undeclared == []

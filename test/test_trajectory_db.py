@@ -143,7 +143,7 @@ def test_bad_databases_are_refused_with_one_line(tmp_path, capsys):
         TrajectoryDatabase(tmp_path / "missing.db")
     assert cli_main(["db", "list", "--db", str(garbage)]) == 1
     err = capsys.readouterr().err.strip()
-    assert err.startswith("hydro-ros db: error: database") and "\n" not in err
+    assert err.startswith("hydro-ros db list: error: database") and "\n" not in err
 
 
 def test_cli_build_and_list(tmp_path, capsys):

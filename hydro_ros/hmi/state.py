@@ -55,7 +55,7 @@ class Tile:
 
 
 @dataclass
-class Alarm:
+class ShownAlarm:
     id: int
     actuator: str
     fault: str
@@ -98,7 +98,7 @@ class HmiState:
         self.clock = clock
         self.lock = threading.Lock()
         self.tiles: dict[str, Tile] = {}
-        self.alarms: deque[Alarm] = deque(maxlen=MAX_ALARMS)
+        self.alarms: deque[ShownAlarm] = deque(maxlen=MAX_ALARMS)
         self._next_alarm = 1
         self.residuals = Residuals()
         self.halt: bool | None = None
@@ -146,7 +146,7 @@ class HmiState:
         if level in ("WARN", "ERROR") and fault not in HEALTHY_MESSAGES:
             if active is None:
                 detected = self.tiles[actuator].detected_stamp_s
-                self.alarms.appendleft(Alarm(self._next_alarm, actuator, fault, level, now, detected))
+                self.alarms.appendleft(ShownAlarm(self._next_alarm, actuator, fault, level, now, detected))
                 self._next_alarm += 1
             else:  # the same alarm, isolated further (unisolated -> a fault name) or escalated
                 active.fault, active.level = fault, level

@@ -40,7 +40,7 @@ _LOWER_FACTOR = 1.0 + 1e-9  # limit checks forgive rounding, nothing more
 
 
 @dataclass(frozen=True)
-class Cylinder:
+class CraneCylinder:
     """How one joint drives its cylinder (stroke c measured from the retracted end) and its limits."""
 
     name: str
@@ -361,7 +361,7 @@ def _mass(entry: dict[str, Any]) -> PointMass:
     )
 
 
-def _cylinder(entry: dict[str, Any]) -> Cylinder:
+def _cylinder(entry: dict[str, Any]) -> CraneCylinder:
     spec = entry["cylinder"]
     mapping = str(spec["mapping"])
     if mapping not in ("linear", "triangle"):
@@ -370,7 +370,7 @@ def _cylinder(entry: dict[str, Any]) -> Cylinder:
     if spool not in ("non_differential", "differential"):
         raise InputError(f"spool {spool!r} (non_differential or differential)")
     q_min, q_max = float(entry["min"]), float(entry["max"])
-    cylinder = Cylinder(
+    cylinder = CraneCylinder(
         name=str(entry["name"]),
         q_min=q_min,
         q_max=q_max,

@@ -30,7 +30,7 @@ from scipy.signal import lfilter
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, Machine
-from hydro_ros.contract.names import Injection
+from hydro_ros.contract.names import Effect, Fault, Injection
 from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient, leak_flow
 from hydro_ros.models.friction import bristle_rate, friction_force, stribeck_curve
 from hydro_ros.models.kinematics import (
@@ -277,55 +277,62 @@ def compensator_pressures(states: np.ndarray, params: np.ndarray) -> np.ndarray:
     return out
 
 
+# How an injection's level acts on the parameter slots: added (times a unit), a fractional growth or loss, a latch that
+# switches on at 0.5, or seconds turned into samples (whole ones for a transport delay)
+ADD, GROW, SHRINK, LATCH, DELAY_SAMPLES_OF, LAG_SAMPLES_OF = range(6)
+LITRE_AT_10_MPA = leak_coefficient(1.0)
+INJECTION_SLOTS: dict[str, tuple[tuple[int, int, float], ...]] = {
+    Fault.EXTERNAL_LEAKAGE_A: ((K_EXTERNAL_A, ADD, LITRE_AT_10_MPA),),
+    Fault.EXTERNAL_LEAKAGE_B: ((K_EXTERNAL_B, ADD, LITRE_AT_10_MPA),),
+    Fault.EXTERNAL_LEAKAGE_AB: ((K_EXTERNAL_A, ADD, LITRE_AT_10_MPA), (K_EXTERNAL_B, ADD, LITRE_AT_10_MPA)),
+    Fault.INTERNAL_LEAKAGE: ((K_INTERNAL, ADD, LITRE_AT_10_MPA),),
+    Fault.SPOOL_TOO_SMALL_OPENING: ((OPENING_GAIN, SHRINK, 1.0),),
+    Fault.SPOOL_TOO_LARGE_OPENING: ((OPENING_GAIN, GROW, 1.0),),
+    Fault.SPOOL_STUCK_CLOSED: ((STUCK, LATCH, 1.0),),
+    Effect.SPOOL_OFFSET: ((OFFSET, ADD, 1.0),),
+    Fault.PILOT_PRESSURE_SPOOL_OFFSET: ((OFFSET, ADD, 1.0),),
+    Fault.MAIN_SPOOL_LOCKING: ((STUCK, LATCH, 1.0),),
+    Fault.MAIN_SPOOL_EROSION: ((FLOW_GAIN, GROW, 1.0),),
+    Fault.COMPENSATOR_SPOOL_LOCKING: ((COMP_LOCKED, LATCH, 1.0),),
+    Fault.COMPENSATOR_SPOOL_EROSION: ((COMP_DROP, SHRINK, 1.0),),
+    Effect.VALVE_DEADZONE: ((DEADZONE, ADD, 1.0),),
+    Effect.VALVE_DELAY: ((DELAY_SAMPLES, DELAY_SAMPLES_OF, 1.0),),
+    Effect.VALVE_FLOW_GAIN: ((FLOW_GAIN, GROW, 1.0),),
+    Effect.ENTRAINED_AIR: ((AIR_FRACTION, ADD, 1.0),),
+    Effect.COULOMB_FRICTION: ((STATIC, ADD, 1.0), (COULOMB, ADD, 1.0)),
+    Effect.VISCOUS_FRICTION: ((VISCOUS, ADD, 1.0),),
+    Effect.PAYLOAD_MASS: ((PAYLOAD, ADD, 1.0),),
+}
+# an effect in a form other than its family's first acts on other slots (names.EFFECT_FORMS)
+FORM_SLOTS: dict[tuple[str, str], tuple[tuple[int, int, float], ...]] = {
+    (Effect.VALVE_DELAY, "lag"): ((LAG_SAMPLES, LAG_SAMPLES_OF, 1.0),),
+    (Effect.COULOMB_FRICTION, "stribeck"): ((STATIC, ADD, 1.0),),  # the static level only: the Stribeck curve falls from it
+}
+# the form switches: the slot that says which form an effect family has
+FORM_SWITCHES = {Effect.EXTERNAL_LEAKAGE_A: (LAMINAR_EXTERNAL_A, "laminar"), Effect.EXTERNAL_LEAKAGE_B: (LAMINAR_EXTERNAL_B, "laminar"),
+                 Effect.INTERNAL_LEAKAGE: (LAMINAR_INTERNAL, "laminar"), Effect.VALVE_DEADZONE: (DEADZONE_PLAIN, "overlap")}
+
+
 def _apply(params: np.ndarray, name: str, level: np.ndarray, sample_rate: float, form: str | None = None) -> None:
     """Add one injection's level (per row of ``params``) to the parameter matrix, in ``form``
     (``names.EFFECT_FORMS``; None: the form the parameters have, which is the family's first unless an
     effect of the config chose another: a fault injected on top of such an effect keeps its form)."""
-    if form is not None:
-        for slot, form_name, family in ((LAMINAR_EXTERNAL_A, "laminar", "external_leakage_a"), (LAMINAR_EXTERNAL_B, "laminar", "external_leakage_b"),
-                                        (LAMINAR_INTERNAL, "laminar", "internal_leakage"), (DEADZONE_PLAIN, "overlap", "valve_deadzone")):
-            if name == family:
-                params[:, slot] = float(form == form_name)
-    if name in ("external_leakage_a", "external_leakage_ab"):
-        params[:, K_EXTERNAL_A] += leak_coefficient(1.0) * level
-    if name in ("external_leakage_b", "external_leakage_ab"):
-        params[:, K_EXTERNAL_B] += leak_coefficient(1.0) * level
-    if name == "internal_leakage":
-        params[:, K_INTERNAL] += leak_coefficient(1.0) * level
-    elif name == "spool_too_small_opening":
-        params[:, OPENING_GAIN] *= 1.0 - level
-    elif name == "spool_too_large_opening":
-        params[:, OPENING_GAIN] *= 1.0 + level
-    elif name == "spool_stuck_closed":
-        params[:, STUCK] = np.maximum(params[:, STUCK], (level >= 0.5).astype(float))
-    elif name in ("spool_offset", "pilot_pressure_spool_offset"):
-        params[:, OFFSET] += level
-    elif name == "main_spool_locking":
-        params[:, STUCK] = np.maximum(params[:, STUCK], (level >= 0.5).astype(float))
-    elif name == "main_spool_erosion":
-        params[:, FLOW_GAIN] *= 1.0 + level
-    elif name == "compensator_spool_locking":
-        params[:, COMP_LOCKED] = np.maximum(params[:, COMP_LOCKED], (level >= 0.5).astype(float))
-    elif name == "compensator_spool_erosion":
-        params[:, COMP_DROP] *= 1.0 - level
-    elif name == "valve_deadzone":
-        params[:, DEADZONE] += level
-    elif name == "valve_delay" and form == "lag":
-        params[:, LAG_SAMPLES] += level * sample_rate
-    elif name == "valve_delay":
-        params[:, DELAY_SAMPLES] += np.round(level * sample_rate)
-    elif name == "valve_flow_gain":
-        params[:, FLOW_GAIN] *= 1.0 + level
-    elif name == "entrained_air":
-        params[:, AIR_FRACTION] += level
-    elif name == "coulomb_friction":
-        params[:, STATIC] += level
-        if form != "stribeck":
-            params[:, COULOMB] += level
-    elif name == "viscous_friction":
-        params[:, VISCOUS] += level
-    elif name == "payload_mass":
-        params[:, PAYLOAD] += level
+    if form is not None and name in FORM_SWITCHES:
+        slot, switched = FORM_SWITCHES[name]
+        params[:, slot] = float(form == switched)
+    for slot, action, unit in FORM_SLOTS.get((name, form), INJECTION_SLOTS.get(name, ())):
+        if action == ADD:
+            params[:, slot] += unit * level
+        elif action == GROW:
+            params[:, slot] *= 1.0 + level
+        elif action == SHRINK:
+            params[:, slot] *= 1.0 - level
+        elif action == LATCH:
+            params[:, slot] = np.maximum(params[:, slot], (level >= 0.5).astype(float))
+        elif action == DELAY_SAMPLES_OF:
+            params[:, slot] += np.round(level * sample_rate)
+        else:
+            params[:, slot] += level * sample_rate
 
 
 SENSOR_INJECTIONS = frozenset(

@@ -297,12 +297,12 @@ def above_shipped(threshold: dict[str, Any]) -> str:
 
 
 @dataclass
-class Recording:
+class FaultFreeRecording:
     name: str
     samples: Samples
 
 
-def load_recordings(bags: Sequence[str | Path], machine: Machine) -> list[Recording]:
+def load_recordings(bags: Sequence[str | Path], machine: Machine) -> list[FaultFreeRecording]:
     """Every bag's samples for the machine's actuators; a bag from another layout or a damaged bag is refused by name."""
     layout = SampleLayout(machine.actuator_names, [a.joint for a in machine.actuators], mobile=machine.mobile)
     out = []
@@ -310,11 +310,11 @@ def load_recordings(bags: Sequence[str | Path], machine: Machine) -> list[Record
         data = read_bag(bag)
         if not data.complete:
             raise InputError(f"bag {bag}: {'; '.join(data.errors) or 'incomplete'}; commissioning uses whole recordings only")
-        out.append(Recording(str(bag), data.samples(layout)))
+        out.append(FaultFreeRecording(str(bag), data.samples(layout)))
     return out
 
 
-def commission(machine: Machine, recordings: Sequence[Recording], progress: Callable[[str], None] | None = None, *,
+def commission(machine: Machine, recordings: Sequence[FaultFreeRecording], progress: Callable[[str], None] | None = None, *,
                force: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
     """(the config's ``commissioned`` block, the report) from fault-free recordings of ``machine``.
 

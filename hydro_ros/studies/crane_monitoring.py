@@ -34,7 +34,7 @@ from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_episodes
 from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS, ParityThresholds
 from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun, simulate_crane
-from hydro_ros.studies.commissioning import Recording
+from hydro_ros.studies.commissioning import FaultFreeRecording
 from hydro_ros.studies.fdi_evaluation import mismatched_config, parallel_map
 
 FLOW_FRACTION = 0.1  # k: the notch coefficients' tolerance the allowance covers: twice MISMATCH's +-5 % (INFERRED; see docs/monitoring.md)
@@ -144,12 +144,12 @@ def path_trajectories(crane_config: dict[str, Any], method: str = "dp_cp", datab
 
 
 def commissioning_recordings(plant: Machine, crane_config: dict[str, Any], trajectories: dict[str, Any], seed: int, *,
-                             operator_s: float = 120.0, path_s: float = 60.0) -> list[Recording]:
+                             operator_s: float = 120.0, path_s: float = 60.0) -> list[FaultFreeRecording]:
     """A crane's fault-free work to commission it on: the operator twice, each path's cycle once, a payload gripped and
     released in each (a forestry crane's day; recorded into the bags ``hydro-ros commission`` reads)."""
     runs = [(f"operator{seed + k}", CraneCase(seed + k, operator_s)) for k in range(2)]
     runs += [(path, CraneCase(seed, path_s, path)) for path in trajectories]
-    return [Recording(f"{name} (seed {case.seed})", simulate_crane(plant, crane_config, crane_run(case, trajectories)))
+    return [FaultFreeRecording(f"{name} (seed {case.seed})", simulate_crane(plant, crane_config, crane_run(case, trajectories)))
             for name, case in runs]
 
 

@@ -150,7 +150,7 @@ class Recording:
         return cls(data.times[good], *(signal[good] for signal in signals))
 
 
-def simulate(machine: Machine, rec: Recording, every: int = 1) -> np.ndarray:
+def simulate_recording(machine: Machine, rec: Recording, every: int = 1) -> np.ndarray:
     """Normalised error (n, 3) of 2 s segment simulations started from the measured state; with ``every`` > 1
     of every that many-th segment only (the rows of the others left out), for screening."""
     model = SamModel(machine)
@@ -249,7 +249,7 @@ def refine(machine: Machine, calibration: dict[str, float], named: dict[str, flo
     """
     if not named:
         return calibration, named
-    start_gap, calibration = min(((gap(simulate(_with(machine, named, c, forms), rec)), c) for c in (calibration, NO_CALIBRATION)),
+    start_gap, calibration = min(((gap(simulate_recording(_with(machine, named, c, forms), rec)), c) for c in (calibration, NO_CALIBRATION)),
                                  key=lambda scored: scored[0])
     names = list(named)
     ranges = [EFFECT_RANGES[n] for n in names]
@@ -261,7 +261,7 @@ def refine(machine: Machine, calibration: dict[str, float], named: dict[str, flo
 
     def cost(z: np.ndarray) -> float:
         calibrated, effects = unpack(z)
-        return gap(simulate(_with(machine, effects, calibrated, forms), rec))
+        return gap(simulate_recording(_with(machine, effects, calibrated, forms), rec))
 
     start = np.concatenate([_calibration_coordinates(calibration), np.zeros(len(names))])
     # ~1.5 % flow, ~9 % bulk modulus, 5 % of each effect's range
@@ -389,11 +389,11 @@ def fit_effects(machine: Machine, calibration: dict[str, float], rec: Recording,
     Returns the scored candidates, best first, and the screening table.
     """
     rate = SamModel(machine).sample_rate
-    base = simulate(_with(machine, named, calibration, forms), rec)
+    base = simulate_recording(_with(machine, named, calibration, forms), rec)
     base_bic = _bic(base, len(named), rate)
 
     def error_with(name: str, form: str | None, value: float, every: int = 1) -> np.ndarray:
-        return simulate(_with(machine, {**named, name: value}, calibration, {**forms, name: form}), rec, every)
+        return simulate_recording(_with(machine, {**named, name: value}, calibration, {**forms, name: form}), rec, every)
 
     screened = []
     for name, form in candidate_effects(named):
@@ -426,11 +426,11 @@ def backward_check(machine: Machine, calibration: dict[str, float], named: dict[
     """Whether each named effect still earns its place beside the others: the information criterion without it
     (the others at their joint values) must be worse by more than BIC_MARGIN."""
     rate = SamModel(machine).sample_rate
-    full_bic = _bic(simulate(_with(machine, named, calibration, forms), rec), len(named), rate)
+    full_bic = _bic(simulate_recording(_with(machine, named, calibration, forms), rec), len(named), rate)
     rows = []
     for name in named:
         rest = {other: value for other, value in named.items() if other != name}
-        gain = _bic(simulate(_with(machine, rest, calibration, forms), rec), len(rest), rate) - full_bic
+        gain = _bic(simulate_recording(_with(machine, rest, calibration, forms), rec), len(rest), rate) - full_bic
         rows.append({"effect": name, "bic_gain": gain, "kept": gain > BIC_MARGIN})
     return rows
 
@@ -448,7 +448,7 @@ def select(machine: Machine, calibration: dict[str, float], fit: Recording, held
     forms: dict[str, str] = {}
     joint = calibration
     rate = SamModel(machine).sample_rate
-    held_out_gap = gap(simulate(_with(machine, {}, calibration), held_out))
+    held_out_gap = gap(simulate_recording(_with(machine, {}, calibration), held_out))
     steps: list[dict[str, Any]] = []
     for _ in range(MAX_EFFECTS):
         candidates, screened = fit_effects(machine, joint, fit, named, forms, progress)
@@ -466,13 +466,13 @@ def select(machine: Machine, calibration: dict[str, float], fit: Recording, held
         for form in [c for c in candidates if c.name == best.name and (c is best or c.significant)]:
             trial_forms = {**forms, best.name: form.form} if form.form else dict(forms)
             trial_joint, trial_named = refine(machine, joint, {**named, best.name: form.value}, trial_forms, fit)
-            error = simulate(_with(machine, trial_named, trial_joint, trial_forms), fit)
+            error = simulate_recording(_with(machine, trial_named, trial_joint, trial_forms), fit)
             bic = _bic(error, len(named) + 1, rate) - (BIC_MARGIN if form.form == first_form(best.name) else 0.0)
             trials.append((bic, gap(error), form, trial_forms, trial_joint, trial_named))
         _, fit_gap, chosen, trial_forms, trial_joint, trial_named = min(trials, key=lambda trial: trial[0])
         if progress is not None:
             progress(1)
-        trial_gap = gap(simulate(_with(machine, trial_named, trial_joint, trial_forms), held_out))
+        trial_gap = gap(simulate_recording(_with(machine, trial_named, trial_joint, trial_forms), held_out))
         step.update({"added": best.name, "form": chosen.form, "separate_value": chosen.value, "joint_values": trial_named,
                      "joint_calibration": trial_joint, "forms_jointly": {str(t[2].form): t[1] for t in trials} if len(trials) > 1 else {},
                      "fit_gap_after": fit_gap, "held_out_gap_after": trial_gap, "kept": trial_gap <= (1.0 - HELD_OUT_GAIN) * held_out_gap})
@@ -498,11 +498,11 @@ def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], No
     selection = select(machine, calibration, fit, validation, progress)
     named, forms, joint_calibration = selection["named"], selection["forms"], selection["calibration"]
     separate = {step["added"]: step["separate_value"] for step in selection["steps"] if step.get("kept")}
-    before_fit = simulate(_with(machine, {}, calibration), fit)
-    after_fit = simulate(_with(machine, named, joint_calibration, forms), fit)
-    raw_validation = simulate(machine, validation)
-    before_validation = simulate(_with(machine, {}, calibration), validation)
-    after_validation = simulate(_with(machine, named, joint_calibration, forms), validation)
+    before_fit = simulate_recording(_with(machine, {}, calibration), fit)
+    after_fit = simulate_recording(_with(machine, named, joint_calibration, forms), fit)
+    raw_validation = simulate_recording(machine, validation)
+    before_validation = simulate_recording(_with(machine, {}, calibration), validation)
+    after_validation = simulate_recording(_with(machine, named, joint_calibration, forms), validation)
     model = _with(machine, named, joint_calibration, forms)
     out.mkdir(parents=True, exist_ok=True)
     (out / "model.yaml").write_text("# model of hydro-ros discrepancy: calibrated flow gain and bulk modulus, named effects\n"

@@ -16,7 +16,7 @@ from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.models.crane import Crane
 from hydro_ros.planning.controller import CylinderReference, MotionController, controller_settings
 from hydro_ros.planning.database import JointTrajectoryData
-from hydro_ros.sim.crane import CranePlant
+from hydro_ros.sim.closed_loop_crane import CranePlant
 
 _PATH_DENSITY = 20  # commanded-path points per trajectory sample for the ISO 9283 nearest-point search
 
