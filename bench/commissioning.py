@@ -40,7 +40,7 @@ LEAKS = ("external_leakage_a", "external_leakage_b", "external_leakage_ab", "int
 SIZES = (0.1, 0.2, 0.3, 0.5)
 SPOOL_OFFSET = 0.03  # [-] of spool travel, as the shipped bag; P-II's table has no row for it: what is it called?
 PAYLOAD = [Injection("payload_mass", 300.0, 30.0), Injection("payload_mass", -300.0, 80.0)]
-PAPER = {"external_leakage_b": 0.2, "external_leakage_a": 0.4, "internal_leakage": 0.5}  # [L/min] P-II (B 0.17, A 0.40), internal < 0.5
+PAPER = {"external_leakage_b": 0.17, "external_leakage_a": 0.40, "internal_leakage": 0.5}  # [L/min] P-II; internal: < 0.5
 
 
 def samples(machine, seed: int, duration: float, injections=()) -> Samples:

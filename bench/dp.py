@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from hydro_ros.benchresults import write_result
+from hydro_ros.benchresults import commit, write_result
 
 _CHILD = """
 import json, resource, sys, time
@@ -180,7 +180,11 @@ def main() -> int:
     if unknown:
         parser.error(f"--parts: unknown {', '.join(sorted(unknown))} (known: {', '.join(parts)})")
     results = json.loads(out.read_text()) if out.exists() and args.parts != ",".join(parts) else {}
-    results.update({name: run() for name, run in parts.items() if name in args.parts.split(",")})
+    chosen = args.parts.split(",")
+    results.update({name: run() for name, run in parts.items() if name in chosen})
+    # a part kept from an earlier run keeps the commit it ran on
+    kept = results.get("part_commits", dict.fromkeys(parts, results.get("commit", "not recorded")))
+    results["part_commits"] = {name: commit() if name in chosen else kept.get(name, "not recorded") for name in parts}
     results["bench_process_peak_rss_MB"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     write_result(out, results)
     print(json.dumps(results["solver"], indent=2))

@@ -175,21 +175,24 @@ def _memory(m: dict) -> tuple[str, str, str]:
             f"({runs[-1]['peak_vs_samples']:.1f}x); growth {m['growth_mb_per_recorded_hour']:.0f} MB per recorded hour")
 
 
-ROWS: list[tuple[str, Callable[[dict], tuple[str, str, str]]]] = [
-    ("results", _model), ("results", _bag), ("results", _ukf), ("results", _fdi_offline), ("results", _fdi_live), ("results", _can),
-    ("results", _can_live), ("dp", _dp), ("trajectories", _db), ("trajectories", _catalog), ("trajectories", _server), ("hmi", _hmi),
-    ("crane_cpu", _crane_cpu), ("fleet", _fleet), ("commissioning_memory", _memory)]
+ROWS: list[tuple[str, str, Callable[[dict], tuple[str, str, str]]]] = [  # (file, the part a row reads, the row)
+    ("results", "sam_model_1khz", _model), ("results", "bag_read", _bag), ("results", "ukf", _ukf),
+    ("results", "fdi_offline", _fdi_offline), ("results", "fdi_node_live", _fdi_live), ("results", "can_decode", _can),
+    ("results", "can_bridge_live", _can_live), ("dp", "solver", _dp), ("trajectories", "throughput", _db),
+    ("trajectories", "full_catalog", _catalog), ("trajectories", "latency", _server), ("hmi", "phases", _hmi),
+    ("crane_cpu", "sample_blocks", _crane_cpu), ("fleet", "runs", _fleet), ("commissioning_memory", "runs", _memory)]
 
 
 def benchmarks_markdown() -> str:
     lines = ["| what | measured | reference in the same run | file (commit) |", "|---|---|---|---|"]
-    for name, row in ROWS:
+    for name, part, row in ROWS:
         data = _load(name)
         try:
             what, measured, reference = row(data) if data is not None else (name, MISSING, "-")
         except KeyError as missing:
             what, measured, reference = name, f"{MISSING} (no {missing})", "-"
-        commit = _commit(data) if data is not None else "-"
+        # a file some of whose parts were rerun (bench/dp.py --parts) says which commit each part ran on
+        commit = data.get("part_commits", {}).get(part, _commit(data)) if isinstance(data, dict) else "-"
         cells = (cell.replace("|", "\\|") for cell in (what, measured, reference))
         lines.append(f"| {' | '.join(cells)} | `{name}.json` ({commit}) |")
     lines += ["", "Every file `make bench` writes, with the commit its run recorded:", ""]

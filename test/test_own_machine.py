@@ -14,6 +14,7 @@ import os
 import subprocess
 import sys
 import time
+import urllib.request
 from pathlib import Path
 
 import can
@@ -27,6 +28,7 @@ from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import Injection
 from hydro_ros.sim.scenario import MachineRun
 from hydro_ros.studies.fdi_evaluation import mismatched_config
+from test.conftest import REPO
 from test.ros_graph import node_process, probe_node, spin_until
 
 # J1939: priority 3, PDU2 PGNs 0xFF10.. of the proprietary range, source address 0x21; DBC ids carry bit 31 for extended
@@ -212,3 +214,43 @@ def test_can_bridge_reads_the_machines_own_bus(excavator, ros_domain):
     assert velocity["lift_joint"] > 0.0  # derived from the angle, the bus has no rate
     assert dipper_b[-1].fluid_pressure == pytest.approx(5.5e6, abs=1e3)
     assert np.isfinite([m.fluid_pressure for m in dipper_b]).all()
+
+
+def test_the_hmi_shows_every_cylinder_of_a_two_joint_machine_and_the_leak_on_its_own(ros_domain):
+    """config/boom_arm.yaml live: plant_sim -> fdi_node -> hmi. The page has a tile per cylinder from the machine config, and a
+    leak in the arm's cylinder shows on the arm's tile while the boom's stays ok."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    from test.ros_graph import free_port
+
+    config, port = REPO / "config" / "boom_arm.yaml", free_port()
+    statuses: list = []
+    with probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics",
+                                 lambda m: statuses.extend(s for s in m.status if s.name.startswith("hydro_ros/fdi/")), 50)
+        with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={config}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"), \
+                node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={config}"), \
+                node_process("hydro_ros.nodes.hmi", "-p", f"config:={config}", "-p", f"port:={port}"):
+            def armed() -> bool:
+                return {s.name for s in statuses if s.message == "ok"} >= {"hydro_ros/fdi/boom", "hydro_ros/fdi/arm"}
+
+            assert spin_until(node, armed, 60), sorted({(s.name, s.message) for s in statuses})
+            client = AsyncParameterClient(node, "plant_sim")
+            assert client.wait_for_services(10.0)
+            future = client.set_parameters([Parameter("fault.arm.external_leakage_a", value=4.0)])
+            assert spin_until(node, future.done, 10)
+
+            def tiles() -> dict[str, dict]:
+                spin_until(node, lambda: False, 0.2)
+                try:
+                    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/state", timeout=5) as answer:
+                        return {t["actuator"]: t for t in json.loads(answer.read())["tiles"]}
+                except OSError:
+                    return {}
+
+            assert spin_until(node, lambda: tiles().get("arm", {}).get("level") in ("WARN", "ERROR"), 60), tiles()
+            shown = tiles()
+    assert set(shown) == {"boom", "arm"}
+    assert shown["arm"]["fault"] != "none" and shown["boom"]["level"] == "OK", shown

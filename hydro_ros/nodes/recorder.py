@@ -28,6 +28,7 @@ from hydro_ros.contract.machine import Machine
 from hydro_ros.nodes.common import SENSOR_QOS, message_class, relative
 
 DISCOVERY_S = 2.0  # wait for publishers before subscribing, so their QoS is known
+BLOCK_LOOK_S = 1.0  # [s] how often the graph is asked for a sample-block publisher that came late
 
 
 def _offered(info: Any) -> Qos:
@@ -71,6 +72,12 @@ class Recorder(Node):
             self._subscribed[topic] = self.create_subscription(
                 message_class(type_name), relative(topic), lambda data, t=topic: self._on_message(t, data), qos, raw=True)
 
+    def take_sample_blocks(self) -> None:
+        """Subscribe to /hydraulics/sample_block once a node publishes it."""
+        if topics.SAMPLE_BLOCK not in self.wanted and self.get_publishers_info_by_topic(self.resolve_topic_name(relative(topics.SAMPLE_BLOCK))):
+            self.wanted[topics.SAMPLE_BLOCK] = topics.POINT_CLOUD2_TYPE
+            self.subscribe_all()
+
     def _on_message(self, topic: str, data: bytes) -> None:
         self.writer.write(self._handles[topic], header_stamp_ns(data), data)
         self.counts[topic] += 1
@@ -99,14 +106,16 @@ def record(machine: Machine, out: Path, *, duration_s: float | None, split_durat
                 end = began + DISCOVERY_S
                 while time.monotonic() < end:
                     rclpy.spin_once(node, timeout_sec=0.1)
-                if node.get_publishers_info_by_topic(node.resolve_topic_name(relative(topics.SAMPLE_BLOCK))):
-                    node.wanted[topics.SAMPLE_BLOCK] = topics.POINT_CLOUD2_TYPE
                 node.subscribe_all()
                 started = time.monotonic()
                 stop = math.inf if duration_s is None else started + duration_s
                 next_split = math.inf if split_duration_s is None else started + split_duration_s
+                next_look = started
                 while rclpy.ok() and time.monotonic() < stop:
                     rclpy.spin_once(node, timeout_sec=0.1)
+                    if time.monotonic() >= next_look:  # a bridge or simulator started after the recorder still gets its blocks recorded
+                        node.take_sample_blocks()
+                        next_look += BLOCK_LOOK_S
                     if time.monotonic() >= next_split:
                         writer.split()
                         next_split += split_duration_s
