@@ -17,12 +17,14 @@ MISSING = "not in bench/results"
 
 
 def commit() -> str:
-    """The checked-out commit, ``+changes`` when the tree differs from it: what a result ran on."""
+    """The checked-out commit, ``+changes`` when the code differs from it (results written since do not count): what a
+    result ran on."""
     def git(*args: str) -> str:
         return subprocess.run(["git", *args], cwd=RESULTS.parent, capture_output=True, text=True).stdout.strip()
 
     head = git("rev-parse", "--short", "HEAD")
-    return (head + ("+changes" if git("status", "--porcelain", "--untracked-files=no") else "")) if head else "unknown"
+    changed = git("status", "--porcelain", "--untracked-files=no", "--", ".", f":(exclude){RESULTS.relative_to(RESULTS.parent.parent)}")
+    return (head + ("+changes" if changed else "")) if head else "unknown"
 
 
 def write_result(path: str | Path, result: dict[str, Any]) -> Path:
