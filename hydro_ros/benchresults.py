@@ -20,7 +20,7 @@ def commit() -> str:
     """The checked-out commit, ``+changes`` when the code differs from it (results written since do not count): what a
     result ran on."""
     def git(*args: str) -> str:
-        return subprocess.run(["git", *args], cwd=RESULTS.parent, capture_output=True, text=True).stdout.strip()
+        return subprocess.run(["git", *args], cwd=RESULTS.parent.parent, capture_output=True, text=True).stdout.strip()
 
     head = git("rev-parse", "--short", "HEAD")
     changed = git("status", "--porcelain", "--untracked-files=no", "--", ".", f":(exclude){RESULTS.relative_to(RESULTS.parent.parent)}")
