@@ -74,7 +74,7 @@ def latency(config: dict, db_path: Path, requests: int = 200, replans: int = 200
     from trajectory_msgs.msg import JointTrajectory
 
     from hydro_ros.nodes.common import LATCHED_QOS
-    from test.ros_graph import node_process, spin_until
+    from hydro_ros.processes import node_process, spin_until
 
     with TrajectoryDatabase(db_path) as db:
         stored = db.solution("horizontal", "dp_cp")

@@ -8,7 +8,7 @@ import subprocess
 import sys
 import time
 from contextlib import contextmanager
-from typing import Iterator
+from typing import Any, Callable, Iterator
 
 import psutil
 
@@ -34,6 +34,18 @@ def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         return probe.getsockname()[1]
+
+
+def spin_until(node: Any, done: Callable[[], bool], timeout: float) -> bool:
+    """Spin an rclpy node until ``done()`` or ``timeout`` seconds; whether it was done."""
+    import rclpy
+
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+        if done():
+            return True
+    return False
 
 
 def cpu_seconds(process: psutil.Process) -> float:

@@ -11,7 +11,7 @@ from typing import Any, Callable, Iterator
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
-from hydro_ros.processes import free_port, node_process  # noqa: F401 - the tests take them from here
+from hydro_ros.processes import free_port, node_process, spin_until  # noqa: F401 - the tests take them from here
 
 
 @contextmanager
@@ -23,15 +23,6 @@ def probe_node(name: str) -> Iterator[rclpy.node.Node]:
     finally:
         node.destroy_node()
         rclpy.shutdown()
-
-
-def spin_until(node: rclpy.node.Node, done: Callable[[], bool], timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.05)
-        if done():
-            return True
-    return False
 
 
 @contextmanager

@@ -152,3 +152,17 @@ def test_the_checks_catch_violations(tmp_path: Path) -> None:
     assert upward_imports(package) == ["hydro_ros.fdi.monitor -> hydro_ros.nodes.common"]
     assert ros_in_science(package) == ["hydro_ros.fdi.monitor: rclpy"]
     assert cycles(package) == [["hydro_ros.nodes.common", "hydro_ros.nodes.other"]]
+
+
+def test_the_benchmarks_import_only_the_package_and_libraries():
+    """bench/ scripts take what they share from hydro_ros, never from test/ or from each other, and need no sys.path edits."""
+    bench = PACKAGE.parent / "bench"
+    scripts = {path.stem for path in bench.glob("*.py")}
+    for path in bench.glob("*.py"):
+        text = path.read_text()
+        assert "sys.path" not in text, path.name
+        for node in ast.walk(ast.parse(text, str(path))):
+            names = ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            for name in names:
+                assert name.split(".")[0] not in {"test", *scripts}, f"{path.name} imports {name}"
