@@ -34,11 +34,6 @@ def write_result(path: str | Path, result: dict[str, Any]) -> Path:
     return path
 
 
-def _load(name: str) -> dict[str, Any] | None:
-    path = RESULTS / f"{name}.json"
-    return json.loads(path.read_text()) if path.exists() else None
-
-
 def _commit(data: Any) -> str:
     return data.get("commit", "commit not recorded") if isinstance(data, dict) else "commit not recorded"
 
@@ -186,9 +181,10 @@ ROWS: list[tuple[str, str, Callable[[dict], tuple[str, str, str]]]] = [  # (file
 
 
 def benchmarks_markdown() -> str:
+    results = {path.stem: json.loads(path.read_text()) for path in RESULTS.glob("*.json")}  # each file read once
     lines = ["| what | measured | reference in the same run | file (commit) |", "|---|---|---|---|"]
     for name, part, row in ROWS:
-        data = _load(name)
+        data = results.get(name)
         try:
             what, measured, reference = row(data) if data is not None else (name, MISSING, "-")
         except KeyError as missing:
@@ -201,6 +197,6 @@ def benchmarks_markdown() -> str:
     for path in sorted(RESULTS.glob("*")):
         commit = ""
         if path.suffix == ".json":
-            commit = f" ({_commit(json.loads(path.read_text()))})"
+            commit = f" ({_commit(results[path.stem])})"
         lines.append(f"- [`{path.name}`](../bench/results/{path.name}){commit}")
     return "\n".join(lines)

@@ -1,4 +1,4 @@
-"""Nodes as separate processes on the local graph, as the tests, the benchmarks and the demo start them."""
+"""Nodes as separate processes on the local graph, as the tests and the benchmarks start them."""
 
 from __future__ import annotations
 

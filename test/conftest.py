@@ -45,11 +45,13 @@ def chromium() -> None:
 
 
 @pytest.fixture
-def ros_domain(worker_id: str = "main") -> int:
+def ros_domain() -> int:
     """A test-unique ROS domain on localhost only (brief: never leave the machine, never cross)."""
-    # parallel workers (pytest-xdist: gw0, gw1, ...) draw from ranges of their own
-    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0) % 2
-    domain = 10 + 110 * worker + (os.getpid() + hash(os.environ.get("PYTEST_CURRENT_TEST", ""))) % 100
+    # parallel workers (pytest-xdist: gw0, gw1, ...) draw from ranges of their own within the usable ids 10-229
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
+    width = 220 // max(workers, 1)
+    domain = 10 + width * worker + (os.getpid() + hash(os.environ.get("PYTEST_CURRENT_TEST", ""))) % width
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")

@@ -134,6 +134,7 @@ def cmd_dp_execute(args: argparse.Namespace) -> int:
     from hydro_ros.studies.execution import execute, write_bag
 
     out = new_output(args.out)
+    summary_out = output_file(args.summary, "--summary") if args.summary else None  # refused before the run, not after it
     _, config = load_crane(args.config)
     trajectory, planned = executable_trajectory(
         config, args.path, args.method, database=args.db, grid=tuple(args.grid) if args.grid else None,
@@ -142,8 +143,8 @@ def cmd_dp_execute(args: argparse.Namespace) -> int:
     execution = execute(config, trajectory, args.supply, seed=args.seed)
     summary = {"machine": config["machine"], "path": args.path, "method": args.method, "planned": planned, **execution.summary}
     write_bag(execution, out, {"machine": config["machine"], "execution": summary})
-    if args.summary:
-        write_json(output_file(args.summary, "--summary"), summary)
+    if summary_out:
+        write_json(summary_out, summary)
     energy_key = "cp_energy_J" if args.supply == "cp" else "ls_energy_J"
     print(
         f"dp execute {args.path}/{args.method} on the {args.supply.upper()} crane: {summary['energy_J'] / 1e3:.1f} kJ "

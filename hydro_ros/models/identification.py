@@ -164,9 +164,8 @@ def _block_rows(model: SamModel, signals: np.ndarray, inner: slice, first: int) 
             & (x > p[STOP_LOWER] + STOP_MARGIN) & (x < p[STOP_UPPER] - STOP_MARGIN))
     guard = int(EXCLUSION_GUARD_S * model.sample_rate)
     keep = binary_erosion(keep, np.ones(2 * guard + 1, dtype=bool), border_value=1)
-    outside = np.ones(len(x), dtype=bool)
-    outside[inner] = False
-    keep[outside] = False
+    keep[:inner.start] = False  # the edges only let the filter and the spool settle
+    keep[inner.stop:] = False
     every = max(int(round(model.sample_rate / ROW_RATE_HZ)), 1)
     row = keep & ((first - inner.start + np.arange(len(x))) % every == 0)
     seen = {"PA": extending, "BT": extending, "PB": retracting, "AT": retracting}

@@ -192,15 +192,15 @@ def threshold_excess(monitor: FdiMonitor, samples: Samples) -> float:
     """The largest armed 5 s mean residual above the quadratic term of eq. (25) [MPa] on fault-free samples."""
     settings = monitor.settings
     arms = monitor.startup + monitor.window  # where the monitor itself arms
-    worst = None
+    maxima = []
     for start, block in monitor_blocks(monitor, samples):
         armed = slice(max(arms - start, 0), None)
         mean_pressure_sq = (block.threshold[armed] - settings.threshold_constant) / settings.threshold_quadratic
         excess = np.abs(block.mean_residual[armed]) - settings.threshold_quadratic * mean_pressure_sq
         excess = excess[np.isfinite(excess)]
         if excess.size:
-            worst = max(float(excess.max()), -np.inf if worst is None else worst)
-    return 0.0 if worst is None else worst
+            maxima.append(float(excess.max()))
+    return max(maxima, default=0.0)
 
 
 def adaptive_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequence[Samples],
