@@ -34,13 +34,25 @@ def write_result(path: str | Path, result: dict[str, Any]) -> Path:
     return path
 
 
-def _commit(data: Any) -> str:
-    return data.get("commit", "commit not recorded") if isinstance(data, dict) else "commit not recorded"
+def read_results() -> dict[str, Any]:
+    """Every result file, by name without ``.json``, each read once."""
+    return {path.stem: json.loads(path.read_text()) for path in RESULTS.glob("*.json")}
 
 
-def _span(values: list[float], fmt: str) -> str:
-    low, high = min(values), max(values)
-    return format(low, fmt) if format(low, fmt) == format(high, fmt) else f"{format(low, fmt)}-{format(high, fmt)}"
+def commit_of(data: Any, part: str | None = None) -> str:
+    """The commit a result file's run recorded ("-" for a file not written); for a file some of whose parts were rerun
+    (bench/dp.py --parts), the commit ``part`` ran on."""
+    if data is None:
+        return "-"
+    if not isinstance(data, dict):
+        return "commit not recorded"
+    return data.get("part_commits", {}).get(part, data.get("commit", "commit not recorded"))
+
+
+def span(values: list[float], fmt: str, sep: str = "-") -> str:
+    """The least and the greatest of ``values``, one number where they print alike."""
+    low, high = format(min(values), fmt), format(max(values), fmt)
+    return low if low == high else f"{low}{sep}{high}"
 
 
 def _model(r: dict) -> tuple[str, str, str]:
@@ -101,9 +113,9 @@ def _dp(d: dict) -> tuple[str, str, str]:
     grid = " x ".join(str(n) for n in s["grid"])
     cp, ls, ref = s["fast_cp"], s["fast_ls"], s["reference_cp"]
     return (f"DP backward pass, grid {grid}, N = {s['stages']}",
-            f"CP cost **{cp['seconds']:.2f} s** (best of {len(cp['runs_s'])}: {_span(cp['runs_s'], '.2f')} s), "
+            f"CP cost **{cp['seconds']:.2f} s** (best of {len(cp['runs_s'])}: {span(cp['runs_s'], '.2f')} s), "
             f"{cp['peak_rss_MB']:.0f} MB peak RSS; LS cost **{ls['seconds']:.2f} s** (best of {len(ls['runs_s'])}: "
-            f"{_span(ls['runs_s'], '.2f')} s)",
+            f"{span(ls['runs_s'], '.2f')} s)",
             f"the straightforward NumPy DP (`planning/reference.py`): {ref['seconds']:.0f} s, {ref['peak_rss_MB']:.0f} MB "
             f"(**{s['speedup_cp']:.0f}x** time, {s['memory_ratio_cp']:.2f}x memory); same cost-to-go: {s['same_cost_to_go']}")
 
@@ -141,8 +153,8 @@ def _hmi(h: dict) -> tuple[str, str, str]:
     fdi = [p["cpu_share_of_one_core"]["fdi_node"] for p in phases]
     ratios = [p["hmi_cpu_vs_fdi_node"] for p in phases]
     return (f"operator HMI at the SAM's rates, {clients} headless Chromium pages", f"**{shares} of one core**; /diagnostics -> DOM "
-            f"p50 {_span([x['p50'] for x in latency], '.0f')} ms, p95 {_span([x['p95'] for x in latency], '.0f')} ms",
-            f"fdi_node in the same run: {_span(fdi, '.0%')} (HMI {_span(ratios, '.2f')}x)")
+            f"p50 {span([x['p50'] for x in latency], '.0f')} ms, p95 {span([x['p95'] for x in latency], '.0f')} ms",
+            f"fdi_node in the same run: {span(fdi, '.0%')} (HMI {span(ratios, '.2f')}x)")
 
 
 def _crane_cpu(c: dict) -> tuple[str, str, str]:
@@ -181,7 +193,7 @@ ROWS: list[tuple[str, str, Callable[[dict], tuple[str, str, str]]]] = [  # (file
 
 
 def benchmarks_markdown() -> str:
-    results = {path.stem: json.loads(path.read_text()) for path in RESULTS.glob("*.json")}  # each file read once
+    results = read_results()
     lines = ["| what | measured | reference in the same run | file (commit) |", "|---|---|---|---|"]
     for name, part, row in ROWS:
         data = results.get(name)
@@ -189,14 +201,10 @@ def benchmarks_markdown() -> str:
             what, measured, reference = row(data) if data is not None else (name, MISSING, "-")
         except KeyError as missing:
             what, measured, reference = name, f"{MISSING} (no {missing})", "-"
-        # a file some of whose parts were rerun (bench/dp.py --parts) says which commit each part ran on
-        commit = data.get("part_commits", {}).get(part, _commit(data)) if isinstance(data, dict) else "-"
         cells = (cell.replace("|", "\\|") for cell in (what, measured, reference))
-        lines.append(f"| {' | '.join(cells)} | `{name}.json` ({commit}) |")
+        lines.append(f"| {' | '.join(cells)} | `{name}.json` ({commit_of(data, part)}) |")
     lines += ["", "Every file `make bench` writes, with the commit its run recorded:", ""]
     for path in sorted(RESULTS.glob("*")):
-        commit = ""
-        if path.suffix == ".json":
-            commit = f" ({_commit(results[path.stem])})"
+        commit = f" ({commit_of(results[path.stem])})" if path.suffix == ".json" else ""
         lines.append(f"- [`{path.name}`](../bench/results/{path.name}){commit}")
     return "\n".join(lines)

@@ -39,3 +39,24 @@ def test_a_benchmark_result_carries_its_commit_and_the_page_says_what_a_run_did_
     monkeypatch.setattr(benchresults, "RESULTS", tmp_path)
     row = next(line for line in benchresults.benchmarks_markdown().splitlines() if "`crane_cpu.json`" in line)
     assert "not in bench/results (no 'sample_blocks')" in row and written["commit"] in row
+
+
+def test_a_reproduction_row_says_what_a_run_did_not_write(tmp_path, monkeypatch):
+    from hydro_ros import benchresults
+    from hydro_ros.reproduction import reproduction_markdown
+
+    (tmp_path / "commissioning.json").write_text(json.dumps({"commit": "abc1234", "plants": 6}))
+    monkeypatch.setattr(benchresults, "RESULTS", tmp_path)
+    rows = reproduction_markdown().splitlines()
+    threshold = next(line for line in rows if "implemented as configuration" in line)
+    assert "not in bench/results (no 'threshold')" in threshold and "`commissioning.json` (abc1234)" in threshold
+    smallest = next(line for line in rows if "smallest detectable leaks" in line)
+    assert "not in bench/results (no `fdi_eval.json`)" in smallest and "`fdi_eval.json` (-)" in smallest
+
+
+def test_every_test_the_reproduction_page_names_exists():
+    from hydro_ros.reproduction import CLAIMS
+
+    for test in (test for claim in CLAIMS for test in claim.tests):
+        path, _, function = test.partition("::")
+        assert f"def {function}(" in (REPO / "test" / path).read_text(), f"docs/reproduction.md names {test}, which does not exist"

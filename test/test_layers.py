@@ -24,7 +24,8 @@ LAYER = {
     "processes": 7,  # node processes as the tests, benches and demo start them
     "cli": 8,
     "benchresults": 8,  # bench/results: the benches write it, docgen reads it
-    "docgen": 9,  # documents the nodes' tables and the CLI's parser
+    "reproduction": 9,  # the papers' claims against bench/results
+    "docgen": 10,  # documents the nodes' tables and the CLI's parser
 }
 SCIENCE = {"contract", "bags", "can", "models", "sim", "fdi", "planning", "studies", "hmi"}
 ROS_MODULES = ("rclpy", "rosidl", "rmw", "std_msgs", "sensor_msgs", "diagnostic_msgs", "trajectory_msgs", "std_srvs",
