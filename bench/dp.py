@@ -147,7 +147,7 @@ def window_study() -> dict:
     crane, config = load_crane(default_config_path("k70m"))
     study = {}
     for path in ("horizontal", "vertical", "half_cycle"):
-        samples = path_from_config(config, path).sample(config["dp"]["sample_time"])
+        samples = path_from_config(config, path).sample(config.dp.sample_time)
         window = extension_windows(crane, samples)
         tips, rest = tuple(samples.position[:, i] for i in range(3)), (0.0,) * 3
         row: dict = {"window_width_m": {"min": float(np.min(window[:, 1] - window[:, 0])),
@@ -157,7 +157,7 @@ def window_study() -> dict:
             row[f"{label}_edge_set_by"] = {c.name: int(np.sum((np.abs(q - c.q_min) < 1e-3) | (np.abs(q - c.q_max) < 1e-3)))
                                           for c, q in zip(crane.cylinders, motion.q)}
         for label, profile in (("lower", window[:, 0]), ("middle", window.mean(axis=1)), ("upper", window[:, 1])):
-            trajectory = ExtensionTrajectory.from_positions(profile, float(samples.time[1])).filtered(float(config["dp"]["filter_cutoff"]))
+            trajectory = ExtensionTrajectory.from_positions(profile, float(samples.time[1])).filtered(config.dp.filter_cutoff)
             result = evaluate(crane, samples, trajectory)
             row[f"follow_{label}_edge"] = {"cp_energy_J": result["cp_energy_J"], "ls_energy_J": result["ls_energy_J"],
                                            "limits": result["limits"]}

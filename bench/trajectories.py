@@ -61,7 +61,7 @@ def full_catalog(config: dict, path: Path) -> dict:
     check_s = time.perf_counter() - began
     size = path.stat().st_size / 1e6
     print(f"full-grid catalog: {report.summary()}; {size:.0f} MB, open + quick_check {check_s:.2f} s", flush=True)
-    return {"seconds": report.seconds, "units": len(units), "grid": list(config["dp"]["grid"]), "size_MB": size, "open_check_s": check_s}
+    return {"seconds": report.seconds, "units": len(units), "grid": list(config.dp.grid), "size_MB": size, "open_check_s": check_s}
 
 
 def latency(config: dict, db_path: Path, requests: int = 200, replans: int = 200) -> dict:
@@ -130,7 +130,7 @@ def executions(config: dict, db_path: Path, out_dir: Path) -> dict:
 
     rows = {}
     with TrajectoryDatabase(db_path) as db:
-        jobs = [(p, m, s) for p in config["paths"] for m in CONTRACT_METHODS for s in ("cp", "ls")]
+        jobs = [(p, m, s) for p in config.paths for m in CONTRACT_METHODS for s in ("cp", "ls")]
         for path_id, method, supply in tqdm(jobs, desc="closed-loop runs", unit="run"):
             stored = db.solution(path_id, method)
             summary = execute(config, stored.trajectory, supply, seed=1).summary

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hydro_ros.cli import main
-from hydro_ros.contract.config import default_config_path, with_overrides
+from hydro_ros.contract.config import default_config_path
 from hydro_ros.models.crane import Crane, load_crane
 from hydro_ros.planning.costs import Cost
 from hydro_ros.planning.dp import DpGrid, InfeasibleStart, extension_windows, solve, start_position
@@ -22,7 +22,7 @@ COARSE = (60, 21, 31)
 
 def _setup(machine: str, path_id: str, sizes: tuple[int, int, int] = COARSE):
     crane, config = load_crane(default_config_path(machine))
-    samples = path_from_config(config, path_id).sample(config["dp"]["sample_time"])
+    samples = path_from_config(config, path_id).sample(config.dp.sample_time)
     return crane, config, samples, DpGrid.for_path(crane, samples, sizes)
 
 
@@ -107,7 +107,7 @@ def test_the_compiled_policy_pass_stays_admissible_costs_what_the_search_costs_a
 
 def test_cp_optimum_is_load_independent_and_ls_optimum_is_not() -> None:
     crane, config, samples, grid = _setup("k70m", "horizontal")
-    heavy = Crane(with_overrides(config, {"masses": [dict(m, mass=3 * m["mass"]) for m in config["masses"]]}))
+    heavy = Crane(config.with_overrides({"masses": [dict(m, mass=3 * m["mass"]) for m in config.mapping["masses"]]}))
     light_cp, heavy_cp = solve(crane, samples, Cost.CP, grid), solve(heavy, samples, Cost.CP, grid)
     assert np.array_equal(light_cp.cost_to_go, heavy_cp.cost_to_go)
     light_ls, heavy_ls = solve(crane, samples, Cost.LS, grid), solve(heavy, samples, Cost.LS, grid)

@@ -10,7 +10,7 @@ import pytest
 from hydro_ros.bags.reader import read_bag
 from hydro_ros.cli import main as cli_main
 from hydro_ros.models.crane import Crane
-from hydro_ros.planning.controller import MotionController, controller_settings
+from hydro_ros.planning.controller import CONTROLLER_DEFAULTS, MotionController
 from hydro_ros.planning.problem import Problem, run_method
 from hydro_ros.planning.trajectory import joint_trajectory
 from hydro_ros.sim.closed_loop_crane import CranePlant
@@ -39,7 +39,7 @@ def test_iso9283_path_accuracy_is_the_largest_distance_to_the_commanded_path():
 
 
 def test_controller_inverts_the_dead_zone_and_idles_inside_its_bands():
-    settings = controller_settings({})
+    settings = dict(CONTROLLER_DEFAULTS)
     controller = MotionController(settings, 0.53, np.array([0.5]))
     assert controller.inverse_table(np.array([0.25]))[0] == pytest.approx(0.53 + 0.47 * 0.5)
     assert controller.command(np.array([0.0]), np.array([0.001]), np.array([0.002]))[0] == 0.0  # tracking mode: valve closed

@@ -37,7 +37,7 @@ def _move(joints: np.ndarray, names: list[str], extension_step: float, duration:
 
 
 def test_the_executor_takes_orders_only_from_its_sources_and_never_steps_a_valve(ros_domain, k70m):
-    names = [joint["name"] for joint in k70m["joints"]]
+    names = k70m.joint_names
     with node_process("hydro_ros.nodes.crane_sim", "-r", "__ns:=/crane", "-p", f"config:={K70M}", "-p", "external_commands:=true",
                       "-p", "publish_rate:=100.0", "-p", "initial_path:=horizontal", "-p", "initial_extension:=0.3"), \
             node_process("hydro_ros.nodes.trajectory_executor", "-r", "__ns:=/crane", "-p", f"config:={K70M}",

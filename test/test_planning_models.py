@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydro_ros.contract.config import ConfigError, default_config_path, with_overrides
+from hydro_ros.contract.config import ConfigError, default_config_path
 from hydro_ros.models.crane import Crane, Motion, load_crane
 from hydro_ros.models.crane_hydraulics import driven_pressure, pump_flow
 from hydro_ros.planning.costs import Cost, stage_power
@@ -90,9 +90,8 @@ def test_forces_do_the_work_of_lifting_a_tip_mass() -> None:
     """Static tip mass only: sum F_i v_i = m g dy/dt for any motion (signs of arms, telescope ratio)."""
     path = default_config_path("k70m")
     crane, config = load_crane(path)
-    tip_only = with_overrides(config, {"masses": [], "extension_friction": {"coulomb": 0.0}})
-    tip_only["masses"] = [{"name": "load", "link": "boom", "s": 2.13, "moves_with_extension": True, "mass": 100.0}]
-    crane = Crane(tip_only)
+    crane = Crane(config.with_overrides({"masses": [{"name": "load", "link": "boom", "s": 2.13, "moves_with_extension": True, "mass": 100.0}],
+                                         "extension_friction": {"coulomb": 0.0}}))
     q = _random_configurations(crane, 2000, seed=3)
     rng = np.random.default_rng(4)
     qd = 0.05 * rng.normal(size=q.shape)
@@ -115,7 +114,7 @@ def test_quintic_and_spline_paths_start_and_end_at_rest() -> None:
     samples = half.sample(0.05)
     assert np.abs(samples.velocity[[0, -1]]).max() < 1e-12
     assert np.linalg.norm(samples.velocity, axis=1).max() == pytest.approx(0.75, abs=0.02)
-    via = np.asarray(config["paths"]["half_cycle"]["segments"][0]["via"])
+    via = np.asarray(config.path("half_cycle")["segments"][0]["via"])
     distances = np.linalg.norm(samples.position[:, None, :] - via[None], axis=2).min(axis=0)
     assert distances.max() < 0.05  # the spline passes through its via points
 
@@ -167,3 +166,37 @@ def test_stage_powers_by_hand() -> None:
     assert stage_power(Cost.ACTUATOR, crane, motion) == pytest.approx(100e3 * 0.05 + 5e3 * 0.1)  # tilt over-runs: no credit
     assert stage_power(Cost.EXTENSION, crane, motion) == pytest.approx(0.01)
     assert stage_power(Cost.VELOCITY, crane, motion) == pytest.approx(0.05**2 + 0.02**2 + 0.1**2)
+
+
+def test_a_crane_configs_problems_are_named_at_once_by_the_check_and_the_planner(tmp_path) -> None:
+    """Each bad entry of the planner's sections named by its key path (list entries by their name), the same in
+    `hydro-ros machine check` and in every loader of the crane; the typed config says where the values went."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    _, good = load_crane(default_config_path("k70m"))
+    assert good.joint_names == ["base", "lift", "tilt", "extension"] and good.dp.grid == (356, 101, 151)
+    assert good.links.lift_joint == (-0.208, 1.605) and good.joints[-1].differential
+    broken = yaml.safe_load(default_config_path("k70m").read_text())
+    broken["links"]["lift_length"] = -3.5
+    broken["joints"][1]["cylinder"]["velocity_max"] = -0.15
+    broken["joints"][2]["cylinder"]["mapping"] = "triangel"
+    broken["joints"][3]["cylinder"]["are_a"] = broken["joints"][3]["cylinder"].pop("area_a")
+    broken["masses"][0]["link"] = "lfit"
+    broken["dp"]["grid"] = [356, 101]
+    bad = tmp_path / "k70m_bad.yaml"
+    bad.write_text(yaml.safe_dump(broken))
+    expected = ("links.lift_length: -3.5 m: must be > 0 m", "joints[lift].cylinder.velocity_max: -0.15 m/s: must be > 0",
+                "joints[tilt].cylinder.mapping: 'triangel': expected linear or triangle",
+                "joints[extension].cylinder.are_a: unknown key (did you mean area_a?)", "joints[extension].cylinder.area_a: missing [m^2]",
+                "masses[inner_boom].link: 'lfit': expected lift or boom", "dp.grid: [356, 101]: expected three whole numbers")
+    checked = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "machine", "check", str(bad), "--quiet"], capture_output=True, text=True)
+    lines = checked.stdout.strip().splitlines()
+    assert checked.returncode == 1 and "Traceback" not in checked.stderr
+    for problem in expected:
+        assert sum(problem in line for line in lines) == 1, (problem, lines)
+    with pytest.raises(ConfigError, match=r"links.lift_length: -3.5 m: must be > 0 m; joints\[lift\]") as refused:
+        load_crane(bad)
+    assert "and 2 more (hydro-ros machine check" in str(refused.value) and "\n" not in str(refused.value)

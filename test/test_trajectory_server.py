@@ -129,8 +129,8 @@ def test_server_serves_from_the_clients_joint_state_and_refuses_unknown_paths(ro
         assert {r["id"] for r in received["result"][count:]} == {f"b{k}" for k in range(300)}
 
 
-def config_joint_names(config: dict) -> list[str]:
-    return [joint["name"] for joint in config["joints"]]
+def config_joint_names(config) -> list[str]:
+    return config.joint_names
 
 
 def test_server_answers_with_an_error_when_the_database_is_corrupt(ros_domain, tmp_path):

@@ -141,8 +141,8 @@ def cmd_dp_execute(args: argparse.Namespace) -> int:
         start_extension=args.start_extension,
     )
     execution = execute(config, trajectory, args.supply, seed=args.seed)
-    summary = {"machine": config["machine"], "path": args.path, "method": args.method, "planned": planned, **execution.summary}
-    write_bag(execution, out, {"machine": config["machine"], "execution": summary})
+    summary = {"machine": config.name, "path": args.path, "method": args.method, "planned": planned, **execution.summary}
+    write_bag(execution, out, {"machine": config.name, "execution": summary})
     if summary_out:
         write_json(summary_out, summary)
     energy_key = "cp_energy_J" if args.supply == "cp" else "ls_energy_J"

@@ -82,9 +82,20 @@ ACTUATOR_KEYS = {"joint", "can_slot", "cylinder", "mount", "valve", "fluid", "fr
 VALVE_KEYS = set(VALVE) | set(MOBILE_VALVE) | {"type", "command_range", "kv_poly", "centre_leakage"}
 SECTION_KEYS = {"sensors": set(SENSORS) | {"pressure_range", "joint_range", "motion_sensor", "mems"}, "simulation": set(SIMULATION),
                 "excitation": set(EXCITATION) | set(PAIRS["excitation"])}
-# a crane config also holds its planner's sections (models/crane.py reads and checks them)
+# a crane config also holds its planner's sections (contract/crane.py types them)
+CRANE_LINKS = {"lift_length": _positive("m", 50.0), "tilt_offset": Rule("m", -10.0, 10.0), "extension_base": _positive("m", 50.0),
+               "lift_joint_x": Rule("m", -50.0, 50.0), "lift_joint_y": Rule("m", -50.0, 50.0)}
+CRANE_JOINT = {"min": Rule("rad or m", -7.0, 50.0), "max": Rule("rad or m", -7.0, 50.0)}
+CRANE_CYLINDER = {"ratio": Rule("m per joint unit", -100.0, 100.0), "la": _nonnegative("m", 50.0), "lb": _nonnegative("m", 50.0),
+                  "theta_at_min": Rule("rad", -7.0, 7.0), "sign": Rule("", -1.0, 1.0),
+                  "area_a": _positive("m^2", 1.0, hint="SI: a 120 mm bore is 1.13e-2"), "area_b": _nonnegative("m^2", 1.0),
+                  "pump_area_extend": _nonnegative("m^2", 1.0), "pump_area_retract": _nonnegative("m^2", 1.0),
+                  "velocity_max": _positive("m/s", 10.0), "acceleration_max": _positive("m/s^2", 100.0), "constant_force": Rule("N")}
+CRANE_MASS = {"s": Rule("m", -50.0, 50.0), "mass": _nonnegative("kg", 1.0e6)}
+CRANE_DP = {"sample_time": _positive("s", 10.0), "filter_cutoff": _positive("Hz", 1.0e3)}
+CRANE_CHOICES = {"mapping": ("linear", "triangle"), "spool": ("non_differential", "differential"), "link": ("lift", "boom")}
 CRANE_KEYS = {"kind", "base_rotation", "gravity", "links", "joints", "masses", "extension_friction", "hydraulics", "dp", "paths", "controller",
-              "payload", "limits"}
+              "plant", "catalog"}
 TOP_KEYS = set(TOP) | {"machine", "actuators", "sensors", "simulation", "excitation", "effects", "effect_forms", "can", "fdi"} | CRANE_KEYS
 
 
@@ -196,7 +207,67 @@ def config_problems(config: dict[str, Any]) -> list[str]:
             found.add("sensors.motion_sensor", f"{sensors['motion_sensor']!r}: expected encoder or mems")
         if sensors.get("motion_sensor") == "mems":
             found.numbers(sensors.get("mems"), "sensors.mems", MEMS, required=tuple(MEMS))
+    if crane:
+        _crane(found, config)
     return found.found
+
+
+def crane_problems(config: dict[str, Any]) -> list[str]:
+    """Every rule the planner's sections of a crane config break (a planner-only config has no monitored machine)."""
+    found = _Problems()
+    _crane(found, config)
+    return found.found
+
+
+def _choice(found: _Problems, node: dict, path: str, key: str, default: str | None = None) -> None:
+    value = node.get(key, default)
+    if value not in CRANE_CHOICES[key]:
+        found.add(_join(path, key), f"{value!r}: expected {' or '.join(CRANE_CHOICES[key])}" if value is not None else "missing")
+
+
+def list_entry(section: str, index: int, entry: Any) -> str:
+    """A list entry's key path, by its name where it has one (as ``annotated_values`` names it)."""
+    return f"{section}[{entry.get('name', index) if isinstance(entry, dict) else index}]"
+
+
+def _crane(found: _Problems, config: dict[str, Any]) -> None:
+    """The planner's sections of a crane config: links, one joint per planar joint (and the base), masses, grid, paths."""
+    found.numbers(config.get("links"), "links", CRANE_LINKS, required=("lift_length", "extension_base", "lift_joint_x", "lift_joint_y"))
+    joints = config.get("joints")
+    expected = 4 if config.get("base_rotation") else 3
+    if not isinstance(joints, list) or len(joints) != expected:
+        found.add("joints", f"{expected} joints expected (base_rotation: {bool(config.get('base_rotation'))}), found "
+                            f"{len(joints) if isinstance(joints, list) else 'none'}")
+        joints = joints if isinstance(joints, list) else []
+    for index, joint in enumerate(joints):
+        path = list_entry("joints", index, joint)
+        limits = found.numbers(joint, path, CRANE_JOINT, required=("min", "max"))
+        if not isinstance(joint, dict):
+            continue
+        if "name" not in joint:
+            found.add(f"{path}.name", "missing (its name in /joint_states)")
+        if {"min", "max"} <= set(limits) and not limits["min"] < limits["max"]:
+            found.add(f"{path}.max", f"{limits['max']:g}: must be above min ({limits['min']:g})")
+        cylinder = joint.get("cylinder")
+        found.numbers(cylinder, f"{path}.cylinder", CRANE_CYLINDER,
+                      required=("area_a", "area_b", "pump_area_extend", "pump_area_retract", "velocity_max", "acceleration_max"))
+        if isinstance(cylinder, dict):
+            found.unknown(cylinder, f"{path}.cylinder", set(CRANE_CYLINDER) | {"mapping", "spool"})
+            _choice(found, cylinder, f"{path}.cylinder", "mapping", "linear")
+            _choice(found, cylinder, f"{path}.cylinder", "spool", "non_differential")
+            if index == len(joints) - 1 and cylinder.get("mapping", "linear") != "linear":
+                found.add(f"{path}.cylinder.mapping", "the extension (last joint) needs a linear mapping")
+    for index, mass in enumerate(config.get("masses") or []):
+        found.numbers(mass, list_entry("masses", index, mass), CRANE_MASS, required=tuple(CRANE_MASS))
+        if isinstance(mass, dict):
+            _choice(found, mass, list_entry("masses", index, mass), "link")
+    dp = config.get("dp")
+    found.numbers(dp, "dp", CRANE_DP, required=tuple(CRANE_DP))
+    grid = dp.get("grid") if isinstance(dp, dict) else None
+    if not (isinstance(grid, list) and len(grid) == 3 and all(isinstance(n, int) and n >= 2 for n in grid)):
+        found.add("dp.grid", f"{grid!r}: expected three whole numbers >= 2 (extension positions, velocities, controls)")
+    if not isinstance(config.get("paths"), dict) or not config["paths"]:
+        found.add("paths", "must name at least one tip path")
 
 
 def _actuator(found: _Problems, path: str, node: Any, crane: bool, end_stop_upper: float | None) -> None:
@@ -274,14 +345,17 @@ def annotated_values(path: str | Path) -> list[str]:
     not the one it extends)."""
     out, stack = [], []  # stack: (indent, key)
     for line in Path(path).read_text().splitlines():
-        match = re.match(r"^(\s*)(?:- )?([A-Za-z_][\w.]*|'[^']*'|\"[^\"]*\")\s*:(.*)$", line)
+        match = re.match(r"^(\s*)(- )?([A-Za-z_][\w.]*|'[^']*'|\"[^\"]*\")\s*:(.*)$", line)
         if not match or line.lstrip().startswith("#"):
             continue
-        indent, key, rest = len(match.group(1)), match.group(2).strip("'\""), match.group(3)
+        indent, item, key, rest = len(match.group(1)), match.group(2), match.group(3).strip("'\""), match.group(4)
         while stack and stack[-1][0] >= indent:
             stack.pop()
-        stack.append((indent, key))
-        comment = rest.partition("#")[2].strip()
+        value, _, comment = rest.partition("#")
+        if item and key == "name":  # a list entry is named by its name: joints[lift].cylinder.area_a
+            stack.append((indent, f"[{value.strip()}]"))
+        else:
+            stack.append((indent + (2 if item else 0), key))
         if any(word in comment for word in ANNOTATIONS):
-            out.append(f"{'.'.join(k for _, k in stack)}: {comment}")
+            out.append("".join(k if k.startswith("[") or not i else f".{k}" for i, (_, k) in enumerate(stack)) + f": {comment.strip()}")
     return out

@@ -28,7 +28,7 @@ MAX_LISTED = 5  # problems named in one error line; `hydro-ros machine check` li
 MONITOR_KEYS = frozenset(_REQUIRED[1:]) | {"simulation", "excitation", "effects", "effect_forms", "can", "fdi"}
 
 
-class _Section:
+class Section:
     """Typed reads of one mapping of the config; a missing or non-numeric entry names its full key."""
 
     def __init__(self, source: str, key: str, node: Any) -> None:
@@ -66,12 +66,12 @@ class _Section:
             return default
         return str(self.node[name])
 
-    def section(self, name: str, *, optional: bool = False) -> "_Section":
+    def section(self, name: str, *, optional: bool = False) -> "Section":
         if name not in self.node and optional:
-            return _Section(self.source, self._name(name), {})
+            return Section(self.source, self._name(name), {})
         if name not in self.node:
             raise ConfigError(f"config {self.source}: missing key {self._name(name)}")
-        return _Section(self.source, self._name(name), self.node[name] if self.node[name] is not None else {})
+        return Section(self.source, self._name(name), self.node[name] if self.node[name] is not None else {})
 
 
 @dataclass(frozen=True)
@@ -353,6 +353,13 @@ class Machine:
         return unshared(dict(self.mapping))
 
 
+def refuse_problems(problems: list[str], source: Path) -> None:
+    """One ConfigError line with the first problems, if there are any."""
+    if problems:
+        listed = "; ".join(problems[:MAX_LISTED]) + (f"; and {len(problems) - MAX_LISTED} more" if len(problems) > MAX_LISTED else "")
+        raise ConfigError(f"config {source}: {listed} (hydro-ros machine check {source} lists each)")
+
+
 def load_machine_config(path: str | Path) -> Machine:
     """Read and parse a valve-controlled machine's ``config/<machine>.yaml``; ConfigError names a bad key."""
     path = Path(path)
@@ -360,11 +367,8 @@ def load_machine_config(path: str | Path) -> Machine:
 
 
 def parse_machine(config: dict[str, Any], source: Path) -> Machine:
-    problems = config_problems(config)
-    if problems:
-        listed = "; ".join(problems[:MAX_LISTED]) + (f"; and {len(problems) - MAX_LISTED} more" if len(problems) > MAX_LISTED else "")
-        raise ConfigError(f"config {source}: {listed} (hydro-ros machine check {source} lists each)")
-    top = _Section(str(source), "", config)
+    refuse_problems(config_problems(config), source)
+    top = Section(str(source), "", config)
     missing = [key for key in _REQUIRED if key not in config]
     if missing:
         raise ConfigError(f"config {source}: missing key(s) {', '.join(missing)}")
@@ -425,7 +429,7 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
     )
 
 
-def _effect_forms(section: _Section) -> dict[str, str]:
+def _effect_forms(section: Section) -> dict[str, str]:
     forms = {}
     for name in section.node:
         if str(name) not in EFFECT_FORMS:
@@ -434,14 +438,14 @@ def _effect_forms(section: _Section) -> dict[str, str]:
     return forms
 
 
-def _choice(section: _Section, name: str, allowed: tuple[str, ...], default: str) -> str:
+def _choice(section: Section, name: str, allowed: tuple[str, ...], default: str) -> str:
     value = section.text(name, default)
     if value not in allowed:
         raise ConfigError(f"config {section.source}: {section._name(name)} {value!r}: expected {' or '.join(allowed)}")
     return value
 
 
-def _actuator(section: _Section, name: str, index: int, crane: bool = False) -> Actuator:
+def _actuator(section: Section, name: str, index: int, crane: bool = False) -> Actuator:
     cylinder, mount, valve = section.section("cylinder"), section.section("mount"), section.section("valve")
     fluid, friction = section.section("fluid"), section.section("friction")
     valve_type = _choice(valve, "type", VALVE_TYPES, "proportional")
@@ -472,11 +476,11 @@ def _actuator(section: _Section, name: str, index: int, crane: bool = False) -> 
     )
 
 
-def _load(section: _Section) -> Load:
+def _load(section: Section) -> Load:
     return Load(*(section.number(k) for k in ("boom_mass", "boom_length", "boom_cog_distance", "left_mass", "right_mass", "load_distance")))
 
 
-def _mount(section: _Section) -> Mount:
+def _mount(section: Section) -> Mount:
     kind = _choice(section, "kind", ("triangle", "linear"), "triangle")
     if kind == "linear":
         return Mount(0.0, 0.0, 0.0, section.number("theta_offset"), kind, 1.0, section.number("ratio"))
@@ -486,6 +490,6 @@ def _mount(section: _Section) -> Mount:
     return Mount(*(section.number(k) for k in ("l1", "l2", "l3", "theta_offset")), kind, sign)
 
 
-def _mems(section: _Section) -> Mems:
+def _mems(section: Section) -> Mems:
     return Mems(*(section.number(k) for k in ("inclination_resolution", "inclination_noise_std", "gyro_resolution", "gyro_noise_std",
                                                 "gyro_bias", "k_p", "k_i")))

@@ -14,7 +14,7 @@ functions come from a namespace, ``NUMPY`` by default.
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from hydro_ros.contract.config import ConfigError, read_config
-from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.crane import CraneConfig, CraneJoint, parse_crane
 
 NUMPY = SimpleNamespace(
     cos=np.cos,
@@ -35,32 +35,15 @@ NUMPY = SimpleNamespace(
     clip_unit=lambda value: np.clip(value, -1.0, 1.0),
 )
 
-_REQUIRED_KEYS = ("machine", "links", "joints", "hydraulics", "dp", "paths")
 _LOWER_FACTOR = 1.0 + 1e-9  # limit checks forgive rounding, nothing more
 
 
 @dataclass(frozen=True)
-class CraneCylinder:
-    """How one joint drives its cylinder (stroke c measured from the retracted end) and its limits."""
+class CraneCylinder(CraneJoint):
+    """A joint of the crane config with the geometry of its cylinder."""
 
-    name: str
-    q_min: float
-    q_max: float
-    mapping: str
-    ratio: float
-    la: float
-    lb: float
-    theta_at_min: float
-    sign: float
-    area_a: float
-    area_b: float
-    pump_area_extend: float
-    pump_area_retract: float
-    differential: bool
-    velocity_max: float
-    acceleration_max: float
-    constant_force: float | None
-    stroke_offset: float  # |s| at the retracted end of a triangle mapping
+    stroke_offset: float = 0.0
+    """[m] |s| at the retracted end of a triangle mapping"""
 
     def length(self, q: Any, xp: SimpleNamespace = NUMPY) -> Any:
         theta = self.theta_at_min + self.sign * (q - self.q_min)
@@ -111,30 +94,20 @@ class Motion:
 class Crane:
     """A crane of ``config/crane3dof.yaml`` or ``config/k70m.yaml``."""
 
-    def __init__(self, config: dict[str, Any]) -> None:
-        try:
-            links = config["links"]
-            self.name = str(config["machine"])
-            self.base_rotation = bool(config.get("base_rotation", False))
-            self.gravity = float(config.get("gravity", 9.81))
-            self.lift_length = float(links["lift_length"])
-            self.tilt_offset = float(links.get("tilt_offset", 0.0))
-            self.extension_base = float(links["extension_base"])
-            self.lift_joint = (float(links["lift_joint_x"]), float(links["lift_joint_y"]))
-            self.cylinders = [_cylinder(entry) for entry in config["joints"]]
-            self.masses = [_mass(entry) for entry in config.get("masses", [])]
-            friction = config.get("extension_friction") or {}
-            self.friction_coulomb = float(friction.get("coulomb", 0.0))
-            self.friction_gain = float(friction.get("tanh_gain", 2000.0))
-            self.friction_steps = [(float(lo), float(hi)) for lo, hi in friction.get("steps", [])]
-            self.hydraulics = {key: float(value) for key, value in config["hydraulics"].items()}
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ConfigError(f"config {config.get('_path', '?')}: crane entry {exc} missing or not a number") from None
-        expected = 4 if self.base_rotation else 3
-        if len(self.cylinders) != expected:
-            raise ConfigError(f"config {config.get('_path', '?')}: {expected} joints expected, found {len(self.cylinders)}")
-        if self.cylinders[-1].mapping != "linear":
-            raise ConfigError(f"config {config.get('_path', '?')}: the extension (last joint) needs a linear cylinder mapping")
+    def __init__(self, config: CraneConfig) -> None:
+        self.name = config.name
+        self.base_rotation = config.base_rotation
+        self.gravity = config.gravity
+        self.lift_length = config.links.lift_length
+        self.tilt_offset = config.links.tilt_offset
+        self.extension_base = config.links.extension_base
+        self.lift_joint = config.links.lift_joint
+        self.cylinders = [_cylinder(joint) for joint in config.joints]
+        self.masses = list(config.masses)
+        self.friction_coulomb = config.extension_friction.coulomb
+        self.friction_gain = config.extension_friction.tanh_gain
+        self.friction_steps = list(config.extension_friction.steps)
+        self.hydraulics = dict(config.hydraulics)
         self.names = [cylinder.name for cylinder in self.cylinders]
         self.extension = self.cylinders[-1]
         self.task_dim = 3 if self.base_rotation else 2
@@ -339,74 +312,22 @@ class Crane:
         return {"position": position, "velocity": velocity, "acceleration": acceleration}
 
 
-@dataclass(frozen=True)
-class PointMass:
-    name: str
-    link: str
-    s: float
-    moves_with_extension: bool
-    mass: float
-
-
-def _mass(entry: dict[str, Any]) -> PointMass:
-    link = str(entry["link"])
-    if link not in ("lift", "boom"):
-        raise InputError(f"mass link {link!r} (lift or boom)")
-    return PointMass(
-        name=str(entry.get("name", link)),
-        link=link,
-        s=float(entry["s"]),
-        moves_with_extension=bool(entry.get("moves_with_extension", False)),
-        mass=float(entry["mass"]),
-    )
-
-
-def _cylinder(entry: dict[str, Any]) -> CraneCylinder:
-    spec = entry["cylinder"]
-    mapping = str(spec["mapping"])
-    if mapping not in ("linear", "triangle"):
-        raise InputError(f"cylinder mapping {mapping!r} (linear or triangle)")
-    spool = str(spec.get("spool", "non_differential"))
-    if spool not in ("non_differential", "differential"):
-        raise InputError(f"spool {spool!r} (non_differential or differential)")
-    q_min, q_max = float(entry["min"]), float(entry["max"])
-    cylinder = CraneCylinder(
-        name=str(entry["name"]),
-        q_min=q_min,
-        q_max=q_max,
-        mapping=mapping,
-        ratio=float(spec.get("ratio", 1.0)),
-        la=float(spec.get("la", 0.0)),
-        lb=float(spec.get("lb", 0.0)),
-        theta_at_min=float(spec.get("theta_at_min", 0.0)),
-        sign=float(spec.get("sign", 1.0)),
-        area_a=float(spec["area_a"]),
-        area_b=float(spec["area_b"]),
-        pump_area_extend=float(spec["pump_area_extend"]),
-        pump_area_retract=float(spec["pump_area_retract"]),
-        differential=spool == "differential",
-        velocity_max=float(spec["velocity_max"]),
-        acceleration_max=float(spec["acceleration_max"]),
-        constant_force=float(spec["constant_force"]) if "constant_force" in spec else None,
-        stroke_offset=0.0,
-    )
-    if mapping == "triangle":
-        ends = cylinder.length(np.array([q_min, q_max]))
+def _cylinder(joint: CraneJoint) -> CraneCylinder:
+    cylinder = CraneCylinder(**{f.name: getattr(joint, f.name) for f in fields(joint)})
+    if cylinder.mapping == "triangle":
+        ends = cylinder.length(np.array([cylinder.q_min, cylinder.q_max]))
         cylinder = replace(cylinder, stroke_offset=float(ends.min()))
     return cylinder
 
 
-def load_crane(path: str | Path) -> tuple[Crane, dict[str, Any]]:
-    """The crane of a machine config and the config itself (one-line ConfigError on bad input)."""
+def load_crane(path: str | Path) -> tuple[Crane, CraneConfig]:
+    """The crane of a machine config and its typed config (one-line ConfigError on bad input)."""
     config = read_config(path, required=("machine",), nonempty="machine")
-    config["_path"] = str(Path(path).resolve())  # error messages of the crane's parts name their file
     if config.get("kind") != "crane":
         joints = len(config.get("actuators") or {})
         raise ConfigError(f"config {path}: not a crane config (kind: crane): the planner needs one redundant degree of freedom "
                           f"along a planar tip path (a lift, a tilt and a telescope, with links, joints and paths as in k70m.yaml); "
                           f"this machine has {joints} joint(s) and no crane description"
                           + ("; a planar tip path fixes two joints, so it has nothing to optimise" if joints <= 2 else ""))
-    missing = [key for key in _REQUIRED_KEYS if not config.get(key)]
-    if missing:
-        raise ConfigError(f"config {path}: missing key(s) {', '.join(missing)}")
-    return Crane(config), config
+    crane_config = parse_crane(config, Path(path).resolve())
+    return Crane(crane_config), crane_config

@@ -6,11 +6,10 @@ evaluation and the closed-loop plant use.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from numba import vectorize
 
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.models.crane import Crane, Motion
 
 
@@ -88,8 +87,8 @@ def ls_supply_pressure(crane: Crane, motion: Motion) -> np.ndarray:
 VALVE_TABLE_DEFAULTS = {"valve_dead_zone": 0.53, "full_command_velocity_factor": 1.25}
 
 
-def nominal_valve_table(crane: Crane, config: dict[str, Any]) -> tuple[float, np.ndarray]:
+def nominal_valve_table(crane: Crane, config: CraneConfig) -> tuple[float, np.ndarray]:
     """Dead zone and velocity at full command (m/s per cylinder) of the machine's valves."""
-    plant = {**VALVE_TABLE_DEFAULTS, **(config.get("plant") or {})}
+    plant = {**VALVE_TABLE_DEFAULTS, **config.plant}
     factor = float(plant["full_command_velocity_factor"])
     return float(plant["valve_dead_zone"]), factor * np.array([c.velocity_max for c in crane.cylinders])

@@ -77,16 +77,16 @@ class CraneSim(Node):
         self.crane, config = load_crane(self.params["config"])
         self.config = config
         supply = self.params["supply"]
-        initial_path = self.params["initial_path"] or next(iter(config["paths"]))
+        initial_path = self.params["initial_path"] or next(iter(config.paths))
         initial_extension = self.params["initial_extension"]
         trajectory_topic = self.params["trajectory_topic"]
         self.start_tolerance = self.params["start_tolerance"]
         publish_rate = self.params["publish_rate"]
-        if initial_path not in config["paths"]:
-            raise InputError(f"parameter initial_path={initial_path!r}: not a path of {config['machine']} ({', '.join(config['paths'])})")
+        if initial_path not in config.paths:
+            raise InputError(f"parameter initial_path={initial_path!r}: not a path of {config.name} ({', '.join(config.paths)})")
         if initial_extension < 0.0:
-            samples = path_from_config(config, initial_path).sample(float(config["dp"]["sample_time"]))
-            initial_extension = start_position(self.crane, samples, DpGrid.for_path(self.crane, samples, tuple(config["dp"]["grid"])))
+            samples = path_from_config(config, initial_path).sample(config.dp.sample_time)
+            initial_extension = start_position(self.crane, samples, DpGrid.for_path(self.crane, samples, config.dp.grid))
         self.seed = seed
         self.loop = ClosedLoop(config, supply, path_start_state(config, initial_path, initial_extension), seed=seed)
         self.rtf = real_time_factor
@@ -119,7 +119,7 @@ class CraneSim(Node):
         self.stamp_origin_ns = self.get_clock().now().nanoseconds
         self.create_timer(self.params["tick_period"], self._tick)
         self.get_logger().info(
-            f"crane {config['machine']} ({supply.upper()} pump) at the start of {initial_path!r}, "
+            f"crane {config.name} ({supply.upper()} pump) at the start of {initial_path!r}, "
             f"extension {initial_extension:.3f} m; "
             + (f"valve commands on {topics.VALVE_COMMANDS}" if self.external else f"trajectories on {trajectory_topic}")
         )

@@ -41,6 +41,7 @@ from hydro_ros.bags.cdr import encode_sample_block
 from hydro_ros.bags.writer import block_machine_payloads
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.contract.names import INJECTION_UNITS, Injection
@@ -133,7 +134,7 @@ class SamSource:
 class CraneSource:
     """The cylinders of a crane config (``hydro_ros.sim.crane_cylinders``); faults per cylinder."""
 
-    def __init__(self, machine: Machine, crane: Any, config: dict[str, Any], seed: int, start_joints: dict[str, float] | None) -> None:
+    def __init__(self, machine: Machine, crane: Any, config: CraneConfig, seed: int, start_joints: dict[str, float] | None) -> None:
         from hydro_ros.sim.crane_cylinders import NOT_PER_CYLINDER, CraneCylinders, CraneRun
 
         self.actuators = machine.actuator_names
@@ -266,13 +267,13 @@ class PlantSim(Node):
             from hydro_ros.planning.paths import path_from_config
             from hydro_ros.planning.serving import path_start_state
 
-            path = self.params["initial_path"] or next(iter(config["paths"]))
-            if path not in config["paths"]:
-                raise InputError(f"parameter initial_path={path!r}: not a path of {config['machine']} ({', '.join(config['paths'])})")
+            path = self.params["initial_path"] or next(iter(config.paths))
+            if path not in config.paths:
+                raise InputError(f"parameter initial_path={path!r}: not a path of {config.name} ({', '.join(config.paths)})")
             extension = self.params["initial_extension"]
             if extension < 0.0:
-                samples = path_from_config(config, path).sample(float(config["dp"]["sample_time"]))
-                extension = start_position(crane, samples, DpGrid.for_path(crane, samples, tuple(config["dp"]["grid"])))
+                samples = path_from_config(config, path).sample(config.dp.sample_time)
+                extension = start_position(crane, samples, DpGrid.for_path(crane, samples, config.dp.grid))
             start_joints = dict(zip(crane.names, path_start_state(config, path, extension).tolist()))
         source = CraneSource(self.machine, crane, config, self.params["seed"], start_joints)
         if self.excitation == "trajectory":

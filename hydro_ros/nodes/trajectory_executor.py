@@ -161,7 +161,7 @@ class TrajectoryExecutor(LifecycleNode):
             self.create_timer(1.0 / rate, self._control),
             self.create_timer(1.0, self._diagnose),
         ]
-        self.get_logger().info(f"crane {config['machine']}: cylinders {', '.join(self.names)}, control at {rate:g} Hz; "
+        self.get_logger().info(f"crane {config.name}: cylinders {', '.join(self.names)}, control at {rate:g} Hz; "
                                + ", ".join(f"{kind} from {source.source}" for kind, source in self.sources.items()))
         self.checker = threading.Thread(target=self._check_trajectories, daemon=True, name="trajectory-checker")
         self.checker.start()

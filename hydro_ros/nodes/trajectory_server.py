@@ -113,7 +113,7 @@ class TrajectoryServer(Node):
         from hydro_ros.models.crane import load_crane
 
         _, config = load_crane(self.config_path)
-        return str(config["machine"])
+        return config.name
 
     # -- database ----------------------------------------------------------------------------
     def _poll(self) -> None:

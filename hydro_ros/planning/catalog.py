@@ -22,6 +22,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import BuildError, InputError
 from hydro_ros.contract.extras import optional_module
 from hydro_ros.models.crane import Crane
@@ -36,35 +37,33 @@ DEFAULT_METHODS = ("dp_cp", "dp_ls", "pinv_actuator", "pinv_joint")
 
 @dataclass(frozen=True)
 class WorkUnit:
-    config: dict[str, Any]
+    config: CraneConfig
     path_id: str
     method: str
     grid: tuple[int, int, int]
 
     @property
     def key(self) -> tuple[str, str, str]:
-        return (str(self.config["machine"]), self.path_id, self.method)
+        return (self.config.name, self.path_id, self.method)
 
     @property
     def inputs_hash(self) -> str:
         return inputs_hash(self.config, self.path_id, self.method, self.grid)
 
 
-def plan_units(config: dict[str, Any], *, methods: tuple[str, ...] | None = None, grid: tuple[int, int, int] | None = None,
+def plan_units(config: CraneConfig, *, methods: tuple[str, ...] | None = None, grid: tuple[int, int, int] | None = None,
                paths: tuple[str, ...] | None = None) -> list[WorkUnit]:
     """The catalog of a config: its paths (or ``paths``) times the methods, on the DP grid."""
-    settings = config.get("catalog") or {}
-    methods = tuple(methods or settings.get("methods") or DEFAULT_METHODS)
+    methods = tuple(methods or config.catalog.get("methods") or DEFAULT_METHODS)
     unknown = [method for method in methods if method not in METHODS]
     if unknown:
         raise InputError(f"method(s) {', '.join(unknown)}: unknown (known: {', '.join(METHODS)})")
-    grid = tuple(int(n) for n in (grid or settings.get("grid") or config["dp"]["grid"]))
-    path_ids = tuple(paths or config["paths"])
-    missing = [path_id for path_id in path_ids if path_id not in config["paths"]]
+    grid = tuple(int(n) for n in (grid or config.catalog.get("grid") or config.dp.grid))
+    path_ids = tuple(paths or config.paths)
+    missing = [path_id for path_id in path_ids if path_id not in config.paths]
     if missing:
-        raise InputError(f"path(s) {', '.join(missing)}: not in config {config.get('_path', config['machine'])}")
-    portable = {key: value for key, value in config.items() if not key.startswith("_")}
-    return [WorkUnit(portable, path_id, method, grid) for path_id in path_ids for method in methods]
+        raise InputError(f"path(s) {', '.join(missing)}: not in config {config.source}")
+    return [WorkUnit(config, path_id, method, grid) for path_id in path_ids for method in methods]
 
 
 def compute_entry(unit: WorkUnit) -> dict[str, Any]:

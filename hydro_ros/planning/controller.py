@@ -13,10 +13,9 @@ real crane run this same code.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.models.crane import Crane
 from hydro_ros.models.crane_hydraulics import nominal_valve_table
 from hydro_ros.planning.trajectory import JointTrajectoryData
@@ -31,10 +30,8 @@ CONTROLLER_DEFAULTS = {
 }
 
 
-def controller_settings(config: dict[str, Any]) -> dict[str, float]:
-    settings = dict(CONTROLLER_DEFAULTS)
-    settings.update({key: float(value) for key, value in (config.get("controller") or {}).items()})
-    return settings
+def controller_settings(config: CraneConfig) -> dict[str, float]:
+    return {**CONTROLLER_DEFAULTS, **config.controller}
 
 
 class MotionController:
@@ -48,7 +45,7 @@ class MotionController:
         self.full_velocity = full_velocity
 
     @classmethod
-    def for_crane(cls, crane: Crane, config: dict[str, Any]) -> MotionController:
+    def for_crane(cls, crane: Crane, config: CraneConfig) -> MotionController:
         """The controller of ``config`` inverting the nominal valve table of its cylinders."""
         return cls(controller_settings(config), *nominal_valve_table(crane, config))
 

@@ -21,6 +21,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from hydro_ros.contract.config import ConfigError
+from hydro_ros.contract.crane import CraneConfig, parse_crane
 from hydro_ros.contract.errors import DatabaseError
 from hydro_ros.contract.machine import MONITOR_KEYS
 from hydro_ros.planning.trajectory import JointTrajectoryData
@@ -75,10 +77,10 @@ class StoredSolution:
     has_policy: bool
 
 
-def inputs_hash(config: dict[str, Any], path_id: str, method: str, grid: tuple[int, int, int]) -> str:
+def inputs_hash(config: CraneConfig, path_id: str, method: str, grid: tuple[int, int, int]) -> str:
     """What a solution depends on; the config's own file path and the monitor's keys are not part of it."""
-    relevant = {key: value for key, value in config.items() if not key.startswith("_") and key != "paths" and key not in MONITOR_KEYS}
-    payload = json.dumps([relevant, config["paths"][path_id], path_id, method, list(grid)], sort_keys=True, default=str)
+    relevant = {key: value for key, value in config.mapping.items() if key != "paths" and key not in MONITOR_KEYS}
+    payload = json.dumps([relevant, config.path(path_id), path_id, method, list(grid)], sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
@@ -159,16 +161,15 @@ class TrajectoryDatabase:
         self.close()
 
     # -- writing ---------------------------------------------------------------------------
-    def add_machine(self, config: dict[str, Any]) -> None:
+    def add_machine(self, config: CraneConfig) -> None:
         """Store the machine config and its path definitions (replacing older ones)."""
-        machine = str(config["machine"])
-        stored = {key: value for key, value in config.items() if not key.startswith("_")}
+        machine = config.name
         with self.transaction():
             self.connection.execute(
                 "INSERT INTO machines VALUES (?, ?) ON CONFLICT(machine) DO UPDATE SET config = excluded.config",
-                (machine, json.dumps(stored, sort_keys=True)),
+                (machine, json.dumps(dict(config.mapping), sort_keys=True)),
             )
-            for path_id, definition in config["paths"].items():
+            for path_id, definition in config.paths.items():
                 self.connection.execute(
                     "INSERT INTO paths VALUES (?, ?, ?) ON CONFLICT(machine, path_id) DO UPDATE SET definition = excluded.definition",
                     (machine, path_id, json.dumps(definition, sort_keys=True)),
@@ -209,11 +210,14 @@ class TrajectoryDatabase:
         rows = self._rows("SELECT machine, path_id, method, inputs_hash FROM solutions")
         return {(m, p, meth): h for m, p, meth, h in rows}
 
-    def machine_config(self, machine: str) -> dict[str, Any]:
+    def machine_config(self, machine: str) -> CraneConfig:
         row = self._row("SELECT config FROM machines WHERE machine = ?", (machine,))
         if row is None:
             raise DatabaseError(f"database {self.path}: no machine {machine!r}")
-        return json.loads(row[0])
+        try:
+            return parse_crane(json.loads(row[0]), Path(self.path))
+        except ConfigError as exc:
+            raise DatabaseError(f"database {self.path}: machine {machine!r}: {exc}") from None
 
     def machines(self) -> list[str]:
         return [row[0] for row in self._rows("SELECT machine FROM machines ORDER BY machine")]
@@ -272,7 +276,7 @@ class TrajectoryDatabase:
         arrays = unpack_arrays(blob, f"database {self.path}: {path_id}/{method} trajectory")
         config = self.machine_config(machine)
         trajectory = JointTrajectoryData(
-            joint_names=[joint["name"] for joint in config["joints"]],
+            joint_names=config.joint_names,
             time=arrays["time"],
             positions=arrays["positions"],
             velocities=arrays["velocities"],

@@ -15,6 +15,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from hydro_ros.contract.config import ConfigError
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 
 
@@ -114,9 +115,5 @@ class TipPath:
         return PathSamples(time, *self.evaluate(time))
 
 
-def path_from_config(config: dict[str, Any], path_id: str) -> TipPath:
-    paths = config.get("paths") or {}
-    if path_id not in paths:
-        known = ", ".join(sorted(paths)) or "none"
-        raise ConfigError(f"path {path_id!r}: not in config {config.get('machine', '?')} (known: {known})")
-    return TipPath(path_id, paths[path_id])
+def path_from_config(config: CraneConfig, path_id: str) -> TipPath:
+    return TipPath(path_id, config.path(path_id))

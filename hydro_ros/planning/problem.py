@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane
 from hydro_ros.planning.baselines import direct_collocation, pseudo_inverse
@@ -44,7 +45,7 @@ CONTRACT_METHODS = ("dp_cp", "dp_ls", "dp_actuator_energy", "dp_extension", "pin
 @dataclass
 class Problem:
     crane: Crane
-    config: dict[str, Any]
+    config: CraneConfig
     path: TipPath
     samples: PathSamples
     grid: DpGrid
@@ -53,13 +54,12 @@ class Problem:
 
     @classmethod
     def build(
-        cls, crane: Crane, config: dict[str, Any], path_id: str, *, grid: tuple[int, int, int] | None = None, start: str = "smallest"
+        cls, crane: Crane, config: CraneConfig, path_id: str, *, grid: tuple[int, int, int] | None = None, start: str = "smallest"
     ) -> Problem:
-        settings = config["dp"]
         path = path_from_config(config, path_id)
-        samples = path.sample(float(settings["sample_time"]))
-        dp_grid = DpGrid.for_path(crane, samples, tuple(grid or settings["grid"]))
-        return cls(crane, config, path, samples, dp_grid, start_position(crane, samples, dp_grid, start), float(settings["filter_cutoff"]))
+        samples = path.sample(config.dp.sample_time)
+        dp_grid = DpGrid.for_path(crane, samples, grid or config.dp.grid)
+        return cls(crane, config, path, samples, dp_grid, start_position(crane, samples, dp_grid, start), config.dp.filter_cutoff)
 
 
 @dataclass

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane
 from hydro_ros.planning.costs import Cost
@@ -74,7 +75,7 @@ class Served:
 class _Context:
     """What re-planning a path needs: crane, samples, grid, and the DP tables once loaded."""
 
-    def __init__(self, config: dict[str, Any], stored: StoredSolution) -> None:
+    def __init__(self, config: CraneConfig, stored: StoredSolution) -> None:
         self.crane = Crane(config)
         self.config = config
         self.problem = Problem.build(self.crane, config, stored.path_id, grid=stored.grid)
@@ -215,10 +216,10 @@ class TrajectoryService:
         return context.solution
 
 
-def path_start_state(config: dict[str, Any], path_id: str, extension_stroke: float) -> np.ndarray:
+def path_start_state(config: CraneConfig, path_id: str, extension_stroke: float) -> np.ndarray:
     """Joint positions with the tip at the path's start and the extension cylinder at ``extension_stroke``."""
     crane = Crane(config)
-    samples = path_from_config(config, path_id).sample(float(config["dp"]["sample_time"]))
+    samples = path_from_config(config, path_id).sample(config.dp.sample_time)
     motion = crane.motion(tuple(samples.position[0]), (0.0,) * crane.task_dim, (0.0,) * crane.task_dim, extension_stroke, 0.0, 0.0, forces=False)
     if not bool(motion.reachable):
         raise ServeError(f"path {path_id!r}: extension {extension_stroke:.3f} m cannot reach the path start")
@@ -226,7 +227,7 @@ def path_start_state(config: dict[str, Any], path_id: str, extension_stroke: flo
 
 
 def executable_trajectory(
-    config: dict[str, Any],
+    config: CraneConfig,
     path_id: str,
     method: str,
     *,
@@ -235,7 +236,7 @@ def executable_trajectory(
     start_extension: float | None = None,
 ) -> tuple[JointTrajectoryData, dict[str, Any]]:
     """A joint trajectory and its planned record: served from ``database``, else planned now."""
-    names = [joint["name"] for joint in config["joints"]]
+    names = config.joint_names
     if database is not None:
         current = None
         if start_extension is not None:

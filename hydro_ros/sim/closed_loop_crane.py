@@ -17,13 +17,12 @@ executed motion, not the plan's. All values are PLACEHOLDERS of ``plant:`` in th
 
 from __future__ import annotations
 
-import copy
 from collections import deque
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from hydro_ros.contract.crane import CraneConfig, PointMass
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane, Motion
 from hydro_ros.models.crane_hydraulics import VALVE_TABLE_DEFAULTS, pump_flow
@@ -44,10 +43,8 @@ SUPPLIES = ("cp", "ls")
 _FRICTION_VELOCITY = 0.005  # m/s: tanh smoothing of the Coulomb friction sign
 
 
-def plant_settings(config: dict[str, Any]) -> dict[str, float]:
-    settings = dict(PLANT_DEFAULTS)
-    settings.update({key: float(value) for key, value in (config.get("plant") or {}).items()})
-    return settings
+def plant_settings(config: CraneConfig) -> dict[str, float]:
+    return {**PLANT_DEFAULTS, **config.plant}
 
 
 def valve_velocity(command: np.ndarray, dead_zone: np.ndarray, full_velocity: np.ndarray) -> np.ndarray:
@@ -72,7 +69,7 @@ class CraneState:
 class CranePlant:
     """One crane (``Crane`` of its config plus the plant's payload and friction), stepped at ``time_step``."""
 
-    def __init__(self, config: dict[str, Any], supply: str, start: np.ndarray, *, seed: int = 0) -> None:
+    def __init__(self, config: CraneConfig, supply: str, start: np.ndarray, *, seed: int = 0) -> None:
         if supply not in SUPPLIES:
             raise InputError(f"supply {supply!r}: cp or ls")
         self.settings = settings = plant_settings(config)
@@ -178,11 +175,7 @@ class CranePlant:
                 s.pressure_b[i] = max(-force, 0.0) / c.area_b if c.area_b > 0 else 0.0
 
 
-def _with_payload(config: dict[str, Any], payload: float) -> dict[str, Any]:
-    plant = copy.deepcopy(config)
-    if payload > 0.0:
-        tip = float(config["links"]["extension_base"])
-        plant.setdefault("masses", []).append(
-            {"name": "payload", "link": "boom", "s": tip, "moves_with_extension": True, "mass": payload}
-        )
-    return plant
+def _with_payload(config: CraneConfig, payload: float) -> CraneConfig:
+    if payload <= 0.0:
+        return config
+    return replace(config, masses=(*config.masses, PointMass("payload", "boom", config.links.extension_base, True, payload)))

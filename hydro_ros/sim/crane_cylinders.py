@@ -28,16 +28,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, Iterator, Protocol, Sequence
+from typing import Iterator, Protocol, Sequence
 
 import numpy as np
 from numba import njit
 
+from hydro_ros.contract.crane import CraneConfig, PointMass
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.contract.samples import PER_ACTUATOR, Samples
-from hydro_ros.models.crane import Crane, PointMass
+from hydro_ros.models.crane import Crane
 from hydro_ros.models.kinematics import mount_arm, mount_piston
 from hydro_ros.models.sam import (
     AREA_A,
@@ -152,7 +153,7 @@ class CraneRun:
 class CraneCylinders:
     """The crane of a machine config with ``kind: crane`` and an actuator for each of its planar joints."""
 
-    def __init__(self, machine: Machine, crane_config: dict[str, Any], run: CraneRun, start: Sequence[float] | None = None) -> None:
+    def __init__(self, machine: Machine, crane_config: CraneConfig, run: CraneRun, start: Sequence[float] | None = None) -> None:
         self.machine = machine
         self.crane = Crane(crane_config)
         planar = self.crane.cylinders[-3:]
@@ -309,7 +310,7 @@ def combine(per_actuator: Sequence[Samples]) -> Samples:
     return Samples(**out)
 
 
-def simulate_crane(machine: Machine, crane_config: dict[str, Any], run: CraneRun) -> Samples:
+def simulate_crane(machine: Machine, crane_config: CraneConfig, run: CraneRun) -> Samples:
     """The whole run's measurements, (n, A)."""
     parts = [measured for _, measured in CraneCylinders(machine, crane_config, run).blocks()]
     return Samples(**{f.name: None if getattr(parts[0], f.name) is None else np.concatenate([getattr(p, f.name) for p in parts])

@@ -29,6 +29,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_episodes
@@ -94,7 +95,7 @@ def crane_run(case: CraneCase, trajectories: dict[str, Any]) -> CraneRun:
     return CraneRun(case.duration_s, case.seed, faults, payload, trajectories.get(case.path) if case.path else None)
 
 
-def run_crane_case(machine: Machine, crane_config: dict[str, Any], trajectories: dict[str, Any], case: CraneCase, *,
+def run_crane_case(machine: Machine, crane_config: CraneConfig, trajectories: dict[str, Any], case: CraneCase, *,
                    keep_residuals: bool = False, plant: Machine | None = None) -> CraneOutcome:
     """The monitor of ``machine`` on ``plant``, else on the crane plant of the case (``machine`` mismatched per its seed)."""
     if plant is None:
@@ -129,21 +130,21 @@ def _run(arguments: tuple) -> CraneOutcome:
     return run_crane_case(machine, crane_config, trajectories, case, keep_residuals=keep, plant=plant)
 
 
-def run_crane_cases(machine: Machine, crane_config: dict[str, Any], trajectories: dict[str, Any], cases: Sequence[CraneCase], *,
+def run_crane_cases(machine: Machine, crane_config: CraneConfig, trajectories: dict[str, Any], cases: Sequence[CraneCase], *,
                     keep_residuals: bool = False, workers: int = 2, progress: Callable[[int], None] | None = None,
                     plant: Machine | None = None) -> list[CraneOutcome]:
     return parallel_map(_run, [(machine, crane_config, trajectories, case, keep_residuals, plant) for case in cases], workers=workers,
                         progress=progress)
 
 
-def path_trajectories(crane_config: dict[str, Any], method: str = "dp_cp", database: str | None = None) -> dict[str, Any]:
+def path_trajectories(crane_config: CraneConfig, method: str = "dp_cp", database: str | None = None) -> dict[str, Any]:
     """Every path of the crane config as its ``method`` joint trajectory (served from ``database`` or planned now)."""
     from hydro_ros.planning.serving import executable_trajectory
 
-    return {path: executable_trajectory(crane_config, path, method, database=database)[0] for path in crane_config["paths"]}
+    return {path: executable_trajectory(crane_config, path, method, database=database)[0] for path in crane_config.paths}
 
 
-def commissioning_recordings(plant: Machine, crane_config: dict[str, Any], trajectories: dict[str, Any], seed: int, *,
+def commissioning_recordings(plant: Machine, crane_config: CraneConfig, trajectories: dict[str, Any], seed: int, *,
                              operator_s: float = 120.0, path_s: float = 60.0) -> list[FaultFreeRecording]:
     """A crane's fault-free work to commission it on: the operator twice, each path's cycle once, a payload gripped and
     released in each (a forestry crane's day; recorded into the bags ``hydro-ros commission`` reads)."""
@@ -165,7 +166,7 @@ def _flatten(outcomes: Sequence[CraneOutcome]) -> tuple[np.ndarray, np.ndarray]:
     return residual[keep], point[keep]
 
 
-def fit_crane_thresholds(machine: Machine, crane_config: dict[str, Any], trajectories: dict[str, Any], *, train: Iterable[int],
+def fit_crane_thresholds(machine: Machine, crane_config: CraneConfig, trajectories: dict[str, Any], *, train: Iterable[int],
                          held_out: Iterable[int], duration_s: float = 90.0, workers: int = 2,
                          progress: Callable[[int], None] | None = None) -> tuple[ParityThresholds, dict[str, Any]]:
     """Statistics on the nominal crane at work, the factor on held-out mismatched cranes (module docstring)."""

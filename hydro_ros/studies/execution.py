@@ -13,6 +13,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from hydro_ros.bags.writer import ContractBagWriter
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.models.crane import Crane
 from hydro_ros.planning.controller import CylinderReference, MotionController, controller_settings
 from hydro_ros.planning.database import JointTrajectoryData
@@ -51,7 +52,7 @@ def iso9283_path_accuracy(actual: np.ndarray, commanded: np.ndarray) -> float:
 class ClosedLoop:
     """Plant and controller stepped together; ``follow`` sets the trajectory, ``advance`` runs it."""
 
-    def __init__(self, config: dict[str, Any], supply: str, start: np.ndarray, *, seed: int = 0) -> None:
+    def __init__(self, config: CraneConfig, supply: str, start: np.ndarray, *, seed: int = 0) -> None:
         self.settings = controller_settings(config)
         self.plant = CranePlant(config, supply, start, seed=seed)
         self.controller = MotionController.for_crane(self.plant.crane, config)
@@ -81,7 +82,7 @@ class ClosedLoop:
         self.steps += 1
 
 
-def execute(config: dict[str, Any], trajectory: JointTrajectoryData, supply: str, *, seed: int = 0) -> Execution:
+def execute(config: CraneConfig, trajectory: JointTrajectoryData, supply: str, *, seed: int = 0) -> Execution:
     """Run the trajectory on a ``CranePlant`` from its first point; hold the end for ``settle_time``."""
     loop = ClosedLoop(config, supply, trajectory.positions[0], seed=seed)
     loop.follow(trajectory)

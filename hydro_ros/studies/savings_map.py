@@ -10,9 +10,9 @@ feasible telescope along it) is reported as such.
 
 from __future__ import annotations
 
-import copy
 from typing import Any, Callable, Iterable
 
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane
 from hydro_ros.planning.problem import Problem, method_record, run_method
@@ -37,13 +37,12 @@ def line_paths(vertical_x: Iterable[float], vertical_y0: Iterable[float], horizo
     return paths
 
 
-def savings(crane: Crane, config: dict[str, Any], paths: dict[str, dict[str, Any]], *, grid: tuple[int, int, int] | None = None,
+def savings(crane: Crane, config: CraneConfig, paths: dict[str, dict[str, Any]], *, grid: tuple[int, int, int] | None = None,
             progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """One row per line position: the methods' energies and the DP's saving over the better pseudo-inverse."""
     rows = []
     for path_id, entry in paths.items():
-        variant = copy.deepcopy(config)
-        variant["paths"] = {path_id: entry}
+        variant = config.with_paths({path_id: entry})
         row: dict[str, Any] = {"path": path_id, "start": entry["start"], "end": entry["segments"][-1]["to"]}
         try:
             problem = Problem.build(crane, variant, path_id, grid=grid)
