@@ -29,11 +29,10 @@ $(CHROMIUM):
 lint: setup
 	$(VENV)/bin/ruff check hydro_ros test launch bench scripts
 
-# every tier: what CI runs. The library and study tests on two workers; the live-graph and browser tests alone after
-# them (two at once starve 1 kHz nodes of a core: frames and samples lost)
+# every tier: what CI runs. The live-graph and browser tests one after another on one worker (two at once starve 1 kHz
+# nodes of a core: frames and samples lost), the library and study tests on the other (test/conftest.py: LIVE_GROUP)
 test: lint $(CHROMIUM)
-	$(PY) -m pytest -q -n 2 -m "not ros_graph and not browser" test
-	$(PY) -m pytest -q -m "ros_graph or browser" test
+	$(PY) -m pytest -q -n 2 --dist loadgroup test
 
 # the library tests without a ROS graph, a browser or a long study: the loop while changing code
 test-fast: lint

@@ -176,7 +176,7 @@ def test_live_commissioned_monitor_names_a_leak_the_shipped_threshold_cannot_see
     def statuses() -> list:
         return [s for m in diags for s in m.status if s.name == "hydro_ros/fdi/boom"]
 
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={plant_config}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"), \
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={plant_config}", "-p", "seed:=3", "-p", "real_time_factor:=1.0"), \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={machine_config}"), probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
         assert spin_until(node, lambda: any(s.message == "ok" for s in statuses()), 60), [s.message for s in statuses()]

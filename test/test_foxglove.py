@@ -93,7 +93,7 @@ async def _hostile(port: int) -> dict[str, int]:
 def test_a_foxglove_client_receives_diagnostics_and_residuals_and_cannot_publish(ros_domain):
     port = free_port()
     wanted = (topics.DIAGNOSTICS, topics.FDI_RESIDUALS, topics.pressure_a("boom"))
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=0.5"), \
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=1.0"), \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), \
             node_process("hydro_ros.nodes.hmi", "-p", f"config:={SAM_CONFIG}", "-p", "port:=0", "-p", f"foxglove_port:={port}"):
         info, channels, received, statuses = asyncio.run(_watch(port, wanted, 60.0))

@@ -59,7 +59,7 @@ def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_doma
                 "solutions": {"dp_cp": {"cp_energy_J": 69.9e3, "ls_energy_J": 51.0e3, "limits_ok": True},
                               "pinv_joint": {"cp_energy_J": 82.5e3, "ls_energy_J": 60.2e3, "limits_ok": True}}}]
     # the plant at half real time: plant_sim, fdi_node, hmi and a browser at 1 kHz overload this 2-core machine
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"), \
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=1.0"), \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"alarm_log:={tmp_path / 'alarms.sqlite'}"), \
             node_process("hydro_ros.nodes.hmi", "-p", f"port:={port}", "-p", f"alarm_log:={tmp_path / 'alarms.sqlite'}",
                          "-p", "foxglove_port:=-1") as hmi, \

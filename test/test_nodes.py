@@ -68,7 +68,7 @@ def test_bag_player_replays_contract_types_with_clock(ros_domain, short_bag):
         node.create_subscription(JointState, topics.VALVE_COMMANDS, lambda m: got["cmd"].append(m), SENSOR_QOS)
         node.create_subscription(Clock, topics.CLOCK, lambda m: got["clock"].append(m), CLOCK_QOS)
         # every one of the 2000 messages is counted: on a loaded machine discovery can outlast the default 1 s delay
-        with node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={short_bag}", "-p", "rate:=0.5", "-p", "start_delay:=5.0",
+        with node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={short_bag}", "-p", "rate:=1.0", "-p", "start_delay:=5.0",
                           "-p", "publish_clock:=true"):
             assert spin_until(node, lambda: len(got["pa"]) >= 2000 and len(got["cmd"]) >= 2000, 45)
         assert got["cmd"][0].name == ["boom"] and -1.0 <= got["cmd"][0].position[0] <= 1.0
@@ -90,7 +90,7 @@ def test_record_of_a_live_plant_is_a_split_contract_bag_the_monitor_reads(ros_do
     cli = [sys.executable, "-m", "hydro_ros.cli"]
     best_effort = [arg for topic in topics.sensor_topics(["boom"])
                    for arg in ("-p", f"qos_overrides.{topic}.publisher.reliability:=best_effort")]
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=0.5", "-p", "seed:=2",
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=1.0", "-p", "seed:=2",
                       *best_effort) as plant:
         recorded = subprocess.run([*cli, "bag", "record", "--config", str(SAM_CONFIG), "--out", str(bag), "--duration", "9",
                                    "--split-duration", "2", "--quiet"], capture_output=True, text=True, timeout=120)
@@ -98,7 +98,7 @@ def test_record_of_a_live_plant_is_a_split_contract_bag_the_monitor_reads(ros_do
     assert recorded.returncode == 0, recorded.stderr
     summary = json.loads(recorded.stdout)
     assert len(summary["files"]) >= 3
-    assert min(summary["topics"].values()) > 2000  # ~3.5 s of 1 kHz samples at half real time
+    assert min(summary["topics"].values()) > 2000  # seconds of 1 kHz samples on every topic: none starved
 
     info = subprocess.run([*cli, "bag", "info", str(bag), "--json"], capture_output=True, text=True, timeout=120)
     assert info.returncode == 0, info.stdout
@@ -135,7 +135,7 @@ def test_record_in_a_namespace_takes_the_sample_blocks_and_the_bag_reads_whole(r
                                  "--duration", "12", "--quiet", "--ros-args", "-r", "__ns:=/machine1"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(6.0)  # past the recorder's start and its first look at the graph
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=0.5", "-p", "seed:=2",
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=1.0", "-p", "seed:=2",
                       "-p", "sample_blocks:=true", "-p", "sensor_topics:=joint_states", "-r", "__ns:=/machine1"):
         out, err = recorder.communicate(timeout=120)
     assert recorder.returncode == 0, err

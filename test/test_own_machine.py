@@ -230,7 +230,7 @@ def test_the_hmi_shows_every_cylinder_of_a_two_joint_machine_and_the_leak_on_its
     with probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics",
                                  lambda m: statuses.extend(s for s in m.status if s.name.startswith("hydro_ros/fdi/")), 50)
-        with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={config}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"), \
+        with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={config}", "-p", "seed:=3", "-p", "real_time_factor:=1.0"), \
                 node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={config}"), \
                 node_process("hydro_ros.nodes.hmi", "-p", f"config:={config}", "-p", f"port:={port}"):
             def armed() -> bool:
