@@ -123,6 +123,7 @@ def comparisons(out_dir: Path) -> dict:
             check=True,
         )
         result = json.loads(target.read_text())
+        write_result(target, result)  # the commit it ran on, as every file of bench/results
         summary[f"{machine}/{path}{suffix}"] = {
             "seconds": time.perf_counter() - began,
             "start_position_m": result["start_position_m"],

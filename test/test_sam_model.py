@@ -166,7 +166,7 @@ def test_natural_frequency_matches_hydraulic_spring(sam_config, joint):
 
 def test_natural_frequency_within_seed_maximum_over_the_upper_stroke(sam_config):
     """Seed (L2673): <= 4.5 Hz. sam_nominal's INFERRED hose values meet it for x >= 0.32 m;
-    towards full retraction the small chamber-A volume gives up to 6.4 Hz (docs/reproduction.md)."""
+    towards full retraction the small chamber-A volume gives up to 6.3 Hz (docs/reproduction.md)."""
     model = SamModel(sam_config)
     upper = [hydraulic_natural_frequency(model, x) for x in np.linspace(0.32, 0.45, 14)]
     assert max(upper) <= 4.5
