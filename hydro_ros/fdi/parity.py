@@ -58,6 +58,7 @@ from hydro_ros.models.sam import (
     TANK,
     V0_A,
     V0_B,
+    VALVE_OVERLAP,
     SamModel,
 )
 from hydro_ros.models.valve import chamber_valve_flows, pilot_drive, spool_opening, spool_track
@@ -69,11 +70,12 @@ ORIFICE_FILTER_S = 0.01  # [s] the pressures under the orifice law's root are lo
 
 
 @njit(cache=True)
-def flow_balance(s, piston, velocity, p_a, p_b, rate_a, rate_b, orifice_a, orifice_b, metering_supply, p, poly,
+def flow_balance(s, neutral, piston, velocity, p_a, p_b, rate_a, rate_b, orifice_a, orifice_b, metering_supply, p, poly,
                  centre) -> tuple[float, float, float, float]:
-    """Equation error per chamber [L/min]: valve flow at opening s (chambers at ``orifice_a``, ``orifice_b``, fed at
-    ``metering_supply``) minus what motion and compression (at ``p_a``, ``p_b``) take; and the two valve flows [L/min]."""
-    q_a, q_b = chamber_valve_flows(s, orifice_a, orifice_b, metering_supply, p[TANK], poly, centre, p[LAMINAR_BAND], 1.0)
+    """Equation error per chamber [L/min]: valve flow at opening s (``neutral``: the opening the valve's own lands leave,
+    valve.chamber_valve_flows; chambers at ``orifice_a``, ``orifice_b``, fed at ``metering_supply``) minus what motion
+    and compression (at ``p_a``, ``p_b``) take; and the two valve flows [L/min]."""
+    q_a, q_b = chamber_valve_flows(s, neutral, orifice_a, orifice_b, metering_supply, p[TANK], poly, centre, p[LAMINAR_BAND], 1.0)
     volume_a = p[V0_A] + p[AREA_A] * piston
     volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - piston)
     bulk_a = effective_bulk_modulus(p_a, volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
@@ -100,23 +102,24 @@ def parity_residuals(piston, velocity, p_a, p_b, drive, compensator, orifice, va
                 bias_out[k, a, 1] = 0.0
                 continue
             s = spool_opening(drive[k, a], 0.0, p[DEADZONE], 1.0, False)
+            neutral = spool_opening(drive[k, a], 0.0, p[VALVE_OVERLAP], 1.0, False)
             rate_a = (p_a[k, a] - previous[a, 0]) / dt if previous[a, 2] > 0.5 else 0.0
             rate_b = (p_b[k, a] - previous[a, 1]) / dt if previous[a, 2] > 0.5 else 0.0
             previous[a, 0] = p_a[k, a]
             previous[a, 1] = p_b[k, a]
             previous[a, 2] = 1.0
             r_a, r_b, q_a, q_b = flow_balance(
-                s, piston[k, a], velocity[k, a], p_a[k, a], p_b[k, a], rate_a, rate_b, orifice[k, a, 0], orifice[k, a, 1],
+                s, neutral, piston[k, a], velocity[k, a], p_a[k, a], p_b[k, a], rate_a, rate_b, orifice[k, a, 0], orifice[k, a, 1],
                 orifice[k, a, 2], p, poly[a], centre[a])
             residual_out[k, a, 0] = r_a
             residual_out[k, a, 1] = r_b
             flow_out[k, a, 0] = abs(q_a)
             flow_out[k, a, 1] = abs(q_b)
             opening_out[k, a] = abs(s)
-            up_a, up_b = chamber_valve_flows(s, orifice[k, a, 0] + noise, orifice[k, a, 1] + noise, orifice[k, a, 2], p[TANK],
-                                             poly[a], centre[a], p[LAMINAR_BAND], 1.0)
-            down_a, down_b = chamber_valve_flows(s, orifice[k, a, 0] - noise, orifice[k, a, 1] - noise, orifice[k, a, 2], p[TANK],
-                                                 poly[a], centre[a], p[LAMINAR_BAND], 1.0)
+            up_a, up_b = chamber_valve_flows(s, neutral, orifice[k, a, 0] + noise, orifice[k, a, 1] + noise, orifice[k, a, 2],
+                                             p[TANK], poly[a], centre[a], p[LAMINAR_BAND], 1.0)
+            down_a, down_b = chamber_valve_flows(s, neutral, orifice[k, a, 0] - noise, orifice[k, a, 1] - noise, orifice[k, a, 2],
+                                                 p[TANK], poly[a], centre[a], p[LAMINAR_BAND], 1.0)
             bias_out[k, a, 0] = abs((up_a + down_a) / FLOW_UNIT - 2.0 * q_a) / 2.0
             bias_out[k, a, 1] = abs((up_b + down_b) / FLOW_UNIT - 2.0 * q_b) / 2.0
 

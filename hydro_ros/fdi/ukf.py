@@ -55,7 +55,7 @@ def reduced_model_step(x: np.ndarray, u: np.ndarray, p: np.ndarray, poly: np.nda
     p_b = x[1] * PRESSURE_UNIT
     piston = u[0]
     velocity = u[1]
-    q_a, q_b = chamber_valve_flows(x[2], p_a, p_b, u[3], p[TANK], poly, centre, p[LAMINAR_BAND], 1.0)
+    q_a, q_b = chamber_valve_flows(x[2], x[2], p_a, p_b, u[3], p[TANK], poly, centre, p[LAMINAR_BAND], 1.0)  # no overlap: one opening
     volume_a = p[V0_A] + p[AREA_A] * piston
     volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - piston)
     # P-II eq. (19): hose compliance only (no entrained air in the monitor's model)

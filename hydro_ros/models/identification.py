@@ -53,6 +53,7 @@ from hydro_ros.models.sam import (
     TANK,
     V0_A,
     V0_B,
+    VALVE_OVERLAP,
     SamModel,
 )
 from hydro_ros.models.valve import CENTRE_BAND, pilot_drive, spool_openings, spool_positions
@@ -139,8 +140,8 @@ def _block_rows(model: SamModel, signals: np.ndarray, inner: slice, first: int) 
     velocity = np.gradient(x, dt)
     p_a, p_b, supply = low_pass(p_a), low_pass(p_b), low_pass(feed)
     rate_a, rate_b = np.gradient(p_a, dt), np.gradient(p_b, dt)
-    spool = spool_openings(spool_positions(np.ascontiguousarray(drive), p[SPOOL_OMEGA], p[SPOOL_DAMPING], dt,
-                                           model.substeps), p[DEADZONE], p[DEADZONE_PLAIN] < 0.5)
+    position = spool_positions(np.ascontiguousarray(drive), p[SPOOL_OMEGA], p[SPOOL_DAMPING], dt, model.substeps)
+    spool = spool_openings(position, p[DEADZONE], p[DEADZONE_PLAIN] < 0.5)
     opening = np.abs(spool)
     powers = np.stack([spool ** 3, spool ** 2, spool, np.ones_like(spool)], axis=1)
     extending, retracting = spool > 0.0, spool < 0.0
@@ -152,7 +153,7 @@ def _block_rows(model: SamModel, signals: np.ndarray, inner: slice, first: int) 
     volume_a = p[V0_A] + p[AREA_A] * x
     volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - x)
     across = _signed_root(p_a - p_b)
-    centre = (opening < CENTRE_BAND).astype(float)
+    centre = (np.abs(spool_openings(position, p[VALVE_OVERLAP], True)) < CENTRE_BAND).astype(float)  # valve.chamber_valve_flows
     nothing = np.zeros_like(x)
     chamber_a = np.hstack([pa_notch, zero, at_notch, zero, np.stack(
         [-volume_a * rate_a, -rate_a, centre * (supply - p_a), nothing, -centre * (p_a - p[TANK]), nothing,

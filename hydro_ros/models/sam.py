@@ -67,9 +67,9 @@ DELAY_BUFFER = 4096  # samples of valve-command history kept for the valve_delay
     STOP_LOWER, STOP_UPPER, STOP_STIFFNESS, STOP_DAMPING, CAVITATION, GRAVITY,
     VALVE_MOBILE, COMP_DROP, COMP_LOCKED, PILOT_MAX,
     DEADZONE_PLAIN, LAMINAR_INTERNAL, LAMINAR_EXTERNAL_A, LAMINAR_EXTERNAL_B, LAG_SAMPLES,
-    MOUNT_KIND, MOUNT_SIGN, MOUNT_RATIO,
+    MOUNT_KIND, MOUNT_SIGN, MOUNT_RATIO, VALVE_OVERLAP,
     N_PARAMS,
-) = range(58)
+) = range(59)
 
 
 @njit(cache=True)
@@ -81,6 +81,15 @@ def metering_supply(s: float, p_a: float, p_b: float, p: np.ndarray) -> float:
 
 
 @njit(cache=True)
+def valve_openings(spool: float, p: np.ndarray) -> tuple[float, float]:
+    """The opening the notches see (every overlap, the offset, spool faults) and the one the valve's own lands leave
+    (its configured overlap only), where its centre leakage is decided (valve.chamber_valve_flows)."""
+    stuck = p[STUCK] > 0.5
+    return (spool_opening(spool, p[OFFSET], p[DEADZONE], p[OPENING_GAIN], stuck, p[DEADZONE_PLAIN] < 0.5),
+            spool_opening(spool, p[OFFSET], p[VALVE_OVERLAP], p[OPENING_GAIN], stuck))
+
+
+@njit(cache=True)
 def hydraulic_rates(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centre: np.ndarray, dy: np.ndarray) -> None:
     """dy[0:4]: the chambers' pressure rates and the spool's, for the piston motion y[4], y[5] whatever moves it."""
     p_a = y[0]
@@ -88,8 +97,9 @@ def hydraulic_rates(y: np.ndarray, reference: float, p: np.ndarray, poly: np.nda
     x = y[4]
     v = y[5]
     # valve (eqs. 10-15)
-    s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5, p[DEADZONE_PLAIN] < 0.5)
-    q_a, q_b = chamber_valve_flows(s, p_a, p_b, metering_supply(s, p_a, p_b, p), p[TANK], poly, centre, p[LAMINAR_BAND], p[FLOW_GAIN])
+    s, neutral = valve_openings(y[2], p)
+    q_a, q_b = chamber_valve_flows(s, neutral, p_a, p_b, metering_supply(s, p_a, p_b, p), p[TANK], poly, centre, p[LAMINAR_BAND],
+                                   p[FLOW_GAIN])
     # cylinder leakages (eqs. 41-43)
     band = p[LAMINAR_BAND]
     q_int = leak_flow(p[K_INTERNAL], p_a - p_b, band, p[LAMINAR_INTERNAL] > 0.5)
@@ -254,8 +264,8 @@ def valve_and_leak_flows(states: np.ndarray, params: np.ndarray, poly: np.ndarra
     for k in range(states.shape[0]):
         y = states[k]
         p = params[k]
-        s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5, p[DEADZONE_PLAIN] < 0.5)
-        q_a, q_b = chamber_valve_flows(s, y[0], y[1], metering_supply(s, y[0], y[1], p), p[TANK], poly, centre,
+        s, neutral = valve_openings(y[2], p)
+        q_a, q_b = chamber_valve_flows(s, neutral, y[0], y[1], metering_supply(s, y[0], y[1], p), p[TANK], poly, centre,
                                        p[LAMINAR_BAND], p[FLOW_GAIN])
         out[k, 0] = q_a
         out[k, 1] = q_b
@@ -272,8 +282,7 @@ def compensator_pressures(states: np.ndarray, params: np.ndarray) -> np.ndarray:
     for k in range(states.shape[0]):
         y = states[k]
         p = params[k]
-        s = spool_opening(y[2], p[OFFSET], p[DEADZONE], p[OPENING_GAIN], p[STUCK] > 0.5, p[DEADZONE_PLAIN] < 0.5)
-        out[k] = metering_supply(s, y[0], y[1], p)
+        out[k] = metering_supply(valve_openings(y[2], p)[0], y[0], y[1], p)
     return out
 
 
@@ -409,6 +418,7 @@ class SamModel:
             p[COMP_DROP] = valve.compensator_pressure_drop
             p[PILOT_MAX] = valve.pilot_pressure_max
             p[DEADZONE] = valve.deadzone
+            p[VALVE_OVERLAP] = valve.deadzone
         self.sample_rate = machine.sample_rate_hz
         # `effects:` of a config (written by hydro-ros discrepancy) are part of the model from t = 0;
         # sensor biases among them belong to the sensors, not to the plant

@@ -110,6 +110,7 @@ def spool_openings(x_s: np.ndarray, deadzone: float, rescaled: bool) -> np.ndarr
 @njit(cache=True)
 def chamber_valve_flows(
     s: float,
+    neutral_opening: float,
     p_a: float,
     p_b: float,
     p_s: float,
@@ -119,10 +120,16 @@ def chamber_valve_flows(
     laminar_band: float,
     flow_gain: float,
 ) -> tuple[float, float]:
-    """Eqs. (10)-(14): valve flows (Q_A, Q_B) into chambers A and B [m^3/s].
+    """Eqs. (10)-(14): valve flows (Q_A, Q_B) into chambers A and B [m^3/s] at the opening s.
 
-    The polynomial is evaluated at the spool position clipped to its fitted range [-1, 1];
-    the opening magnitude |s| may exceed 1 for a too-large-opening fault.
+    The polynomial is evaluated at the opening clipped to its fitted range [-1, 1]; the opening
+    magnitude |s| may exceed 1 for a too-large-opening fault. The centre leakage acts while
+    ``neutral_opening``, the opening the valve's own lands leave (its configured overlap, not an
+    effect's), is within CENTRE_BAND: it is a property of the valve as identified, over the band it was
+    identified on (P-I eqs. 13-14: |x_s| < 0.01 on the SAM's zero-lapped valve, the neutral band on a
+    mobile valve's overlapped one). Taken on ``s``, an overlap the model adds as an effect leaked
+    ~1 L/min across all of its band: a boom held with the spool inside it drifted in the model, and a
+    fit of the overlap was pushed below every command the boom was held at.
     """
     q_a = 0.0
     q_b = 0.0
@@ -136,7 +143,7 @@ def chamber_valve_flows(
         q_b = flow_coefficient(poly, PB, x_fit) * opening * signed_root(p_s - p_b, laminar_band)
     q_a *= flow_gain
     q_b *= flow_gain
-    if abs(s) < CENTRE_BAND:
+    if abs(neutral_opening) < CENTRE_BAND:
         q_a += centre_leakage[PA] * (p_s - p_a) - centre_leakage[AT] * (p_a - p_t)
         q_b += centre_leakage[PB] * (p_s - p_b) - centre_leakage[BT] * (p_b - p_t)
     return q_a, q_b

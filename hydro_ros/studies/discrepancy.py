@@ -64,6 +64,7 @@ from hydro_ros.models.sam import (
     SPOOL_DAMPING,
     SPOOL_OMEGA,
     SUPPLY,
+    VALVE_OVERLAP,
     SamModel,
     simulate_segments,
 )
@@ -284,10 +285,11 @@ def _equation_error(piston, velocity, p_a, p_b, spool, supply, params, poly, cen
     """Per sample (Q_A model - A_A x' - V_A/B p_A', same for B) [L/min] at the spool the command drives."""
     for k in range(piston.shape[0]):
         s = spool_opening(spool[k], 0.0, params[DEADZONE], 1.0, False, params[DEADZONE_PLAIN] < 0.5)
+        neutral = spool_opening(spool[k], 0.0, params[VALVE_OVERLAP], 1.0, False)
         dpa = (p_a[k] - p_a[k - 1]) / dt if k > 0 else 0.0
         dpb = (p_b[k] - p_b[k - 1]) / dt if k > 0 else 0.0
-        out[k, 0], out[k, 1], _, _ = flow_balance(s, piston[k], velocity[k], p_a[k], p_b[k], dpa, dpb, p_a[k], p_b[k], supply[k], params,
-                                                   poly, centre)
+        out[k, 0], out[k, 1], _, _ = flow_balance(s, neutral, piston[k], velocity[k], p_a[k], p_b[k], dpa, dpb, p_a[k], p_b[k],
+                                                   supply[k], params, poly, centre)
 
 
 def load_independent_error(machine: Machine, rec: Recording) -> np.ndarray:
