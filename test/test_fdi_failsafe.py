@@ -166,9 +166,10 @@ def test_a_frozen_pressure_sensor_is_never_reported_healthy(ros_domain, leak_bag
 
 def test_a_dead_monitor_goes_quiet_and_a_restarted_one_says_nothing_until_armed(ros_domain):
     """kill -9 while a spool fault asks for a halt: the heartbeat stops; the new monitor sends nothing on /fdi/halt before a
-    window of data is evaluated, then requests the halt again."""
+    window of data is evaluated, then requests the halt again. The plant at half real time: in real time, a loaded
+    machine once left the restarted monitor without a halt for 2 minutes."""
     halts: list[tuple[float, bool]] = []
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=1.0"), \
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=0.5"), \
             probe_node("probe") as node:
         node.create_subscription(Bool, topics.FDI_HALT, lambda m: halts.append((time.monotonic(), m.data)), HALT_QOS)
         said: list = []  # what the monitors said of the boom, for a failure's message
@@ -188,10 +189,10 @@ def test_a_dead_monitor_goes_quiet_and_a_restarted_one_says_nothing_until_armed(
         assert len(halts) == heartbeats, "a dead monitor's halt heartbeat must stop"
         with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"):
             restarted = time.monotonic()
-            assert spin_until(node, lambda: any(h for _, h in halts[heartbeats:]), 90), \
+            assert spin_until(node, lambda: any(h for _, h in halts[heartbeats:]), 120), \
                 f"the new monitor never requested the halt; it said {[s.message for s in said[-8:]]}"
     first = halts[heartbeats][0]
-    assert first - restarted > 5.0  # 5 s of samples (and start-up) before anything is said
+    assert first - restarted > 8.0  # 5 s of samples at half real time (and start-up) before anything is said
 
 
 def test_reset_spam_is_refused_and_re_arming_is_not_ok(ros_domain):
