@@ -200,3 +200,6 @@ def test_a_crane_configs_problems_are_named_at_once_by_the_check_and_the_planner
     with pytest.raises(ConfigError, match=r"links.lift_length: -3.5 m: must be > 0 m; joints\[lift\]") as refused:
         load_crane(bad)
     assert "and 2 more (hydro-ros machine check" in str(refused.value) and "\n" not in str(refused.value)
+    planner_only = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "machine", "check", str(default_config_path("crane3dof")), "--quiet"],
+                                  capture_output=True, text=True)
+    assert planner_only.returncode == 0 and "a crane for the planner only (lift, tilt, extension" in planner_only.stdout, planner_only

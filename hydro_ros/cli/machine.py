@@ -60,14 +60,21 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_machine_check(args: argparse.Namespace) -> int:
-    from hydro_ros.contract.check import annotated_values, config_problems
+    from hydro_ros.contract.check import annotated_values, config_problems, crane_problems
     from hydro_ros.contract.config import read_config
+    from hydro_ros.contract.crane import parse_crane
 
     config = read_config(args.config, required=(), nonempty="machine")
-    problems = config_problems(config)
+    # a crane config without actuators describes only what the planner needs (config/crane3dof.yaml): no machine to monitor
+    planner_only = config.get("kind") == "crane" and "actuators" not in config
+    problems = crane_problems(config) if planner_only else config_problems(config)
     for problem in problems:
         print(f"{args.config}: {problem}")
-    if not problems:
+    if planner_only and not problems:
+        crane = parse_crane(config, Path(args.config).resolve())
+        print(f"{args.config}: {crane.name}: a crane for the planner only ({', '.join(crane.joint_names)}; paths "
+              f"{', '.join(crane.paths)}); no actuators, so nothing to simulate at the cylinders or monitor: ok")
+    elif not problems:
         from hydro_ros.fdi.settings import unset_threshold
 
         machine = load_machine_config(args.config)
