@@ -222,3 +222,24 @@ def test_an_unknown_effect_form_is_refused_by_name(sam_config, forms, message):
 
     with pytest.raises(ConfigError, match=message):
         sam_config.with_overrides({"effect_forms": forms})
+
+
+def test_an_overlap_effect_holds_the_chambers_shut_where_a_configured_overlap_leaks(sam_config):
+    """The centre leakage (P-I eqs. 13-14) acts where the valve's own lands leave under 1 % open: near the centre of the
+    SAM's zero-lapped spool, across the neutral band of a mobile valve's configured overlap. An overlap the model adds
+    as an effect closes the notches over more travel without leaking across it (it did: a boom held inside the band
+    drifted in the model, and the discrepancy workflow's fit of the overlap fell below every resting command)."""
+    from hydro_ros.contract.machine import load_machine_config
+    from test.conftest import REPO
+
+    def flows(model: SamModel, spool: float) -> np.ndarray:
+        state = np.array([[8.0e6, 3.0e6, spool, 0.0, 0.2, 0.0, 0.0]])
+        return valve_and_leak_flows(state, model.base[None, :], model.poly, model.centre_leakage)[0, :2]
+
+    overlapped = SamModel(sam_config.with_overrides({"effects": {"valve_deadzone": 0.06}, "effect_forms": {"valve_deadzone": "overlap"}}))
+    centre = flows(overlapped, 0.0)
+    assert np.all(np.abs(centre) > 1e-6)  # ~1 L/min at these pressures
+    assert np.array_equal(flows(overlapped, 0.005), centre) and np.array_equal(flows(overlapped, -0.005), centre)
+    assert np.all(flows(overlapped, 0.03) == 0.0) and np.all(flows(overlapped, -0.059) == 0.0)
+    mobile = SamModel(load_machine_config(REPO / "config" / "sam_mobile.yaml"))
+    assert np.array_equal(flows(mobile, 0.1), flows(mobile, 0.0)) and np.all(np.abs(flows(mobile, 0.0)) > 0.0)
