@@ -10,6 +10,11 @@ mismatch, half the gap before lies near that floor.
 
 Writes bench/results/discrepancy_suite.json and bench/results/discrepancy_example.html (the report of EXAMPLE) and prints a
 markdown table (``python bench/discrepancy_suite.py --table`` prints it from the file).
+
+Then the same workflow on data it was not written with: plain overlaps of 4, 6 and 8 % on the independent plant
+(studies/independent_plant: its own forms, integrator and numbers), each with the fit gap along the overlap on the
+screened segments and on all of them (bench/results/discrepancy_independent.json and .png; ``--independent`` runs only
+these). Its floor is the model with the rig's numbers (``nearest_model``).
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from hydro_ros.bags.reader import BagData, read_bag  # noqa: E402
@@ -28,8 +34,10 @@ from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E402
 from hydro_ros.contract.names import first_form  # noqa: E402
-from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, run, simulate_recording  # noqa: E402
+from hydro_ros.studies.discrepancy import FIT_SHARE, SCREEN_EVERY, Recording, gap, run, simulate_recording  # noqa: E402
 from hydro_ros.studies.hidden_effects import hidden_effect_bag, hidden_effect_plant  # noqa: E402
+from hydro_ros.studies.independent_plant import independent_plant_bag, nearest_model  # noqa: E402
+from hydro_ros.studies.plots import plot_gap_profiles  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 OWN_FORM = [(None, 0.0), ("internal_leakage", 1.5), ("external_leakage_a", 2.0), ("external_leakage_b", 2.0),
@@ -50,11 +58,15 @@ SUITE: list[tuple[dict[str, float], dict[str, str]]] = [({name: value} if name e
 ]
 
 
-def floor(config: Machine, data: BagData, effects: dict[str, float], forms: dict[str, str]) -> float:
-    """Validation gap of the plant's own model on the validation part run() uses."""
+def split(config: Machine, data: BagData) -> tuple[Recording, Recording]:
+    """The fit and validation parts run() uses."""
     rec = Recording.from_bag(data, config)
-    validation = rec.part(slice(int(FIT_SHARE * len(rec.times)), None))
-    return gap(simulate_recording(hidden_effect_plant(config, forms=forms, also=effects), validation))
+    return rec.part(slice(0, int(FIT_SHARE * len(rec.times)))), rec.part(slice(int(FIT_SHARE * len(rec.times)), None))
+
+
+def floor(plant_model: Machine, config: Machine, data: BagData) -> float:
+    """Validation gap of the plant's own model on the validation part run() uses."""
+    return gap(simulate_recording(plant_model, split(config, data)[1]))
 
 
 def _form(name: str, forms: dict[str, str]) -> str | None:
@@ -71,29 +83,79 @@ def run_row(config: Machine, effects: dict[str, float], forms: dict[str, str]) -
         start = time.perf_counter()
         report = run(data, config, Path(tmp) / "out")
         wall = time.perf_counter() - start
-        best = floor(config, data, effects, forms)
+        best = floor(hidden_effect_plant(config, forms=forms, also=effects), config, data)
         if (effects, forms) == EXAMPLE:
             shutil.copy(Path(tmp) / "out" / "report.html", RESULTS / "discrepancy_example.html")
+    return row(report, effects, forms, best, wall)
+
+
+def row(report: dict, effects: dict[str, float], forms: dict[str, str], plant_model_gap: float, wall: float) -> dict:
+    """What a run on a bag with ``effects`` (in ``forms``) found, against the plant model's floor."""
     named = {e["name"]: e["parameters"] for e in report["effects"]}
     return {"hidden": effects, "forms": {name: _form(name, forms) for name in effects if _form(name, forms)},
             "named": named, "right": set(named) == set(effects),
             "form_right": all(named[n].get("form") == _form(n, forms) for n in effects if n in named),
             "steps": [step.get("added") for step in report["selection"]["steps"] if step.get("kept")],
             "validation_gap_before": report["validation_gap"]["before"], "validation_gap_after": report["validation_gap"]["after"],
-            "plant_model_gap": best, "wall_s": wall}
+            "plant_model_gap": plant_model_gap, "wall_s": wall}
+
+
+INDEPENDENT_OVERLAPS = (0.04, 0.06, 0.08)  # plain overlaps of the independent plant (an outside tester's 6 % and either side)
+PROFILE_VALUES = np.linspace(0.0, 0.1, 11)
+
+
+def independent_row(config: Machine, overlap: float) -> dict:
+    """A 60 s bag of the independent plant with a plain ``overlap``: the workflow on it, the model with the rig's numbers
+    as its floor, the dead zone's screened and refitted values and calibrations, and the fit gap along the overlap (the
+    fitted model otherwise) on the screened segments and on all of them."""
+    effects, forms = {"valve_deadzone": overlap}, {"valve_deadzone": "overlap"}
+    with tempfile.TemporaryDirectory() as tmp:
+        data = read_bag(independent_plant_bag(config, Path(tmp) / "bag", effects))
+        start = time.perf_counter()
+        report = run(data, config, Path(tmp) / "out")
+        wall = time.perf_counter() - start
+        fitted = load_machine_config(Path(tmp) / "out" / "model.yaml")
+    fit = split(config, data)[0]
+
+    def fit_gap(value: float, every: int) -> float:
+        model = fitted.with_overrides({"effects": {**fitted.effects, "valve_deadzone": float(value)}, "effect_forms": forms})
+        return gap(simulate_recording(model, fit, every))
+
+    first = report["selection"]["steps"][0]
+    return row(report, effects, forms, floor(nearest_model(config, effects), config, data), wall) | {
+        "screened": [r for r in first["screened"] if r["name"] == "valve_deadzone"],
+        "refitted": [{k: c[k] for k in ("form", "value", "bic_gain")} for c in first["candidates"] if c["name"] == "valve_deadzone"],
+        "calibration": report["calibration"], "joint_calibration": report["joint_fit"]["calibration"],
+        "profile": {"values": PROFILE_VALUES.tolist(), "screened": [fit_gap(v, SCREEN_EVERY) for v in PROFILE_VALUES],
+                    "all": [fit_gap(v, 1) for v in PROFILE_VALUES]}}
+
+
+def independent(config: Machine) -> list[dict]:
+    rows = [independent_row(config, overlap) for overlap in tqdm(INDEPENDENT_OVERLAPS, desc="independent plant", unit="bag")]
+    write_result(RESULTS / "discrepancy_independent.json", {"plant": "hydro_ros.studies.independent_plant", "rows": rows})
+    plot_gap_profiles([r["profile"] | {"title": f"plain overlap {r['hidden']['valve_deadzone']:g}", "truth": r["hidden"]["valve_deadzone"],
+                                       "named": r["named"].get("valve_deadzone", {}).get("value")} for r in rows],
+                      RESULTS / "discrepancy_independent.png")
+    print(table(rows))
+    return rows
 
 
 def main() -> int:
     if "--table" in sys.argv:
-        print(table(json.loads((RESULTS / "discrepancy_suite.json").read_text())["rows"]))
+        for name in ("discrepancy_suite", "discrepancy_independent"):
+            print(table(json.loads((RESULTS / f"{name}.json").read_text())["rows"]))
         return 0
     config = load_machine_config(default_config_path("sam"))
+    if "--independent" in sys.argv:
+        independent(config)
+        return 0
     rows = []
     for effects, forms in tqdm(SUITE, desc="discrepancy suite", unit="bag"):
         rows.append(run_row(config, effects, forms))
         tqdm.write(json.dumps(rows[-1]))
     write_result(RESULTS / "discrepancy_suite.json", {"rows": rows})
     print(table(rows))
+    independent(config)
     return 0
 
 

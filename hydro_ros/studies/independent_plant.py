@@ -2,9 +2,9 @@
 
 The discrepancy workflow fits ``SamModel``; data from ``SamPlant`` (hidden_effects) share its code, its forms and
 its integrator, so a form the two agree on by construction is never tested. This plant is written again from the
-physics of shared/spec/fdi.md section 2 (one boom on a double-acting cylinder in a triangle mount, a proportional
-valve with P-II's per-notch flow polynomials, chambers with oil and hose compliance, LuGre friction, leaks), with
-its own layout and, where the spec leaves a choice, its own forms:
+physics of P-I and P-II (one boom on a double-acting cylinder in a triangle mount, a proportional valve with P-II's
+per-notch flow polynomials, chambers with oil and hose compliance, LuGre friction, leaks), with its own layout and,
+where the papers leave a choice, its own forms:
 
 * the boom is integrated in joint space, J theta'' = r F - tau_g (P-I eq. 16), not as the piston's reduced mass;
 * the orifice law is regularised smoothly, Q ~ dp / (dp^2 + delta^2)^(1/4), not linearised inside a band;
@@ -102,6 +102,19 @@ class BoomRig:
         return length - self.l3, self.l1 * self.l2 * math.sin(theta) / length
 
 
+def rig_numbers(machine: Machine, deviations: dict[str, float] | None = None) -> Machine:
+    """``machine`` with this rig's numbers: the config's scaled by ``deviations`` (default RIG_DEVIATIONS)."""
+    deviations = RIG_DEVIATIONS if deviations is None else deviations
+    actuator = machine.first
+    valve, fluid, friction = actuator.valve, actuator.fluid, actuator.friction
+    return machine.with_overrides({"actuators": {actuator.name: {
+        "valve": {"kv_poly": {n: [c * deviations.get(n, 1.0) for c in valve.kv_poly[n]] for n in NOTCHES},
+                  "centre_leakage": {n: valve.centre_leakage[n] * deviations.get("centre_leakage", 1.0) for n in NOTCHES}},
+        "fluid": {name: getattr(fluid, name) * deviations.get(name, 1.0) for name in ("oil_bulk_modulus", "hose_bulk_modulus")},
+        "friction": {name: getattr(friction, name) * deviations.get(name, 1.0) for name in ("static", "coulomb", "viscous")},
+    }}})
+
+
 def boom_rig(machine: Machine, effects: dict[str, float] | None = None, deviations: dict[str, float] | None = None) -> BoomRig:
     """The rig of ``machine``'s first actuator with ``deviations`` (default RIG_DEVIATIONS) and ``effects``."""
     effects = dict(effects or {})
@@ -110,8 +123,8 @@ def boom_rig(machine: Machine, effects: dict[str, float] | None = None, deviatio
         raise InputError(f"independent plant: cannot simulate {', '.join(unknown)} (it has {', '.join(EFFECTS)})")
     if not 0.0 <= effects.get("valve_deadzone", 0.0) < 1.0:
         raise InputError(f"independent plant: valve_deadzone {effects['valve_deadzone']} outside [0, 1)")
-    deviations = RIG_DEVIATIONS if deviations is None else deviations
-    actuator = machine.first
+    rig = rig_numbers(machine, deviations)
+    actuator = rig.first
     cylinder, mount, valve, fluid, friction, load = (actuator.cylinder, actuator.mount, actuator.valve, actuator.fluid,
                                                      actuator.friction, actuator.load)
     if mount.kind != "triangle" or mount.sign != 1.0 or valve.mobile:
@@ -125,23 +138,21 @@ def boom_rig(machine: Machine, effects: dict[str, float] | None = None, deviatio
         dead_volume_a=cylinder.dead_volume_a, dead_volume_b=cylinder.dead_volume_b,
         l1=mount.l1, l2=mount.l2, l3=mount.l3, theta_offset=mount.theta_offset,
         spool_omega=valve.natural_frequency, spool_damping=valve.damping,
-        notch_poly={n: np.asarray(valve.kv_poly[n], dtype=float) * deviations.get(n, 1.0) * flow_gain for n in NOTCHES},
-        centre_leakage={n: valve.centre_leakage[n] * deviations.get("centre_leakage", 1.0) for n in NOTCHES},
+        notch_poly={n: np.asarray(valve.kv_poly[n], dtype=float) * flow_gain for n in NOTCHES},
+        centre_leakage=dict(valve.centre_leakage),
         overlap=effects.get("valve_deadzone", 0.0), spool_offset=effects.get("spool_offset", 0.0), leaks=leak,
-        oil_modulus=fluid.oil_bulk_modulus * deviations.get("oil_bulk_modulus", 1.0),
-        hose_modulus=fluid.hose_bulk_modulus * deviations.get("hose_bulk_modulus", 1.0), hose_volume=fluid.hose_volume,
-        viscous=friction.viscous * deviations.get("viscous", 1.0), static=friction.static * deviations.get("static", 1.0),
-        coulomb=friction.coulomb * deviations.get("coulomb", 1.0), stribeck_velocity=friction.stribeck_velocity,
+        oil_modulus=fluid.oil_bulk_modulus, hose_modulus=fluid.hose_bulk_modulus, hose_volume=fluid.hose_volume,
+        viscous=friction.viscous, static=friction.static, coulomb=friction.coulomb, stribeck_velocity=friction.stribeck_velocity,
         bristle_stiffness=friction.bristle_stiffness,
         inertia=load.boom_mass * (load.boom_length ** 2 / 12.0 + load.boom_cog_distance ** 2)
         + (load.left_mass + load.right_mass) * load.load_distance ** 2,
-        gravity_moment=machine.simulation.gravity * ((load.left_mass - load.right_mass) * load.load_distance
-                                                     + load.boom_mass * load.boom_cog_distance),
-        supply=machine.supply_pressure, tank=machine.tank_pressure,
-        stop_lower=machine.simulation.end_stop_lower,
-        stop_upper=cylinder.stroke if machine.simulation.end_stop_upper is None else machine.simulation.end_stop_upper,
-        stop_stiffness=machine.simulation.end_stop_stiffness, stop_damping=machine.simulation.end_stop_damping,
-        gain=machine.excitation.gain, max_command=machine.excitation.max_command,
+        gravity_moment=rig.simulation.gravity * ((load.left_mass - load.right_mass) * load.load_distance
+                                                 + load.boom_mass * load.boom_cog_distance),
+        supply=rig.supply_pressure, tank=rig.tank_pressure,
+        stop_lower=rig.simulation.end_stop_lower,
+        stop_upper=cylinder.stroke if rig.simulation.end_stop_upper is None else rig.simulation.end_stop_upper,
+        stop_stiffness=rig.simulation.end_stop_stiffness, stop_damping=rig.simulation.end_stop_damping,
+        gain=rig.excitation.gain, max_command=rig.excitation.max_command,
     )
 
 
@@ -280,3 +291,11 @@ def independent_plant_bag(machine: Machine, path: Path, effects: dict[str, float
         writer.write_block(actuator.name, samples)
     return path
 
+
+
+def nearest_model(machine: Machine, effects: dict[str, float] | None = None, deviations: dict[str, float] | None = None) -> Machine:
+    """The model config closest to this rig: its numbers and its effects in the model's forms (a plain overlap, orifice
+    leaks). What is left between the two is the forms each chose; its gap on the rig's data is a floor for a fitted model."""
+    effects = dict(effects or {})
+    return rig_numbers(machine, deviations).with_overrides(
+        {"effects": effects, "effect_forms": {"valve_deadzone": "overlap"} if "valve_deadzone" in effects else {}})

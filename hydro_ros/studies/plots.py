@@ -195,6 +195,28 @@ def plot_gap_localisation(before: dict, after: dict, out: str | Path) -> Path:
     return out
 
 
+def plot_gap_profiles(profiles: list[dict], out: str | Path) -> Path:
+    """The discrepancy workflow's fit gap along one effect's value, on the segments it screens on and on all of them, one
+    panel per case: each ``profile`` has ``title``, ``values``, ``screened`` and ``all`` (gaps), ``truth`` and ``named``."""
+    out = Path(out)
+    fig, axes = plt.subplots(1, len(profiles), figsize=(4.2 * len(profiles), 3.6), sharey=True, squeeze=False)
+    for ax, profile in zip(axes[0], profiles):
+        ax.plot(profile["values"], profile["screened"], marker="o", ms=3, label="screened segments (a quarter)")
+        ax.plot(profile["values"], profile["all"], marker="o", ms=3, label="all fit segments (refit)")
+        ax.axvline(profile["truth"], color="k", ls="--", lw=0.8, label="plant's value")
+        if profile["named"] is not None:
+            ax.axvline(profile["named"], color="tab:red", ls=":", lw=1.2, label="named (joint fit)")
+        ax.set_title(profile["title"], fontsize=9)
+        ax.set_xlabel("effect value")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("fit gap (RMS of the 0.1 s mean error)")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
 def plot_dp_compare(result: dict, out: str | Path) -> Path:
     """Bar chart of CP and LS energy per method, like P-VI Figs. 10-12 (a)."""
     methods = sorted(result["methods"], key=lambda name: result["methods"][name]["cp_energy_J"])
