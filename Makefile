@@ -30,9 +30,11 @@ lint: setup
 	$(VENV)/bin/ruff check hydro_ros test launch bench scripts
 
 # every tier: what CI runs. The live-graph and browser tests one after another on one worker (two at once starve 1 kHz
-# nodes of a core: frames and samples lost), the library and study tests on the other (test/conftest.py: LIVE_GROUP)
+# nodes of a core: frames and samples lost), the library and study tests on the other (test/conftest.py: LIVE_GROUP);
+# then the CAN bridge's bus tests alone (the "solo" mark)
 test: lint $(CHROMIUM)
-	$(PY) -m pytest -q -n 2 --dist loadgroup test
+	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not solo" test
+	$(PY) -m pytest -q -m solo test
 
 # the library tests without a ROS graph, a browser or a long study: the loop while changing code
 test-fast: lint
