@@ -91,13 +91,15 @@ def plot_convergence(summary: dict, png: Path) -> None:
 
 
 def plot_causes(summary: dict, png: Path) -> None:
-    fig, axes = plt.subplots(1, 2, figsize=(15, 7))
+    fig, axes = plt.subplots(1, 2, figsize=(17, 7))
     for ax, space, key in zip(axes, SPACES, ("p_a_parameters", "p_a_leaks")):
         rows = [("P-I Tables 4 / 8", P_I_P_A_TOTAL_4S[space], "")]
         for cause in (c for c in summary["causes"] if key in c):
-            note = (("BT leads" if cause["bt_leads_p_a"] else "PA leads") if space == "parameters"
+            note = (f"first-order leader: {'BT' if cause['bt_leads_p_a'] else 'PA'}" if space == "parameters"
                     else f"smallest/largest {cause['leak_spread_p_a']:.2f}")
-            rows.append((f"{cause['name']} (N = {cause['samples']})", {name: v["ST"] for name, v in cause[key].items()}, note))
+            load = cause.get("load_n")
+            label = f"{cause['name']} (N = {cause['samples']}" + (f"; load {(load[1] - load[0]) / 1e3:+.1f} kN over 0.1 m)" if load else ")")
+            rows.append((label, {name: v["ST"] for name, v in cause[key].items()}, note))
         left = np.zeros(len(rows))
         for name in rows[0][1]:
             widths = np.array([max(values[name], 0.0) for _, values, _ in rows])
