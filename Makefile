@@ -58,6 +58,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/fleet.py --out bench/results/fleet.json
 	$(PY) bench/mems.py --out bench/results/mems.json
 	$(PY) bench/savings_map.py --out bench/results/savings_map.json
+	$(PY) bench/gsa_convergence.py --out bench/results/gsa_convergence.json
 
 docs: setup
 	$(PY) -m hydro_ros.docgen docs
