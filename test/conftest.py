@@ -26,34 +26,15 @@ def k70m() -> dict:
 
 # the tiers: `make test-fast` runs what has none of these marks (setup.cfg [tool:pytest] describes them)
 TIER_FIXTURES = {"ros_domain": "ros_graph", "chromium": "browser"}
-LIVE_GROUP = "live"
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """A test that starts nodes or a browser is marked by the fixture it takes, so no mark can be forgotten.
-
-    Under ``--dist loadgroup`` (make test) those tests run one after another on one worker, as one xdist group (two
-    1 kHz graphs at once starve each other on 2 cores), while the other worker takes the library tests module by module
-    (a module's fixtures, such as a fleet of recordings, are then made once)."""
+    """A test that starts nodes or a browser is marked by the fixture it takes, so no mark can be forgotten (make test
+    runs those one after another, the library tests beside them at a lower priority)."""
     for item in items:
-        marks = [mark for fixture, mark in TIER_FIXTURES.items() if fixture in getattr(item, "fixturenames", ())]
-        for mark in marks:
-            item.add_marker(getattr(pytest.mark, mark))
-        item.add_marker(pytest.mark.xdist_group(LIVE_GROUP if marks else item.module.__name__))
-
-
-LIBRARY_NICENESS = 15
-_yielded = False
-
-
-def pytest_runtest_setup(item: pytest.Item) -> None:
-    """A worker that runs a library test yields the CPU to the live graphs from then on: their 1 kHz nodes keep their
-    rate while the study tests take what is left (the live group runs first on its worker, so its nodes stay at 0)."""
-    global _yielded
-    group = item.get_closest_marker("xdist_group")
-    if not _yielded and os.environ.get("PYTEST_XDIST_WORKER") and group and group.args != (LIVE_GROUP,):
-        os.nice(LIBRARY_NICENESS)
-        _yielded = True
+        for fixture, mark in TIER_FIXTURES.items():
+            if fixture in getattr(item, "fixturenames", ()):
+                item.add_marker(getattr(pytest.mark, mark))
 
 
 @pytest.fixture
