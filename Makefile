@@ -29,17 +29,10 @@ $(CHROMIUM):
 lint: setup
 	$(VENV)/bin/ruff check hydro_ros test launch bench scripts
 
-# every tier: what CI runs. The live-graph and browser tests one after another at normal priority (two at once starve
-# 1 kHz nodes of a core: frames and samples lost), the library and study tests beside them at nice 15 (their log
-# follows the live one); then the CAN bridge's bus tests alone (the "solo" mark)
+# every tier: what CI runs, on two workers; then the CAN bridge's bus tests alone (the "solo" mark): their frames over
+# UDP multicast are lost whenever anything else runs
 test: lint $(CHROMIUM)
-	@mkdir -p .pytest_logs
-	nice -n 15 $(PY) -m pytest -q -p no:cacheprovider -m "not ros_graph and not browser and not solo" test > .pytest_logs/library.log 2>&1 & \
-	library=$$!; \
-	$(PY) -m pytest -q -p no:cacheprovider -m "(ros_graph or browser) and not solo" test; live=$$?; \
-	wait $$library; library=$$?; \
-	echo "--- library and study tests ---"; cat .pytest_logs/library.log; \
-	test $$live = 0 && test $$library = 0
+	$(PY) -m pytest -q -n 2 -m "not solo" test
 	$(PY) -m pytest -q -m solo test
 
 # the library tests without a ROS graph, a browser or a long study: the loop while changing code

@@ -29,8 +29,7 @@ TIER_FIXTURES = {"ros_domain": "ros_graph", "chromium": "browser"}
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """A test that starts nodes or a browser is marked by the fixture it takes, so no mark can be forgotten (make test
-    runs those one after another, the library tests beside them at a lower priority)."""
+    """A test that starts nodes or a browser is marked by the fixture it takes, so no mark can be forgotten."""
     for item in items:
         for fixture, mark in TIER_FIXTURES.items():
             if fixture in getattr(item, "fixturenames", ()):

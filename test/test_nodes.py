@@ -90,7 +90,8 @@ def test_record_of_a_live_plant_is_a_split_contract_bag_the_monitor_reads(ros_do
     cli = [sys.executable, "-m", "hydro_ros.cli"]
     best_effort = [arg for topic in topics.sensor_topics(["boom"])
                    for arg in ("-p", f"qos_overrides.{topic}.publisher.reliability:=best_effort")]
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=1.0", "-p", "seed:=2",
+    # the plant at half real time: a recorder beside a loaded machine's other tests once wrote a single split file
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=0.5", "-p", "seed:=2",
                       *best_effort) as plant:
         recorded = subprocess.run([*cli, "bag", "record", "--config", str(SAM_CONFIG), "--out", str(bag), "--duration", "9",
                                    "--split-duration", "2", "--quiet"], capture_output=True, text=True, timeout=120)
@@ -98,7 +99,7 @@ def test_record_of_a_live_plant_is_a_split_contract_bag_the_monitor_reads(ros_do
     assert recorded.returncode == 0, recorded.stderr
     summary = json.loads(recorded.stdout)
     assert len(summary["files"]) >= 3
-    assert min(summary["topics"].values()) > 2000  # seconds of 1 kHz samples on every topic: none starved
+    assert min(summary["topics"].values()) > 2000  # ~3.5 s of 1 kHz samples at half real time
 
     info = subprocess.run([*cli, "bag", "info", str(bag), "--json"], capture_output=True, text=True, timeout=120)
     assert info.returncode == 0, info.stdout
