@@ -203,3 +203,17 @@ def test_a_crane_configs_problems_are_named_at_once_by_the_check_and_the_planner
     planner_only = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "machine", "check", str(default_config_path("crane3dof")), "--quiet"],
                                   capture_output=True, text=True)
     assert planner_only.returncode == 0 and "a crane for the planner only (lift, tilt, extension" in planner_only.stdout, planner_only
+
+
+def test_a_crane_friction_ramp_that_is_not_a_pair_is_refused_naming_its_key(tmp_path) -> None:
+    import yaml
+
+    broken = yaml.safe_load(default_config_path("k70m").read_text())
+    broken["extension_friction"]["steps"] = [[1.0, 2.0], [3.0]]
+    bad = tmp_path / "k70m_steps.yaml"
+    bad.write_text(yaml.safe_dump(broken))
+    with pytest.raises(ConfigError, match=r"extension_friction.steps: \[\[1.0, 2.0\], \[3.0\]\]: expected a list of \[from, to\]"):
+        load_crane(bad)
+    broken["extension_friction"]["steps"] = [[1.0, 2.0]]
+    bad.write_text(yaml.safe_dump(broken))
+    assert load_crane(bad)[0].friction_steps == [(1.0, 2.0)]

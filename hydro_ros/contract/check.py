@@ -92,6 +92,7 @@ CRANE_CYLINDER = {"ratio": Rule("m per joint unit", -100.0, 100.0), "la": _nonne
                   "pump_area_extend": _nonnegative("m^2", 1.0), "pump_area_retract": _nonnegative("m^2", 1.0),
                   "velocity_max": _positive("m/s", 10.0), "acceleration_max": _positive("m/s^2", 100.0), "constant_force": Rule("N")}
 CRANE_MASS = {"s": Rule("m", -50.0, 50.0), "mass": _nonnegative("kg", 1.0e6)}
+CRANE_FRICTION = {"coulomb": _nonnegative("N"), "tanh_gain": _positive("s/m")}
 CRANE_DP = {"sample_time": _positive("s", 10.0), "filter_cutoff": _positive("Hz", 1.0e3)}
 CRANE_CHOICES = {"mapping": ("linear", "triangle"), "spool": ("non_differential", "differential"), "link": ("lift", "boom")}
 CRANE_KEYS = {"kind", "base_rotation", "gravity", "links", "joints", "masses", "extension_friction", "hydraulics", "dp", "paths", "controller",
@@ -261,6 +262,11 @@ def _crane(found: _Problems, config: dict[str, Any]) -> None:
         found.numbers(mass, list_entry("masses", index, mass), CRANE_MASS, required=tuple(CRANE_MASS))
         if isinstance(mass, dict):
             _choice(found, mass, list_entry("masses", index, mass), "link")
+    friction = config.get("extension_friction") or {}
+    found.numbers(friction, "extension_friction", CRANE_FRICTION)
+    steps = (friction.get("steps") or []) if isinstance(friction, dict) else []
+    if not (isinstance(steps, list) and all(isinstance(step, list) and len(step) == 2 and None not in map(_number, step) for step in steps)):
+        found.add("extension_friction.steps", f"{steps!r}: expected a list of [from, to] extensions [m]")
     dp = config.get("dp")
     found.numbers(dp, "dp", CRANE_DP, required=tuple(CRANE_DP))
     grid = dp.get("grid") if isinstance(dp, dict) else None

@@ -4,7 +4,8 @@ A crane redundant in its telescope: a planar lift-tilt-extension chain, optional
 by a cylinder (a triangle mount or a linear mapping), point masses on its links, the pump and valves of its
 hydraulics, the planner's grid and the tip paths it plans along. :func:`parse_crane` reads the mapping
 :func:`hydro_ros.contract.config.read_config` returns; a missing or non-numeric entry is a one-line ConfigError naming
-its key. SI units throughout, as in ``config/k70m.yaml``.
+its key; every rule the sections break is refused first, all at once (``check.crane_problems``, what
+``hydro-ros machine check`` lists). SI units throughout, as in ``config/k70m.yaml``.
 """
 
 from __future__ import annotations
@@ -16,11 +17,6 @@ from typing import Any, Mapping
 from hydro_ros.contract.check import crane_problems, list_entry
 from hydro_ros.contract.config import ConfigError, with_overrides
 from hydro_ros.contract.machine import Section, refuse_problems
-
-MAPPINGS = ("linear", "triangle")
-SPOOLS = ("non_differential", "differential")
-MASS_LINKS = ("lift", "boom")
-PLANAR_JOINTS = 3  # lift, tilt, extension: the extension is the redundant joint
 
 
 @dataclass(frozen=True)
@@ -151,20 +147,13 @@ class CraneConfig:
         return replace(self, paths=dict(paths), mapping={**self.mapping, "paths": dict(paths)})
 
 
-def _choice(section: Section, name: str, choices: tuple[str, ...], default: str) -> str:
-    value = section.text(name, default)
-    if value not in choices:
-        raise ConfigError(f"config {section.source}: {section.key}.{name} = {value!r} (one of {', '.join(choices)})")
-    return value
-
-
 def _joint(section: Section) -> CraneJoint:
     cylinder = section.section("cylinder")
     return CraneJoint(
         name=section.text("name"),
         q_min=section.number("min"),
         q_max=section.number("max"),
-        mapping=_choice(cylinder, "mapping", MAPPINGS, "linear"),
+        mapping=cylinder.text("mapping", "linear"),
         ratio=cylinder.number("ratio", 1.0),
         la=cylinder.number("la", 0.0),
         lb=cylinder.number("lb", 0.0),
@@ -174,7 +163,7 @@ def _joint(section: Section) -> CraneJoint:
         area_b=cylinder.number("area_b"),
         pump_area_extend=cylinder.number("pump_area_extend"),
         pump_area_retract=cylinder.number("pump_area_retract"),
-        differential=_choice(cylinder, "spool", SPOOLS, "non_differential") == "differential",
+        differential=cylinder.text("spool", "non_differential") == "differential",
         velocity_max=cylinder.number("velocity_max"),
         acceleration_max=cylinder.number("acceleration_max"),
         constant_force=cylinder.number("constant_force") if "constant_force" in cylinder.node else None,
@@ -182,7 +171,7 @@ def _joint(section: Section) -> CraneJoint:
 
 
 def _mass(section: Section) -> PointMass:
-    link = _choice(section, "link", MASS_LINKS, "")
+    link = section.text("link")
     return PointMass(name=section.text("name", link), link=link, s=section.number("s"),
                      moves_with_extension=bool(section.node.get("moves_with_extension", False)), mass=section.number("mass"))
 
@@ -205,20 +194,6 @@ def parse_crane(config: Mapping[str, Any], source: Path) -> CraneConfig:
     links = top.section("links")
     friction = top.section("extension_friction", optional=True)
     dp = top.section("dp")
-    paths = top.section("paths")
-    if not paths.node:
-        raise ConfigError(f"config {source}: paths: no tip path to plan along")
-    joints = tuple(_joint(entry) for entry in _entries(top, "joints"))
-    expected = PLANAR_JOINTS + (1 if config.get("base_rotation") else 0)
-    if len(joints) != expected:
-        raise ConfigError(f"config {source}: {expected} joints expected, found {len(joints)}")
-    if joints[-1].mapping != "linear":
-        raise ConfigError(f"config {source}: the extension (last joint) needs a linear cylinder mapping")
-    steps = friction.node.get("steps") or []
-    try:
-        ramps = tuple((float(low), float(high)) for low, high in steps)
-    except (TypeError, ValueError):
-        raise ConfigError(f"config {source}: extension_friction.steps = {steps!r} is not a list of [from, to] pairs") from None
     grid = dp.numbers("grid", 3)
     return CraneConfig(
         name=top.text("machine"),
@@ -228,14 +203,14 @@ def parse_crane(config: Mapping[str, Any], source: Path) -> CraneConfig:
         links=CraneLinks(lift_length=links.number("lift_length"), tilt_offset=links.number("tilt_offset", 0.0),
                          extension_base=links.number("extension_base"),
                          lift_joint=(links.number("lift_joint_x"), links.number("lift_joint_y"))),
-        joints=joints,
+        joints=tuple(_joint(entry) for entry in _entries(top, "joints")),
         masses=tuple(_mass(entry) for entry in _entries(top, "masses")),
         extension_friction=ExtensionFriction(coulomb=friction.number("coulomb", 0.0), tanh_gain=friction.number("tanh_gain", 2000.0),
-                                             steps=ramps),
+                                             steps=tuple((float(low), float(high)) for low, high in friction.node.get("steps") or [])),
         hydraulics=_numbers(top.section("hydraulics")),
         dp=DpSettings(grid=(int(grid[0]), int(grid[1]), int(grid[2])), sample_time=dp.number("sample_time"),
                       filter_cutoff=dp.number("filter_cutoff")),
-        paths=dict(paths.node),
+        paths=dict(top.section("paths").node),
         controller=_numbers(top.section("controller", optional=True)),
         plant=_numbers(top.section("plant", optional=True)),
         catalog=dict(top.section("catalog", optional=True).node),

@@ -38,8 +38,6 @@ from hydro_ros.models.crane import load_crane
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, checked_valve_commands, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.planning.controller import CylinderReference
-from hydro_ros.planning.dp import DpGrid, start_position
-from hydro_ros.planning.paths import path_from_config
 from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import JointTrajectoryData
 from hydro_ros.studies.execution import ClosedLoop, execution_from_rows, log_row, measures
@@ -78,17 +76,14 @@ class CraneSim(Node):
         self.config = config
         supply = self.params["supply"]
         initial_path = self.params["initial_path"] or next(iter(config.paths))
-        initial_extension = self.params["initial_extension"]
         trajectory_topic = self.params["trajectory_topic"]
         self.start_tolerance = self.params["start_tolerance"]
         publish_rate = self.params["publish_rate"]
         if initial_path not in config.paths:
             raise InputError(f"parameter initial_path={initial_path!r}: not a path of {config.name} ({', '.join(config.paths)})")
-        if initial_extension < 0.0:
-            samples = path_from_config(config, initial_path).sample(config.dp.sample_time)
-            initial_extension = start_position(self.crane, samples, DpGrid.for_path(self.crane, samples, config.dp.grid))
         self.seed = seed
-        self.loop = ClosedLoop(config, supply, path_start_state(config, initial_path, initial_extension), seed=seed)
+        start = path_start_state(config, initial_path, self.params["initial_extension"])
+        self.loop = ClosedLoop(config, supply, start, seed=seed)
         self.rtf = real_time_factor
         self.names = list(self.crane.names)
         # relative names: /joint_states etc. by default, /<ns>/joint_states for a machine in a namespace
@@ -120,7 +115,7 @@ class CraneSim(Node):
         self.create_timer(self.params["tick_period"], self._tick)
         self.get_logger().info(
             f"crane {config.name} ({supply.upper()} pump) at the start of {initial_path!r}, "
-            f"extension {initial_extension:.3f} m; "
+            f"extension {float(self.crane.extension.stroke(start[-1])):.3f} m; "
             + (f"valve commands on {topics.VALVE_COMMANDS}" if self.external else f"trajectories on {trajectory_topic}")
         )
 

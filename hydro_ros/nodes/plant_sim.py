@@ -263,18 +263,12 @@ class PlantSim(Node):
         crane, config = load_crane(self.machine.source)
         start_joints = None
         if self.excitation == "trajectory":
-            from hydro_ros.planning.dp import DpGrid, start_position
-            from hydro_ros.planning.paths import path_from_config
             from hydro_ros.planning.serving import path_start_state
 
             path = self.params["initial_path"] or next(iter(config.paths))
             if path not in config.paths:
                 raise InputError(f"parameter initial_path={path!r}: not a path of {config.name} ({', '.join(config.paths)})")
-            extension = self.params["initial_extension"]
-            if extension < 0.0:
-                samples = path_from_config(config, path).sample(config.dp.sample_time)
-                extension = start_position(crane, samples, DpGrid.for_path(crane, samples, config.dp.grid))
-            start_joints = dict(zip(crane.names, path_start_state(config, path, extension).tolist()))
+            start_joints = dict(zip(crane.names, path_start_state(config, path, self.params["initial_extension"]).tolist()))
         source = CraneSource(self.machine, crane, config, self.params["seed"], start_joints)
         if self.excitation == "trajectory":
             source.plant.hold()

@@ -25,7 +25,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane
 from hydro_ros.planning.costs import Cost
 from hydro_ros.planning.database import StoredSolution, TrajectoryDatabase
-from hydro_ros.planning.dp import DpSolution, InfeasibleStart
+from hydro_ros.planning.dp import DpGrid, DpSolution, InfeasibleStart, start_position
 from hydro_ros.planning.paths import path_from_config
 from hydro_ros.planning.problem import METHODS, Problem, method_record, run_method
 from hydro_ros.planning.trajectory import JointTrajectoryData, evaluate, joint_trajectory
@@ -217,9 +217,12 @@ class TrajectoryService:
 
 
 def path_start_state(config: CraneConfig, path_id: str, extension_stroke: float) -> np.ndarray:
-    """Joint positions with the tip at the path's start and the extension cylinder at ``extension_stroke``."""
+    """Joint positions with the tip at the path's start and the extension cylinder at ``extension_stroke``; a negative
+    stroke: where the DP starts it (the smallest feasible extension on the config's grid)."""
     crane = Crane(config)
     samples = path_from_config(config, path_id).sample(config.dp.sample_time)
+    if extension_stroke < 0.0:
+        extension_stroke = start_position(crane, samples, DpGrid.for_path(crane, samples, config.dp.grid))
     motion = crane.motion(tuple(samples.position[0]), (0.0,) * crane.task_dim, (0.0,) * crane.task_dim, extension_stroke, 0.0, 0.0, forces=False)
     if not bool(motion.reachable):
         raise ServeError(f"path {path_id!r}: extension {extension_stroke:.3f} m cannot reach the path start")
