@@ -92,7 +92,7 @@ def test_the_roots_noise_bias_bounds_a_stalled_notchs_misreading(mobile):
         generator = ParityGenerator([model])
         column = np.ones((n, 1))
         supply = 10.0e6
-        residual, _, _, bias = generator.run(
+        residual, _, _, bias, _ = generator.run(
             0.3 * column, 0.0 * column, supply - drop + rng.normal(0.0, sigma, (n, 1)), 1.0e6 + rng.normal(0.0, sigma, (n, 1)),
             0.8 * model.base[PILOT_MAX] * column, 0.0 * column, supply + rng.normal(0.0, sigma, (n, 1)), column.astype(bool))
         return float(np.mean(residual[1000:, 0, 0])), float(np.mean(bias[1000:, 0, 0]))

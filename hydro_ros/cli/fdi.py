@@ -114,14 +114,19 @@ def cmd_fdi_fit(args: argparse.Namespace) -> int:
     thresholds, report = fit_parity_thresholds(machine, range(100, 100 + args.train), range(300, 300 + args.held_out))
     print(f"threshold factor {thresholds.factor:g} ({report['false_alarms_per_hour']:.2f} false alarms/h held out)"
           if "false_alarms_per_hour" in report else f"no factor met the target: {report['tried']}")
+    if "closed_factor" in report:
+        print(f"closed-valve evidence factors {', '.join(f'{f:g}' for f in report['closed_factor'])} (A, B: no held-out crossing)")
     print("building the signature table by simulating the P-IV fault list ...")
     rows = build_parity_signatures(machine, thresholds, range(100, 100 + args.signature_seeds))
     for row in rows:
-        print(f"  {row['fault']:34s} {row['code']}  command {'any' if row['command_positive'] is None else ('+' if row['command_positive'] else '-')}")
+        print(f"  {row['fault']:34s} {row['code']}  command {'any' if row['command_positive'] is None else ('+' if row['command_positive'] else '-')}"
+              f"  closed {row.get('closed', 'any')}")
     if args.write:
+        closed = (f", closed-valve factors {', '.join(f'{f:g}' for f in report['closed_factor'])} for none there"
+                  if "closed_factor" in report else "")
         write_fitted_block(Path(args.config), thresholds, rows,
                            f"parity thresholds from fault-free mismatched plants, factor {thresholds.factor:g} for <= 1 false alarm/h on "
-                           f"{report['held_out_hours']:.2f} h held out; signature table by simulation of the P-IV fault list.")
+                           f"{report['held_out_hours']:.2f} h held out{closed}; signature table by simulation of the P-IV fault list.")
         print(f"written to {args.config}")
     return 0
 

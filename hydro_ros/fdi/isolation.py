@@ -6,20 +6,42 @@ above its positive one. Each observation (code, pA > pB, both residuals large, v
 sign) selects the table rows it matches; the candidate set is intersected over successive
 observations, which is the paper's ambiguity resolution: after the valve command changes sign a
 valve fault flips its pattern while an internal leak keeps it, so only one cause survives.
+
+A method may add the crossing code of its residuals over the samples at which the valve was closed
+(``closed_code``: :meth:`hydro_ros.fdi.residuals.ParityResiduals.closed_code`). A row with ``closed``
+codes (those its fault was seen to make while closed) matches an observation only with one of them; an
+observation without a closed code (too few closed samples yet, or a method without the evidence) matches
+every row. Towards partial patterns a closed crossing counts like a main one: a row is compatible where
+its closed codes together contain every closed crossing seen. So a crossing while the valve is closed,
+which a fault acting only through the metering valve cannot make, overrules an earlier cause that lacks
+it, and a quiet closed window (a leak too small to cross at rest) does not.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.names import Fault
 
 A_UP, A_DOWN, B_UP, B_DOWN = 8, 4, 2, 1
+NO_CLOSED_CODE = -1  # a closed code not known (too few closed-valve samples yet, or no evidence of the kind)
 
 
 def code_string(code: int) -> str:
     return format(code, "04b")
+
+
+def crossing_code(mean_residual: np.ndarray, threshold: np.ndarray) -> np.ndarray:
+    """(..., 2) mean residuals against +-threshold -> the crossing pattern bits of the signature tables (int8)."""
+    return (
+        A_UP * (mean_residual[..., 0] > threshold[..., 0])
+        + A_DOWN * (mean_residual[..., 0] < -threshold[..., 0])
+        + B_UP * (mean_residual[..., 1] > threshold[..., 1])
+        + B_DOWN * (mean_residual[..., 1] < -threshold[..., 1])
+    ).astype(np.int8)
 
 
 @dataclass(frozen=True)
@@ -31,9 +53,12 @@ class PatternRow:
     pa_gt_pb: bool | None = None
     large: bool | None = None
     command_positive: bool | None = None
+    closed: frozenset[int] | None = None  # the crossing codes over closed-valve samples the fault makes; None: any
 
-    def matches(self, code: int, pa_gt_pb: bool, large: bool, direction: int) -> bool:
+    def matches(self, code: int, pa_gt_pb: bool, large: bool, direction: int, closed_code: int | None = None) -> bool:
         if code != self.code:
+            return False
+        if self.closed is not None and closed_code is not None and closed_code not in self.closed:
             return False
         if self.pa_gt_pb is not None and self.pa_gt_pb != pa_gt_pb:
             return False
@@ -42,6 +67,17 @@ class PatternRow:
         if self.command_positive is not None and direction != 0 and self.command_positive != (direction > 0):
             return False
         return True
+
+    def contains(self, code: int, closed_code: int | None) -> bool:
+        """Whether the row's patterns contain every crossing seen: a partial pattern on its way to this row's."""
+        if self.code & code != code:
+            return False
+        if self.closed is None or closed_code is None:
+            return True
+        every = 0
+        for closed in self.closed:
+            every |= closed
+        return every & closed_code == closed_code
 
 
 # P-II Table 3, rows 1-10, plus the simultaneous A+B leak of the fault tree (INFERRED row: both
@@ -63,27 +99,34 @@ UKF_TABLE: tuple[PatternRow, ...] = (
 
 
 def signature_rows(entries: list[dict]) -> tuple[PatternRow, ...]:
-    """Rows from config entries {fault, code: "0110", pa_gt_pb, large, command_positive} (null = X)."""
+    """Rows from config entries {fault, code: "0110", pa_gt_pb, large, command_positive, closed: ["0000", "0010"]} (null
+    or absent = X)."""
     rows = []
     for entry in entries:
         try:
-            code = entry["code"]
-            # the config loader turns numeric-looking strings into numbers: "0110" arrives as 110.0
-            text = str(int(code)) if isinstance(code, (int, float)) else str(code)
-            rows.append(PatternRow(Fault(entry["fault"]), int(text, 2), entry.get("pa_gt_pb"),
-                                   entry.get("large"), entry.get("command_positive")))
-        except (KeyError, ValueError) as exc:
+            closed = entry.get("closed")
+            rows.append(PatternRow(Fault(entry["fault"]), _code_bits(entry["code"]), entry.get("pa_gt_pb"),
+                                   entry.get("large"), entry.get("command_positive"),
+                                   None if closed is None else frozenset(_code_bits(c) for c in closed)))
+        except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"fdi.parity_signatures: bad entry {entry!r} ({exc})") from None
     return tuple(rows)
 
 
-def matching_faults(table: tuple[PatternRow, ...], code: int, pa_gt_pb: bool, large: bool, direction: int) -> frozenset[Fault]:
-    return frozenset(row.fault for row in table if row.matches(code, pa_gt_pb, large, direction))
+def _code_bits(code: str | int | float) -> int:
+    # the config loader turns numeric-looking strings into numbers: "0110" arrives as 110.0
+    text = str(int(code)) if isinstance(code, (int, float)) else str(code)
+    return int(text, 2)
 
 
-def compatible_faults(table: tuple[PatternRow, ...], code: int) -> frozenset[Fault]:
-    """Faults whose pattern contains every crossing seen: a partial pattern on its way to theirs."""
-    return frozenset(row.fault for row in table if row.code & code == code)
+def matching_faults(table: tuple[PatternRow, ...], code: int, pa_gt_pb: bool, large: bool, direction: int,
+                    closed_code: int | None = None) -> frozenset[Fault]:
+    return frozenset(row.fault for row in table if row.matches(code, pa_gt_pb, large, direction, closed_code))
+
+
+def compatible_faults(table: tuple[PatternRow, ...], code: int, closed_code: int | None = None) -> frozenset[Fault]:
+    """Faults whose patterns contain every crossing seen: a partial pattern on its way to theirs."""
+    return frozenset(row.fault for row in table if row.contains(code, closed_code))
 
 
 @dataclass
@@ -110,7 +153,7 @@ class Isolator:
     latched_code: int = 0
     candidates: frozenset[Fault] = field(default_factory=frozenset)
     history: list[str] = field(default_factory=list)
-    _pending: tuple[float, int, frozenset[Fault]] | None = None
+    _pending: tuple[float, int, int | None, frozenset[Fault]] | None = None
 
     @property
     def fault(self) -> Fault | None:
@@ -121,8 +164,10 @@ class Isolator:
             return next(iter(self.candidates))
         return Fault.UNISOLATED
 
-    def observe(self, time_s: float, code: int, pa_gt_pb: bool, large: bool, direction: int) -> list[Alarm]:
-        """Feed one change of the evidence (at ``time_s``); returns alarms for changes of the fault.
+    def observe(self, time_s: float, code: int, pa_gt_pb: bool, large: bool, direction: int,
+                closed_code: int | None = None) -> list[Alarm]:
+        """Feed one change of the evidence (at ``time_s``; ``closed_code`` None: none over closed-valve samples); returns
+        alarms for changes of the fault.
 
         Detection is immediate (first crossing, as the papers time it). A pattern narrows the
         cause only once it has held for ``settle_s``, so the few hundred milliseconds in which
@@ -134,7 +179,8 @@ class Isolator:
         if code != 0 and self.detected_at is None:
             self.detected_at = time_s
         self.latched_code |= code
-        self._pending = (time_s, code, matching_faults(self.table, code, pa_gt_pb, large, direction)) if code else None
+        self._pending = ((time_s, code, closed_code, matching_faults(self.table, code, pa_gt_pb, large, direction, closed_code))
+                         if code else None)
         after = self.fault
         if after is not None and after != before:
             alarms.append(Alarm(time_s, self.actuator, after, code_string(self.latched_code)))
@@ -144,10 +190,10 @@ class Isolator:
         """Let time pass: a pending pattern that has held for ``settle_s`` narrows the candidates."""
         if self._pending is None or time_s - self._pending[0] < self.settle_s:
             return []
-        since, code, exact = self._pending
+        since, code, closed_code, exact = self._pending
         self._pending = None
         before = self.fault
-        partial = compatible_faults(self.table, code)
+        partial = compatible_faults(self.table, code, closed_code)
         if not self.candidates or (exact and all(f == Fault.SPOOL_STUCK_CLOSED for f in exact)):
             # "large" residuals in both chambers single out the stuck spool whatever came before
             self.candidates = exact or partial
@@ -158,7 +204,8 @@ class Isolator:
         elif not exact and self.candidates & partial:
             self.candidates = self.candidates & partial
         # else: a partial pattern on the way between two full ones (e.g. a valve fault flipping) -> keep
-        self.history.append(f"{since:.3f}s {code_string(code)} -> {','.join(sorted(f.value for f in exact or partial))}")
+        closed = "" if closed_code is None else f" closed {code_string(closed_code)}"
+        self.history.append(f"{since:.3f}s {code_string(code)}{closed} -> {','.join(sorted(f.value for f in exact or partial))}")
         after = self.fault
         if after != before:
             return [Alarm(since + self.settle_s, self.actuator, after, code_string(self.latched_code))]

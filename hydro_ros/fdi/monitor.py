@@ -18,7 +18,7 @@ from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Fault
 from hydro_ros.contract.samples import Samples
 from hydro_ros.fdi.health import CHANNELS, SensorHealth
-from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Alarm, Isolator, code_string
+from hydro_ros.fdi.isolation import NO_CLOSED_CODE, Alarm, Isolator, code_string, crossing_code
 from hydro_ros.fdi.residuals import BlockInput, MovingAverage, generator_for
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.fdi.ukf import PRESSURE_UNIT
@@ -41,6 +41,8 @@ class BlockResult:
     alarms: list[Alarm]
     mean_command: np.ndarray  # (n, A) 5 s mean valve command
     operating_point: np.ndarray | None = None  # (n, A, 5) parity: 5 s means of the opening, |Q_A|, |Q_B| and the roots' noise bias in A, B [L/min]
+    closed_mean: np.ndarray | None = None  # (n, A, 2) mean residual over the last closed-valve samples (NaN: not judged)
+    closed_code: np.ndarray | None = None  # (n, A) its crossing code, NO_CLOSED_CODE: not known
 
 
 @dataclass
@@ -102,7 +104,7 @@ class FdiMonitor:
     def explained(self, index: int) -> bool:
         """Armed, and this actuator's evidence explained: an alarm latched, or no threshold crossing at the last sample."""
         key = self._last_key[index]
-        return self.armed and (self.isolators[index].fault is not None or (key is not None and key // 32 == 0))
+        return self.armed and (self.isolators[index].fault is not None or (key is not None and key // 32 % 16 == 0))
 
     def sensor_problems(self, index: int) -> dict[str, str]:
         """The actuator's readings that were invalid within the last second: sensor -> nonfinite / out_of_range / frozen."""
@@ -174,6 +176,8 @@ class FdiMonitor:
         mean_residual = self._residual_mean(residual.reshape(n, -1)).reshape(n, n_act, 2)
         threshold = self.generator.thresholds(mean_pressure, operating_point)
         code = crossing_code(mean_residual, threshold)
+        closed_mean = self.generator.closed_mean(residual, mask)
+        closed_code = self.generator.closed_code(closed_mean)
         armed = seen >= self.startup + self.window
         code[~armed] = 0
         if hold:
@@ -182,12 +186,13 @@ class FdiMonitor:
         large = self.generator.large(mean_residual)
         s = self.settings
         direction = np.where(np.abs(mean_command) < s.command_deadband, 0, np.sign(mean_command)).astype(np.int8)
-        alarms = self._isolate(block.times, code, pa_gt_pb, large, direction)
+        alarms = self._isolate(block.times, code, pa_gt_pb, large, direction, closed_code)
         self.samples_seen += n
         self.last_mean_residual = mean_residual[-1]
         self.last_threshold = threshold[-1]
         self.last_mean_pressure = mean_pressure[-1]
-        return BlockResult(block.times, residual, mean_residual, threshold, code, valid, alarms, mean_command, operating_point)
+        return BlockResult(block.times, residual, mean_residual, threshold, code, valid, alarms, mean_command, operating_point, closed_mean,
+                           closed_code)
 
     def _hold_last(self, values: np.ndarray, valid: np.ndarray) -> np.ndarray:
         """Forward-fill invalid samples per actuator with the last valid one (kept across blocks)."""
@@ -206,16 +211,19 @@ class FdiMonitor:
                 self._last_valid[a, : values.shape[2]] = values[where[-1], a]
         return out
 
-    def _isolate(self, times: np.ndarray, code: np.ndarray, pa_gt_pb: np.ndarray, large: np.ndarray, direction: np.ndarray) -> list[Alarm]:
+    def _isolate(self, times: np.ndarray, code: np.ndarray, pa_gt_pb: np.ndarray, large: np.ndarray, direction: np.ndarray,
+                 closed_code: np.ndarray) -> list[Alarm]:
         alarms: list[Alarm] = []
-        key = code.astype(np.int32) * 32 + pa_gt_pb * 16 + large * 8 + (direction + 1).astype(np.int32)
+        key = ((closed_code.astype(np.int32) + 1) * 16 + code) * 32 + pa_gt_pb * 16 + large * 8 + (direction + 1).astype(np.int32)
         for a, isolator in enumerate(self.isolators):
             column = key[:, a]
             changes = np.flatnonzero(np.diff(column)) + 1
             if self._last_key[a] != column[0]:
                 changes = np.concatenate(([0], changes))
             for k in changes:
-                alarms += isolator.observe(float(times[k]), int(code[k, a]), bool(pa_gt_pb[k, a]), bool(large[k, a]), int(direction[k, a]))
+                closed = int(closed_code[k, a])
+                alarms += isolator.observe(float(times[k]), int(code[k, a]), bool(pa_gt_pb[k, a]), bool(large[k, a]), int(direction[k, a]),
+                                           None if closed == NO_CLOSED_CODE else closed)
             alarms += isolator.advance(float(times[-1]))
             self._last_key[a] = column[-1]
         return alarms
@@ -231,16 +239,6 @@ class FdiMonitor:
     @property
     def halt(self) -> bool:
         return any(self.status(i).level == ERROR for i in range(len(self.actuators)))
-
-
-def crossing_code(mean_residual: np.ndarray, threshold: np.ndarray) -> np.ndarray:
-    """(..., 2) mean residuals against +-threshold -> the crossing pattern bits of the signature tables (int8)."""
-    return (
-        A_UP * (mean_residual[..., 0] > threshold[..., 0])
-        + A_DOWN * (mean_residual[..., 0] < -threshold[..., 0])
-        + B_UP * (mean_residual[..., 1] > threshold[..., 1])
-        + B_DOWN * (mean_residual[..., 1] < -threshold[..., 1])
-    ).astype(np.int8)
 
 
 def crossing_episodes(code: np.ndarray, *, previous: bool = False) -> tuple[int, bool]:

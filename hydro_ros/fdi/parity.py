@@ -42,6 +42,7 @@ import numpy as np
 from numba import njit
 
 from hydro_ros.contract.errors import InputError
+from hydro_ros.fdi.isolation import NO_CLOSED_CODE, crossing_code
 from hydro_ros.models.chamber import effective_bulk_modulus
 from hydro_ros.models.sam import (
     AREA_A,
@@ -63,6 +64,9 @@ from hydro_ros.models.sam import (
 )
 from hydro_ros.models.valve import chamber_valve_flows, pilot_drive, spool_opening, spool_track
 
+CLOSED_SHARE = 0.5  # a sample is "closed" where the modelled spool is within this share of its dead zone (INFERRED: P-IV gives no
+# rule; half keeps a pilot transmitter's bias of 0.3 MPa of the mobile SAM's 2.5 MPa, 0.12 of travel, or a spool offset of 0.05
+# from opening a spool the model holds closed, where at the dead zone's edge either opens it and reads as a leak)
 FLOW_UNIT = 1.0 / 60000.0  # [m^3/s] per L/min: residuals are reported in L/min
 ORIFICE_FILTER_S = 0.01  # [s] the pressures under the orifice law's root are low-passed this long (first order): the root of
 # a difference of two transmitters' noise (0.1 MPa each) is biased low where the notch meters on little (a compensator at its
@@ -170,8 +174,10 @@ class ParityGenerator:
         self.orifice[:] = np.nan
 
     def run(self, piston: np.ndarray, velocity: np.ndarray, p_a: np.ndarray, p_b: np.ndarray, pilot_1: np.ndarray,
-            pilot_2: np.ndarray, compensator: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(n, A, 2) residuals, (n, A) openings, (n, A, 2) |valve flows|, (n, A, 2) the roots' noise bias [L/min]."""
+            pilot_2: np.ndarray, compensator: np.ndarray, valid: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(n, A, 2) residuals, (n, A) openings, (n, A, 2) |valve flows|, (n, A, 2) the roots' noise bias [L/min], and (n, A)
+        whether the valve was closed (the modelled spool within ``CLOSED_SHARE`` of its dead zone)."""
         n, n_act = piston.shape
         residual = np.empty((n, n_act, 2))
         opening = np.empty((n, n_act))
@@ -188,7 +194,8 @@ class ParityGenerator:
         orifice = first_order_lag(np.stack(arrays[2:4] + arrays[5:6], axis=2), self.orifice_smoothing, self.orifice)
         parity_residuals(*arrays, orifice, np.ascontiguousarray(valid), self.previous, self.params, self.poly, self.centre, self.dt,
                          self.drop_noise, residual, opening, flow, bias)
-        return residual, opening, flow, bias
+        closed = valid & (np.abs(drive) < CLOSED_SHARE * self.params[:, DEADZONE])
+        return residual, opening, flow, bias, closed
 
 
 # [L/min] bins of a chamber's 5 s mean |valve flow| (``bins: flow``; the crane's fit and every commissioning). The first reaches
@@ -216,7 +223,9 @@ class ParityThresholds:
     coefficient off by a fraction k puts k times that chamber's valve flow into its residual, so
     ``flow_fraction`` times the chamber's 5 s mean |valve flow| is allowed on top, also on plants whose
     notches are further off than any the statistics saw. ``floor`` [L/min] bounds every threshold from
-    below (commissioning's, whose spread is the machine's own). The 5 s mean of the roots' noise bias
+    below (commissioning's, whose spread is the machine's own). ``closed`` ({mean, std, factor}, each per chamber) is the
+    threshold of the closed-valve evidence (``closed_code``), fitted like the rest on fault-free plants; without it
+    there is no such evidence. The 5 s mean of the roots' noise bias
     (``parity_residuals``) is added as it is: what the transmitters' noise can put into the residual where a
     notch meters on a drop within a few sigma of it. Operating points are (..., 5): the mean opening, the two
     chambers' mean |valve flow| and their mean noise bias [L/min].
@@ -229,6 +238,7 @@ class ParityThresholds:
     flow_fraction: float = 0.0  # k [-]
     bins: str = "opening"
     floor: float = 0.0  # [L/min] no threshold below this
+    closed: dict[str, Any] | None = None  # {mean, std [L/min], factor: c} per chamber (A, B) of the closed-valve means
 
     @classmethod
     def from_config(cls, section: dict[str, Any] | None) -> "ParityThresholds | None":
@@ -240,7 +250,7 @@ class ParityThresholds:
                              tuple(tuple(map(float, s)) for s in section["std"]),
                              tuple(map(float, factor)) if isinstance(factor, (list, tuple)) else float(factor),
                              float(section.get("flow_fraction", 0.0)), str(section.get("bins", "opening")),
-                             float(section.get("floor", 0.0)))
+                             float(section.get("floor", 0.0)), _closed_statistics(section.get("closed")))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"fdi.parity_thresholds: malformed ({exc})") from None
         if isinstance(thresholds.factor, tuple) and len(thresholds.factor) != len(thresholds.edges) - 1:
@@ -301,7 +311,18 @@ class ParityThresholds:
     def to_config(self) -> dict[str, Any]:
         return {"bins": self.bins, "edges": list(self.edges), "mean": [list(m) for m in self.mean], "std": [list(s) for s in self.std],
                 "factor": list(self.factor) if isinstance(self.factor, tuple) else self.factor, "flow_fraction": self.flow_fraction,
-                **({"floor": self.floor} if self.floor else {})}
+                **({"floor": self.floor} if self.floor else {}),
+                **({"closed": {key: list(self.closed[key]) for key in ("mean", "std", "factor")}} if self.closed else {})}
+
+    def closed_code(self, closed_mean: np.ndarray) -> np.ndarray:
+        """(..., 2) closed-valve mean residuals (NaN: not judged) -> (...) their crossing codes of the closed thresholds,
+        ``NO_CLOSED_CODE`` where a chamber was not judged or the thresholds have no closed statistics."""
+        if not self.closed:
+            return np.full(closed_mean.shape[:-1], NO_CLOSED_CODE, dtype=np.int8)
+        threshold = np.abs(np.asarray(self.closed["mean"])) + np.asarray(self.closed["factor"]) * np.asarray(self.closed["std"])
+        code = crossing_code(np.nan_to_num(closed_mean), np.broadcast_to(threshold, closed_mean.shape))
+        # both chambers judged or none: a code of one chamber alone (the other cavitating) would read as that chamber's fault
+        return np.where(np.isfinite(closed_mean).all(axis=-1), code, NO_CLOSED_CODE).astype(np.int8)
 
     def __call__(self, operating_point: np.ndarray) -> np.ndarray:
         """(..., 5) operating points -> (..., 2) thresholds."""
@@ -309,6 +330,12 @@ class ParityThresholds:
         factor = (np.asarray(self.factor)[_bin_index(self.edges, self.bins, operating_point)] if isinstance(self.factor, tuple)
                   else self.factor)
         return np.maximum(offset + factor * spread, self.floor)
+
+
+def _closed_statistics(section: dict[str, Any] | None) -> dict[str, Any] | None:
+    if not section:
+        return None
+    return {key: tuple(map(float, section[key])) for key in ("mean", "std", "factor")}
 
 
 def _bin_index(edges: tuple[float, ...], bins: str, operating_point: np.ndarray) -> np.ndarray:

@@ -10,7 +10,8 @@ the 5 s means, the crossing codes and isolation.
   adaptive threshold +-(c0 + c2 mu_p^2) (P-II eq. 25); the P-II Table 3 signatures.
 - ``parity`` (P-IV style, mobile valves): chamber-flow balance residuals [L/min]; statistical
   thresholds per operating point (5 s mean opening) fitted by ``hydro-ros fdi fit``; a signature
-  table built by simulation.
+  table built by simulation, with the crossing code over the closed-valve samples as evidence
+  beside the crossing signs (``ParityResiduals.closed_mean``).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.fdi.isolation import UKF_TABLE, PatternRow
+from hydro_ros.fdi.isolation import NO_CLOSED_CODE, UKF_TABLE, PatternRow
 from hydro_ros.fdi.parity import POINT_CHANNELS, ParityGenerator
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.fdi.ukf import PRESSURE_UNIT, UkfBank
@@ -62,6 +63,34 @@ class BlockInput:
     mobile: np.ndarray | None = None  # (n, A, 3) [Pa] pilot 1, pilot 2, compensator (mobile valves)
 
 
+CLOSED_WINDOW_S = 2.0  # [s] of closed-valve samples, however far apart, the closed code averages (INFERRED: the mobile SAM's
+# simulated operator holds its valve closed 5-15 % of the time, so P-II's 5 s of wall time rarely hold enough of them; 2 s of
+# them span about 20 s of work there, and their mean's noise stays near that of a 5 s window's)
+
+
+class LastSamplesMean:
+    """Per channel, the mean of the last N samples that were counted, however far apart; NaN until N have been."""
+
+    def __init__(self, count: int, channels: int) -> None:
+        self.count = count
+        self.history = [np.zeros(0) for _ in range(channels)]
+
+    def reset(self) -> None:
+        self.history = [np.zeros(0) for _ in self.history]
+
+    def __call__(self, block: np.ndarray, counted: np.ndarray) -> np.ndarray:
+        """(n, C) samples and whether each counts -> (n, C) the mean of the last N counted up to each sample."""
+        out = np.full(block.shape, np.nan)
+        for c, history in enumerate(self.history):
+            sequence = np.concatenate((history, block[counted[:, c], c]))
+            sums = np.concatenate(([0.0], np.cumsum(sequence)))
+            seen = len(history) + np.cumsum(counted[:, c])
+            full = seen >= self.count
+            out[full, c] = (sums[seen[full]] - sums[seen[full] - self.count]) / self.count
+            self.history[c] = sequence[-self.count:]
+        return out
+
+
 class ResidualGenerator(ABC):
     """What the monitor needs of a method; subclasses register under their ``method`` name."""
 
@@ -93,6 +122,15 @@ class ResidualGenerator(ABC):
     def large(self, mean_residual: np.ndarray) -> np.ndarray:
         """(n, A) "Large" evidence of the signature table; methods whose table has none say False."""
         return np.zeros(mean_residual.shape[:2], dtype=bool)
+
+    def closed_mean(self, residual: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """(n, A, 2) mean residuals over closed-valve samples (NaN: not judged; methods without the evidence: everywhere),
+        from the block's (n, A, 2) residuals and mask."""
+        return np.full(residual.shape, np.nan)
+
+    def closed_code(self, closed_mean: np.ndarray) -> np.ndarray:
+        """(n, A) crossing codes of the closed means, ``NO_CLOSED_CODE`` where not known."""
+        return np.full(closed_mean.shape[:2], NO_CLOSED_CODE, dtype=np.int8)
 
     @abstractmethod
     def reset(self) -> None:
@@ -152,6 +190,8 @@ class ParityResiduals(ResidualGenerator):
                              "or hydro-ros commission on the machine's recordings)")
         self.generator = ParityGenerator(models)
         self._operating_point_mean = MovingAverage(window, POINT_CHANNELS * len(models))
+        self._closed = np.zeros((0, len(models)), dtype=bool)  # the last block's closed-valve samples
+        self._closed_mean = LastSamplesMean(int(round(CLOSED_WINDOW_S * models[0].sample_rate)), 2 * len(models))
 
     @property
     def table(self) -> tuple[PatternRow, ...]:
@@ -162,8 +202,9 @@ class ParityResiduals(ResidualGenerator):
         noise bias."""
         if block.mobile is None:
             raise InputError("fdi method parity: no pilot/compensator pressures in the samples")
-        residual, opening, flow, bias = self.generator.run(block.piston, block.velocity, block.pressure[:, :, 0], block.pressure[:, :, 1],
-                                                     block.mobile[:, :, 0], block.mobile[:, :, 1], block.mobile[:, :, 2], block.valid)
+        residual, opening, flow, bias, self._closed = self.generator.run(
+            block.piston, block.velocity, block.pressure[:, :, 0], block.pressure[:, :, 1], block.mobile[:, :, 0], block.mobile[:, :, 1],
+            block.mobile[:, :, 2], block.valid)
         n, n_act = opening.shape
         point = np.concatenate([opening[:, :, None], flow, bias], axis=2).reshape(n, -1)
         return residual, self._operating_point_mean(point).reshape(n, n_act, POINT_CHANNELS)
@@ -171,9 +212,28 @@ class ParityResiduals(ResidualGenerator):
     def thresholds(self, mean_pressure: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
         return self.settings.parity_thresholds(operating_point)
 
+    def closed_mean(self, residual: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """Each chamber's mean residual over its last ``CLOSED_WINDOW_S`` of closed-valve samples (the modelled spool well
+        inside its dead zone, ``parity.CLOSED_SHARE``; a masked chamber's samples left out), NaN until that many were seen.
+
+        Why: a leak and a velocity-sensor bias put flow into the residual whether the valve meters or not; a bias of the
+        pilot or compensator pressure transmitters and a main-spool fault change only the modelled valve flow, which is
+        zero while the spool is closed (the centre leakage aside, in both). Crossings of these means single out the
+        first group where the crossing signs while metering are shared with the second, and tell the pilot bias (which
+        opens the real spool the model holds closed near the dead zone's edge: B only) from the internal leak (A and B).
+        They only name a detected fault; detection stays with the 5 s means over all samples.
+        """
+        n, n_act = self._closed.shape
+        counted = (self._closed[:, :, None] & ~mask).reshape(n, -1)
+        return self._closed_mean(residual.reshape(n, -1), counted).reshape(n, n_act, 2)
+
+    def closed_code(self, closed_mean: np.ndarray) -> np.ndarray:
+        return self.settings.parity_thresholds.closed_code(closed_mean)
+
     def reset(self) -> None:
         self.generator.reset()
         self._operating_point_mean.reset()
+        self._closed_mean.reset()
 
     def self_check(self) -> list[tuple[str, bool]]:
         thresholds = self.settings.parity_thresholds

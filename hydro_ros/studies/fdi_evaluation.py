@@ -20,7 +20,7 @@ import numpy as np
 
 from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.names import Injection
-from hydro_ros.fdi.isolation import code_string
+from hydro_ros.fdi.isolation import NO_CLOSED_CODE, code_string
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.fdi.settings import FdiSettings
@@ -336,15 +336,17 @@ THRESHOLD_FACTORS = (2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 14.0)
 PARITY_OPENING_EDGES = (0.0, 0.02, 0.06, 0.15, 0.3, 1.5)  # the mobile SAM's bins of the 5 s mean opening
 
 
-def _parity_records(machine: Machine, case: Case) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Armed (mean residual (n, 2), operating point (n, 3), mean command (n,), times (n,)) of one run."""
+def _parity_records(machine: Machine, case: Case) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Armed (mean residual (n, 2), operating point (n, 5), mean command (n,), times (n,), closed-valve mean residual
+    (n, 2), NaN where not judged) of one run."""
     probe = machine.with_overrides({"fdi": {"parity_thresholds": ParityThresholds.probe(), "parity_signatures": []}})
     monitor = FdiMonitor(probe, "parity")
     i = machine.actuator_names.index(case.actuator or machine.first.name)
-    parts = [(r.mean_residual[:, i], r.operating_point[:, i], r.mean_command[:, i], r.times) for _, r in _blocks(probe, case, monitor)]
-    residual, point, command, times = (np.concatenate([p[i] for p in parts]) for i in range(4))
+    parts = [(r.mean_residual[:, i], r.operating_point[:, i], r.mean_command[:, i], r.times, r.closed_mean[:, i])
+             for _, r in _blocks(probe, case, monitor)]
+    residual, point, command, times, closed = (np.concatenate([p[i] for p in parts]) for i in range(5))
     armed = np.arange(len(times)) >= monitor.window - 1
-    return residual[armed], point[armed], command[armed], times[armed]
+    return residual[armed], point[armed], command[armed], times[armed], closed[armed]
 
 
 def _crossing_episodes(residual: np.ndarray, operating_point: np.ndarray, thresholds: ParityThresholds) -> int:
@@ -361,6 +363,7 @@ def fit_parity_thresholds(machine: Machine, train: Iterable[int], held_out: Iter
     held = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s)) for seed in held_out]
     hours = sum(len(r[3]) for r in held) / machine.sample_rate_hz / 3600.0
     report: dict[str, Any] = {"held_out_hours": hours, "tried": {}}
+    statistics = replace(statistics, closed=_fit_closed_thresholds(statistics, train_runs, held, report))
     for factor in THRESHOLD_FACTORS:
         thresholds = replace(statistics, factor=factor)
         episodes = sum(_crossing_episodes(r[0], r[1], thresholds) for r in held)
@@ -373,20 +376,50 @@ def fit_parity_thresholds(machine: Machine, train: Iterable[int], held_out: Iter
     return statistics, report
 
 
+def _fit_closed_thresholds(statistics: ParityThresholds, train_runs: list, held: list, report: dict[str, Any]) -> dict[str, Any] | None:
+    """The closed-valve evidence's thresholds: mean and spread of the training plants' closed means per chamber, and per
+    chamber the smallest factor at which no held-out plant's closed mean crosses (INFERRED: the evidence names faults,
+    so a crossing without one would name a leak on a healthy machine's first false alarm; none allowed. Per chamber:
+    each chamber's spread is its own notches' centre leakage, +-30 % between the plants)."""
+    closed = np.concatenate([r[4] for r in train_runs])
+    closed = closed[np.isfinite(closed).all(axis=1)]
+    if not len(closed):
+        return None  # the valve never closed on the training plants: no evidence
+    mean, std = closed.mean(axis=0), closed.std(axis=0)
+    held_closed = np.concatenate([r[4] for r in held])
+    held_closed = held_closed[np.isfinite(held_closed).all(axis=1)]
+    reached = (np.abs(held_closed) - np.abs(mean)).max(axis=0, initial=0.0) / std
+    factor = [next((f for f in THRESHOLD_FACTORS if f >= reached[c]), THRESHOLD_FACTORS[-1]) for c in range(2)]
+    report["closed_factor"] = factor
+    return {"mean": tuple(float(v) for v in mean), "std": tuple(float(v) for v in std), "factor": tuple(float(f) for f in factor)}
+
+
 def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seeds: Iterable[int], *,
-                            duration_s: float = 60.0, onset_s: float = 20.0, share: float = 0.25) -> list[dict[str, Any]]:
-    """Signature table by simulation: per fault and command sign, the crossing pattern that dominates after onset."""
+                            duration_s: float = 60.0, onset_s: float = 20.0, share: float = 0.25,
+                            closed_share: float = 0.05) -> list[dict[str, Any]]:
+    """Signature table by simulation: per fault and command sign, the crossing pattern that dominates after onset, and per
+    pattern the crossing codes over closed-valve samples (``ParityResiduals.closed_code``) that at least ``closed_share``
+    of its judged samples show (INFERRED: 5 %, above the 1-4 % of codes a fault shows only while its closed mean is
+    on its way from one code to another; a pattern never judged closed takes any). One table serves every actuator, so
+    each fault is simulated in each of them and their samples pooled."""
     rows: list[dict[str, Any]] = []
+    runs = [(seed, actuator) for actuator in machine.actuator_names for seed in seeds]
     for fault, value in PARITY_FAULTS:
         counts: dict[tuple[int, int], int] = {}
-        for seed in seeds:
-            residual, point, command, times = _parity_records(machine, Case(fault, value, seed, onset_s, duration_s))
+        closed_counts: dict[int, dict[int, int]] = {}
+        for seed, actuator in runs:
+            residual, point, command, times, closed_mean = _parity_records(
+                machine, Case(fault, value, seed, onset_s, duration_s, actuator=actuator))
             code = crossing_code(residual, thresholds(point))
+            closed = thresholds.closed_code(closed_mean)
             after = times >= onset_s
             direction = np.sign(command)
-            for c, d in zip(code[after], direction[after]):
+            for c, d, k in zip(code[after], direction[after], closed[after]):
                 if c:
                     counts[(int(c), int(d))] = counts.get((int(c), int(d)), 0) + 1
+                    if k != NO_CLOSED_CODE:
+                        seen = closed_counts.setdefault(int(c), {})
+                        seen[int(k)] = seen.get(int(k), 0) + 1
         total = sum(counts.values())
         by_code: dict[int, set[int]] = {}
         for (c, d), n in counts.items():
@@ -394,7 +427,11 @@ def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seed
                 by_code.setdefault(c, set()).add(d)
         for c, directions in sorted(by_code.items()):
             positive = None if len(directions - {0}) != 1 else (next(iter(directions - {0})) > 0)
-            rows.append({"fault": fault, "code": code_string(c), "command_positive": positive})
+            row: dict[str, Any] = {"fault": fault, "code": code_string(c), "command_positive": positive}
+            seen = closed_counts.get(c, {})
+            if seen:
+                row["closed"] = [code_string(k) for k, n in sorted(seen.items()) if n >= closed_share * sum(seen.values())]
+            rows.append(row)
     return rows
 
 
