@@ -120,7 +120,7 @@ def cmd_fdi_fit(args: argparse.Namespace) -> int:
     rows = build_parity_signatures(machine, thresholds, range(100, 100 + args.signature_seeds))
     for row in rows:
         print(f"  {row['fault']:34s} {row['code']}  command {'any' if row['command_positive'] is None else ('+' if row['command_positive'] else '-')}"
-              f"  closed {row.get('closed', 'any')}")
+              f"  large {row['large']}  closed {row.get('closed', 'any')}")
     if args.write:
         closed = (f", closed-valve factors {', '.join(f'{f:g}' for f in report['closed_factor'])} for none there"
                   if "closed_factor" in report else "")

@@ -194,8 +194,9 @@ class Isolator:
         self._pending = None
         before = self.fault
         partial = compatible_faults(self.table, code, closed_code)
-        if not self.candidates or (exact and all(f == Fault.SPOOL_STUCK_CLOSED for f in exact)):
-            # "large" residuals in both chambers single out the stuck spool whatever came before
+        if not self.candidates or (exact and all(row.large for row in self.table if row.fault in exact)):
+            # "large" residuals single out the faults whose every row demands them (P-II: the stuck spool; parity: the
+            # locked main spool) whatever came before: the first windows of such a fault are not yet large
             self.candidates = exact or partial
         elif exact and self.candidates & exact:
             self.candidates = self.candidates & exact

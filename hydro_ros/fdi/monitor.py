@@ -183,7 +183,7 @@ class FdiMonitor:
         if hold:
             code[:] = 0
         pa_gt_pb = mean_pressure[:, :, 0] > mean_pressure[:, :, 1]
-        large = self.generator.large(mean_residual)
+        large = self.generator.large(mean_residual, operating_point)
         s = self.settings
         direction = np.where(np.abs(mean_command) < s.command_deadband, 0, np.sign(mean_command)).astype(np.int8)
         alarms = self._isolate(block.times, code, pa_gt_pb, large, direction, closed_code)

@@ -332,6 +332,19 @@ class ParityThresholds:
         return np.maximum(offset + factor * spread, self.floor)
 
 
+# "Large" of the parity signature table: both chambers' 5 s mean |residual| at least this share of their mean |modelled valve flow|,
+# each at least the first flow bin's edge: the valve passes (almost) nothing of what its pilots say it meters, as with a locked
+# main spool (0.9-1.0 measured on the mobile SAM). INFERRED: above a main spool's erosion (0.3, its size) and the 0.3-0.4 that
+# a 0.3 MPa pilot bias, an internal leak or a velocity bias give at median; they reach 0.8 in a few windows at small flows
+LOCKED_SHARE = 0.8
+
+
+def passes_nothing(mean_residual: np.ndarray, operating_point: np.ndarray) -> np.ndarray:
+    """(..., 2) 5 s mean residuals at (..., 5) operating points -> (...) whether the valve passed almost none of its modelled flow."""
+    flow = operating_point[..., FLOW_A:FLOW_B + 1]
+    return np.all((np.abs(mean_residual) >= LOCKED_SHARE * flow) & (flow >= FLOW_EDGES[1]), axis=-1)
+
+
 def _closed_statistics(section: dict[str, Any] | None) -> dict[str, Any] | None:
     if not section:
         return None

@@ -23,7 +23,7 @@ import numpy as np
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.fdi.isolation import NO_CLOSED_CODE, UKF_TABLE, PatternRow
-from hydro_ros.fdi.parity import POINT_CHANNELS, ParityGenerator
+from hydro_ros.fdi.parity import POINT_CHANNELS, ParityGenerator, passes_nothing
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.fdi.ukf import PRESSURE_UNIT, UkfBank
 from hydro_ros.models.sam import SamModel
@@ -119,7 +119,7 @@ class ResidualGenerator(ABC):
     def thresholds(self, mean_pressure: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
         """(n, A, 2) positive thresholds from the 5 s mean pressures [MPa] or the operating point."""
 
-    def large(self, mean_residual: np.ndarray) -> np.ndarray:
+    def large(self, mean_residual: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
         """(n, A) "Large" evidence of the signature table; methods whose table has none say False."""
         return np.zeros(mean_residual.shape[:2], dtype=bool)
 
@@ -162,7 +162,7 @@ class UkfResiduals(ResidualGenerator):
     def thresholds(self, mean_pressure: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
         return self.settings.threshold_constant + self.settings.threshold_quadratic * mean_pressure**2
 
-    def large(self, mean_residual: np.ndarray) -> np.ndarray:
+    def large(self, mean_residual: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
         return np.all(np.abs(mean_residual) > self.settings.large_residual, axis=2)
 
     def reset(self) -> None:
@@ -229,6 +229,11 @@ class ParityResiduals(ResidualGenerator):
 
     def closed_code(self, closed_mean: np.ndarray) -> np.ndarray:
         return self.settings.parity_thresholds.closed_code(closed_mean)
+
+    def large(self, mean_residual: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
+        """The valve passed almost none of its modelled flow (``parity.passes_nothing``): a locked main spool, where a pilot
+        bias, an internal leak or a main-spool erosion give the same crossing signs."""
+        return passes_nothing(mean_residual, operating_point)
 
     def reset(self) -> None:
         self.generator.reset()

@@ -22,7 +22,7 @@ from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.isolation import NO_CLOSED_CODE, code_string
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
-from hydro_ros.fdi.parity import ParityThresholds
+from hydro_ros.fdi.parity import ParityThresholds, passes_nothing
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.sim.scenario import MachineRun, simulate_machine
 from hydro_ros.studies.commissioning import threshold_excess
@@ -397,8 +397,9 @@ def _fit_closed_thresholds(statistics: ParityThresholds, train_runs: list, held:
 def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seeds: Iterable[int], *,
                             duration_s: float = 60.0, onset_s: float = 20.0, share: float = 0.25,
                             closed_share: float = 0.05) -> list[dict[str, Any]]:
-    """Signature table by simulation: per fault and command sign, the crossing pattern that dominates after onset, and per
-    pattern the crossing codes over closed-valve samples (``ParityResiduals.closed_code``) that at least ``closed_share``
+    """Signature table by simulation: per fault and command sign, the crossing pattern that dominates after onset; per
+    pattern whether most of its windows were "large" (the valve passed almost nothing, ``parity.passes_nothing``) and the
+    crossing codes over closed-valve samples (``ParityResiduals.closed_code``) that at least ``closed_share``
     of its judged samples show (INFERRED: 5 %, above the 1-4 % of codes a fault shows only while its closed mean is
     on its way from one code to another; a pattern never judged closed takes any). One table serves every actuator, so
     each fault is simulated in each of them and their samples pooled."""
@@ -406,17 +407,20 @@ def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seed
     runs = [(seed, actuator) for actuator in machine.actuator_names for seed in seeds]
     for fault, value in PARITY_FAULTS:
         counts: dict[tuple[int, int], int] = {}
+        large_counts: dict[int, int] = {}
         closed_counts: dict[int, dict[int, int]] = {}
         for seed, actuator in runs:
             residual, point, command, times, closed_mean = _parity_records(
                 machine, Case(fault, value, seed, onset_s, duration_s, actuator=actuator))
             code = crossing_code(residual, thresholds(point))
             closed = thresholds.closed_code(closed_mean)
+            large = passes_nothing(residual, point)
             after = times >= onset_s
             direction = np.sign(command)
-            for c, d, k in zip(code[after], direction[after], closed[after]):
+            for c, d, k, big in zip(code[after], direction[after], closed[after], large[after]):
                 if c:
                     counts[(int(c), int(d))] = counts.get((int(c), int(d)), 0) + 1
+                    large_counts[int(c)] = large_counts.get(int(c), 0) + int(big)
                     if k != NO_CLOSED_CODE:
                         seen = closed_counts.setdefault(int(c), {})
                         seen[int(k)] = seen.get(int(k), 0) + 1
@@ -427,7 +431,9 @@ def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seed
                 by_code.setdefault(c, set()).add(d)
         for c, directions in sorted(by_code.items()):
             positive = None if len(directions - {0}) != 1 else (next(iter(directions - {0})) > 0)
-            row: dict[str, Any] = {"fault": fault, "code": code_string(c), "command_positive": positive}
+            seen_with_code = sum(n for (code_seen, _), n in counts.items() if code_seen == c)
+            row: dict[str, Any] = {"fault": fault, "code": code_string(c), "command_positive": positive,
+                                   "large": large_counts.get(c, 0) >= 0.5 * seen_with_code}
             seen = closed_counts.get(c, {})
             if seen:
                 row["closed"] = [code_string(k) for k, n in sorted(seen.items()) if n >= closed_share * sum(seen.values())]
