@@ -1,7 +1,10 @@
 from __future__ import annotations
 
+import fcntl
 import os
+import pickle
 from pathlib import Path
+from typing import Any, Callable
 
 import pytest
 
@@ -22,6 +25,21 @@ def k70m() -> dict:
     from hydro_ros.models.crane import load_crane
 
     return load_crane(K70M)[1]
+
+
+def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], Any]) -> Any:
+    """What ``build(folder)`` returns, built by the first pytest-xdist worker that asks and read back by the others: a module
+    fixture is otherwise built once per worker that runs one of its tests (the fleet's month of recordings: 40 s each)."""
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent  # the workers' base directories are siblings under the run's own
+    folder, result = shared / f"once-{name}", shared / f"once-{name}.pickle"
+    with open(shared / f"once-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not result.exists():
+            folder.mkdir(exist_ok=True)
+            result.write_bytes(pickle.dumps(build(folder)))
+        return pickle.loads(result.read_bytes())
 
 
 # the tiers: `make test-fast` runs what has none of these marks (setup.cfg [tool:pytest] describes them)

@@ -20,7 +20,7 @@ from hydro_ros.sim.scenario import MachineRun
 from hydro_ros.studies.commissioning import commission, load_recordings, write_config
 from hydro_ros.studies.fdi_evaluation import mismatched_config
 from hydro_ros.studies.fleet import analyse
-from test.conftest import REPO
+from test.conftest import REPO, built_once
 
 pytestmark = pytest.mark.slow
 
@@ -38,11 +38,14 @@ def write_recording(plant, path: Path, start_s: float, injections: dict, seed: i
 
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("fleet")
+    return built_once(tmp_path_factory, "fleet", build_fleet)
+
+
+def build_fleet(root: Path) -> Path:
     config = REPO / "config" / "boom_arm.yaml"
-    commissioning = tmp_path_factory.mktemp("commissioning")
+    commissioning = root / "commissioning"
     for index, name in enumerate(("m1", "m2", "m3")):
-        folder = root / name
+        folder = root / "fleet" / name
         (folder / "2026-11").mkdir(parents=True)
         machine = load_machine_config(config)
         plant = mismatched_config(machine, seed=40 + index)
@@ -55,9 +58,9 @@ def fleet(tmp_path_factory) -> Path:
             if name == "m2":
                 injections["arm"] = [Injection("external_leakage_b", ARM_LEAK[k], 0.0)]
             write_recording(plant, folder / "2026-11" / f"run{k}", EPOCH_S + k * 10 * DAY_S, injections, seed=100 * index + k)
-    damaged = root / "m3" / "2026-11" / "broken.mcap"
+    damaged = root / "fleet" / "m3" / "2026-11" / "broken.mcap"
     damaged.write_bytes(b"\x89MCAP0\r\n" + bytes(range(256)) * 40)
-    return root
+    return root / "fleet"
 
 
 def test_a_growing_leak_is_flagged_on_its_cylinder_and_dated_and_a_rerun_analyses_nothing_new(fleet, tmp_path):

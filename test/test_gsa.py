@@ -27,7 +27,7 @@ from hydro_ros.studies.gsa import (
     sobol_indices,
     steady_state,
 )
-from test.conftest import SAM_CONFIG
+from test.conftest import SAM_CONFIG, built_once
 
 # Sobol' sampling of the SAM model takes tens of seconds: make test runs those tests, make test-fast does not
 slow = pytest.mark.slow
@@ -36,8 +36,9 @@ NOTCH = ("q_n_pa", "dp_n_pa", "q_n_bt", "dp_n_bt")
 
 
 @pytest.fixture(scope="module")
-def parameters(sam_config):
-    return sobol_indices(sam_config, PARAMETERS, samples=64, workers=2, resamples=100)
+def parameters(sam_config, tmp_path_factory):
+    return built_once(tmp_path_factory, "gsa_parameters",
+                      lambda _: sobol_indices(sam_config, PARAMETERS, samples=64, workers=2, resamples=100))
 
 
 @slow

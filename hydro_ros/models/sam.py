@@ -26,7 +26,6 @@ from typing import Sequence
 
 import numpy as np
 from numba import njit, prange
-from scipy.signal import lfilter
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, Machine
@@ -533,6 +532,8 @@ def lagged_command(params: np.ndarray, history: np.ndarray) -> float:
         return 0.0
     if params[LAG_SAMPLES] <= 0.0:
         return float(arrived[-1])
+    from scipy.signal import lfilter  # here, not at the top: scipy.signal costs every node that loads the model 0.7 s at start
+
     keep = math.exp(-1.0 / params[LAG_SAMPLES])
     return float(lfilter([1.0 - keep], [1.0, -keep], arrived, zi=[keep * arrived[0]])[0][-1])
 

@@ -61,7 +61,6 @@ from hydro_ros.fdi.residuals import GENERATORS
 from hydro_ros.fdi.settings import unset_threshold
 from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, SENSOR_QOS, SERVICE_QOS, namespaced_statuses, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
-from hydro_ros.sim.scenario import Scenario, run_blocks
 
 ALARM_LOG_STATUS = "hydro_ros/alarm_log"
 MAX_PENDING_NS = 5_000_000_000  # samples waiting for a missing topic longer than this are given up
@@ -457,6 +456,8 @@ class FdiNode(Node):
         """A short fault-free simulation of the first actuator, replayed on every actuator, through a fresh monitor of the
         same config: residuals within thresholds and no alarm. It depends on the config alone, so it runs once."""
         if self._simulated_check is None:
+            from hydro_ros.sim.scenario import Scenario, run_blocks  # the monitor itself never needs the simulator
+
             probe = FdiMonitor(self.machine_config, self.monitor.method)
             n_act = len(probe.actuators)
             scenario = Scenario(probe.settings.window_s + 1.0, (), seed=0, actuator=probe.actuators[0])
