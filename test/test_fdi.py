@@ -8,7 +8,7 @@ import pytest
 from hydro_ros.bags.reader import read_bag
 from hydro_ros.contract.names import Fault, Injection
 from hydro_ros.fdi.filterpy_twin import filterpy_twin
-from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Isolator
+from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Isolator, signature_rows
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import analyse_bag, blocks_from_bag
 from hydro_ros.fdi.residuals import MovingAverage
@@ -91,6 +91,44 @@ def test_isolation_follows_table_3_and_its_procedure(events, expected):
     assert isolator.fault == expected
     assert alarms[0].time_s == 1.0  # detection at the first crossing
     assert alarms[-1].fault == expected
+
+
+MOBILE_ROWS = signature_rows([
+    {"fault": "external_leakage_b", "code": "0010", "command_positive": False, "closed": ["0000", "0010"]},
+    {"fault": "compensator_pressure_sensor_bias", "code": "0010", "command_positive": False, "closed": [0.0]},
+    {"fault": "compensator_pressure_sensor_bias", "code": "1000", "command_positive": True, "closed": ["0000"]},
+    {"fault": "internal_leakage", "code": 1001.0, "large": False, "closed": ["0000", "1001"]},  # as the config loader hands it over
+    {"fault": "pilot_pressure_sensor_bias", "code": "1001", "large": False, "closed": ["0000", "0001", "0101"]},
+    {"fault": "main_spool_locking", "code": "1001", "command_positive": True, "large": True, "closed": ["0000"]},
+])
+
+
+@pytest.mark.parametrize(
+    ("events", "expected"),
+    [
+        # a quiet closed window leaves the B leak and the compensator bias; a B crossing while closed names the leak ...
+        ([(1.0, B_UP, False, -1, 0), (3.0, B_UP, False, -1, B_UP)], Fault.EXTERNAL_LEAKAGE_B),
+        # ... even after the compensator bias was named (its rows lack it), while a quiet window does not undo a name
+        ([(1.0, B_UP, False, -1, None), (3.0, A_UP, False, 1, 0), (5.0, B_UP, False, -1, B_UP), (7.0, B_UP, False, -1, 0)],
+         Fault.EXTERNAL_LEAKAGE_B),
+        ([(1.0, B_UP, False, -1, 0), (3.0, A_UP, False, 1, 0)], Fault.COMPENSATOR_PRESSURE_SENSOR_BIAS),
+        # without a closed code the two stay unnamed
+        ([(1.0, B_UP, False, -1, None), (3.0, B_UP, False, -1, None)], Fault.UNISOLATED),
+        # A up and B down while closed is the internal leak; B down alone the pilot bias, whose real spool opens near
+        # the dead zone's edge; the leak's crossing overrules the bias, whose codes have no A up
+        ([(1.0, A_UP | B_DOWN, False, 1, A_UP | B_DOWN)], Fault.INTERNAL_LEAKAGE),
+        ([(1.0, A_UP | B_DOWN, False, 1, B_DOWN)], Fault.PILOT_PRESSURE_SENSOR_BIAS),
+        ([(1.0, A_UP | B_DOWN, False, 1, B_DOWN), (3.0, A_UP | B_DOWN, False, 1, A_UP | B_DOWN)], Fault.INTERNAL_LEAKAGE),
+        # "Large" (the valve passes nothing) names the locked spool over the causes its first, smaller windows allowed
+        ([(1.0, A_UP | B_DOWN, False, 1, 0), (3.0, A_UP | B_DOWN, True, 1, 0)], Fault.MAIN_SPOOL_LOCKING),
+    ],
+)
+def test_closed_valve_evidence_and_large_name_what_the_crossing_signs_share(events, expected):
+    isolator = Isolator("boom", table=MOBILE_ROWS)
+    for t, code, large, direction, closed in events:
+        isolator.observe(t, code, False, large, direction, closed)
+    isolator.advance(events[-1][0] + 2.0)
+    assert isolator.fault == expected
 
 
 def test_short_partial_patterns_do_not_isolate_and_acknowledge_clears():

@@ -8,7 +8,8 @@ import pytest
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.parity import ParityGenerator
-from hydro_ros.models.sam import PILOT_MAX, SamModel
+from hydro_ros.fdi.residuals import LastSamplesMean
+from hydro_ros.models.sam import AREA_A, AREA_B, PILOT_MAX, SamModel
 from hydro_ros.models.valve import pilot_drive
 from hydro_ros.studies.fdi_evaluation import Case, _blocks, run_case
 from test.conftest import REPO
@@ -45,22 +46,67 @@ def test_parity_needs_fitted_thresholds(mobile):
 
 @pytest.mark.parametrize(
     ("fault", "value", "isolated"),
-    [(None, 0.0, None), ("pressure_sensor_bias_a", 5e5, "pressure_sensor_bias_a"), ("velocity_sensor_bias", 0.02, None),
-     ("pressure_sensor_bias_b", 5e5, "pressure_sensor_bias_b"), ("external_leakage_a", 2.0, None),
-     ("internal_leakage", 2.0, None), ("main_spool_locking", 1.0, None)],
+    [(None, 0.0, None), ("pressure_sensor_bias_a", 5e5, "pressure_sensor_bias_a"),
+     ("pressure_sensor_bias_b", 5e5, "pressure_sensor_bias_b"), ("external_leakage_a", 2.0, "external_leakage_a"),
+     # named by the closed-valve evidence: crossings while the spool is closed (their metering signs are shared)
+     ("velocity_sensor_bias", 0.02, "velocity_sensor_bias"), ("internal_leakage", 2.0, "internal_leakage"),
+     ("internal_leakage", 1.0, "internal_leakage"), ("pilot_pressure_sensor_bias", 3e5, "pilot_pressure_sensor_bias"),
+     ("compensator_pressure_sensor_bias", 5e5, "compensator_pressure_sensor_bias"),
+     # named by "Large": the valve passes none of its modelled flow
+     ("main_spool_locking", 1.0, "main_spool_locking"),
+     # B is the meter-in chamber of a retraction, where a compensator bias adds what a leak out of B takes, and the
+     # leak's flow at the 0.1-0.7 MPa of a held B stays under the closed-valve threshold: detected, not named
+     ("external_leakage_b", 2.0, "unisolated")],
 )
 def test_parity_on_mismatched_plants(mobile, fault, value, isolated):
     """Seeds 1 and 2 are neither training (100+) nor held-out (300+) plants of the fitted config."""
-    outcome = run_case(mobile, Case(fault, value, seed=2, duration_s=50.0))
+    outcome = run_case(mobile, Case(fault, value, seed=2, duration_s=60.0))
     assert not outcome.early_alarm
     if fault is None:
         assert outcome.crossing_episodes == 0
         return
     assert outcome.detected and outcome.delay_s < 20.0
-    if isolated is not None:
-        assert outcome.isolated == isolated
-    # else: detected only; its pattern is shared with other faults of the table (P-IV: only a
-    # subset of the fault list is isolable; docs/monitoring.md's evaluation table gives the rates)
+    assert outcome.isolated == isolated
+
+
+def _closed_mean_change(machine, fault: str | None, value: float) -> np.ndarray:
+    """(A, B) change of the closed-valve mean residual [L/min] from the 10 s before a fault's onset (20 s) to its last 25 s,
+    on a mismatched plant (seed 1)."""
+    monitor = FdiMonitor(machine, "parity")
+    means, times = [], []
+    for _, result in _blocks(machine, Case(fault, value, seed=1, onset_s=20.0, duration_s=70.0), monitor):
+        means.append(result.closed_mean[:, 0])
+        times.append(result.times)
+    mean, time = np.concatenate(means), np.concatenate(times)
+    return np.nanmean(mean[time > 45.0], axis=0) - np.nanmean(mean[(time > 10.0) & (time < 20.0)], axis=0)
+
+
+def test_closed_valve_evidence_follows_the_physics_of_each_fault(mobile):
+    """With the spool closed, an internal leak takes from A what it gives to B (equal magnitudes), a velocity bias takes
+    A_A b from A and gives A_B b to B (their ratio is the area ratio), while a compensator-pressure bias and a main-spool
+    erosion, which act through the metering valve, leave the closed means within what the centre leakage's dependence on
+    the compensator pressure moves (0.15 L/min, INFERRED from a 0.5 MPa bias on the 5-10 % laminar centre leakage)."""
+    internal = _closed_mean_change(mobile, "internal_leakage", 2.0)
+    assert internal[0] > 0.3 and internal[1] < -0.3
+    assert -internal[0] / internal[1] == pytest.approx(1.0, rel=0.2)
+    velocity = _closed_mean_change(mobile, "velocity_sensor_bias", 0.02)
+    model = SamModel(mobile)
+    assert velocity[0] < -0.3 and velocity[1] > 0.3
+    assert -velocity[0] / velocity[1] == pytest.approx(model.base[AREA_A] / model.base[AREA_B], rel=0.2)
+    for fault, value in ((None, 0.0), ("compensator_pressure_sensor_bias", 5e5), ("main_spool_erosion", 0.3)):
+        assert np.all(np.abs(_closed_mean_change(mobile, fault, value)) < 0.15), fault
+
+
+def test_closed_valve_mean_is_that_of_the_last_closed_samples_across_blocks():
+    rng = np.random.default_rng(5)
+    values, counted = rng.normal(size=(3000, 2)), rng.random((3000, 2)) < 0.1
+    average = LastSamplesMean(40, 2)
+    out = np.concatenate([average(values[i:i + 700], counted[i:i + 700]) for i in range(0, 3000, 700)])
+    for c in range(2):
+        index = np.flatnonzero(counted[:, c])
+        for k in (index[38], index[39], index[200], 2999):
+            last = index[index <= k][-40:]
+            assert (np.isnan(out[k, c]) if len(last) < 40 else out[k, c] == pytest.approx(values[last, c].mean()))
 
 
 def test_a_pilot_at_tank_read_by_a_transmitter_clipped_at_zero_does_not_shrink_the_opening(mobile):
