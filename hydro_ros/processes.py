@@ -6,6 +6,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from contextlib import contextmanager
 from typing import Any, Callable, Iterator
@@ -16,17 +17,30 @@ import psutil
 @contextmanager
 def node_process(module: str, *ros_args: str) -> Iterator[subprocess.Popen]:
     """``python -m module --ros-args ...`` in this environment (its ROS_DOMAIN_ID), terminated on leaving, killed if it
-    will not end."""
-    proc = subprocess.Popen([sys.executable, "-m", module, "--ros-args", *ros_args], env=dict(os.environ),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        yield proc
-    finally:
-        proc.terminate()
+    will not end. Its output goes to a file, read with ``node_output``: a pipe nobody drains fills at 64 kB and then
+    stops the node in its next log line (a plant logging for minutes froze, and the monitor beside it saw stale topics)."""
+    with tempfile.TemporaryFile("w+") as log:
+        proc = subprocess.Popen([sys.executable, "-m", module, "--ros-args", *ros_args], env=dict(os.environ), stdout=log,
+                                stderr=subprocess.STDOUT, text=True)
+        proc.log = log
         try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+            yield proc
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            proc.final_output = node_output(proc)
+
+
+def node_output(proc: subprocess.Popen) -> str:
+    """What a ``node_process`` has written, stdout and stderr: so far while it runs, all of it once it has ended."""
+    if hasattr(proc, "final_output"):
+        return proc.final_output
+    proc.log.seek(0)
+    return proc.log.read()
 
 
 def free_port() -> int:

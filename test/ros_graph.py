@@ -11,7 +11,7 @@ from typing import Any, Callable, Iterator
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
-from hydro_ros.processes import free_port, node_process, spin_until  # noqa: F401 - the tests take them from here
+from hydro_ros.processes import free_port, node_output, node_process, spin_until  # noqa: F401 - the tests take them from here
 
 
 @contextmanager

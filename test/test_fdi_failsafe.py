@@ -190,7 +190,7 @@ def test_a_dead_monitor_goes_quiet_and_a_restarted_one_says_nothing_until_armed(
         with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"):
             restarted = time.monotonic()
             assert spin_until(node, lambda: any(h for _, h in halts[heartbeats:]), 120), \
-                f"the new monitor never requested the halt; it said {[s.message for s in said[-8:]]}"
+                f"the new monitor never requested the halt; it said {[(s.message, _values(s).get('stale_topics')) for s in said[-4:]]}"
     first = halts[heartbeats][0]
     assert first - restarted > 8.0  # 5 s of samples at half real time (and start-up) before anything is said
 

@@ -22,7 +22,7 @@ from hydro_ros.nodes.common import LATCHED_QOS
 from hydro_ros.nodes.hmi import TOKEN_ENV
 from test.browser import chromium_page
 from test.conftest import REPO, SAM_CONFIG
-from test.ros_graph import free_port, node_process, port_open, probe_node, spinning, wait_for
+from test.ros_graph import free_port, node_output, node_process, port_open, probe_node, spinning, wait_for
 
 TOKEN = "hmi-e2e-token"
 SCREENSHOT = REPO / "out" / "hmi.png"
@@ -131,6 +131,6 @@ def test_operator_sees_the_leak_and_acknowledges_it_only_with_the_token(ros_doma
         assert "operator token required" in refused and "operator token rejected" in refused
         latencies = page.evaluate("() => window.hmiLatencies")
         assert latencies and all(0.0 <= s < 5.0 for s in latencies), latencies  # /diagnostics stamp -> DOM
-    log = hmi.stdout.read()
+    log = node_output(hmi)
     assert "operator action acknowledge from 127.0.0.1 refused: operator token required" in log
     assert "operator action acknowledge from 127.0.0.1: done" in log and "request_path horizontal dp_cp" in log

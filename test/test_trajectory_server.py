@@ -22,7 +22,7 @@ from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE
 from hydro_ros.studies.execution import iso9283_path_accuracy
 from test.conftest import K70M
-from test.ros_graph import change_state, lifecycle_state, node_process, probe_node, spin_until
+from test.ros_graph import change_state, lifecycle_state, node_output, node_process, probe_node, spin_until
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +60,7 @@ def test_server_serves_from_the_clients_joint_state_and_refuses_unknown_paths(ro
         node.create_subscription(JointTrajectory, "/crane/joint_trajectory", lambda m: received["output"].append(m), 10)
         requests = node.create_publisher(String, "/trajectory_server/request", 10)
         joints = node.create_publisher(JointState, topics.JOINT_STATES, 10)
-        assert spin_until(node, lambda: received["catalog"], 30), proc.stdout.read() if proc.poll() is not None else "no catalog"
+        assert spin_until(node, lambda: received["catalog"], 30), node_output(proc) or "no catalog"
         catalog = json.loads(received["catalog"][-1].data)
         assert [entry["path"] for entry in catalog if entry["solutions"]] == ["horizontal"]
 
