@@ -110,7 +110,8 @@ def _detectable(parity: dict) -> str:
     never = [f for f, rows in faults.items() if not any(r["detection_rate"] for r in rows)]
     unisolated = [f for f, rows in faults.items() if f not in never and not any(r["isolation_accuracy"] for r in rows)]
     return (f"{len(never)} of {len(faults)} faults never detected: {', '.join(never)}. Isolation is a further limit: "
-            f"{', '.join(unisolated)} are detected but share crossing patterns and stay `unisolated`")
+            f"{', '.join(unisolated)} {'is' if len(unisolated) == 1 else 'are'} detected but never named (the evidence shared "
+            "with other faults' rows)")
 
 
 def _gsa(gsa: dict, convergence: dict) -> str:

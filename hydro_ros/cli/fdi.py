@@ -40,7 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config(fit, "machine config with valve.type mobile, e.g. config/sam_mobile.yaml or config/k70m.yaml")
     fit.add_argument("--train", type=int, default=8, help="fault-free training plants (2 min each)")
     fit.add_argument("--held-out", type=int, default=8, help="fault-free plants that set the threshold factor")
-    fit.add_argument("--signature-seeds", type=int, default=2, help="plants per fault for the signature table")
+    fit.add_argument("--signature-seeds", type=int, default=6, help="plants per fault for the signature table (the closed-valve "
+                                                                  "codes a fault makes on some plants only, a held B's leak, need several)")
     fit.add_argument("--write", action="store_true", help="write the result into the config's fitted block")
     add_quiet(fit)
     fit.set_defaults(func=cmd_fdi_fit)
@@ -125,8 +126,9 @@ def cmd_fdi_fit(args: argparse.Namespace) -> int:
         closed = (f", closed-valve factors {', '.join(f'{f:g}' for f in report['closed_factor'])} for none there"
                   if "closed_factor" in report else "")
         write_fitted_block(Path(args.config), thresholds, rows,
-                           f"parity thresholds from fault-free mismatched plants, factor {thresholds.factor:g} for <= 1 false alarm/h on "
-                           f"{report['held_out_hours']:.2f} h held out{closed}; signature table by simulation of the P-IV fault list.")
+                           f"parity thresholds from {args.train} fault-free mismatched plants, factor {thresholds.factor:g} for <= 1 false "
+                           f"alarm/h on {report['held_out_hours']:.2f} h held out{closed}; signature table by simulation of the P-IV fault "
+                           f"list on {args.signature_seeds} plants per fault.")
         print(f"written to {args.config}")
     return 0
 

@@ -31,6 +31,29 @@ expected bias where the drop is a few sigma, and the size of the misreading wher
 noise; its 5 s mean is added to the thresholds (``ParityThresholds``). It is 0.001 L/min in most windows
 and 0.4 L/min on the mobile SAM stalled with 300 kg, where the fault-free 5 s mean residual reached
 -0.28 L/min (4 false alarms/h on commissioned thresholds without it, measured).
+
+Isolation evidence beyond the crossing signs (the signs while metering are shared: a B leak's with a compensator
+sensor bias on retraction, an internal leak's with a pilot sensor bias and a locked spool, a velocity bias's with
+the spool faults), each built into the signature table by simulation (``hydro-ros fdi fit``) for every actuator:
+
+- closed-valve code (``ParityResiduals.closed_mean``, ``ParityThresholds.closed_code``): each chamber's mean residual
+  over its last 2 s of samples with the modelled spool within half its dead zone, against thresholds fitted on
+  fault-free plants. A leak and a velocity bias flow with the valve closed; a sensor bias of the pilot or
+  compensator pressure and a main-spool fault act through the metering notches, which are shut. The internal leak
+  shows there as A up and B down with equal magnitudes, the velocity bias as A down and B up at the area ratio,
+  a held B's leak as B up; a 0.3 MPa pilot bias opens the real spool near the dead zone's edge and shows B alone.
+- "Large" (``passes_nothing``): both chambers' 5 s mean |residual| >= 0.8 of their modelled valve flow - the valve
+  passes none of what its pilots say, a locked main spool.
+
+Not named on the mobile SAM (bench/results/fdi_parity_eval.md): a locked or eroded compensator is never detected -
+the measured compensator pressure is the model's metering supply, so the model follows whatever the compensator
+does and the residual cannot see it (P-IV built no compensator model, digest 6.1). Left unnamed, detected: a
+pilot-balance offset of 0.025-0.05 of travel keeps the real spool inside its overlap when closed and crosses like a
+velocity bias while metering (0110, quiet closed); a 0.15 MPa pilot bias does not open the closed spool and crosses
+like the internal leak (1001); a 0.3 MPa compensator bias crosses on retraction only (0010, the B leak's); a 0.15
+main-spool erosion alternates between partial patterns. A B leak is named where the machine holds B pressurised at
+rest (0.7 MPa on average while closed on a plant where it is); where B rests near 0.1 MPa its flow stays under the
+closed-valve threshold (0.22 L/min) and it shares the compensator bias's retraction pattern.
 """
 
 from __future__ import annotations

@@ -93,6 +93,7 @@ class Outcome:
     detected: bool
     early_alarm: bool  # an alarm before the onset (a false alarm)
     delay_s: float | None
+    named_s: float | None  # from onset to the first alarm with the right name
     isolated: str | None
     correct: bool
     mean_leak_l_min: float | None
@@ -143,6 +144,7 @@ def run_case(machine: Machine, case: Case) -> Outcome:
     actuator = case.actuator or machine.first.name
     index = machine.actuator_names.index(actuator)
     first: float | None = None
+    named: float | None = None
     early = False
     episodes = 0
     crossing = np.zeros(len(machine.actuators), dtype=bool)
@@ -155,8 +157,11 @@ def run_case(machine: Machine, case: Case) -> Outcome:
         for alarm in result.alarms:
             if alarm.time_s < case.onset_s or case.fault is None or alarm.actuator != actuator:
                 early = True
-            elif first is None:
-                first = alarm.time_s
+            else:
+                if first is None:
+                    first = alarm.time_s
+                if named is None and alarm.fault.value == case.fault:
+                    named = alarm.time_s
         if case.fault in LEAKS:
             after = times >= case.onset_s
             if after.any():
@@ -166,7 +171,8 @@ def run_case(machine: Machine, case: Case) -> Outcome:
     detected = first is not None
     return Outcome(
         fault=case.fault, value=case.value, seed=case.seed, detected=detected, early_alarm=early,
-        delay_s=None if first is None else first - case.onset_s, isolated=isolated,
+        delay_s=None if first is None else first - case.onset_s, named_s=None if named is None else named - case.onset_s,
+        isolated=isolated,
         correct=detected and not early and isolated == case.fault,
         mean_leak_l_min=float(np.mean(np.concatenate(leak))) if leak else None,
         crossing_episodes=episodes, monitored_s=case.duration_s - monitor.settings.window_s,
@@ -213,12 +219,14 @@ def summarise(outcomes: list[Outcome], fault_free: list[Outcome]) -> dict[str, A
     for fault, value in keys:
         group = [o for o in outcomes if o.fault == fault and o.value == value]
         delays = [o.delay_s for o in group if o.delay_s is not None]
+        named = [o.named_s for o in group if o.correct]
         leaks = [o.mean_leak_l_min for o in group if o.mean_leak_l_min is not None]
         rows.append({
             "fault": fault, "value": value, "runs": len(group),
             "detection_rate": sum(o.detected for o in group) / len(group),
             "isolation_accuracy": sum(o.correct for o in group) / len(group),
             "median_delay_s": float(np.median(delays)) if delays else None,
+            "median_named_s": float(np.median(named)) if named else None,
             "mean_leak_flow_l_min": float(np.mean(leaks)) if leaks else None,
             "early_alarms": sum(o.early_alarm for o in group),
             "isolated_as": sorted({o.isolated or "none" for o in group}),
@@ -302,14 +310,15 @@ def evaluate_parity(machine: Machine, *, seeds: int, duration_s: float, fault_fr
 
 
 def markdown_table(summary: dict[str, Any]) -> str:
-    lines = ["| fault | size | detected | isolated correctly | median delay [s] | actual leak [L/min] | isolated as |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| fault | size | detected | isolated correctly | median delay [s] | median delay to the right name [s] | actual leak [L/min] "
+             "| isolated as |", "|---|---|---|---|---|---|---|---|"]
     for row in summary["rows"]:
         unit = "L/min@10MPa" if row["fault"] in LEAKS else (INJECTION_UNITS_SHORT.get(row["fault"], ""))
         delay = "-" if row["median_delay_s"] is None else f"{row['median_delay_s']:.1f}"
+        named = "-" if row.get("median_named_s") is None else f"{row['median_named_s']:.1f}"
         leak = "-" if row["mean_leak_flow_l_min"] is None else f"{row['mean_leak_flow_l_min']:.2f}"
         lines.append(f"| {row['fault']} | {row['value']:g} {unit} | {row['detection_rate']:.0%} | {row['isolation_accuracy']:.0%} "
-                     f"| {delay} | {leak} | {', '.join(row['isolated_as'])} |")
+                     f"| {delay} | {named} | {leak} | {', '.join(row['isolated_as'])} |")
     free = summary["fault_free"]
     lines.append("")
     threshold = summary["threshold"]
