@@ -8,7 +8,7 @@ import pytest
 from hydro_ros.bags.reader import read_bag
 from hydro_ros.contract.names import Fault, Injection
 from hydro_ros.fdi.filterpy_twin import filterpy_twin
-from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, Isolator, signature_rows
+from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, JUDGED_A, JUDGED_B, Isolator, signature_rows
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import analyse_bag, blocks_from_bag
 from hydro_ros.fdi.residuals import MovingAverage
@@ -103,24 +103,31 @@ MOBILE_ROWS = signature_rows([
 ])
 
 
+BOTH = JUDGED_A | JUDGED_B  # closed codes of windows with both chambers judged
+
+
 @pytest.mark.parametrize(
     ("events", "expected"),
     [
         # a quiet closed window leaves the B leak and the compensator bias; a B crossing while closed names the leak ...
-        ([(1.0, B_UP, False, -1, 0), (3.0, B_UP, False, -1, B_UP)], Fault.EXTERNAL_LEAKAGE_B),
+        ([(1.0, B_UP, False, -1, BOTH), (3.0, B_UP, False, -1, B_UP | BOTH)], Fault.EXTERNAL_LEAKAGE_B),
         # ... even after the compensator bias was named (its rows lack it), while a quiet window does not undo a name
-        ([(1.0, B_UP, False, -1, None), (3.0, A_UP, False, 1, 0), (5.0, B_UP, False, -1, B_UP), (7.0, B_UP, False, -1, 0)],
+        ([(1.0, B_UP, False, -1, None), (3.0, A_UP, False, 1, BOTH), (5.0, B_UP, False, -1, B_UP | BOTH), (7.0, B_UP, False, -1, BOTH)],
          Fault.EXTERNAL_LEAKAGE_B),
-        ([(1.0, B_UP, False, -1, 0), (3.0, A_UP, False, 1, 0)], Fault.COMPENSATOR_PRESSURE_SENSOR_BIAS),
+        ([(1.0, B_UP, False, -1, BOTH), (3.0, A_UP, False, 1, BOTH)], Fault.COMPENSATOR_PRESSURE_SENSOR_BIAS),
         # without a closed code the two stay unnamed
         ([(1.0, B_UP, False, -1, None), (3.0, B_UP, False, -1, None)], Fault.UNISOLATED),
         # A up and B down while closed is the internal leak; B down alone the pilot bias, whose real spool opens near
         # the dead zone's edge; the leak's crossing overrules the bias, whose codes have no A up
-        ([(1.0, A_UP | B_DOWN, False, 1, A_UP | B_DOWN)], Fault.INTERNAL_LEAKAGE),
-        ([(1.0, A_UP | B_DOWN, False, 1, B_DOWN)], Fault.PILOT_PRESSURE_SENSOR_BIAS),
-        ([(1.0, A_UP | B_DOWN, False, 1, B_DOWN), (3.0, A_UP | B_DOWN, False, 1, A_UP | B_DOWN)], Fault.INTERNAL_LEAKAGE),
+        ([(1.0, A_UP | B_DOWN, False, 1, A_UP | B_DOWN | BOTH)], Fault.INTERNAL_LEAKAGE),
+        ([(1.0, A_UP | B_DOWN, False, 1, B_DOWN | BOTH)], Fault.PILOT_PRESSURE_SENSOR_BIAS),
+        ([(1.0, A_UP | B_DOWN, False, 1, B_DOWN | BOTH), (3.0, A_UP | B_DOWN, False, 1, A_UP | B_DOWN | BOTH)], Fault.INTERNAL_LEAKAGE),
+        # with B masked while closed (cavitating at rest) A's crossing alone is compared: the leak's, not the bias's
+        ([(1.0, A_UP | B_DOWN, False, 1, A_UP | JUDGED_A)], Fault.INTERNAL_LEAKAGE),
+        # and a quiet A alone tells nothing between them
+        ([(1.0, A_UP | B_DOWN, False, 1, JUDGED_A)], Fault.UNISOLATED),
         # "Large" (the valve passes nothing) names the locked spool over the causes its first, smaller windows allowed
-        ([(1.0, A_UP | B_DOWN, False, 1, 0), (3.0, A_UP | B_DOWN, True, 1, 0)], Fault.MAIN_SPOOL_LOCKING),
+        ([(1.0, A_UP | B_DOWN, False, 1, BOTH), (3.0, A_UP | B_DOWN, True, 1, BOTH)], Fault.MAIN_SPOOL_LOCKING),
     ],
 )
 def test_closed_valve_evidence_and_large_name_what_the_crossing_signs_share(events, expected):

@@ -11,7 +11,8 @@ A method may add the crossing code of its residuals over the samples at which th
 (``closed_code``: :meth:`hydro_ros.fdi.residuals.ParityResiduals.closed_code`). A row with ``closed``
 codes (those its fault was seen to make while closed) matches an observation only with one of them; an
 observation without a closed code (too few closed samples yet, or a method without the evidence) matches
-every row. Towards partial patterns a closed crossing counts like a main one: a row is compatible where
+every row, and one of a single chamber (the other masked: cavitating at rest) is compared on that chamber
+alone. Towards partial patterns a closed crossing counts like a main one: a row is compatible where
 its closed codes together contain every closed crossing seen. So a crossing while the valve is closed,
 which a fault acting only through the metering valve cannot make, overrules an earlier cause that lacks
 it, and a quiet closed window (a leak too small to cross at rest) does not.
@@ -28,6 +29,13 @@ from hydro_ros.contract.names import Fault
 
 A_UP, A_DOWN, B_UP, B_DOWN = 8, 4, 2, 1
 NO_CLOSED_CODE = -1  # a closed code not known (too few closed-valve samples yet, or no evidence of the kind)
+JUDGED_A, JUDGED_B = 16, 32  # a closed code's flags: the chamber had enough closed-valve samples to judge (masked otherwise)
+
+
+def closed_parts(closed_code: int) -> tuple[int, int]:
+    """(crossing bits, bits of the judged chambers) of a closed code: a chamber not judged has no crossing, known or not."""
+    judged = (A_UP | A_DOWN if closed_code & JUDGED_A else 0) | (B_UP | B_DOWN if closed_code & JUDGED_B else 0)
+    return closed_code & judged, judged
 
 
 def code_string(code: int) -> str:
@@ -58,8 +66,10 @@ class PatternRow:
     def matches(self, code: int, pa_gt_pb: bool, large: bool, direction: int, closed_code: int | None = None) -> bool:
         if code != self.code:
             return False
-        if self.closed is not None and closed_code is not None and closed_code not in self.closed:
-            return False
+        if self.closed is not None and closed_code is not None:
+            bits, judged = closed_parts(closed_code)
+            if not any(closed & judged == bits for closed in self.closed):
+                return False
         if self.pa_gt_pb is not None and self.pa_gt_pb != pa_gt_pb:
             return False
         if self.large is not None and self.large != large:
@@ -74,10 +84,11 @@ class PatternRow:
             return False
         if self.closed is None or closed_code is None:
             return True
+        bits, _ = closed_parts(closed_code)
         every = 0
         for closed in self.closed:
             every |= closed
-        return every & closed_code == closed_code
+        return every & bits == bits
 
 
 # P-II Table 3, rows 1-10, plus the simultaneous A+B leak of the fault tree (INFERRED row: both
@@ -205,7 +216,7 @@ class Isolator:
         elif not exact and self.candidates & partial:
             self.candidates = self.candidates & partial
         # else: a partial pattern on the way between two full ones (e.g. a valve fault flipping) -> keep
-        closed = "" if closed_code is None else f" closed {code_string(closed_code)}"
+        closed = "" if closed_code is None else " closed {} of {}".format(*(code_string(part) for part in closed_parts(closed_code)))
         self.history.append(f"{since:.3f}s {code_string(code)}{closed} -> {','.join(sorted(f.value for f in exact or partial))}")
         after = self.fault
         if after != before:

@@ -65,7 +65,7 @@ import numpy as np
 from numba import njit
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.fdi.isolation import NO_CLOSED_CODE, crossing_code
+from hydro_ros.fdi.isolation import JUDGED_A, JUDGED_B, NO_CLOSED_CODE, crossing_code
 from hydro_ros.models.chamber import effective_bulk_modulus
 from hydro_ros.models.sam import (
     AREA_A,
@@ -338,14 +338,16 @@ class ParityThresholds:
                 **({"closed": {key: list(self.closed[key]) for key in ("mean", "std", "factor")}} if self.closed else {})}
 
     def closed_code(self, closed_mean: np.ndarray) -> np.ndarray:
-        """(..., 2) closed-valve mean residuals (NaN: not judged) -> (...) their crossing codes of the closed thresholds,
-        ``NO_CLOSED_CODE`` where a chamber was not judged or the thresholds have no closed statistics."""
+        """(..., 2) closed-valve mean residuals (NaN: not judged) -> (...) their crossing codes of the closed thresholds with
+        the judged chambers' flags (``isolation.JUDGED_A``, ``JUDGED_B``), ``NO_CLOSED_CODE`` where neither was judged or
+        the thresholds have no closed statistics."""
         if not self.closed:
             return np.full(closed_mean.shape[:-1], NO_CLOSED_CODE, dtype=np.int8)
         threshold = np.abs(np.asarray(self.closed["mean"])) + np.asarray(self.closed["factor"]) * np.asarray(self.closed["std"])
         code = crossing_code(np.nan_to_num(closed_mean), np.broadcast_to(threshold, closed_mean.shape))
-        # both chambers judged or none: a code of one chamber alone (the other cavitating) would read as that chamber's fault
-        return np.where(np.isfinite(closed_mean).all(axis=-1), code, NO_CLOSED_CODE).astype(np.int8)
+        judged = np.isfinite(closed_mean)
+        flags = JUDGED_A * judged[..., 0] + JUDGED_B * judged[..., 1]
+        return np.where(judged.any(axis=-1), code + flags, NO_CLOSED_CODE).astype(np.int8)
 
     def __call__(self, operating_point: np.ndarray) -> np.ndarray:
         """(..., 5) operating points -> (..., 2) thresholds."""

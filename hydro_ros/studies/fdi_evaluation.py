@@ -20,7 +20,7 @@ import numpy as np
 
 from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.names import Injection
-from hydro_ros.fdi.isolation import NO_CLOSED_CODE, code_string
+from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, NO_CLOSED_CODE, closed_parts, code_string
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds, passes_nothing
 from hydro_ros.fdi.settings import FdiSettings
@@ -364,15 +364,18 @@ def _crossing_episodes(residual: np.ndarray, operating_point: np.ndarray, thresh
 
 def fit_parity_thresholds(machine: Machine, train: Iterable[int], held_out: Iterable[int], duration_s: float = 120.0,
                           target_per_hour: float = 1.0) -> tuple["ParityThresholds", dict[str, Any]]:
-    """Bin fault-free 5 s mean residuals by mean opening; pick c for the false-alarm target on held-out plants."""
-    train_runs = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s)) for seed in train]
+    """Bin fault-free 5 s mean residuals by mean opening; pick c for the false-alarm target on held-out plants. One set of
+    thresholds serves every actuator, so every actuator's windows enter (held-out hours are actuator hours)."""
+    train_runs = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s, actuator=actuator))
+                  for seed in train for actuator in machine.actuator_names]
     residual = np.concatenate([r[0] for r in train_runs])
     point = np.concatenate([r[1] for r in train_runs])
     statistics = ParityThresholds.from_statistics(residual, point, PARITY_OPENING_EDGES, THRESHOLD_FACTORS[-1])
-    held = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s)) for seed in held_out]
+    held = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s, actuator=actuator))
+            for seed in held_out for actuator in machine.actuator_names]
     hours = sum(len(r[3]) for r in held) / machine.sample_rate_hz / 3600.0
     report: dict[str, Any] = {"held_out_hours": hours, "tried": {}}
-    statistics = replace(statistics, closed=_fit_closed_thresholds(statistics, train_runs, held, report))
+    statistics = replace(statistics, closed=_fit_closed_thresholds(train_runs, held, report))
     for factor in THRESHOLD_FACTORS:
         thresholds = replace(statistics, factor=factor)
         episodes = sum(_crossing_episodes(r[0], r[1], thresholds) for r in held)
@@ -385,19 +388,17 @@ def fit_parity_thresholds(machine: Machine, train: Iterable[int], held_out: Iter
     return statistics, report
 
 
-def _fit_closed_thresholds(statistics: ParityThresholds, train_runs: list, held: list, report: dict[str, Any]) -> dict[str, Any] | None:
+def _fit_closed_thresholds(train_runs: list, held: list, report: dict[str, Any]) -> dict[str, Any] | None:
     """The closed-valve evidence's thresholds: mean and spread of the training plants' closed means per chamber, and per
     chamber the smallest factor at which no held-out plant's closed mean crosses (INFERRED: the evidence names faults,
     so a crossing without one would name a leak on a healthy machine's first false alarm; none allowed. Per chamber:
     each chamber's spread is its own notches' centre leakage, +-30 % between the plants)."""
     closed = np.concatenate([r[4] for r in train_runs])
-    closed = closed[np.isfinite(closed).all(axis=1)]
-    if not len(closed):
-        return None  # the valve never closed on the training plants: no evidence
-    mean, std = closed.mean(axis=0), closed.std(axis=0)
-    held_closed = np.concatenate([r[4] for r in held])
-    held_closed = held_closed[np.isfinite(held_closed).all(axis=1)]
-    reached = (np.abs(held_closed) - np.abs(mean)).max(axis=0, initial=0.0) / std
+    if not np.isfinite(closed).any(axis=0).all():
+        return None  # a chamber never judged closed on the training plants: no evidence
+    mean, std = np.nanmean(closed, axis=0), np.nanstd(closed, axis=0)
+    excess = np.abs(np.concatenate([r[4] for r in held])) - np.abs(mean)
+    reached = np.max(np.where(np.isfinite(excess), excess, 0.0), axis=0, initial=0.0) / std
     factor = [next((f for f in THRESHOLD_FACTORS if f >= reached[c]), THRESHOLD_FACTORS[-1]) for c in range(2)]
     report["closed_factor"] = factor
     return {"mean": tuple(float(v) for v in mean), "std": tuple(float(v) for v in std), "factor": tuple(float(f) for f in factor)}
@@ -430,9 +431,10 @@ def build_parity_signatures(machine: Machine, thresholds: ParityThresholds, seed
                 if c:
                     counts[(int(c), int(d))] = counts.get((int(c), int(d)), 0) + 1
                     large_counts[int(c)] = large_counts.get(int(c), 0) + int(big)
-                    if k != NO_CLOSED_CODE:
+                    bits, judged = closed_parts(int(k))
+                    if k != NO_CLOSED_CODE and judged == A_UP | A_DOWN | B_UP | B_DOWN:  # a row's codes: both chambers judged
                         seen = closed_counts.setdefault(int(c), {})
-                        seen[int(k)] = seen.get(int(k), 0) + 1
+                        seen[bits] = seen.get(bits, 0) + 1
         total = sum(counts.values())
         by_code: dict[int, set[int]] = {}
         for (c, d), n in counts.items():
