@@ -22,7 +22,7 @@ from hydro_ros.bags.align import ContractAligner, SampleLayout
 from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state
 from hydro_ros.nodes.common import LATCHED_QOS
 from test.conftest import REPO, SAM_CONFIG
-from test.ros_graph import node_process, probe_node, spin_until
+from test.ros_graph import node_output, node_process, probe_node, spin_until
 
 FDI_STATUS = "hydro_ros/fdi/boom"
 
@@ -178,8 +178,8 @@ def test_assembler_orders_samples_drops_late_ones_and_gives_up_on_missing_topics
 @pytest.mark.parametrize("method", ["parity"])
 def test_fdi_node_refuses_a_method_the_machine_cannot_run(ros_domain, method):
     with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"method:={method}") as proc:
-        output, _ = proc.communicate(timeout=30)
-    assert proc.returncode != 0 and "pilot pressures" in output
+        proc.wait(timeout=30)
+    assert proc.returncode != 0 and "pilot pressures" in node_output(proc)
 
 
 def test_parameters_are_described_refused_with_a_reason_or_applied_in_a_namespace(ros_domain):
