@@ -6,6 +6,7 @@ import os
 import random
 import time
 from pathlib import Path
+from typing import Callable
 
 import can
 import numpy as np
@@ -197,13 +198,16 @@ def test_forwarded_commands_are_checked_and_a_dead_controller_leaves_the_valve_n
     message = codec.db.get_message_by_frame_id(0x201)
     listener = can.Bus(interface="udp_multicast", channel=group)
 
-    def requests(seconds: float) -> list[tuple[float, float]]:
+    def requests(seconds: float, until: Callable[[float], bool] = lambda _: False) -> list[tuple[float, float]]:
+        """The valve requests on the bus for ``seconds``, or up to the first one ``until`` accepts."""
         out, end = [], time.monotonic() + seconds
         while time.monotonic() < end:
             frame = listener.recv(0.05)
             if frame is not None and frame.arbitration_id == 0x201:
                 assert frame.data[7] == crc8(0x201, bytes(frame.data))
                 out.append((time.monotonic(), message.decode(bytes(frame.data))["REQ1_COMMAND"]))
+                if until(out[-1][1]):
+                    break
         return out
 
     try:
@@ -219,7 +223,8 @@ def test_forwarded_commands_are_checked_and_a_dead_controller_leaves_the_valve_n
                 assert all(abs(v) < 1e-4 for _, v in requests(0.1)), value
             controller = subprocess.Popen([sys.executable, "-c", CONTROLLER], env=dict(os.environ))
             try:
-                assert any(abs(v - 0.25) < 1e-4 for _, v in requests(15.0 if not idle else 10.0)), "the controller never got through"
+                driven = requests(10.0, until=lambda v: abs(v - 0.25) < 1e-4)
+                assert driven and abs(driven[-1][1] - 0.25) < 1e-4, "the controller never got through"
                 driving = requests(1.0)
                 assert driving and all(abs(v - 0.25) < 1e-4 for _, v in driving)
                 controller.send_signal(signal.SIGKILL)
