@@ -65,11 +65,13 @@ def chromium() -> None:
 @pytest.fixture
 def ros_domain() -> int:
     """A test-unique ROS domain on localhost only (brief: never leave the machine, never cross)."""
-    # parallel workers (pytest-xdist: gw0, gw1, ...) draw from ranges of their own within the usable ids 10-229
+    # a pytest run draws from TEST_ROS_DOMAINS (usable ids 10-229; `make test` gives its two concurrent runs halves), and its
+    # parallel workers (pytest-xdist: gw0, gw1, ...) from ranges of their own within it
+    low, high = (int(v) for v in os.environ.get("TEST_ROS_DOMAINS", "10-229").split("-"))
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
-    width = 220 // max(workers, 1)
-    domain = 10 + width * worker + (os.getpid() + hash(os.environ.get("PYTEST_CURRENT_TEST", ""))) % width
+    width = (high - low + 1) // max(workers, 1)
+    domain = low + width * worker + (os.getpid() + hash(os.environ.get("PYTEST_CURRENT_TEST", ""))) % width
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")

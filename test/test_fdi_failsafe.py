@@ -37,6 +37,8 @@ from test.ros_graph import node_process, probe_node, spin_until
 
 HOUR_NS = 3600 * 1_000_000_000
 LEAK_ONSET_S = 8.0
+HEALTHY_S = 20.0  # [s] of the fault-free bag the overloaded monitor hears
+PLAYER_DELAY_S = 3.0  # [s] the bag player waits before playing (the monitor starting beside it)
 
 
 @pytest.fixture(scope="module")
@@ -259,9 +261,9 @@ def test_sensor_health_names_nonfinite_implausible_and_frozen_readings(sam_confi
 
 @pytest.fixture(scope="module")
 def healthy_bag(tmp_path_factory, sam_config) -> Path:
-    """30 s of the fault-free SAM."""
+    """HEALTHY_S of the fault-free SAM."""
     path = tmp_path_factory.mktemp("failsafe") / "healthy"
-    scenario = Scenario(30.0, [], seed=8)
+    scenario = Scenario(HEALTHY_S, [], seed=8)
     with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
         writer.set_truth(scenario.truth(sam_config))
         for _, _, block in run_blocks(sam_config, scenario):
@@ -283,9 +285,11 @@ def test_incomplete_input_is_named_overloaded_and_raises_no_alarm(ros_domain, he
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 50)
         with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), \
                 node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={tampered(healthy_bag, tmp_path / 'bag', lose)}",
-                             "-p", "publish_clock:=false", "-p", "rate:=1.0", "-p", "start_delay:=3.0"):
+                             "-p", "publish_clock:=false", "-p", "rate:=1.0", "-p", f"start_delay:={PLAYER_DELAY_S}"):
+            started = time.monotonic()
             assert spin_until(node, lambda: any(s.message == "overloaded" for s in _statuses(diags, "hydro_ros/fdi/boom")), 60)
-            spin_until(node, lambda: False, 25.0)
+            # to the bag's end: its delay and length after the player's start-up (about a second), and 2 s to spare
+            spin_until(node, lambda: False, started + PLAYER_DELAY_S + HEALTHY_S + 3.0 - time.monotonic())
     statuses = _statuses(diags, "hydro_ros/fdi/boom")
     overloaded = [s for s in statuses if s.message == "overloaded"]
     assert float(_values(overloaded[-1])["incomplete_share"]) > 0.2 and _values(overloaded[-1])["detection_held"] == "true"
