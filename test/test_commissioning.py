@@ -21,7 +21,7 @@ from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.identification import flow_regression
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, simulate
-from hydro_ros.studies.commissioning import PARITY_FLOOR_L_MIN, PARITY_MARGIN, FaultFreeRecording, commission, identify
+from hydro_ros.studies.commissioning import PARITY_FLOOR, PARITY_FLOOR_L_MIN, PARITY_MARGIN, FaultFreeRecording, commission, identify
 from hydro_ros.studies.fdi_evaluation import mismatched_config
 from test.conftest import REPO
 
@@ -102,6 +102,8 @@ def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_an
     assert "threshold_constant" not in block["model"]["fdi"]
     assert np.all(np.asarray(fitted["factor"]) >= PARITY_MARGIN * np.asarray(report["threshold"]["reached"]))
     assert fitted["bins"] == "flow" and fitted["floor"] == PARITY_FLOOR_L_MIN
+    # the closed-valve evidence from this machine's own rests: at least the margin over the held-out closed means' spread
+    assert np.all(np.asarray(fitted["closed"]["factor"]) >= PARITY_MARGIN * PARITY_FLOOR) and np.all(np.asarray(fitted["closed"]["std"]) > 0)
     machine = mobile.with_overrides(block["model"])
     shipped, commissioned = (FdiSettings.from_machine(m).parity_thresholds for m in (mobile, machine))
     run = run_monitor(FdiMonitor(machine), _samples(plant, 11, 120.0, PAYLOAD_STEPS))

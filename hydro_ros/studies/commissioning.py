@@ -43,7 +43,7 @@ from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.samples import Samples
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import monitor_blocks
-from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS, ParityThresholds
+from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS, ParityThresholds, closed_statistics
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.chamber import leak_coefficient
 from hydro_ros.models.identification import (
@@ -226,13 +226,13 @@ def adaptive_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Se
             "margin": THRESHOLD_MARGIN, "budget": "no crossing on the held-out data"}
 
 
-def armed_parity_residuals(machine: Machine, samples: Samples) -> tuple[np.ndarray, np.ndarray]:
-    """Armed 5 s mean parity residuals (n, 2) [L/min] and operating points (n, 5) of every actuator, thresholds ignored,
-    MEAN_RATE_HZ of them per second."""
+def armed_parity_residuals(machine: Machine, samples: Samples) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Armed 5 s mean parity residuals (n, 2) [L/min], operating points (n, 5) and closed-valve mean residuals (n, 2) [L/min,
+    NaN where not judged] of every actuator, thresholds ignored, MEAN_RATE_HZ of them per second."""
     monitor = FdiMonitor(machine.with_overrides({"fdi": {"parity_thresholds": ParityThresholds.probe()}}), "parity")
     arms = monitor.startup + monitor.window
     every = max(int(round(machine.sample_rate_hz / MEAN_RATE_HZ)), 1)
-    residuals, points = [], []
+    residuals, points, closed = [], [], []
     for start, block in monitor_blocks(monitor, samples):
         index = start + np.arange(len(block.times))
         pick = (index >= arms) & (index % every == 0)
@@ -241,7 +241,9 @@ def armed_parity_residuals(machine: Machine, samples: Samples) -> tuple[np.ndarr
         keep = np.all(np.isfinite(residual), axis=1) & np.all(np.isfinite(point), axis=1)
         residuals.append(residual[keep])
         points.append(point[keep])
-    return np.concatenate(residuals or [np.zeros((0, 2))]), np.concatenate(points or [np.zeros((0, POINT_CHANNELS))])
+        closed.append(block.closed_mean[pick].reshape(-1, 2)[keep])
+    return (np.concatenate(residuals or [np.zeros((0, 2))]), np.concatenate(points or [np.zeros((0, POINT_CHANNELS))]),
+            np.concatenate(closed or [np.zeros((0, 2))]))
 
 
 def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequence[Samples],
@@ -250,19 +252,21 @@ def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequ
 
     mu and sigma per bin come from the commissioned model's residuals on the part of the recordings it
     was identified on; c = margin x the largest factor the held-out part reaches in the bin and its two
-    neighbours, at least margin x PARITY_FLOOR; k = COMMISSIONED_FLOW_FRACTION, floor PARITY_FLOOR_L_MIN.
+    neighbours, at least margin x PARITY_FLOOR; k = COMMISSIONED_FLOW_FRACTION, floor PARITY_FLOOR_L_MIN. The closed-valve
+    evidence's thresholds (``ParityThresholds.closed``) the same way from the closed-valve means, per chamber.
     """
     before = FdiSettings.from_machine(machine).parity_thresholds
     edges, bins, flow_fraction = FLOW_EDGES, "flow", COMMISSIONED_FLOW_FRACTION
     parts = [armed_parity_residuals(machine, samples) for samples in fitted]
-    statistics = ParityThresholds.from_statistics(np.concatenate([r for r, _ in parts]), np.concatenate([o for _, o in parts]),
+    statistics = ParityThresholds.from_statistics(np.concatenate([r for r, _, _ in parts]), np.concatenate([o for _, o, _ in parts]),
                                                   edges, 1.0, flow_fraction, bins)
     reached = np.zeros(len(edges) - 1)
-    points = []
+    points, held_closed = [], []
     for samples in held_out:
-        residual, point = armed_parity_residuals(machine, samples)
+        residual, point, closed = armed_parity_residuals(machine, samples)
         reached = np.maximum(reached, statistics.factors_reached(residual, point))
         points.append(point)
+        held_closed.append(closed)
         if progress:
             progress("threshold")
     # a 5 s window whose mean crosses from one bin into the next still holds its neighbour's residual, and a bin's held-out
@@ -270,7 +274,11 @@ def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequ
     # -1.1 L/min still in its mean)
     covering = np.maximum(reached, np.maximum(np.concatenate([reached[1:], [0.0]]), np.concatenate([[0.0], reached[:-1]])))
     factor = tuple(float(c) for c in PARITY_MARGIN * np.maximum(covering, PARITY_FLOOR))
-    thresholds = replace(statistics, factor=factor, floor=PARITY_FLOOR_L_MIN)
+    # the closed-valve evidence (it names, never detects) from this machine's own centre leakage, with the same margin
+    found = closed_statistics(np.concatenate([c for _, _, c in parts]), np.concatenate(held_closed))
+    closed = None if found is None else {"mean": tuple(map(float, found[0])), "std": tuple(map(float, found[1])),
+                                         "factor": tuple(float(c) for c in PARITY_MARGIN * np.maximum(found[2], PARITY_FLOOR))}
+    thresholds = replace(statistics, factor=factor, floor=PARITY_FLOOR_L_MIN, closed=closed)
     # the config's and the commissioned thresholds compared where the held-out machine stood still: at rest a leak is most
     # of the residual (a threshold learnt from a leak is high there), and the two forms (the commissioned one adds a term in
     # the flow, the config's may bin by opening) agree on what they compare

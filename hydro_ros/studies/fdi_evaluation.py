@@ -22,7 +22,7 @@ from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, NO_CLOSED_CODE, closed_parts, code_string
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
-from hydro_ros.fdi.parity import ParityThresholds, passes_nothing
+from hydro_ros.fdi.parity import ParityThresholds, closed_statistics, passes_nothing
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.sim.scenario import MachineRun, simulate_machine
 from hydro_ros.studies.commissioning import threshold_excess
@@ -393,12 +393,10 @@ def _fit_closed_thresholds(train_runs: list, held: list, report: dict[str, Any])
     chamber the smallest factor at which no held-out plant's closed mean crosses (INFERRED: the evidence names faults,
     so a crossing without one would name a leak on a healthy machine's first false alarm; none allowed. Per chamber:
     each chamber's spread is its own notches' centre leakage, +-30 % between the plants)."""
-    closed = np.concatenate([r[4] for r in train_runs])
-    if not np.isfinite(closed).any(axis=0).all():
-        return None  # a chamber never judged closed on the training plants: no evidence
-    mean, std = np.nanmean(closed, axis=0), np.nanstd(closed, axis=0)
-    excess = np.abs(np.concatenate([r[4] for r in held])) - np.abs(mean)
-    reached = np.max(np.where(np.isfinite(excess), excess, 0.0), axis=0, initial=0.0) / std
+    found = closed_statistics(np.concatenate([r[4] for r in train_runs]), np.concatenate([r[4] for r in held]))
+    if found is None:
+        return None
+    mean, std, reached = found
     factor = [next((f for f in THRESHOLD_FACTORS if f >= reached[c]), THRESHOLD_FACTORS[-1]) for c in range(2)]
     report["closed_factor"] = factor
     return {"mean": tuple(float(v) for v in mean), "std": tuple(float(v) for v in std), "factor": tuple(float(f) for f in factor)}
