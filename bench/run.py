@@ -188,6 +188,7 @@ def gsa(config_path: Path, out_dir: Path, samples: int = 1024) -> dict:
                              "--out", str(out_dir / "gsa.json"), "--quiet"], check=False).returncode
     wall = time.perf_counter() - start
     report = json.loads((out_dir / "gsa.json").read_text())
+    write_result(out_dir / "gsa.json", report)  # the command writes a user's file; the bench's records its commit
     runs = report["parameters"]["runs"] + report["leakages"]["runs"]
     return {"status": status, "samples": samples, "runs": runs, "wall_s": wall, "runs_per_s": runs / wall,
             "ranking_4s": {name: report[name]["ranking_4s"] for name in ("parameters", "leakages")}}
