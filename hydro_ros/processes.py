@@ -18,10 +18,10 @@ import psutil
 def node_process(module: str, *ros_args: str) -> Iterator[subprocess.Popen]:
     """``python -m module --ros-args ...`` in this environment (its ROS_DOMAIN_ID), terminated on leaving, killed if it
     will not end. Its output goes to a file, read with ``node_output``: a pipe nobody drains fills at 64 kB and then
-    stops the node in its next log line (a plant logging for minutes froze, and the monitor beside it saw stale topics)."""
-    with tempfile.TemporaryFile("w+") as log:
+    stops the node at its next log line."""
+    with tempfile.TemporaryFile() as log:
         proc = subprocess.Popen([sys.executable, "-m", module, "--ros-args", *ros_args], env=dict(os.environ), stdout=log,
-                                stderr=subprocess.STDOUT, text=True)
+                                stderr=subprocess.STDOUT)
         proc.log = log
         try:
             yield proc
@@ -36,11 +36,12 @@ def node_process(module: str, *ros_args: str) -> Iterator[subprocess.Popen]:
 
 
 def node_output(proc: subprocess.Popen) -> str:
-    """What a ``node_process`` has written, stdout and stderr: so far while it runs, all of it once it has ended."""
+    """What a ``node_process`` has written, stdout and stderr: so far while it runs, all of it once it has ended. Read at
+    an offset (pread), never by seeking: the node writes through the same open file, and a seek would move its writes."""
     if hasattr(proc, "final_output"):
         return proc.final_output
-    proc.log.seek(0)
-    return proc.log.read()
+    descriptor = proc.log.fileno()
+    return os.pread(descriptor, os.fstat(descriptor).st_size, 0).decode(errors="replace")
 
 
 def free_port() -> int:
