@@ -373,10 +373,12 @@ def passes_nothing(mean_residual: np.ndarray, operating_point: np.ndarray) -> np
 def closed_statistics(fitted: np.ndarray, held_out: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Per chamber of fault-free closed-valve means (n, 2) [L/min], NaN where not judged: their mean and spread, and the
     largest factor of the spread by which the held-out ones (m, 2) exceed |mean|; None where a chamber was never judged
-    closed (no evidence to fit)."""
+    closed, or judged without spread (no evidence to fit a threshold on)."""
     if not np.isfinite(fitted).any(axis=0).all():
         return None
     mean, std = np.nanmean(fitted, axis=0), np.nanstd(fitted, axis=0)
+    if not np.all(std > 0.0):
+        return None
     excess = np.abs(held_out) - np.abs(mean)
     return mean, std, np.max(np.where(np.isfinite(excess), excess, 0.0), axis=0, initial=0.0) / std
 
