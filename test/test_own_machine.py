@@ -106,10 +106,14 @@ def excavator(tmp_path_factory) -> Path:
     boom["joint"], arm["joint"] = "lift_joint", "dipper_joint"
     boom["cylinder"].update(piston_diameter=0.110, rod_diameter=0.063, stroke=0.55)
     boom["mount"].update(l1=0.40, l2=1.30, l3=1.05)
-    boom["load"].update(boom_mass=520.0, left_mass=420.0, load_distance=3.4)
     arm["cylinder"].update(piston_diameter=0.090, rod_diameter=0.050)
-    arm["load"].update(boom_mass=300.0, left_mass=150.0)
     text["actuators"] = {"lift": boom, "dipper": arm}
+    lift_link, dipper_link = text["arm"]["links"]
+    lift_link.update(joint="lift_joint", length=3.4)
+    lift_link["masses"][0].update(mass=520.0, along=1.4)
+    dipper_link["joint"] = "dipper_joint"
+    dipper_link["masses"][0]["mass"] = 300.0
+    text["arm"]["payload"] = 150.0
     text["can"] = {"dbc": "excavator.dbc", "map": CAN_MAP}
     del text["fdi"]
     config.write_text(yaml.safe_dump(text, sort_keys=False))
@@ -129,6 +133,7 @@ def test_a_described_machine_is_checked_and_a_bad_one_refused_in_one_line_per_pr
     broken["actuators"]["dipper"]["cylinder"]["strok"] = broken["actuators"]["dipper"]["cylinder"].pop("stroke")
     broken["actuators"]["lift"]["mount"]["l3"] = 3.0
     broken["sensors"]["pressure_noise_std"] = -1.0
+    broken["arm"]["links"][1]["joint"] = "dipper_jiont"
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump(broken))
     checked = hydro_ros("machine", "check", str(bad), "--quiet")
@@ -136,8 +141,19 @@ def test_a_described_machine_is_checked_and_a_bad_one_refused_in_one_line_per_pr
     assert checked.returncode == 1 and "Traceback" not in checked.stderr
     for expected in ("sample_rate_hz: 0 Hz: must be > 0", "lift.cylinder.piston_diameter: 110 m: must be <= 1 m (SI",
                      "dipper.cylinder.strok: unknown key (did you mean stroke?)", "dipper.cylinder.stroke: missing [m]",
-                     "lift.mount: the cylinder", "sensors.pressure_noise_std: -1 Pa: must be >= 0"):
+                     "lift.mount: the cylinder", "sensors.pressure_noise_std: -1 Pa: must be >= 0",
+                     "arm.links[1].joint: 'dipper_jiont': no actuator drives it", "actuators.dipper.joint: 'dipper_joint': not a joint of arm.links"):
         assert sum(expected in line for line in lines) == 1, (expected, lines)
+
+    beyond = yaml.safe_load(excavator.read_text())
+    beyond["arm"]["links"][1]["range"] = [-0.5, 1.5]  # the dipper's 0.45 m cylinder ends before 1.5 rad
+    beyond["actuators"]["dipper"]["load"] = {"boom_mass": 300.0}
+    (tmp_path / "beyond.yaml").write_text(yaml.safe_dump(beyond))
+    lines = hydro_ros("machine", "check", str(tmp_path / "beyond.yaml"), "--quiet").stdout.strip().splitlines()
+    assert any("arm.links[1].range: 1.5 puts actuator dipper's piston at 0.4998 m, outside its stroke 0 to 0.45 m" in line
+               for line in lines), lines
+    assert any("actuators.dipper.load: the arm: section describes the links" in line for line in lines), lines
+    assert len(lines) == 2, lines
     simulated = hydro_ros("sim", "--config", str(bad), "--duration", "1", "--out", str(tmp_path / "bag"))
     assert simulated.returncode == 1 and len(simulated.stderr.strip().splitlines()) == 1 and "piston_diameter" in simulated.stderr
     assert not (tmp_path / "bag").exists()

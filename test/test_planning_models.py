@@ -19,7 +19,7 @@ def _random_configurations(crane: Crane, count: int, seed: int = 0) -> np.ndarra
     low = np.array([c.q_min for c in crane.cylinders])
     high = np.array([c.q_max for c in crane.cylinders])
     q = low + (high - low) * rng.random((count, len(low)))
-    rho, _ = crane._planar_tip(q[:, -3], q[:, -2], q[:, -1])
+    rho, _ = crane.arm.tip([q[:, -3], q[:, -2], q[:, -1]])
     return q[rho > 0.3]  # the base angle is defined for a tip off the slewing axis
 
 
@@ -82,7 +82,7 @@ def test_k70m_reach_is_the_papers_9_1_m() -> None:
     crane, _ = load_crane(default_config_path("k70m"))
     lift = np.linspace(-0.425, 1.097, 400)[:, None]
     tilt = np.linspace(-2.75, -0.25, 400)[None, :]
-    rho, _ = crane._planar_tip(lift, tilt, 3.7)
+    rho, _ = crane.arm.tip([lift, tilt, 3.7])
     assert rho.max() == pytest.approx(9.1, abs=0.01)
 
 
@@ -101,7 +101,7 @@ def test_forces_do_the_work_of_lifting_a_tip_mass() -> None:
     # velocities enter the forces only through friction (zero here), so a static force field
     static = crane.motion(tuple(crane.forward(q).T), (zero, zero, zero), (zero, zero, zero), ext.stroke(q[:, -1]), zero, zero)
     power = sum(force * cylinder.arm(qi)[0] * qdi for force, cylinder, qi, qdi in zip(static.force, crane.cylinders, q.T, qd.T))
-    assert np.allclose(power, 100.0 * crane.gravity * tip_vel[:, 1], rtol=1e-9, atol=1e-6)
+    assert np.allclose(power, 100.0 * config.gravity * tip_vel[:, 1], rtol=1e-9, atol=1e-6)
 
 
 def test_quintic_and_spline_paths_start_and_end_at_rest() -> None:
@@ -216,4 +216,4 @@ def test_a_crane_friction_ramp_that_is_not_a_pair_is_refused_naming_its_key(tmp_
         load_crane(bad)
     broken["extension_friction"]["steps"] = [[1.0, 2.0]]
     bad.write_text(yaml.safe_dump(broken))
-    assert load_crane(bad)[0].friction_steps == [(1.0, 2.0)]
+    assert load_crane(bad)[1].extension_friction.steps == ((1.0, 2.0),)

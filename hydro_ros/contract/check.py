@@ -97,7 +97,12 @@ CRANE_DP = {"sample_time": _positive("s", 10.0), "filter_cutoff": _positive("Hz"
 CRANE_CHOICES = {"mapping": ("linear", "triangle"), "spool": ("non_differential", "differential"), "link": ("lift", "boom")}
 CRANE_KEYS = {"kind", "base_rotation", "gravity", "links", "joints", "masses", "extension_friction", "hydraulics", "dp", "paths", "controller",
               "plant", "catalog"}
-TOP_KEYS = set(TOP) | {"machine", "actuators", "sensors", "simulation", "excitation", "effects", "effect_forms", "can", "fdi"} | CRANE_KEYS
+ARM = {"payload": _nonnegative("kg", 1.0e6)}
+ARM_LINK = {"length": Rule("m", 0.0, 100.0, hint="SI: metres"), "offset": Rule("m", -100.0, 100.0)}
+LINK_MASS = {"mass": _nonnegative("kg", 1.0e6), "along": Rule("m", -100.0, 100.0), "across": Rule("m", -100.0, 100.0),
+             "inertia": _nonnegative("kg m^2", 1.0e7)}
+RANGE_SLACK = 1e-3  # [m] a joint range may reach this far past the cylinder's ends (rounding of data-sheet values)
+TOP_KEYS = set(TOP) | {"machine", "actuators", "sensors", "simulation", "excitation", "effects", "effect_forms", "can", "fdi", "arm"} | CRANE_KEYS
 
 
 class _Problems:
@@ -171,8 +176,11 @@ def config_problems(config: dict[str, Any]) -> list[str]:
         found.add("actuators", "must name at least one actuator")
         actuators = {}
     simulation = config.get("simulation") if isinstance(config.get("simulation"), dict) else {}
+    arm = "arm" in config
     for name, actuator in actuators.items():
-        _actuator(found, f"actuators.{name}", actuator, crane, _number(simulation.get("end_stop_upper")))
+        _actuator(found, f"actuators.{name}", actuator, crane, arm, _number(simulation.get("end_stop_upper")))
+    if arm:
+        _arm(found, config["arm"], actuators)
     joints = [a.get("joint") for a in actuators.values() if isinstance(a, dict)]
     for joint in sorted({j for j in joints if joints.count(j) > 1}, key=str):
         found.add("actuators", f"joint {joint!r} is driven by more than one actuator")
@@ -276,7 +284,82 @@ def _crane(found: _Problems, config: dict[str, Any]) -> None:
         found.add("paths", "must name at least one tip path")
 
 
-def _actuator(found: _Problems, path: str, node: Any, crane: bool, end_stop_upper: float | None) -> None:
+def _arm(found: _Problems, node: Any, actuators: dict) -> None:
+    """The links base to tip, each on an actuator's joint, its range inside the cylinder's stroke."""
+    if not isinstance(node, dict):
+        found.add("arm", "must be a mapping (origin, payload, links)")
+        return
+    found.unknown(node, "arm", set(ARM) | {"origin", "links"})
+    found.numbers(node, "arm", ARM)
+    if "origin" in node:
+        origin = node["origin"]
+        if not (isinstance(origin, list) and len(origin) == 2 and None not in map(_number, origin)):
+            found.add("arm.origin", f"{origin!r}: expected [x, y] (m)")
+    links = node.get("links")
+    if not isinstance(links, list) or not links:
+        found.add("arm.links", "must list the links, base to tip")
+        return
+    by_joint = {a.get("joint"): (name, a) for name, a in actuators.items() if isinstance(a, dict)}
+    joints = []
+    for index, link in enumerate(links):
+        path = f"arm.links[{index}]"
+        values = found.numbers(link, path, ARM_LINK, required=("length",))
+        if not isinstance(link, dict):
+            continue
+        found.unknown(link, path, set(ARM_LINK) | {"joint", "kind", "range", "masses"})
+        if link.get("kind", "revolute") not in ("revolute", "prismatic"):
+            found.add(f"{path}.kind", f"{link['kind']!r}: expected revolute or prismatic")
+        joints.append(link.get("joint"))
+        if link.get("joint") not in by_joint:
+            found.add(f"{path}.joint", f"{link.get('joint')!r}: no actuator drives it (actuators' joints: "
+                                       f"{', '.join(str(j) for j in by_joint)})")
+        if "range" not in link:
+            found.add(f"{path}.range", "missing [rad] or [m]: where the joint may go")
+        else:
+            found.pair(link, path, "range")
+        masses = link.get("masses") or []
+        if not isinstance(masses, list):
+            found.add(f"{path}.masses", "must be a list of masses")
+            masses = []
+        for m, mass in enumerate(masses):
+            found.numbers(mass, f"{path}.masses[{m}]", LINK_MASS, required=("mass", "along"))
+            if isinstance(mass, dict):
+                found.unknown(mass, f"{path}.masses[{m}]", set(LINK_MASS) | {"name"})
+        if link.get("joint") in by_joint and "length" in values:
+            _range_in_stroke(found, path, link, *by_joint[link["joint"]])
+    for joint, (name, _) in by_joint.items():
+        if joint not in joints:
+            found.add(f"actuators.{name}.joint", f"{joint!r}: not a joint of arm.links")
+
+
+def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuator: dict) -> None:
+    """The piston stays between its ends over the joint's range (P-I eq. 3; a linear mount: x = ratio (q + offset))."""
+    low_high = [_number(v) for v in link.get("range") or []] if isinstance(link.get("range"), list) else []
+    mount, cylinder = actuator.get("mount"), actuator.get("cylinder")
+    if len(low_high) != 2 or None in low_high or not isinstance(mount, dict) or not isinstance(cylinder, dict):
+        return
+    stroke, offset = _number(cylinder.get("stroke")), _number(mount.get("theta_offset"))
+    if stroke is None or offset is None:
+        return
+    pistons = []
+    for q in low_high:
+        if mount.get("kind", "triangle") == "linear":
+            ratio = _number(mount.get("ratio"))
+            if ratio is None:
+                return
+            pistons.append(ratio * (q + offset))
+        else:
+            l1, l2, l3, sign = (_number(mount.get(k, 1.0 if k == "sign" else None)) for k in ("l1", "l2", "l3", "sign"))
+            if None in (l1, l2, l3, sign):
+                return
+            theta = sign * q + offset
+            pistons.append(math.sqrt(max(l1 * l1 + l2 * l2 - 2.0 * l1 * l2 * math.cos(theta), 0.0)) - l3)
+    outside = [(q, x) for q, x in zip(low_high, pistons) if not -RANGE_SLACK <= x <= stroke + RANGE_SLACK]
+    for q, x in outside:
+        found.add(f"{path}.range", f"{q:g} puts actuator {name}'s piston at {x:g} m, outside its stroke 0 to {stroke:g} m")
+
+
+def _actuator(found: _Problems, path: str, node: Any, crane: bool, arm: bool, end_stop_upper: float | None) -> None:
     if not isinstance(node, dict):
         found.add(path, "must be a mapping")
         return
@@ -291,7 +374,9 @@ def _actuator(found: _Problems, path: str, node: Any, crane: bool, end_stop_uppe
                                                    f"({cylinder['piston_diameter']:g} m)")
     _mount(found, f"{path}.mount", node.get("mount"), end_stop_upper or cylinder.get("stroke"))
     _valve(found, f"{path}.valve", node.get("valve"))
-    for key, rules in (("fluid", FLUID), ("friction", FRICTION)) + ((("load", LOAD),) if not crane else ()):
+    if arm and "load" in node:
+        found.add(f"{path}.load", "the arm: section describes the links; each actuator's load follows from it (remove load)")
+    for key, rules in (("fluid", FLUID), ("friction", FRICTION)) + ((("load", LOAD),) if not (crane or arm) else ()):
         found.numbers(node.get(key), f"{path}.{key}", rules, required=tuple(rules))
         if isinstance(node.get(key), dict):
             found.unknown(node[key], f"{path}.{key}", set(rules))
@@ -358,7 +443,7 @@ def annotated_values(path: str | Path) -> list[str]:
         while stack and stack[-1][0] >= indent:
             stack.pop()
         value, _, comment = rest.partition("#")
-        if item and key == "name":  # a list entry is named by its name: joints[lift].cylinder.area_a
+        if item and key in ("name", "joint"):  # a list entry is named by its name: joints[lift].cylinder.area_a, arm.links[arm_joint]
             stack.append((indent, f"[{value.strip()}]"))
         else:
             stack.append((indent + (2 if item else 0), key))

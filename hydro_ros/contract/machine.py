@@ -11,7 +11,7 @@ merged file the machine was parsed from, which tools write back.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -182,6 +182,62 @@ class Load:
 
 
 @dataclass(frozen=True)
+class LinkMass:
+    """A mass fixed on a link (a prismatic link's masses slide with it)."""
+
+    name: str
+    mass: float
+    """[kg]"""
+    along: float
+    """[m] its centre of gravity from the link's joint, along the link (a prismatic link: at zero extension)"""
+    across: float = 0.0
+    """[m] its centre of gravity to the left of the link's line"""
+    inertia: float = 0.0
+    """[kg m^2] about its own centre of gravity (0: a point mass)"""
+
+
+@dataclass(frozen=True)
+class ArmLink:
+    """A link of a planar serial arm and the joint it turns or slides on."""
+
+    joint: str
+    """its joint's name in /joint_states (an actuator's ``joint``)"""
+    kind: str
+    """``revolute`` (turns relative to the link before it) or ``prismatic`` (slides along the link before it)"""
+    length: float
+    """[m] from its joint to the next joint along the link (a prismatic link: at zero extension)"""
+    offset: float = 0.0
+    """[m] the next joint to the left of the link's line"""
+    masses: tuple[LinkMass, ...] = ()
+    joint_range: tuple[float, float] = (-math.pi, math.pi)
+    """[rad] or [m]: where the joint may go"""
+
+
+@dataclass(frozen=True)
+class Arm:
+    """The links the cylinders move, base to tip (``arm:``): the simulator couples their dynamics."""
+
+    links: tuple[ArmLink, ...]
+    origin: tuple[float, float] = (0.0, 0.0)
+    """[m] the first joint, horizontally and up from the base"""
+    payload: float = 0.0
+    """[kg] at the tip of the last link"""
+
+    def load_of(self, joint: str) -> "Load":
+        """The SAM-layout load a one-cylinder model of ``joint`` sees: its link's own masses, and every link and the payload
+        beyond it lumped at the link's end (the coupling the per-actuator models leave out)."""
+        index = [link.joint for link in self.links].index(joint)
+        link = self.links[index]
+        own = sum(m.mass for m in link.masses)
+        cog = sum(m.mass * m.along for m in link.masses) / own if own else 0.0
+        about_cog = sum(m.inertia + m.mass * ((m.along - cog) ** 2 + m.across ** 2) for m in link.masses)
+        outboard = sum(m.mass for later in self.links[index + 1:] for m in later.masses) + self.payload
+        # a slender boom of the same inertia about its centre of gravity: I = m L^2 / 12
+        length = math.sqrt(12.0 * about_cog / own) if own and about_cog > 0.0 else link.length
+        return Load(own, length, cog, outboard, 0.0, link.length)
+
+
+@dataclass(frozen=True)
 class Actuator:
     name: str
     """the actuator's name in topics (``/hydraulics/<name>/...``) and in /hydraulics/valve_commands"""
@@ -306,6 +362,8 @@ class Machine:
     """the machine bus description (DBC), relative to the config's directory"""
     can_map: Mapping[str, Any] | None
     """which DBC signal carries each quantity (``hydro_ros.can.codec``); None: hydro_ros's own bus layout"""
+    arm: Arm | None
+    """the links the cylinders move (``arm:``), None: each actuator is a boom of its own carrying its ``load``"""
     mapping: Mapping[str, Any] = field(repr=False, compare=False)
     """the merged file this machine was parsed from (plain dicts here and above: a Machine crosses process pools)"""
 
@@ -339,6 +397,9 @@ class Machine:
         self.actuator(actuator)
         mapping = unshared(dict(self.mapping))
         mapping["actuators"] = {actuator: mapping["actuators"][actuator]}
+        if self.arm is not None:  # alone, the cylinder carries its share of the arm as a load
+            mapping["actuators"][actuator]["load"] = asdict(self.actuator(actuator).load)
+            del mapping["arm"]
         can_map = (mapping.get("can") or {}).get("map") or {}
         if "actuators" in can_map:
             can_map["actuators"] = {name: entry for name, entry in can_map["actuators"].items() if name == actuator}
@@ -376,7 +437,8 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
     if not actuators.node:
         raise ConfigError(f"config {source}: no actuators")
     crane = config.get("kind") == "crane"  # a crane's cylinders carry its links and masses (joints:, masses:), not a boom
-    parsed = tuple(_actuator(actuators.section(name), str(name), index, crane) for index, name in enumerate(actuators.node, start=1))
+    arm = _arm(top.section("arm")) if "arm" in config else None
+    parsed = tuple(_actuator(actuators.section(name), str(name), index, crane, arm) for index, name in enumerate(actuators.node, start=1))
     sensors = top.section("sensors")
     simulation = top.section("simulation", optional=True)
     excitation = top.section("excitation", optional=True)
@@ -425,6 +487,7 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
         fdi=dict(dict(top.section("fdi", optional=True).node)),
         dbc=can.text("dbc", "machine_bus.dbc"),
         can_map=dict(can.node["map"]) if isinstance(can.node.get("map"), dict) else None,
+        arm=arm,
         mapping=dict(config),
     )
 
@@ -445,7 +508,7 @@ def _choice(section: Section, name: str, allowed: tuple[str, ...], default: str)
     return value
 
 
-def _actuator(section: Section, name: str, index: int, crane: bool = False) -> Actuator:
+def _actuator(section: Section, name: str, index: int, crane: bool, arm: Arm | None) -> Actuator:
     cylinder, mount, valve = section.section("cylinder"), section.section("mount"), section.section("valve")
     fluid, friction = section.section("fluid"), section.section("friction")
     valve_type = _choice(valve, "type", VALVE_TYPES, "proportional")
@@ -472,12 +535,38 @@ def _actuator(section: Section, name: str, index: int, crane: bool = False) -> A
         ),
         fluid=Fluid(*(fluid.number(k) for k in ("oil_bulk_modulus", "hose_bulk_modulus", "hose_volume"))),
         friction=Friction(*(friction.number(k) for k in ("viscous", "static", "coulomb", "stribeck_velocity", "bristle_stiffness"))),
-        load=Load(0.0, 1.0, 0.0, 0.0, 0.0, 1.0) if crane else _load(section.section("load")),
+        load=(Load(0.0, 1.0, 0.0, 0.0, 0.0, 1.0) if crane else arm.load_of(section.text("joint")) if arm is not None
+              else _load(section.section("load"))),
     )
 
 
 def _load(section: Section) -> Load:
     return Load(*(section.number(k) for k in ("boom_mass", "boom_length", "boom_cog_distance", "left_mass", "right_mass", "load_distance")))
+
+
+def _arm(section: Section) -> Arm:
+    links = section.node.get("links")
+    if not isinstance(links, list):
+        raise ConfigError(f"config {section.source}: arm.links must be a list of links, base to tip")
+    parsed = []
+    for index, node in enumerate(links):
+        link = Section(section.source, f"arm.links[{index}]", node)
+        masses = link.node.get("masses") or []
+        parsed.append(ArmLink(
+            joint=link.text("joint"),
+            kind=_choice(link, "kind", ("revolute", "prismatic"), "revolute"),
+            length=link.number("length"),
+            offset=link.number("offset", 0.0),
+            masses=tuple(_link_mass(Section(section.source, f"{link.key}.masses[{m}]", mass), m) for m, mass in enumerate(masses)),
+            joint_range=link.numbers("range", 2),  # type: ignore[arg-type]
+        ))
+    origin = section.numbers("origin", 2) if "origin" in section.node else (0.0, 0.0)
+    return Arm(links=tuple(parsed), origin=origin, payload=section.number("payload", 0.0))  # type: ignore[arg-type]
+
+
+def _link_mass(section: Section, index: int) -> LinkMass:
+    return LinkMass(name=section.text("name", f"mass{index}"), mass=section.number("mass"), along=section.number("along"),
+                    across=section.number("across", 0.0), inertia=section.number("inertia", 0.0))
 
 
 def _mount(section: Section) -> Mount:

@@ -23,6 +23,8 @@ import numpy as np
 
 from hydro_ros.contract.config import ConfigError, read_config
 from hydro_ros.contract.crane import CraneConfig, CraneJoint, parse_crane
+from hydro_ros.contract.machine import Arm, ArmLink, LinkMass
+from hydro_ros.models.serial_arm import SerialArm
 
 NUMPY = SimpleNamespace(
     cos=np.cos,
@@ -92,21 +94,16 @@ class Motion:
 
 
 class Crane:
-    """A crane of ``config/crane3dof.yaml`` or ``config/k70m.yaml``."""
+    """A crane of ``config/crane3dof.yaml`` or ``config/k70m.yaml``: its planar joints a :class:`SerialArm` (lift, tilt and a
+    telescope sliding on the tilt link), the planner's closed-form inverse kinematics on top."""
 
-    def __init__(self, config: CraneConfig) -> None:
+    def __init__(self, config: CraneConfig, payload: float = 0.0) -> None:
+        """``payload`` [kg] hangs at the tip."""
+        self.config = config
         self.name = config.name
         self.base_rotation = config.base_rotation
-        self.gravity = config.gravity
-        self.lift_length = config.links.lift_length
-        self.tilt_offset = config.links.tilt_offset
-        self.extension_base = config.links.extension_base
-        self.lift_joint = config.links.lift_joint
         self.cylinders = [_cylinder(joint) for joint in config.joints]
-        self.masses = list(config.masses)
-        self.friction_coulomb = config.extension_friction.coulomb
-        self.friction_gain = config.extension_friction.tanh_gain
-        self.friction_steps = list(config.extension_friction.steps)
+        self.arm = SerialArm(replace(crane_arm(config), payload=payload), config.gravity)
         self.hydraulics = dict(config.hydraulics)
         self.names = [cylinder.name for cylinder in self.cylinders]
         self.extension = self.cylinders[-1]
@@ -116,43 +113,23 @@ class Crane:
     def forward(self, q: np.ndarray) -> np.ndarray:
         """Tip [x, y, z] of joint vectors q (..., n) (P-V eqs. 5-6, P-VI eqs. 4-6)."""
         q = np.asarray(q, dtype=float)
-        lift, tilt, ext = q[..., -3], q[..., -2], q[..., -1]
-        rho, height = self._planar_tip(lift, tilt, ext)
+        rho, height = self.arm.tip([q[..., -3], q[..., -2], q[..., -1]])
         if self.base_rotation:
             return np.stack([np.cos(q[..., 0]) * rho, height, np.sin(q[..., 0]) * rho], axis=-1)
         return np.stack([rho, height, np.zeros_like(rho)], axis=-1)
 
-    def _planar_tip(self, lift: Any, tilt: Any, ext: Any, xp: SimpleNamespace = NUMPY) -> tuple[Any, Any]:
-        reach = self.extension_base + ext
-        phi = lift + tilt
-        rho = self.lift_length * xp.cos(lift) - self.tilt_offset * xp.sin(phi) + reach * xp.cos(phi) + self.lift_joint[0]
-        height = self.lift_length * xp.sin(lift) + self.tilt_offset * xp.cos(phi) + reach * xp.sin(phi) + self.lift_joint[1]
-        return rho, height
-
     def jacobian(self, q: np.ndarray) -> np.ndarray:
         """d tip / d q, shape (..., task_dim, n) (P-V eq. 8, P-VI eq. 7)."""
         q = np.asarray(q, dtype=float)
-        lift, tilt, ext = q[..., -3], q[..., -2], q[..., -1]
-        columns = self._planar_columns(lift, tilt, ext)
-        rho, _ = self._planar_tip(lift, tilt, ext)
+        planar_q = [q[..., -3], q[..., -2], q[..., -1]]
+        columns = [(np.broadcast_to(d_rho, q.shape[:-1]), np.broadcast_to(d_h, q.shape[:-1])) for d_rho, d_h in self.arm.tip_columns(planar_q)]
         if not self.base_rotation:
             return np.stack([np.stack(column, axis=-1) for column in columns], axis=-1)
+        rho, _ = self.arm.tip(planar_q)
         c1, s1 = np.cos(q[..., 0]), np.sin(q[..., 0])
         base = np.stack([-s1 * rho, np.zeros_like(rho), c1 * rho], axis=-1)
         planar = [np.stack([c1 * d_rho, d_h, s1 * d_rho], axis=-1) for d_rho, d_h in columns]
         return np.stack([base, *planar], axis=-1)
-
-    def _planar_columns(self, lift: Any, tilt: Any, ext: Any, xp: SimpleNamespace = NUMPY) -> list[tuple[Any, Any]]:
-        phi = lift + tilt
-        reach = self.extension_base + ext
-        # w = d tip / d tilt = -d e(phi) + reach e_perp(phi)
-        w_rho = -self.tilt_offset * xp.cos(phi) - reach * xp.sin(phi)
-        w_h = -self.tilt_offset * xp.sin(phi) + reach * xp.cos(phi)
-        return [
-            (-self.lift_length * xp.sin(lift) + w_rho, self.lift_length * xp.cos(lift) + w_h),
-            (w_rho, w_h),
-            (xp.cos(phi), xp.sin(phi)),
-        ]
 
     def motion(
         self,
@@ -194,20 +171,21 @@ class Crane:
             rho, rho_d, rho_dd = x, xd, xdd
 
         # position: triangle lift joint - tilt joint - tip with the extension's reach
-        reach = self.extension_base + q_e
-        rel_rho, rel_h = rho - self.lift_joint[0], y - self.lift_joint[1]
-        arm_length = xp.sqrt(reach * reach + self.tilt_offset**2)
-        offset_angle = xp.atan2(self.tilt_offset + 0.0 * reach, reach)
-        cos_elbow = (rel_rho * rel_rho + rel_h * rel_h - self.lift_length**2 - arm_length * arm_length) / (
-            2.0 * self.lift_length * arm_length
+        links = self.config.links
+        reach = links.extension_base + q_e
+        rel_rho, rel_h = rho - links.lift_joint[0], y - links.lift_joint[1]
+        arm_length = xp.sqrt(reach * reach + links.tilt_offset**2)
+        offset_angle = xp.atan2(links.tilt_offset + 0.0 * reach, reach)
+        cos_elbow = (rel_rho * rel_rho + rel_h * rel_h - links.lift_length**2 - arm_length * arm_length) / (
+            2.0 * links.lift_length * arm_length
         )
         tilt = -xp.acos(xp.clip_unit(cos_elbow)) - offset_angle  # the elbow-down branch of both papers
         lift = xp.atan2(rel_h, rel_rho) - xp.atan2(
-            arm_length * xp.sin(tilt + offset_angle), self.lift_length + arm_length * xp.cos(tilt + offset_angle)
+            arm_length * xp.sin(tilt + offset_angle), links.lift_length + arm_length * xp.cos(tilt + offset_angle)
         )
 
         # velocity: [J_lift J_tilt]^-1 (tip rate - J_ext ext rate)
-        (ja_r, ja_h), (jb_r, jb_h), (je_r, je_h) = self._planar_columns(lift, tilt, q_e, xp)
+        (ja_r, ja_h), (jb_r, jb_h), (je_r, je_h) = self.arm.tip_columns([lift, tilt, q_e], xp)
         det = ja_r * jb_h - jb_r * ja_h
         rhs_r, rhs_h = rho_d - je_r * qd_e, yd - je_h * qd_e
         lift_d = (jb_h * rhs_r - jb_r * rhs_h) / det
@@ -220,9 +198,9 @@ class Crane:
         cl, sl = xp.cos(lift), xp.sin(lift)
         centripetal = reach * phi_d * phi_d
         coriolis = 2.0 * qd_e * phi_d
-        offset_term = self.tilt_offset * phi_d * phi_d
-        bias_r = -self.lift_length * lift_d * lift_d * cl - centripetal * cp - coriolis * sp + offset_term * sp
-        bias_h = -self.lift_length * lift_d * lift_d * sl - centripetal * sp + coriolis * cp - offset_term * cp
+        offset_term = links.tilt_offset * phi_d * phi_d
+        bias_r = -links.lift_length * lift_d * lift_d * cl - centripetal * cp - coriolis * sp + offset_term * sp
+        bias_h = -links.lift_length * lift_d * lift_d * sl - centripetal * sp + coriolis * cp - offset_term * cp
         rhs_r, rhs_h = rho_dd - je_r * qdd_e - bias_r, ydd - je_h * qdd_e - bias_h
         lift_dd = (jb_h * rhs_r - jb_r * rhs_h) / det
         tilt_dd = (-ja_h * rhs_r + ja_r * rhs_h) / det
@@ -267,36 +245,18 @@ class Crane:
             forces.insert(0, np.zeros_like(np.asarray(qdd[0])) + (base.constant_force or 0.0))
         return forces
 
-    def planar_inertia_gravity(self, lift: Any, tilt: Any, q_e: Any) -> tuple[list[list[Any]], list[Any]]:
-        """M (3 x 3) and G (3) of the point masses in the lift, tilt and extension joints (P-VI eq. 16)."""
-        phi = lift + tilt
-        cp, sp = np.cos(phi), np.sin(phi)
-        inertia: list[list[Any]] = [[0.0] * 3 for _ in range(3)]
-        gravity: list[Any] = [0.0, 0.0, 0.0]
-        for mass in self.masses:
-            if mass.link == "lift":
-                columns = [(-mass.s * np.sin(lift), mass.s * np.cos(lift)), (0.0, 0.0), (0.0, 0.0)]
-            else:
-                s = mass.s + (q_e if mass.moves_with_extension else 0.0)
-                w_r = -self.tilt_offset * cp - s * sp
-                w_h = -self.tilt_offset * sp + s * cp
-                columns = [
-                    (-self.lift_length * np.sin(lift) + w_r, self.lift_length * np.cos(lift) + w_h),
-                    (w_r, w_h),
-                    (cp, sp) if mass.moves_with_extension else (0.0, 0.0),
-                ]
-            for j, (d_r, d_h) in enumerate(columns):
-                gravity[j] = gravity[j] + mass.mass * self.gravity * d_h
-                for k, (e_r, e_h) in enumerate(columns):
-                    inertia[j][k] = inertia[j][k] + mass.mass * (d_r * e_r + d_h * e_h)
-        return inertia, gravity
+    def planar_inertia_gravity(self, lift: Any, tilt: Any, q_e: Any, payload: float | None = None) -> tuple[list[list[Any]], list[Any]]:
+        """M (3 x 3) and G (3) of the point masses in the lift, tilt and extension joints (P-VI eq. 16), ``payload`` [kg] at the
+        tip (None: the crane's)."""
+        return self.arm.inertia_gravity([lift, tilt, q_e], payload)
 
     def extension_friction(self, q_e: Any, qd_e: Any) -> Any:
         """P-VI eqs. A3-A4: tanh(K qdot4) times a level that ramps by one coulomb per metre over each step."""
-        level = self.friction_coulomb + 0.0 * q_e
-        for low, high in self.friction_steps:
-            level = level + self.friction_coulomb * np.clip(q_e - low, 0.0, high - low)
-        return np.tanh(self.friction_gain * qd_e) * level
+        friction = self.config.extension_friction
+        level = friction.coulomb + 0.0 * q_e
+        for low, high in friction.steps:
+            level = level + friction.coulomb * np.clip(q_e - low, 0.0, high - low)
+        return np.tanh(friction.tanh_gain * qd_e) * level
 
     # -- limits ----------------------------------------------------------------------------
     def limit_checks(self, motion: Motion, *, tolerance: float = 0.0) -> dict[str, np.ndarray]:
@@ -310,6 +270,23 @@ class Crane:
             velocity = velocity & (np.abs(vi) <= cylinder.velocity_max * (_LOWER_FACTOR + tolerance))
             acceleration = acceleration & (np.abs(ai) <= cylinder.acceleration_max * (_LOWER_FACTOR + tolerance))
         return {"position": position, "velocity": velocity, "acceleration": acceleration}
+
+
+def crane_arm(config: CraneConfig) -> Arm:
+    """The crane's planar joints as a serial arm: the lift link, the tilt link (its masses on the extension's axis, L2 from
+    the tilt joint) and the telescope sliding on it from ``extension_base``; the masses that ride on the telescope slide
+    with it."""
+    lift, tilt, extension = config.joints[-3:]
+    links = config.links
+    on: dict[str, list[LinkMass]] = {"lift": [], "tilt": [], "telescope": []}
+    for mass in config.masses:
+        link = "lift" if mass.link == "lift" else "telescope" if mass.moves_with_extension else "tilt"
+        on[link].append(LinkMass(mass.name, mass.mass, mass.s, 0.0 if link == "lift" else links.tilt_offset))
+    return Arm(links=(ArmLink(lift.name, "revolute", links.lift_length, 0.0, tuple(on["lift"]), (lift.q_min, lift.q_max)),
+                      ArmLink(tilt.name, "revolute", 0.0, 0.0, tuple(on["tilt"]), (tilt.q_min, tilt.q_max)),
+                      ArmLink(extension.name, "prismatic", links.extension_base, links.tilt_offset, tuple(on["telescope"]),
+                              (extension.q_min, extension.q_max))),
+               origin=links.lift_joint)
 
 
 def _cylinder(joint: CraneJoint) -> CraneCylinder:

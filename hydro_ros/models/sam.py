@@ -590,7 +590,7 @@ class SamPlant:
     ) -> None:
         if model.machine.crane:
             raise InputError(f"config {model.machine.source}: actuator {model.actuator} is a crane's cylinder, moved by the crane's "
-                             "dynamics (hydro_ros.sim.crane_cylinders), not by a SAM boom; this simulator runs SAM-type machines")
+                             "dynamics (hydro_ros.sim.arm_cylinders), not by a SAM boom; this simulator runs SAM-type machines")
         self.model = model
         self.injections: list[Injection] = list(injections)
         joint0 = model.machine.simulation.initial_joint_position if initial_joint is None else initial_joint

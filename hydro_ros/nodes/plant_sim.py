@@ -9,7 +9,7 @@ own (``sim.scenario.MachineRun``). Faults and effects are injected at run time b
 --help`). Health on /diagnostics as `hydro_ros/plant_sim`.
 
 Crane mode (a config with ``kind: crane`` and an actuator per planar joint, e.g. config/k70m.yaml):
-the crane's cylinders with their valves (``hydro_ros.sim.crane_cylinders``), every joint in one
+the crane's cylinders with their valves (``hydro_ros.sim.arm_cylinders``), every joint in one
 /joint_states (the base held where it started), the pressures of every cylinder. Faults name
 their cylinder: ``fault.<actuator>.<name>``. With ``excitation: trajectory`` the crane starts at
 the start of ``initial_path`` and works each JointTrajectory it receives on ``trajectory_topic``
@@ -88,13 +88,14 @@ PARAMETERS = {
 
 
 class SamSource:
-    """The actuators of a config in the SAM's layout (each a boom of its own, ``sim.scenario.MachineRun``): the
-    operators' or the topic's commands through their plants; faults per actuator."""
-
-    not_per_cylinder: dict[str, str] = {}
+    """The actuators of a config in the SAM's layout (``sim.scenario.MachineRun``: each a boom of its own, or the links of
+    its ``arm:`` together): the operators' or the topic's commands through their plants; faults per actuator."""
 
     def __init__(self, machine: Machine, seed: int) -> None:
+        from hydro_ros.sim.arm_cylinders import NOT_PER_CYLINDER
+
         self.plant = MachineRun(machine, {}, seed=seed)
+        self.not_per_cylinder = NOT_PER_CYLINDER if machine.arm is not None else {}
         self.actuators = machine.actuator_names
         self.joints = {a.name: a.joint for a in machine.actuators}
         self.mobile = machine.mobile
@@ -115,14 +116,13 @@ class SamSource:
         return block_machine_payloads(block, k, stamp, self.joints, variance, self.mobile)
 
     def set_fault(self, actuator: str, name: str, value: float, now: float) -> None:
-        run = self.plant.runs[self.actuators.index(actuator)]
-        for holder in (run.plant.injections, run.sensors.injections):
+        for holder in self.plant.injections(actuator):
             _replace(holder, name, value, now)
 
     def active_faults(self) -> list[str]:
         named = len(self.actuators) > 1
-        return sorted({f"{actuator + ':' if named else ''}{i.name}={i.value:g}" for actuator, run in zip(self.actuators, self.plant.runs)
-                       for i in run.plant.injections + run.sensors.injections})
+        return sorted({f"{actuator + ':' if named else ''}{i.name}={i.value:g}" for actuator in self.actuators
+                       for holder in self.plant.injections(actuator) for i in holder})
 
     def fault_parameter(self, name: str) -> tuple[str, str]:
         if len(self.actuators) == 1:
@@ -132,17 +132,17 @@ class SamSource:
 
 
 class CraneSource:
-    """The cylinders of a crane config (``hydro_ros.sim.crane_cylinders``); faults per cylinder."""
+    """The cylinders of a crane config (``hydro_ros.sim.arm_cylinders``); faults per cylinder."""
 
     def __init__(self, machine: Machine, crane: Any, config: CraneConfig, seed: int, start_joints: dict[str, float] | None) -> None:
-        from hydro_ros.sim.crane_cylinders import NOT_PER_CYLINDER, CraneCylinders, CraneRun
+        from hydro_ros.sim.arm_cylinders import NOT_PER_CYLINDER, ArmRun, crane_cylinders
 
         self.actuators = machine.actuator_names
         self.joints = {a.name: a.joint for a in machine.actuators}
         planar = [self.joints[a] for a in self.actuators]
         start_joints = start_joints or {}
         self.held = {name: float(start_joints.get(name, 0.0)) for name in crane.names if name not in planar}
-        self.plant = CraneCylinders(machine, config, CraneRun(math.inf, seed),
+        self.plant = crane_cylinders(machine, config, ArmRun(math.inf, seed),
                                     None if not start_joints else [start_joints[name] for name in planar])
         self.mobile = machine.mobile
         self.topics = tuple(topics.sensor_topics(self.actuators, mobile=self.mobile))

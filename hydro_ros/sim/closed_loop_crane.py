@@ -18,11 +18,11 @@ executed motion, not the plan's. All values are PLACEHOLDERS of ``plant:`` in th
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from hydro_ros.contract.crane import CraneConfig, PointMass
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane, Motion
 from hydro_ros.models.crane_hydraulics import VALVE_TABLE_DEFAULTS, pump_flow
@@ -74,7 +74,7 @@ class CranePlant:
             raise InputError(f"supply {supply!r}: cp or ls")
         self.settings = settings = plant_settings(config)
         self.supply = supply
-        self.crane = Crane(_with_payload(config, settings["payload"]))
+        self.crane = Crane(config, payload=settings["payload"])
         self.dt = settings["time_step"]
         rng = np.random.default_rng(seed)
         cylinders = self.crane.cylinders
@@ -173,9 +173,3 @@ class CranePlant:
             else:  # load-holding: the loaded chamber carries the force, the other is at tank
                 s.pressure_a[i] = max(force, 0.0) / c.area_a
                 s.pressure_b[i] = max(-force, 0.0) / c.area_b if c.area_b > 0 else 0.0
-
-
-def _with_payload(config: CraneConfig, payload: float) -> CraneConfig:
-    if payload <= 0.0:
-        return config
-    return replace(config, masses=(*config.masses, PointMass("payload", "boom", config.links.extension_base, True, payload)))

@@ -13,6 +13,7 @@ from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.contract.samples import PER_ACTUATOR, Samples
 from hydro_ros.models.sam import SamModel, SamPlant
+from hydro_ros.models.serial_arm import SerialArm
 from hydro_ros.sim.excitation import OperatorReference
 from hydro_ros.sim.sensors import SensorModel
 
@@ -94,32 +95,46 @@ def simulate(machine: Machine, scenario: Scenario) -> Samples:
 
 
 class MachineRun:
-    """Every actuator of a config in the SAM's layout stepped together into one block of (n, A) columns.
+    """Every actuator of a machine config stepped together into one block of (n, A) columns.
 
-    Each actuator is a boom of its own: its cylinder, valve and configured ``load``, its operator and sensors. One
-    actuator's motion does not load another (an arm's weight on a moving boom is its configured load, not coupled
-    dynamics). Actuator i draws its noise from ``seed + i``, so the first keeps a one-actuator machine's seed.
+    A machine with an ``arm:`` moves its links together (``sim.arm_cylinders``: one arm's rigid-body dynamics,
+    a payload at its tip; ``payload_mass`` injected on any actuator hangs there). Without one, each actuator is a
+    boom of its own: its cylinder, valve and configured ``load``, its operator and sensors, and actuator i draws
+    its noise from ``seed + i``, so the first keeps a one-actuator machine's seed.
     """
 
     def __init__(self, machine: Machine, injections: Mapping[str, Sequence[Injection]], seed: int = 0) -> None:
+        from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun  # the one-boom machines need not compile it
+
         unknown = sorted(set(injections) - set(machine.actuator_names))
         if unknown:
             raise InputError(f"fault or effect on {', '.join(unknown)}: no such actuator (actuators: {', '.join(machine.actuator_names)})")
         self.actuators = machine.actuator_names
-        self.runs = [start(machine, Scenario(math.inf, tuple(injections.get(name, ())), seed=seed + i, actuator=name))
-                     for i, name in enumerate(self.actuators)]
-
-    @property
-    def time(self) -> float:
-        return self.runs[0].plant.time
+        self.sample_rate = machine.sample_rate_hz
+        self.runs: list[ScenarioRun] = []
+        self.arm = None
+        if machine.arm is not None:
+            faults = {name: [i for i in found if i.name != "payload_mass"] for name, found in injections.items()}
+            payload = [i for found in injections.values() for i in found if i.name == "payload_mass"]
+            self.arm = ArmCylinders(machine, SerialArm(machine.arm, machine.simulation.gravity), ArmRun(math.inf, seed, faults, payload))
+        else:
+            self.runs = [start(machine, Scenario(math.inf, tuple(injections.get(name, ())), seed=seed + i, actuator=name))
+                         for i, name in enumerate(self.actuators)]
 
     @property
     def sample_index(self) -> int:
-        return self.runs[0].plant.sample_index
+        return self.arm.sample_index if self.arm is not None else self.runs[0].plant.sample_index
+
+    @property
+    def time(self) -> float:
+        return self.sample_index / self.sample_rate
 
     def advance(self, n: int, commands: np.ndarray | None = None) -> tuple[list[np.ndarray], Samples]:
         """``n`` samples of every actuator: each one's true states and the measurements as (n, A) columns; ``commands``
         (n, A) valve commands, None: the simulated operators drive."""
+        if self.arm is not None:
+            states, measured = self.arm.step(n, commands)
+            return [states[:, i] for i in range(len(self.actuators))], measured
         steps = [run.step(n, None if commands is None else commands[:, i]) for i, run in enumerate(self.runs)]
         parts = [measured for _, _, measured in steps]
         first = parts[0]
@@ -131,9 +146,16 @@ class MachineRun:
     def step(self, n: int, commands: np.ndarray | None = None) -> Samples:
         return self.advance(n, commands)[1]
 
+    def injections(self, actuator: str) -> list[list[Injection]]:
+        """The lists of ``actuator``'s injections its plant and its sensors read now (a caller may change them)."""
+        index = self.actuators.index(actuator)
+        if self.arm is not None:
+            return [self.arm.run.faults.setdefault(actuator, []), self.arm.sensors[index].injections]
+        return [self.runs[index].plant.injections, self.runs[index].sensors.injections]
+
     def blocks(self, duration_s: float, progress: Callable[[int], None] | None = None) -> Iterator[tuple[list[np.ndarray], Samples]]:
         """(true states per actuator, measurements) per block until ``duration_s``."""
-        total = int(round(duration_s * self.runs[0].plant.model.sample_rate))
+        total = int(round(duration_s * self.sample_rate))
         done = 0
         while done < total:
             n = min(BLOCK, total - done)

@@ -34,7 +34,7 @@ from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_episodes
 from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS, ParityThresholds
-from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun, simulate_crane
+from hydro_ros.sim.arm_cylinders import ArmRun, crane_cylinders, simulate_crane
 from hydro_ros.studies.commissioning import FaultFreeRecording
 from hydro_ros.studies.fdi_evaluation import mismatched_config, parallel_map
 
@@ -88,11 +88,11 @@ class CraneOutcome:
         return hits[0] if hits else None
 
 
-def crane_run(case: CraneCase, trajectories: dict[str, Any]) -> CraneRun:
+def crane_run(case: CraneCase, trajectories: dict[str, Any]) -> ArmRun:
     payload = [Injection("payload_mass", PAYLOAD_KG, case.duration_s / 3.0),
                Injection("payload_mass", -PAYLOAD_KG, 2.0 * case.duration_s / 3.0)] if case.payload else []
     faults = {case.actuator: [Injection(case.fault, case.value, case.onset_s)]} if case.fault else {}
-    return CraneRun(case.duration_s, case.seed, faults, payload, trajectories.get(case.path) if case.path else None)
+    return ArmRun(case.duration_s, case.seed, faults, payload, trajectories.get(case.path) if case.path else None)
 
 
 def run_crane_case(machine: Machine, crane_config: CraneConfig, trajectories: dict[str, Any], case: CraneCase, *,
@@ -107,7 +107,7 @@ def run_crane_case(machine: Machine, crane_config: CraneConfig, trajectories: di
     kept: list[tuple[np.ndarray, np.ndarray]] = []
     armed_from = monitor.startup + monitor.window
     seen = 0
-    for _, block in CraneCylinders(plant, crane_config, crane_run(case, trajectories)).blocks():
+    for _, block in crane_cylinders(plant, crane_config, crane_run(case, trajectories)).blocks():
         result = monitor.process(block)
         for i, name in enumerate(monitor.actuators):
             new, crossing[name] = crossing_episodes(result.code[:, i], previous=crossing[name])

@@ -283,11 +283,16 @@ def plot_commissioning(report: dict, machine: Machine, out: str | Path) -> Path:
 
 def plot_machine(machine: Machine, out: str | Path) -> Path:
     """Each actuator of a machine as configured: its link at both ends of its reach and in the middle, the cylinder between
-    its mounts (a telescope as a bar), and the load; one panel per actuator (each a boom of its own, as simulated)."""
+    its mounts (a telescope as a bar), and the load it carries in its one-cylinder model; one panel per actuator. A machine
+    with an ``arm:`` has a last panel: the arm at the ends and the middle of its joints' ranges and the workspace its tip
+    reaches."""
     from hydro_ros.models.kinematics import LINEAR, joint_reach
 
     out = Path(out)
-    fig, axes = plt.subplots(1, len(machine.actuators), figsize=(4.5 * len(machine.actuators), 4.2), squeeze=False)
+    panels = len(machine.actuators) + (machine.arm is not None)
+    fig, axes = plt.subplots(1, panels, figsize=(4.5 * panels, 4.2), squeeze=False)
+    if machine.arm is not None:
+        _plot_arm(axes[0][-1], machine)
     for ax, actuator in zip(axes[0], machine.actuators):
         model = SamModel(machine, actuator.name)
         kind, l1, l2, _, offset, sign, _ = model.mount
@@ -316,3 +321,22 @@ def plot_machine(machine: Machine, out: str | Path) -> Path:
     fig.savefig(out, dpi=100)
     plt.close(fig)
     return out
+
+
+def _plot_arm(ax: plt.Axes, machine: Machine) -> None:
+    from hydro_ros.models.serial_arm import SerialArm
+
+    arm = SerialArm(machine.arm, machine.simulation.gravity)
+    ranges = [link.joint_range for link in arm.links]
+    grid = np.meshgrid(*[np.linspace(low, high, 25) for low, high in ranges], indexing="ij")
+    tip_x, tip_y = arm.tip([g.ravel() for g in grid])
+    ax.plot(tip_x, tip_y, ".", color="0.75", ms=2, label="tip's workspace")
+    for share, style in ((0.0, ":"), (0.5, "-"), (1.0, "--")):
+        q = [low + share * (high - low) for low, high in ranges]
+        joints = [origin for origin, _ in arm.frames(q)] + [arm.tip(q)]
+        ax.plot(*np.array(joints).T, "k" + style, marker="o", ms=4, lw=2, label=f"{share:.0%} of each range")
+    ax.plot(*machine.arm.origin, "ks", ms=7)
+    ax.set_aspect("equal")
+    ax.grid(alpha=0.3)
+    ax.set_title(f"arm: {' - '.join(arm.joint_names)}, payload {machine.arm.payload:g} kg", fontsize=9)
+    ax.legend(fontsize=7, loc="best")

@@ -20,7 +20,7 @@ from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.crane import load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
 from hydro_ros.planning.serving import executable_trajectory
-from hydro_ros.sim.crane_cylinders import CraneCylinders, CraneRun
+from hydro_ros.sim.arm_cylinders import ArmRun, crane_cylinders
 from hydro_ros.sim.scenario import Scenario, simulate
 from hydro_ros.studies.commissioning import LEAK_LIMIT, commission
 from hydro_ros.studies.crane_monitoring import CraneCase, commissioning_recordings, path_trajectories, run_crane_cases
@@ -50,11 +50,11 @@ def test_one_k70m_config_gives_the_planner_and_the_monitor_the_same_cylinders(cr
         assert model.base[[AREA_A, AREA_B]] == pytest.approx([cylinder.area_a, cylinder.area_b], rel=1e-4), cylinder.name
     shifted = machine.with_overrides({"actuators": {"tilt": {"mount": {"l3": 0.91}}}})
     with pytest.raises(InputError, match="tilt's mount differs from joint tilt's cylinder mapping by 9.9 mm"):
-        CraneCylinders(shifted, config, CraneRun(1.0))
-    with pytest.raises(InputError, match="lift:payload_mass: a crane's payload hangs at its tip"):
-        CraneCylinders(machine, config, CraneRun(1.0, faults={"lift": [Injection("payload_mass", 300.0)]}))
+        crane_cylinders(shifted, config, ArmRun(1.0))
+    with pytest.raises(InputError, match="lift:payload_mass: an arm's payload hangs at its tip"):
+        crane_cylinders(machine, config, ArmRun(1.0, faults={"lift": [Injection("payload_mass", 300.0)]}))
     with pytest.raises(InputError, match="fault on slew: no such actuator"):
-        CraneCylinders(machine, config, CraneRun(1.0, faults={"slew": [Injection("external_leakage_a", 1.0)]}))
+        crane_cylinders(machine, config, ArmRun(1.0, faults={"slew": [Injection("external_leakage_a", 1.0)]}))
     with pytest.raises(InputError, match="crane's cylinder"):  # the SAM simulator does not take a crane for a boom
         simulate(machine, Scenario(1.0))
 

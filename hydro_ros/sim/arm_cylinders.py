@@ -1,39 +1,37 @@
-"""The crane's cylinders with their valves and chambers: the plant the per-cylinder monitor is tested on.
+"""The cylinders of a serial arm with their valves and chambers, moving its links together: the plant the per-cylinder
+monitor is tested on, for the K70M crane and for a machine with an ``arm:`` (the boom and arm of ``config/boom_arm.yaml``).
 
-The lift, tilt and extension cylinders each have the SAM model's valve and chambers
-(``models.sam.hydraulic_rates``: the pressure-compensated mobile valve, leaks, effective bulk
-modulus), and their pistons move the crane's joints through its rigid-body dynamics,
+Each cylinder has the SAM model's valve and chambers (``models.sam.hydraulic_rates``: the pressure-compensated
+mobile valve, leaks, effective bulk modulus), and the pistons move the joints through the arm's rigid-body
+dynamics (``models.serial_arm``),
 
-    M(q) q'' = R(q) (F_hydraulic - F_friction + F_stop) - G(q) - tau_extension_friction,
+    M(q) q'' = R(q) (F_hydraulic - F_friction + F_stop) - G(q) - tau_joint_friction,
 
-with P-VI's point masses (eq. 16, Coriolis omitted as there) and R the mounts' torque arms. M and
-G are evaluated once per sensor sample and held over its RK4 substeps (they change little in
-1 ms). A cylinder's friction is viscous plus a smoothed Coulomb force; the extension's is the
-crane model's own (P-VI eqs. A3-A4).
+with R the mounts' torque arms. M and G are evaluated once per sensor sample and held over its RK4 substeps
+(they change little in 1 ms). A cylinder's friction is viscous plus a smoothed Coulomb force; the crane's
+extension adds its own (P-VI eqs. A3-A4).
 
-The base rotation is held still and not monitored: its rack-and-pinion plungers are
-non-differential, and P-VI replaced their force by an identified constant, so the thesis gives no
-load or valve model for it.
+A crane's base rotation is held still and not monitored: its rack-and-pinion plungers are non-differential,
+and P-VI replaced their force by an identified constant, so the thesis gives no load or valve model for it.
 
-The operator moves each joint to random targets in closed loop (``OperatorReference`` per joint,
-within 80 % of its range); the moves overlap, so one joint moves fast while another holds. Or the
-crane works a stored joint trajectory (``CraneRun.trajectory``, e.g. a P-VI path from the trajectory
-database) as a work cycle, forwards and back with holds between (``WorkCycleReference``), the same
-proportional loop following it; the base column is not followed (see above), so a path that turns
-the base is worked in the plane of its start. The sensors are the SAM's (``SensorModel`` per
-cylinder).
+The operator moves each joint to random targets in closed loop (``OperatorReference`` per joint, within 80 % of
+its range); the moves overlap, so one joint moves fast while another holds. Or the arm works a stored joint
+trajectory (``ArmRun.trajectory``, e.g. a P-VI path from the trajectory database) as a work cycle, forwards and
+back with holds between (``WorkCycleReference``), the same proportional loop following it; the base column is
+not followed (see above), so a path that turns the base is worked in the plane of its start. The sensors are the
+SAM's (``SensorModel`` per cylinder). Measurements and states come in the machine config's actuator order.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
-from typing import Iterator, Protocol, Sequence
+from typing import Callable, Iterator, Protocol, Sequence
 
 import numpy as np
 from numba import njit
 
-from hydro_ros.contract.crane import CraneConfig, PointMass
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
@@ -59,6 +57,7 @@ from hydro_ros.models.sam import (
     hydraulic_rates,
     injection_levels,
 )
+from hydro_ros.models.serial_arm import SerialArm
 from hydro_ros.sim.excitation import OperatorReference, WorkCycleReference
 from hydro_ros.sim.sensors import SensorModel
 
@@ -67,9 +66,10 @@ OPERATOR_SHARE = 0.8  # the operator's targets lie within this share of each joi
 BLOCK = 1000  # samples per measured block
 MOUNT_AGREEMENT = 1e-3  # [m] the machine config's mount must give the crane config's stroke to this
 NOT_PER_CYLINDER = {  # injections the SAM's model takes that this plant does not, refused rather than ignored
-    "payload_mass": "a crane's payload hangs at its tip, not on one cylinder (CraneRun.payload)",
-    "valve_delay": "not simulated on the crane's cylinders",
+    "payload_mass": "an arm's payload hangs at its tip, not on one cylinder (ArmRun.payload)",
+    "valve_delay": "not simulated on an arm's coupled cylinders",
 }
+JointFriction = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (q, q') -> joint torques [N m] or forces [N]
 
 
 @njit(cache=True)
@@ -139,7 +139,7 @@ class JointPath(Protocol):
 
 
 @dataclass
-class CraneRun:
+class ArmRun:
     """What one run asks of the plant: its length, the operator's seed, faults per cylinder, payload steps."""
 
     duration_s: float
@@ -150,17 +150,17 @@ class CraneRun:
     hold_s: float = 4.0  # [s] the work cycle's holds at either end of the trajectory
 
 
-class CraneCylinders:
-    """The crane of a machine config with ``kind: crane`` and an actuator for each of its planar joints."""
+class ArmCylinders:
+    """The cylinders of ``machine`` moving the links of ``arm``, one actuator per link (by its joint)."""
 
-    def __init__(self, machine: Machine, crane_config: CraneConfig, run: CraneRun, start: Sequence[float] | None = None) -> None:
+    def __init__(self, machine: Machine, arm: SerialArm, run: ArmRun, start: Sequence[float] | None = None,
+                 joint_friction: JointFriction | None = None) -> None:
         self.machine = machine
-        self.crane = Crane(crane_config)
-        planar = self.crane.cylinders[-3:]
+        self.arm = arm
         by_joint = {a.joint: a for a in machine.actuators}
-        missing = [c.name for c in planar if c.name not in by_joint]
-        if missing or len(machine.actuators) != len(planar):
-            raise InputError(f"config {machine.source}: the crane's planar joints {', '.join(c.name for c in planar)} need one actuator "
+        missing = [name for name in arm.joint_names if name not in by_joint]
+        if missing or len(machine.actuators) != len(arm.joint_names):
+            raise InputError(f"config {machine.source}: the arm's joints {', '.join(arm.joint_names)} need one actuator "
                              f"each (missing: {', '.join(missing) or 'none'}; actuators: {', '.join(machine.actuator_names)})")
         unknown = [name for name in run.faults if name not in machine.actuator_names]
         if unknown:
@@ -169,19 +169,16 @@ class CraneCylinders:
             for injection in injections:
                 if injection.name in NOT_PER_CYLINDER:
                     raise InputError(f"fault {actuator}:{injection.name}: {NOT_PER_CYLINDER[injection.name]}")
-        self.models = [SamModel(machine, by_joint[c.name].name) for c in planar]
-        for cylinder, model in zip(planar, self.models):
-            span = np.linspace(cylinder.q_min, cylinder.q_max, 50)
-            gap = np.max(np.abs(model.piston_from_joint(span) - cylinder.stroke(span)))
-            if gap > MOUNT_AGREEMENT:
-                raise InputError(f"config {machine.source}: actuator {model.actuator}'s mount differs from joint {cylinder.name}'s "
-                                 f"cylinder mapping by {gap * 1000:.1f} mm; one crane, one geometry")
+        self.models = [SamModel(machine, by_joint[name].name) for name in arm.joint_names]  # link order, as the state
+        # the machine config's actuator i is link order[i]
+        self.order = [arm.joint_names.index(a.joint) for a in machine.actuators]
+        self.joint_friction = joint_friction
         self.run = run
         self.dt = 1.0 / machine.sample_rate_hz
         self.substeps = self.models[0].substeps
         rng = np.random.default_rng(run.seed)
-        middle = [0.5 * (c.q_min + c.q_max) for c in planar]
-        self.planar = planar
+        ranges = [link.joint_range for link in arm.links]
+        middle = [0.5 * (low + high) for low, high in ranges]
         self.work_cycle = None
         if run.trajectory is not None:
             self.work_cycle = self._work_cycle(run.trajectory)
@@ -189,27 +186,25 @@ class CraneCylinders:
         start = middle if start is None else list(start)
         excitation = machine.excitation
         self.operators = [
-            OperatorReference(replace(excitation, joint_range=(m - 0.5 * OPERATOR_SHARE * (c.q_max - c.q_min),
-                                                               m + 0.5 * OPERATOR_SHARE * (c.q_max - c.q_min))),
+            OperatorReference(replace(excitation, joint_range=(m - 0.5 * OPERATOR_SHARE * (high - low), m + 0.5 * OPERATOR_SHARE * (high - low))),
                               rng, q0, machine.sample_rate_hz)
-            for c, m, q0 in zip(planar, middle, start)]
-        self.sensors = [SensorModel(model, rng, run.faults.get(model.actuator, ())) for model in self.models]
+            for (low, high), m, q0 in zip(ranges, middle, start)]
+        self.sensors = [SensorModel(self.models[i], rng, run.faults.get(self.models[i].actuator, ())) for i in self.order]
         # extending the cylinder closes the tilt joint: the operator's lever follows the joint, not the cylinder
         self.direction = np.sign([float(m.piston_velocity(q0, 1.0)) for m, q0 in zip(self.models, start)])
         self.sample_index = 0
-        self.state = np.zeros(6 * len(planar))
-        n = len(planar)
+        n = len(self.models)
+        self.state = np.zeros(6 * n)
         self.state[4 * n:5 * n] = start
         self.state[:4 * n].reshape(n, 4)[:, :2] = self._holding_pressures()
         self.poly = np.stack([m.poly for m in self.models])
         self.centre = np.stack([m.centre_leakage for m in self.models])
-        self.crane.masses.append(PointMass("payload", "boom", self.crane.extension_base, True, 0.0))  # at the tip
 
     def _holding_pressures(self) -> np.ndarray:
-        """Chamber pressures that hold the crane at rest in its start pose (the loaded side carries the load)."""
-        n = len(self.planar)
+        """Chamber pressures that hold the arm at rest in its start pose (the loaded side carries the load)."""
+        n = len(self.models)
         q = self.state[4 * n:5 * n]
-        _, gravity = self.crane.planar_inertia_gravity(*q)
+        _, gravity = self.arm.inertia_gravity(list(q))
         out = np.zeros((n, 2))
         for i, (model, qi, tau) in enumerate(zip(self.models, q, gravity)):
             force = tau / float(model.piston_velocity(qi, 1.0))
@@ -217,10 +212,11 @@ class CraneCylinders:
             out[i] = (max(force, 0.0) / p[AREA_A] + 1e5, max(-force, 0.0) / p[AREA_B] + 1e5)
         return out
 
-    def _dynamics(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        inertia, gravity = self.crane.planar_inertia_gravity(*q)
+    def _dynamics(self, q: np.ndarray, qd: np.ndarray, payload: float) -> tuple[np.ndarray, np.ndarray]:
+        inertia, gravity = self.arm.inertia_gravity(list(q), payload)
         bias = np.asarray(gravity, dtype=float)
-        bias[2] += float(self.crane.extension_friction(q[2], qd[2]))
+        if self.joint_friction is not None:
+            bias = bias + self.joint_friction(q, qd)
         return np.linalg.inv(np.asarray(inertia, dtype=float)), bias
 
     def blocks(self) -> Iterator[tuple[np.ndarray, Samples]]:
@@ -239,29 +235,33 @@ class CraneCylinders:
         self.work_cycle = WorkCycleReference(np.array([0.0, 1.0]), np.stack([here, here]), 0.0, self.machine.sample_rate_hz)
 
     def joints(self) -> np.ndarray:
-        """The planar joints' true positions now."""
-        n = len(self.planar)
+        """The arm's true joint positions now, base to tip."""
+        n = len(self.models)
         return self.state[4 * n:5 * n].copy()
 
     def _work_cycle(self, trajectory: JointPath) -> WorkCycleReference:
-        columns = [trajectory.joint_names.index(c.name) if c.name in trajectory.joint_names else -1 for c in self.planar]
+        names = self.arm.joint_names
+        columns = [trajectory.joint_names.index(name) if name in trajectory.joint_names else -1 for name in names]
         if min(columns) < 0:
             raise InputError(f"trajectory: joints {', '.join(trajectory.joint_names)} lack "
-                             f"{', '.join(c.name for c, i in zip(self.planar, columns) if i < 0)}")
+                             f"{', '.join(name for name, i in zip(names, columns) if i < 0)}")
         return WorkCycleReference(trajectory.time, np.asarray(trajectory.positions)[:, columns], self.run.hold_s,
                                   self.machine.sample_rate_hz)
 
     def step(self, n: int, commands: np.ndarray | None = None) -> tuple[np.ndarray, Samples]:
-        """The next n samples: (true states (n, A, 7), measured samples (n, A)). ``commands`` (n, A) are valve commands
-        from outside (a controller); without them the operator or the work cycle closes the loop."""
-        n_act = len(self.planar)
+        """The next n samples: (true states (n, A, 7), measured samples (n, A)), in the machine config's actuator order.
+        ``commands`` (n, A) are valve commands from outside (a controller), in that order; without them the operator or
+        the work cycle closes the loop."""
+        n_act = len(self.models)
+        if commands is not None:
+            commands = np.asarray(commands, dtype=float)[:, np.argsort(self.order)]
         times = (self.sample_index + np.arange(n)) * self.dt
         references = None
         if commands is None:
             references = (self.work_cycle.next(n) if self.work_cycle is not None
                           else np.stack([op.next(n) for op in self.operators], axis=1))
         params = np.stack([m.parameter_matrix(times, self.run.faults.get(m.actuator, ())) for m in self.models], axis=1)
-        payload = sum((injection_levels(step, times) for step in self.run.payload), np.zeros(n))
+        payload = self.arm.payload + sum((injection_levels(step, times) for step in self.run.payload), np.zeros(n))
         trajectory = np.empty((n, self.state.size))  # the plant's state after each sample
         applied = np.empty((n, n_act))
         gain, ceiling = self.machine.excitation.gain, self.machine.excitation.max_command
@@ -270,22 +270,21 @@ class CraneCylinders:
             q, qd = self.state[4 * n_act:5 * n_act], self.state[5 * n_act:]
             applied[k] = (np.clip(commands[k], -1.0, 1.0) if references is None
                           else np.clip(gain * self.direction * (references[k] - q), -ceiling, ceiling))
-            if payload[k] != self.crane.masses[-1].mass:
-                self.crane.masses[-1] = replace(self.crane.masses[-1], mass=float(payload[k]))
-            inverse_mass, bias = self._dynamics(q, qd)
+            inverse_mass, bias = self._dynamics(q, qd, float(payload[k]))
             _sample(self.state, applied[k], np.ascontiguousarray(params[k]), self.poly, self.centre, inverse_mass, bias, h,
                     self.substeps)
             trajectory[k] = self.state
-        states = self._cylinder_states(trajectory)
+        states = self._cylinder_states(trajectory)[:, self.order]
         if not np.all(np.isfinite(states)):
-            raise InputError(f"crane simulation diverged at t = {times[0]:.2f} s (check the valve sizes and end stops of {self.machine.source})")
+            raise InputError(f"arm simulation diverged at t = {times[0]:.2f} s (check the valve sizes and end stops of {self.machine.source})")
         self.sample_index += n
+        applied = applied[:, self.order]
         measured = [sensor.measure(times, states[:, i], applied[:, i]) for i, sensor in enumerate(self.sensors)]
         return states, combine(measured)
 
     def _cylinder_states(self, trajectory: np.ndarray) -> np.ndarray:
-        """The SAM model's state layout (n, A, 7) of each cylinder, its piston from its joint (bristle state 0)."""
-        n = len(self.planar)
+        """The SAM model's state layout (n, A, 7) of each cylinder in link order, its piston from its joint (bristle state 0)."""
+        n = len(self.models)
         out = np.zeros((len(trajectory), n, N_STATES))
         for i, model in enumerate(self.models):
             q, qd = trajectory[:, 4 * n + i], trajectory[:, 5 * n + i]
@@ -310,8 +309,28 @@ def combine(per_actuator: Sequence[Samples]) -> Samples:
     return Samples(**out)
 
 
-def simulate_crane(machine: Machine, crane_config: CraneConfig, run: CraneRun) -> Samples:
+def crane_cylinders(machine: Machine, crane_config: CraneConfig, run: ArmRun, start: Sequence[float] | None = None) -> ArmCylinders:
+    """The planar cylinders of a crane config (``kind: crane``): its lift, tilt and telescope, the telescope's friction."""
+    crane = Crane(crane_config)
+    by_joint = {a.joint: a for a in machine.actuators}
+    for cylinder in crane.cylinders[-3:]:
+        if cylinder.name not in by_joint:
+            continue  # ArmCylinders names every missing one
+        model = SamModel(machine, by_joint[cylinder.name].name)
+        span = np.linspace(cylinder.q_min, cylinder.q_max, 50)
+        gap = np.max(np.abs(model.piston_from_joint(span) - cylinder.stroke(span)))
+        if gap > MOUNT_AGREEMENT:
+            raise InputError(f"config {machine.source}: actuator {model.actuator}'s mount differs from joint {cylinder.name}'s "
+                             f"cylinder mapping by {gap * 1000:.1f} mm; one crane, one geometry")
+
+    def extension_friction(q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        return np.array([0.0, 0.0, float(crane.extension_friction(q[2], qd[2]))])
+
+    return ArmCylinders(machine, crane.arm, run, start, extension_friction)
+
+
+def simulate_crane(machine: Machine, crane_config: CraneConfig, run: ArmRun) -> Samples:
     """The whole run's measurements, (n, A)."""
-    parts = [measured for _, measured in CraneCylinders(machine, crane_config, run).blocks()]
+    parts = [measured for _, measured in crane_cylinders(machine, crane_config, run).blocks()]
     return Samples(**{f.name: None if getattr(parts[0], f.name) is None else np.concatenate([getattr(p, f.name) for p in parts])
                       for f in fields(Samples)})

@@ -1,0 +1,85 @@
+"""One rigid-body model for every serial arm a config describes (models/serial_arm.py): the K70M's lift, tilt and
+telescope, and config/boom_arm.yaml's boom and arm, checked against the energies of their masses and moved as one arm."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.models.crane import load_crane
+from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
+from hydro_ros.models.serial_arm import SerialArm
+from hydro_ros.sim.scenario import MachineRun
+
+REPO = Path(__file__).resolve().parents[1]
+STEP = 1e-6
+
+
+def _arms() -> dict[str, SerialArm]:
+    boom_arm = load_machine_config(REPO / "config" / "boom_arm.yaml")
+    return {"boom_arm": SerialArm(boom_arm.arm, 9.81), "k70m": load_crane(REPO / "config" / "k70m.yaml")[0].arm}
+
+
+def _energies(arm: SerialArm, q: np.ndarray, qd: np.ndarray) -> tuple[float, float]:
+    """Potential and kinetic energy of every mass, from positions alone (the kinetic by differencing them along qd)."""
+    def points(at: np.ndarray) -> list[tuple[float, float, float, float]]:  # (mass, x, y, link angle) of each mass
+        frames = arm.frames(list(at))
+        out = []
+        for i, link in enumerate(arm.links):
+            (x, y), (c, s) = frames[i]
+            slide = at[i] if link.kind == "prismatic" else 0.0
+            for m in link.masses:
+                along = m.along + slide
+                out.append((m.mass, x + along * c - m.across * s, y + along * s + m.across * c, np.arctan2(s, c), m.inertia))
+        tip = arm.tip(list(at))
+        out.append((arm.payload, tip[0], tip[1], 0.0, 0.0))
+        return out
+
+    now, later = points(q), points(q + STEP * qd)
+    potential = sum(m * arm.gravity * y for m, _, y, _, _ in now)
+    kinetic = sum(0.5 * m * ((x1 - x0) ** 2 + (y1 - y0) ** 2) / STEP**2 + 0.5 * inertia * ((a1 - a0) / STEP) ** 2
+                  for (m, x0, y0, a0, inertia), (_, x1, y1, a1, _) in zip(now, later))
+    return potential, kinetic
+
+
+@pytest.mark.parametrize("name", ["boom_arm", "k70m"])
+def test_inertia_and_gravity_are_those_of_the_masses_energies(name):
+    """G = dV/dq and q'^T M q' / 2 = T at random poses and rates: the Jacobians, prismatic links and rotational inertia."""
+    arm = _arms()[name]
+    rng = np.random.default_rng(3)
+    arm.payload = 120.0
+    for _ in range(5):
+        q = np.array([rng.uniform(*link.joint_range) for link in arm.links])
+        qd = rng.normal(size=len(q))
+        inertia, gravity = arm.inertia_gravity(list(q))
+        potential, kinetic = _energies(arm, q, qd)
+        for j in range(len(q)):
+            nudged = q.copy()
+            nudged[j] += STEP
+            assert gravity[j] == pytest.approx((_energies(arm, nudged, qd)[0] - potential) / STEP, rel=1e-4, abs=1e-2)
+        assert 0.5 * qd @ np.asarray(inertia, dtype=float) @ qd == pytest.approx(kinetic, rel=1e-4)
+
+
+def test_the_boom_cylinder_carries_the_arm_as_it_moves():
+    """config/boom_arm.yaml as one arm: with the boom's valve closed, its cylinder's force follows the static load of the arm's
+    pose as the arm swings out and back (each actuator a boom of its own, as before the arm: section, it stayed constant)."""
+    machine = load_machine_config(REPO / "config" / "boom_arm.yaml")
+    run = MachineRun(machine, {})
+    commands = np.zeros((4000, 2))
+    commands[500:2000, 1], commands[2000:3500, 1] = 0.5, -0.5  # the boom's valve stays closed
+    states, samples = run.advance(4000, commands)
+    boom = SamModel(machine, "boom")
+    force = states[0][:, 0] * boom.base[AREA_A] - states[0][:, 1] * boom.base[AREA_B]
+    pose = samples.joint_position
+    static = np.array([run.arm.arm.inertia_gravity(list(q))[1][0] / float(boom.piston_velocity(q[0], 1.0)) for q in pose])
+    # 0.2 s means while the arm swings at a steady rate, once the oil column's ringing after the valve's switching has died
+    steady = np.r_[1000:2000, 2600:3500].reshape(-1, 100)
+    assert np.ptp(pose[:, 1]) > 0.5 and np.ptp(pose[:, 0]) < 0.02
+    swing = np.ptp(static[steady].mean(axis=1))
+    assert swing > 2000.0  # [N] the arm's swing moves the boom's load by this much
+    assert np.max(np.abs(force[steady].mean(axis=1) - static[steady].mean(axis=1))) < 0.25 * swing
+    # the per-actuator model of the boom (discrepancy, GSA) sees the arm and payload lumped at the boom's end
+    assert machine.actuator("boom").load.left_mass == pytest.approx(250.0 + machine.arm.payload)
