@@ -94,6 +94,10 @@ def test_live_parity_method_on_the_mobile_valve_machine(ros_domain):
         assert all(s.message in ("ok", "stale", "not_monitored") for s in _fdi_statuses(diags))
         values = {v.key: v.value for v in _fdi_statuses(diags)[-1].values}
         assert values["method"] == "parity" and "mean_r_QA_L_min" in values
+        # the closed-valve evidence and its threshold (test_parity.py fills it offline), fault-free below its threshold
+        closed = [float(v.value) for s in _fdi_statuses(diags) for v in s.values if v.key == "closed_mean_r_QB_L_min" and v.value]
+        assert float(values["closed_threshold_QB_L_min"]) > 0.0 and "closed_mean_r_QA_L_min" in values, values
+        assert all(abs(mean) < float(values["closed_threshold_QB_L_min"]) for mean in closed), closed
         # the self-test goes through the parity generator's own checks, not the UKF's
         test = _call(node, node.create_client(SelfTest, "/fdi_node/self_test"), SelfTest.Request())
         assert test.passed == b"\x01", [(s.name, s.message) for s in test.status]

@@ -159,3 +159,15 @@ def test_the_roots_noise_bias_bounds_a_stalled_notchs_misreading(mobile):
     assert all(abs(r) < b for r, b in stalled), stalled
     assert min(b for _, b in stalled) > 0.2
     assert window(mobile.actuators[0].valve.compensator_pressure_drop)[1] < 0.02
+
+
+def test_the_monitor_keeps_the_latest_closed_valve_means_for_its_diagnostics(mobile):
+    """fdi_node shows ``last_closed_mean`` beside ``closed_threshold``: filled once the valve rested closed 2 s, fault-free
+    below the threshold; the UKF method has neither."""
+    monitor = FdiMonitor(mobile)
+    assert np.all(np.isnan(monitor.last_closed_mean))
+    for _ in _blocks(mobile, Case(None, 0.0, seed=2, duration_s=10.0), monitor):
+        pass
+    assert np.all(np.isfinite(monitor.last_closed_mean))
+    assert np.all(np.abs(monitor.last_closed_mean) < monitor.generator.closed_threshold)
+    assert FdiMonitor(load_machine_config(REPO / "config" / "sam.yaml")).generator.closed_threshold is None

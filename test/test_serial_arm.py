@@ -11,7 +11,7 @@ import pytest
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.models.crane import load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
-from hydro_ros.models.serial_arm import SerialArm
+from hydro_ros.models.serial_arm import SerialArm, equivalent_load
 from hydro_ros.sim.scenario import MachineRun
 
 REPO = Path(__file__).resolve().parents[1]
@@ -81,5 +81,20 @@ def test_the_boom_cylinder_carries_the_arm_as_it_moves():
     swing = np.ptp(static[steady].mean(axis=1))
     assert swing > 2000.0  # [N] the arm's swing moves the boom's load by this much
     assert np.max(np.abs(force[steady].mean(axis=1) - static[steady].mean(axis=1))) < 0.25 * swing
-    # the per-actuator model of the boom (discrepancy, GSA) sees the arm and payload lumped at the boom's end
-    assert machine.actuator("boom").load.left_mass == pytest.approx(250.0 + machine.arm.payload)
+
+
+@pytest.mark.parametrize("actuator", ["boom", "arm"])
+def test_a_cylinder_studied_alone_carries_the_arms_load_at_the_middle_of_its_ranges(actuator):
+    """discrepancy and gsa look at one cylinder: its load (``equivalent_load``) gives the arm's gravity force and inertia about
+    its joint with every joint at the middle of its range."""
+    machine = load_machine_config(REPO / "config" / "boom_arm.yaml")
+    arm = SerialArm(machine.arm, machine.simulation.gravity)
+    joint = machine.actuator(actuator).joint
+    alone = SamModel(machine.only(actuator, equivalent_load(arm, joint)))
+    middle = [0.5 * (low + high) for low, high in (link.joint_range for link in arm.links)]
+    index = arm.joint_names.index(joint)
+    inertia, gravity = arm.inertia_gravity(middle)
+    x = float(alone.piston_from_joint(middle[index]))
+    assert alone.load_force(x) == pytest.approx(gravity[index] / float(alone.piston_velocity(middle[index], 1.0)), rel=1e-9)
+    assert alone.inertia() == pytest.approx(inertia[index][index], rel=1e-9)
+    assert SamModel(machine, actuator).base == pytest.approx(alone.base)  # the machine's own one-cylinder model is the same

@@ -79,7 +79,11 @@ def one_actuator(machine, name: str | None, study: str):  # noqa: ANN001, ANN201
             raise InputError(f"--actuator: {study} looks at one cylinder and {machine.name} has {len(machine.actuators)} "
                              f"({', '.join(machine.actuator_names)}); name one")
         return machine
-    return machine.only(name)
+    if machine.arm is None:
+        return machine.only(name)
+    from hydro_ros.models.serial_arm import SerialArm, equivalent_load
+
+    return machine.only(name, equivalent_load(SerialArm(machine.arm, machine.simulation.gravity), machine.actuator(name).joint))
 
 
 @contextlib.contextmanager

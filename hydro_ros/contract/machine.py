@@ -223,19 +223,6 @@ class Arm:
     payload: float = 0.0
     """[kg] at the tip of the last link"""
 
-    def load_of(self, joint: str) -> "Load":
-        """The SAM-layout load a one-cylinder model of ``joint`` sees: its link's own masses, and every link and the payload
-        beyond it lumped at the link's end (the coupling the per-actuator models leave out)."""
-        index = [link.joint for link in self.links].index(joint)
-        link = self.links[index]
-        own = sum(m.mass for m in link.masses)
-        cog = sum(m.mass * m.along for m in link.masses) / own if own else 0.0
-        about_cog = sum(m.inertia + m.mass * ((m.along - cog) ** 2 + m.across ** 2) for m in link.masses)
-        outboard = sum(m.mass for later in self.links[index + 1:] for m in later.masses) + self.payload
-        # a slender boom of the same inertia about its centre of gravity: I = m L^2 / 12
-        length = math.sqrt(12.0 * about_cog / own) if own and about_cog > 0.0 else link.length
-        return Load(own, length, cog, outboard, 0.0, link.length)
-
 
 @dataclass(frozen=True)
 class Actuator:
@@ -250,7 +237,9 @@ class Actuator:
     valve: Valve
     fluid: Fluid
     friction: Friction
-    load: Load
+    load: Load | None
+    """what the cylinder carries as a boom of its own; None on a machine with an ``arm:``, whose links carry it
+    (``models.serial_arm.equivalent_load`` gives a one-cylinder model its share)"""
 
 
 @dataclass(frozen=True)
@@ -392,13 +381,16 @@ class Machine:
         """Whether the valves are pressure-compensated mobile valves (pilot and compensator pressures measured)."""
         return any(a.valve.mobile for a in self.actuators)
 
-    def only(self, actuator: str) -> "Machine":
-        """This machine with only ``actuator`` (a study of one cylinder on a machine of several)."""
+    def only(self, actuator: str, load: Load | None = None) -> "Machine":
+        """This machine with only ``actuator`` (a study of one cylinder on a machine of several); on a machine with an arm,
+        ``load`` is the cylinder's share of it (``models.serial_arm.equivalent_load``)."""
         self.actuator(actuator)
         mapping = unshared(dict(self.mapping))
         mapping["actuators"] = {actuator: mapping["actuators"][actuator]}
-        if self.arm is not None:  # alone, the cylinder carries its share of the arm as a load
-            mapping["actuators"][actuator]["load"] = asdict(self.actuator(actuator).load)
+        if self.arm is not None:
+            if load is None:
+                raise ConfigError(f"config {self.source}: actuator {actuator} alone needs its share of the arm as its load")
+            mapping["actuators"][actuator]["load"] = asdict(load)
             del mapping["arm"]
         can_map = (mapping.get("can") or {}).get("map") or {}
         if "actuators" in can_map:
@@ -535,8 +527,7 @@ def _actuator(section: Section, name: str, index: int, crane: bool, arm: Arm | N
         ),
         fluid=Fluid(*(fluid.number(k) for k in ("oil_bulk_modulus", "hose_bulk_modulus", "hose_volume"))),
         friction=Friction(*(friction.number(k) for k in ("viscous", "static", "coulomb", "stribeck_velocity", "bristle_stiffness"))),
-        load=(Load(0.0, 1.0, 0.0, 0.0, 0.0, 1.0) if crane else arm.load_of(section.text("joint")) if arm is not None
-              else _load(section.section("load"))),
+        load=Load(0.0, 1.0, 0.0, 0.0, 0.0, 1.0) if crane else None if arm is not None else _load(section.section("load")),
     )
 
 

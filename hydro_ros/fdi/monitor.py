@@ -79,6 +79,7 @@ class FdiMonitor:
         self.last_mean_residual = np.zeros((n, 2))
         self.last_threshold = np.zeros((n, 2))
         self.last_mean_pressure = np.zeros((n, 2))
+        self.last_closed_mean = np.full((n, 2), np.nan)
         self.invalid_samples = 0
         self.supply_substituted = 0
         self.nominal_supply = machine.supply_pressure
@@ -191,6 +192,7 @@ class FdiMonitor:
         self.last_mean_residual = mean_residual[-1]
         self.last_threshold = threshold[-1]
         self.last_mean_pressure = mean_pressure[-1]
+        self.last_closed_mean = closed_mean[-1]
         return BlockResult(block.times, residual, mean_residual, threshold, code, valid, alarms, mean_command, operating_point, closed_mean,
                            closed_code)
 

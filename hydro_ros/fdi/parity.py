@@ -337,13 +337,20 @@ class ParityThresholds:
                 **({"floor": self.floor} if self.floor else {}),
                 **({"closed": {key: list(self.closed[key]) for key in ("mean", "std", "factor")}} if self.closed else {})}
 
+    @property
+    def closed_threshold(self) -> np.ndarray | None:
+        """[L/min] (A, B) the closed-valve means' thresholds, None without closed statistics."""
+        if not self.closed:
+            return None
+        return np.abs(np.asarray(self.closed["mean"])) + np.asarray(self.closed["factor"]) * np.asarray(self.closed["std"])
+
     def closed_code(self, closed_mean: np.ndarray) -> np.ndarray:
         """(..., 2) closed-valve mean residuals (NaN: not judged) -> (...) their crossing codes of the closed thresholds with
         the judged chambers' flags (``isolation.JUDGED_A``, ``JUDGED_B``), ``NO_CLOSED_CODE`` where neither was judged or
         the thresholds have no closed statistics."""
-        if not self.closed:
+        threshold = self.closed_threshold
+        if threshold is None:
             return np.full(closed_mean.shape[:-1], NO_CLOSED_CODE, dtype=np.int8)
-        threshold = np.abs(np.asarray(self.closed["mean"])) + np.asarray(self.closed["factor"]) * np.asarray(self.closed["std"])
         code = crossing_code(np.nan_to_num(closed_mean), np.broadcast_to(threshold, closed_mean.shape))
         judged = np.isfinite(closed_mean)
         flags = JUDGED_A * judged[..., 0] + JUDGED_B * judged[..., 1]

@@ -132,6 +132,11 @@ class ResidualGenerator(ABC):
         """(n, A) crossing codes of the closed means, ``NO_CLOSED_CODE`` where not known."""
         return np.full(closed_mean.shape[:2], NO_CLOSED_CODE, dtype=np.int8)
 
+    @property
+    def closed_threshold(self) -> np.ndarray | None:
+        """(A, B) thresholds of the closed means; None for methods without the evidence."""
+        return None
+
     @abstractmethod
     def reset(self) -> None:
         """Restart the generator's state (filters, memories)."""
@@ -229,6 +234,10 @@ class ParityResiduals(ResidualGenerator):
 
     def closed_code(self, closed_mean: np.ndarray) -> np.ndarray:
         return self.settings.parity_thresholds.closed_code(closed_mean)
+
+    @property
+    def closed_threshold(self) -> np.ndarray | None:
+        return self.settings.parity_thresholds.closed_threshold
 
     def large(self, mean_residual: np.ndarray, operating_point: np.ndarray | None) -> np.ndarray:
         """The valve passed almost none of its modelled flow (``parity.passes_nothing``): a locked main spool, where a pilot

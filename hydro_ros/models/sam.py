@@ -41,6 +41,7 @@ from hydro_ros.models.kinematics import (
     torque_arm_derivative,
     triangle_angle,
 )
+from hydro_ros.models.serial_arm import SerialArm, equivalent_load
 from hydro_ros.models.valve import (
     PILOT_TANK_SIGMAS,
     chamber_valve_flows,
@@ -373,7 +374,8 @@ class SamModel:
         self.actuator = act.name
         self.joint_name = act.joint
         cyl, mount, valve = act.cylinder, act.mount, act.valve
-        fluid, fric, load = act.fluid, act.friction, act.load
+        fluid, fric = act.fluid, act.friction
+        load = act.load if act.load is not None else equivalent_load(SerialArm(machine.arm, machine.simulation.gravity), act.joint)
         sim = machine.simulation
         p = np.zeros(N_PARAMS)
         area_a = math.pi * cyl.piston_diameter ** 2 / 4.0

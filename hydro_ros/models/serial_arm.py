@@ -20,12 +20,13 @@ from a namespace with ``cos`` and ``sin`` (NumPy's by default).
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 from typing import Any, Sequence
 
 import numpy as np
 
-from hydro_ros.contract.machine import Arm
+from hydro_ros.contract.machine import Arm, Load
 
 NUMPY = SimpleNamespace(cos=np.cos, sin=np.sin)
 
@@ -102,3 +103,32 @@ class SerialArm:
                 for k, (e_x, e_y) in enumerate(columns[:link + 1]):
                     inertia[j][k] = inertia[j][k] + mass * (d_x * e_x + d_y * e_y) + (rotational if turned[j] and turned[k] else 0.0)
         return inertia, gravity
+
+
+def equivalent_load(arm: SerialArm, joint: str) -> Load:
+    """The load a one-cylinder model of ``joint`` (the SAM's boom, P-I eqs. 20-21) carries: its link's own masses, and the
+    links and payload beyond it as one mass whose gravity moment and inertia about the joint are theirs with every joint
+    at the middle of its range. Exact there for a revolute joint; elsewhere the moment's direction and the beyond's
+    inertia move with the other joints, which only the arm's model follows."""
+    index = arm.joint_names.index(joint)
+    links = arm.links
+    q = [0.5 * (low + high) for low, high in (link.joint_range for link in links)]
+    frames = arm.frames(q)
+    own = links[index].masses
+    mass = sum(m.mass for m in own)
+    cog = sum(m.mass * m.along for m in own) / mass if mass else 0.0
+    about_cog = sum(m.inertia + m.mass * ((m.along - cog) ** 2 + m.across ** 2) for m in own)
+    # a slender boom of that inertia about its centre of gravity: I = m L^2 / 12
+    length = math.sqrt(12.0 * about_cog / mass) if mass and about_cog > 0.0 else links[index].length
+    (x0, y0), (c, s) = frames[index]
+    beyond = [(m.mass, arm._on_link(frames[i], m.along + (q[i] if links[i].kind == "prismatic" else 0.0), m.across), m.inertia)
+              for i in range(index + 1, len(links)) for m in links[i].masses]
+    beyond.append((arm.payload, arm.tip(q), 0.0))
+    moment = sum(m * ((x - x0) * c + (y - y0) * s) for m, (x, y), _ in beyond)  # [kg m] along the link
+    inertia = sum(m * ((x - x0) ** 2 + (y - y0) ** 2) + rotational for m, (x, y), rotational in beyond)
+    if not moment or not inertia:
+        return Load(mass, length, cog, 0.0, 0.0, links[index].length)
+    # one mass m_L at distance L with m_L L = moment and m_L L^2 = inertia; behind the joint it is the right-hand mass
+    distance = float(inertia / abs(moment))
+    carried = float(moment * moment / inertia)
+    return Load(mass, length, cog, carried if moment > 0 else 0.0, carried if moment < 0 else 0.0, distance)

@@ -376,6 +376,12 @@ class FdiNode(Node):
                 "acknowledged": str(actuator in self.acknowledged).lower(),
                 "vouched": str(self._blindness(i) is None and self.monitor.explained(i)).lower(),
             }
+            closed_threshold = self.monitor.generator.closed_threshold
+            if closed_threshold is not None:  # the parity method's closed-valve evidence: empty until the valve was closed long enough
+                for chamber, label in enumerate(labels):
+                    mean = self.monitor.last_closed_mean[i, chamber]
+                    values[f"closed_mean_r_{label}"] = f"{mean:.5f}" if np.isfinite(mean) else ""
+                    values[f"closed_threshold_{label}"] = f"{closed_threshold[chamber]:.5f}"
             out.append(DiagnosticStatus(level=bytes([level]), name=f"{topics.FDI_STATUS_PREFIX}{actuator}", message=message,
                                         hardware_id=self.machine,
                                         values=[KeyValue(key=k, value=v) for k, v in values.items()]))

@@ -127,8 +127,8 @@ def boom_rig(machine: Machine, effects: dict[str, float] | None = None, deviatio
     actuator = rig.first
     cylinder, mount, valve, fluid, friction, load = (actuator.cylinder, actuator.mount, actuator.valve, actuator.fluid,
                                                      actuator.friction, actuator.load)
-    if mount.kind != "triangle" or mount.sign != 1.0 or valve.mobile:
-        raise InputError(f"independent plant: {machine.source} is not a SAM boom (triangle mount, proportional valve)")
+    if load is None or mount.kind != "triangle" or mount.sign != 1.0 or valve.mobile:
+        raise InputError(f"independent plant: {machine.source} is not a SAM boom (triangle mount, proportional valve, its own load)")
     area_a = math.pi * cylinder.piston_diameter ** 2 / 4.0
     flow_gain = 1.0 + effects.get("valve_flow_gain", 0.0)
     leak = {key: effects.get(name, 0.0) / 60000.0 / math.sqrt(LEAK_DROP)
