@@ -18,7 +18,7 @@ from hydro_ros.fdi.offline import run_monitor
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.crane import load_crane
-from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
+from hydro_ros.models.sam import AREA_A, AREA_B, SamModel, simulate_segments
 from hydro_ros.planning.serving import executable_trajectory
 from hydro_ros.sim.arm_cylinders import ArmRun, crane_cylinders
 from hydro_ros.sim.scenario import Scenario, simulate
@@ -57,6 +57,8 @@ def test_one_k70m_config_gives_the_planner_and_the_monitor_the_same_cylinders(cr
         crane_cylinders(machine, config, ArmRun(1.0, faults={"slew": [Injection("external_leakage_a", 1.0)]}))
     with pytest.raises(InputError, match="crane's cylinder"):  # the SAM simulator does not take a crane for a boom
         simulate(machine, Scenario(1.0))
+    with pytest.raises(InputError, match="crane's cylinder"):  # nor does the discrepancy workflow's multiple shooting
+        simulate_segments(SamModel(machine, "lift"), np.zeros((1, 7)), np.zeros(10), np.array([0]), np.array([10]), np.zeros((1, 4096)))
 
 
 def test_a_leak_shows_in_the_residual_of_its_own_cylinder_while_the_others_move(crane_machine, tmp_path):

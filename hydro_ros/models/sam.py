@@ -433,6 +433,15 @@ class SamModel:
         self.centre_leakage = np.array([valve.centre_leakage[notch] for notch in NOTCHES], dtype=float)
         self.substeps = sim.substeps
 
+    def require_boom(self) -> None:
+        """Refuse a cylinder this model's boom dynamics (P-I eqs. 20-21: a triangle that opens with its joint) do not move."""
+        if self.machine.crane:
+            raise InputError(f"config {self.machine.source}: actuator {self.actuator} is a crane's cylinder, moved by the crane's "
+                             "dynamics (hydro_ros.sim.arm_cylinders), not by a SAM boom; this simulator runs SAM-type machines")
+        if self.base[MOUNT_KIND] != MOUNT_KINDS.index("triangle") or self.base[MOUNT_SIGN] != 1.0:
+            raise InputError(f"config {self.machine.source}: actuator {self.actuator}'s mount is not a triangle opening with its joint: "
+                             "the one-cylinder boom model does not move it (its arm's simulator does: hydro_ros.sim.arm_cylinders)")
+
     @property
     def mobile_valve(self) -> bool:
         return bool(self.base[VALVE_MOBILE] > 0.5)
@@ -550,6 +559,7 @@ def simulate_segments(
     start, oldest first. Returns the states (n, 7) after each sample: NaN outside the segments and in a
     diverged one.
     """
+    model.require_boom()
     params = model.parameter_matrix(np.zeros(1))[0]  # validates delay and dead zone once
     commands = np.ascontiguousarray(commands, dtype=float)
     if not np.all(np.isfinite(commands)):
@@ -590,9 +600,7 @@ class SamPlant:
         operator_gain: float = 4.0,
         max_command: float = 1.0,
     ) -> None:
-        if model.machine.crane:
-            raise InputError(f"config {model.machine.source}: actuator {model.actuator} is a crane's cylinder, moved by the crane's "
-                             "dynamics (hydro_ros.sim.arm_cylinders), not by a SAM boom; this simulator runs SAM-type machines")
+        model.require_boom()
         self.model = model
         self.injections: list[Injection] = list(injections)
         joint0 = model.machine.simulation.initial_joint_position if initial_joint is None else initial_joint
