@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.contract.machine import load_machine_config, parse_machine
 from hydro_ros.models.crane import load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
 from hydro_ros.models.serial_arm import SerialArm, equivalent_load
@@ -98,3 +98,21 @@ def test_a_cylinder_studied_alone_carries_the_arms_load_at_the_middle_of_its_ran
     assert alone.load_force(x) == pytest.approx(gravity[index] / float(alone.piston_velocity(middle[index], 1.0)), rel=1e-9)
     assert alone.inertia() == pytest.approx(inertia[index][index], rel=1e-9)
     assert SamModel(machine, actuator).base == pytest.approx(alone.base)  # the machine's own one-cylinder model is the same
+
+
+def test_the_sams_load_is_a_one_link_arm():
+    """config/sam.yaml's ``load`` (P-I eqs. 20-21: a boom of mass m_B and length L_B, m_L and m_R at +-L) said as an ``arm:`` of
+    one link gives its one-cylinder model the same inertia and the same load on the piston over the stroke."""
+    sam = load_machine_config(REPO / "config" / "sam.yaml")
+    load = sam.first.load
+    mapping = sam.to_yaml_mapping()
+    del mapping["actuators"]["boom"]["load"]
+    mapping["arm"] = {"links": [{"joint": sam.first.joint, "length": load.load_distance, "range": [-0.5, 0.5], "masses": [
+        {"name": "boom", "mass": load.boom_mass, "along": load.boom_cog_distance, "inertia": load.boom_mass * load.boom_length**2 / 12},
+        {"name": "left", "mass": load.left_mass, "along": load.load_distance},
+        {"name": "right", "mass": 1.0, "along": -load.load_distance}]}]}
+    one_link = SamModel(parse_machine(mapping, sam.source))
+    shipped = SamModel(sam.with_overrides({"actuators": {"boom": {"load": {"right_mass": 1.0}}}}))
+    assert one_link.inertia() == pytest.approx(shipped.inertia(), rel=1e-12)
+    for x in np.linspace(0.05, 0.45, 9):
+        assert one_link.load_force(x) == pytest.approx(shipped.load_force(x), rel=1e-12)
