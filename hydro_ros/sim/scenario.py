@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Callable, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence, TypeVar
 
 import numpy as np
 
@@ -18,6 +18,7 @@ from hydro_ros.sim.excitation import OperatorReference
 from hydro_ros.sim.sensors import SensorModel
 
 BLOCK = 1000  # samples per block: bounds memory for long runs
+T = TypeVar("T")
 
 
 @dataclass
@@ -77,11 +78,15 @@ def run_blocks(
 ) -> Iterator[tuple[np.ndarray, np.ndarray, Samples]]:
     """Yield (times, true states, measurements) per block until ``duration_s``."""
     run = start(machine, scenario)
-    total = int(round(scenario.duration_s * run.plant.model.sample_rate))
+    yield from in_blocks(int(round(scenario.duration_s * run.plant.model.sample_rate)), run.step, progress)
+
+
+def in_blocks(total: int, step: Callable[[int], T], progress: Callable[[int], None] | None = None) -> Iterator[T]:
+    """``step(n)`` over ``total`` samples in blocks of at most ``BLOCK``, ``progress(n)`` after each."""
     done = 0
     while done < total:
         n = min(BLOCK, total - done)
-        yield run.step(n)
+        yield step(n)
         done += n
         if progress is not None:
             progress(n)
@@ -155,14 +160,7 @@ class MachineRun:
 
     def blocks(self, duration_s: float, progress: Callable[[int], None] | None = None) -> Iterator[tuple[list[np.ndarray], Samples]]:
         """(true states per actuator, measurements) per block until ``duration_s``."""
-        total = int(round(duration_s * self.sample_rate))
-        done = 0
-        while done < total:
-            n = min(BLOCK, total - done)
-            yield self.advance(n)
-            done += n
-            if progress is not None:
-                progress(n)
+        yield from in_blocks(int(round(duration_s * self.sample_rate)), self.advance, progress)
 
 
 def simulate_machine(machine: Machine, duration_s: float, injections: Mapping[str, Sequence[Injection]] | None = None,
