@@ -142,7 +142,8 @@ def test_a_described_machine_is_checked_and_a_bad_one_refused_in_one_line_per_pr
     for expected in ("sample_rate_hz: 0 Hz: must be > 0", "lift.cylinder.piston_diameter: 110 m: must be <= 1 m (SI",
                      "dipper.cylinder.strok: unknown key (did you mean stroke?)", "dipper.cylinder.stroke: missing [m]",
                      "lift.mount: the cylinder", "sensors.pressure_noise_std: -1 Pa: must be >= 0",
-                     "arm.links[1].joint: 'dipper_jiont': no actuator drives it", "actuators.dipper.joint: 'dipper_joint': not a joint of arm.links"):
+                     "arm.links[dipper_jiont].joint: 'dipper_jiont': no actuator drives it",
+                     "actuators.dipper.joint: 'dipper_joint': not a joint of arm.links"):
         assert sum(expected in line for line in lines) == 1, (expected, lines)
 
     beyond = yaml.safe_load(excavator.read_text())
@@ -150,7 +151,7 @@ def test_a_described_machine_is_checked_and_a_bad_one_refused_in_one_line_per_pr
     beyond["actuators"]["dipper"]["load"] = {"boom_mass": 300.0}
     (tmp_path / "beyond.yaml").write_text(yaml.safe_dump(beyond))
     lines = hydro_ros("machine", "check", str(tmp_path / "beyond.yaml"), "--quiet").stdout.strip().splitlines()
-    assert any("arm.links[1].range: 1.5 puts actuator dipper's piston at 0.4998 m, outside its stroke 0 to 0.45 m" in line
+    assert any("arm.links[dipper_joint].range: 1.5 puts actuator dipper's piston at 0.4998 m, outside its end stops 0 to 0.45 m" in line
                for line in lines), lines
     assert any("actuators.dipper.load: the arm: section describes the links" in line for line in lines), lines
     assert len(lines) == 2, lines

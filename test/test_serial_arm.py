@@ -3,11 +3,15 @@ telescope, and config/boom_arm.yaml's boom and arm, checked against the energies
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from hydro_ros.cli.machine import reach_warnings
+from hydro_ros.contract.check import config_problems
+from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config, parse_machine
 from hydro_ros.models.crane import load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
@@ -116,3 +120,64 @@ def test_the_sams_load_is_a_one_link_arm():
     assert one_link.inertia() == pytest.approx(shipped.inertia(), rel=1e-12)
     for x in np.linspace(0.05, 0.45, 9):
         assert one_link.load_force(x) == pytest.approx(shipped.load_force(x), rel=1e-12)
+
+
+def test_a_bent_arms_cylinder_alone_gets_the_arms_torque_and_inertia_or_a_reason():
+    """Ranges centred off zero (the arm folded under the boom): the one-cylinder model's torque g cos(q) (m_B d + (m_L - m_R) L)
+    and inertia at the middle pose are the arm's, signs included; a joint centred where cos(q) vanishes is refused."""
+    machine = load_machine_config(REPO / "config" / "boom_arm.yaml")
+    boom, arm_link = machine.arm.links
+    bent = SerialArm(replace(machine.arm, links=(replace(boom, joint_range=(0.2, 1.0)), replace(arm_link, joint_range=(-2.5, -1.0)))),
+                     9.81)
+    middle = [0.6, -1.75]
+    inertia, gravity = bent.inertia_gravity(middle)
+    for index, joint in enumerate(bent.joint_names):
+        load = equivalent_load(bent, joint)
+        torque = 9.81 * np.cos(middle[index]) * (load.boom_mass * load.boom_cog_distance
+                                                 + (load.left_mass - load.right_mass) * load.load_distance)
+        assert torque == pytest.approx(gravity[index], rel=1e-9)
+        assert (load.boom_mass * (load.boom_length**2 / 12 + load.boom_cog_distance**2)
+                + (load.left_mass + load.right_mass) * load.load_distance**2) == pytest.approx(inertia[index][index], rel=1e-9)
+    # the arm folded back past the vertical of its own joint angle: cos(q) < 0 while its weight still opens it, a right-hand mass
+    assert np.cos(middle[1]) < 0 < gravity[1] and equivalent_load(bent, "arm_joint").right_mass > 0
+    upright = SerialArm(replace(machine.arm, links=(replace(boom, joint_range=(1.4, 1.7)), arm_link)), 9.81)
+    with pytest.raises(ValueError, match=r"boom_joint's range \[1.4, 1.7\] is centred at 1.55 rad"):
+        equivalent_load(upright, "boom_joint")
+
+
+def test_faults_set_while_an_arm_runs_act_or_are_refused():
+    """plant_sim sets faults while running (``MachineRun.set_fault``): a payload named on any actuator hangs at the tip and
+    loads the boom's cylinder; a fault the arm's plant does not simulate is refused, not listed and ignored."""
+    machine = load_machine_config(REPO / "config" / "boom_arm.yaml")
+    run = MachineRun(machine, {})
+    boom = SamModel(machine, "boom")
+
+    def boom_force() -> float:
+        states, _ = run.advance(1000, np.zeros((1000, 2)))
+        return float(np.mean(states[0][-200:, 0] * boom.base[AREA_A] - states[0][-200:, 1] * boom.base[AREA_B]))
+
+    before = boom_force()
+    run.set_fault("arm", "payload_mass", 300.0, run.time)
+    after = boom_force()
+    q = list(run.arm.joints())
+    moment = run.arm.arm.inertia_gravity(q, 300.0 + machine.arm.payload)[1][0] - run.arm.arm.inertia_gravity(q)[1][0]
+    assert after - before == pytest.approx(moment / float(boom.piston_velocity(q[0], 1.0)), rel=0.05)
+    assert run.active_faults() == ["payload_mass=300"]
+    with pytest.raises(InputError, match="fault boom:valve_delay: not simulated on an arm's coupled cylinders"):
+        run.set_fault("boom", "valve_delay", 0.05, run.time)
+    run.set_fault("arm", "external_leakage_b", 1.0, run.time)
+    assert run.active_faults() == ["arm:external_leakage_b=1", "payload_mass=300"]
+
+
+def test_an_arm_is_checked_against_the_end_stops_and_refused_on_a_crane():
+    boom_arm = load_machine_config(REPO / "config" / "boom_arm.yaml").to_yaml_mapping()
+    boom_arm["simulation"]["end_stop_lower"] = 0.2
+    problems = config_problems(boom_arm)
+    assert any(p.startswith("arm.links[boom_joint].range: -0.5 puts actuator boom's piston at 0.08") and "end stops 0.2 to 0.5 m" in p
+               for p in problems), problems
+    operated = load_machine_config(REPO / "config" / "boom_arm.yaml").with_overrides({"excitation": {"joint_range": [-0.2, 0.2]}})
+    assert reach_warnings(operated) == ["excitation.joint_range: not used on an arm: its simulated operator moves each joint within "
+                                        "80 % of its arm.links range, from the middle"]
+    k70m = load_machine_config(REPO / "config" / "k70m.yaml").to_yaml_mapping()
+    k70m["arm"] = {"payload": 5000.0, "links": []}
+    assert config_problems(k70m) == ["arm: a crane's links are its links:, joints: and masses: (kind: crane); remove arm:"]

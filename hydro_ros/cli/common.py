@@ -79,11 +79,12 @@ def one_actuator(machine, name: str | None, study: str):  # noqa: ANN001, ANN201
             raise InputError(f"--actuator: {study} looks at one cylinder and {machine.name} has {len(machine.actuators)} "
                              f"({', '.join(machine.actuator_names)}); name one")
         return machine
-    if machine.arm is None:
-        return machine.only(name)
-    from hydro_ros.models.serial_arm import SerialArm, equivalent_load
+    from hydro_ros.models.serial_arm import machine_load
 
-    return machine.only(name, equivalent_load(SerialArm(machine.arm, machine.simulation.gravity), machine.actuator(name).joint))
+    try:
+        return machine.only(name, machine_load(machine, name))
+    except ValueError as exc:
+        raise InputError(f"--actuator {name}: {study} looks at one cylinder carrying its share of the arm, and {exc}") from None
 
 
 @contextlib.contextmanager

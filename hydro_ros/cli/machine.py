@@ -112,8 +112,13 @@ def reach_warnings(machine) -> list[str]:
         reach = f"{actuator.name}'s cylinder moves its joint {low:.3f} to {high:.3f}"
         if low < plausible[0] or high > plausible[1]:
             out.append(f"sensors.joint_range {list(plausible)}: {reach}; a reading in that travel would be called implausible")
-        if not machine.crane and (operator[0] < low or operator[1] > high):
+        if not machine.crane and machine.arm is None and (operator[0] < low or operator[1] > high):
             out.append(f"excitation.joint_range {list(operator)}: {reach}; the simulated operator drives it into the end stops")
+    if machine.arm is not None:
+        for section, key in (("excitation", "joint_range"), ("simulation", "initial_joint_position")):
+            if key in (machine.mapping.get(section) or {}):
+                out.append(f"{section}.{key}: not used on an arm: its simulated operator moves each joint within 80 % of its "
+                           "arm.links range, from the middle")
     return out
 
 

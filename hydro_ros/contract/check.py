@@ -179,8 +179,10 @@ def config_problems(config: dict[str, Any]) -> list[str]:
     arm = "arm" in config
     for name, actuator in actuators.items():
         _actuator(found, f"actuators.{name}", actuator, crane, arm, _number(simulation.get("end_stop_upper")))
-    if arm:
-        _arm(found, config["arm"], actuators)
+    if arm and crane:
+        found.add("arm", "a crane's links are its links:, joints: and masses: (kind: crane); remove arm:")
+    elif arm:
+        _arm(found, config["arm"], actuators, simulation)
     joints = [a.get("joint") for a in actuators.values() if isinstance(a, dict)]
     for joint in sorted({j for j in joints if joints.count(j) > 1}, key=str):
         found.add("actuators", f"joint {joint!r} is driven by more than one actuator")
@@ -235,8 +237,8 @@ def _choice(found: _Problems, node: dict, path: str, key: str, default: str | No
 
 
 def list_entry(section: str, index: int, entry: Any) -> str:
-    """A list entry's key path, by its name where it has one (as ``annotated_values`` names it)."""
-    return f"{section}[{entry.get('name', index) if isinstance(entry, dict) else index}]"
+    """A list entry's key path, by its name (or an arm link's joint) where it has one, as ``annotated_values`` names it."""
+    return f"{section}[{entry.get('name', entry.get('joint', index)) if isinstance(entry, dict) else index}]"
 
 
 def _crane(found: _Problems, config: dict[str, Any]) -> None:
@@ -284,7 +286,7 @@ def _crane(found: _Problems, config: dict[str, Any]) -> None:
         found.add("paths", "must name at least one tip path")
 
 
-def _arm(found: _Problems, node: Any, actuators: dict) -> None:
+def _arm(found: _Problems, node: Any, actuators: dict, simulation: dict) -> None:
     """The links base to tip, each on an actuator's joint, its range inside the cylinder's stroke."""
     if not isinstance(node, dict):
         found.add("arm", "must be a mapping (origin, payload, links)")
@@ -302,7 +304,7 @@ def _arm(found: _Problems, node: Any, actuators: dict) -> None:
     by_joint = {a.get("joint"): (name, a) for name, a in actuators.items() if isinstance(a, dict)}
     joints = []
     for index, link in enumerate(links):
-        path = f"arm.links[{index}]"
+        path = list_entry("arm.links", index, link)
         values = found.numbers(link, path, ARM_LINK, required=("length",))
         if not isinstance(link, dict):
             continue
@@ -322,18 +324,18 @@ def _arm(found: _Problems, node: Any, actuators: dict) -> None:
             found.add(f"{path}.masses", "must be a list of masses")
             masses = []
         for m, mass in enumerate(masses):
-            found.numbers(mass, f"{path}.masses[{m}]", LINK_MASS, required=("mass", "along"))
+            found.numbers(mass, list_entry(f"{path}.masses", m, mass), LINK_MASS, required=("mass", "along"))
             if isinstance(mass, dict):
-                found.unknown(mass, f"{path}.masses[{m}]", set(LINK_MASS) | {"name"})
+                found.unknown(mass, list_entry(f"{path}.masses", m, mass), set(LINK_MASS) | {"name"})
         if link.get("joint") in by_joint and "length" in values:
-            _range_in_stroke(found, path, link, *by_joint[link["joint"]])
+            _range_in_stroke(found, path, link, *by_joint[link["joint"]], simulation)
     for joint, (name, _) in by_joint.items():
         if joint not in joints:
             found.add(f"actuators.{name}.joint", f"{joint!r}: not a joint of arm.links")
 
 
-def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuator: dict) -> None:
-    """The piston stays between its ends over the joint's range (P-I eq. 3; a linear mount: x = ratio (q + offset))."""
+def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuator: dict, simulation: dict) -> None:
+    """The piston stays between its end stops over the joint's range (P-I eq. 3; a linear mount: x = ratio (q + offset))."""
     low_high = [_number(v) for v in link.get("range") or []] if isinstance(link.get("range"), list) else []
     mount, cylinder = actuator.get("mount"), actuator.get("cylinder")
     if len(low_high) != 2 or None in low_high or not isinstance(mount, dict) or not isinstance(cylinder, dict):
@@ -354,9 +356,12 @@ def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuato
                 return
             theta = sign * q + offset
             pistons.append(math.sqrt(max(l1 * l1 + l2 * l2 - 2.0 * l1 * l2 * math.cos(theta), 0.0)) - l3)
-    outside = [(q, x) for q, x in zip(low_high, pistons) if not -RANGE_SLACK <= x <= stroke + RANGE_SLACK]
+    lower = _number(simulation.get("end_stop_lower", 0.0)) or 0.0
+    upper = min(stroke, _number(simulation.get("end_stop_upper", stroke)) or stroke)
+    outside = [(q, x) for q, x in zip(low_high, pistons) if not lower - RANGE_SLACK <= x <= upper + RANGE_SLACK]
     for q, x in outside:
-        found.add(f"{path}.range", f"{q:g} puts actuator {name}'s piston at {x:g} m, outside its stroke 0 to {stroke:g} m")
+        found.add(f"{path}.range", f"{q:g} puts actuator {name}'s piston at {x:g} m, outside its end stops {lower:g} to {upper:g} m "
+                                   "(its stroke, or simulation.end_stop_lower / _upper)")
 
 
 def _actuator(found: _Problems, path: str, node: Any, crane: bool, arm: bool, end_stop_upper: float | None) -> None:

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from hydro_ros.contract.check import config_problems
+from hydro_ros.contract.check import config_problems, list_entry
 from hydro_ros.contract.config import ConfigError, read_config, unshared, with_overrides
 from hydro_ros.contract.names import EFFECT_FORMS, first_form
 
@@ -206,11 +206,11 @@ class ArmLink:
     """``revolute`` (turns relative to the link before it) or ``prismatic`` (slides along the link before it)"""
     length: float
     """[m] from its joint to the next joint along the link (a prismatic link: at zero extension)"""
+    joint_range: tuple[float, float]
+    """[rad] or [m]: where the joint may go"""
     offset: float = 0.0
     """[m] the next joint to the left of the link's line"""
     masses: tuple[LinkMass, ...] = ()
-    joint_range: tuple[float, float] = (-math.pi, math.pi)
-    """[rad] or [m]: where the joint may go"""
 
 
 @dataclass(frozen=True)
@@ -381,17 +381,14 @@ class Machine:
         """Whether the valves are pressure-compensated mobile valves (pilot and compensator pressures measured)."""
         return any(a.valve.mobile for a in self.actuators)
 
-    def only(self, actuator: str, load: Load | None = None) -> "Machine":
-        """This machine with only ``actuator`` (a study of one cylinder on a machine of several); on a machine with an arm,
-        ``load`` is the cylinder's share of it (``models.serial_arm.equivalent_load``)."""
+    def only(self, actuator: str, load: Load) -> "Machine":
+        """This machine with only ``actuator``, carrying ``load`` (a study of one cylinder on a machine of several: its own
+        load, or its share of the arm, ``models.serial_arm.machine_load``)."""
         self.actuator(actuator)
         mapping = unshared(dict(self.mapping))
         mapping["actuators"] = {actuator: mapping["actuators"][actuator]}
-        if self.arm is not None:
-            if load is None:
-                raise ConfigError(f"config {self.source}: actuator {actuator} alone needs its share of the arm as its load")
-            mapping["actuators"][actuator]["load"] = asdict(load)
-            del mapping["arm"]
+        mapping["actuators"][actuator]["load"] = asdict(load)
+        mapping.pop("arm", None)
         can_map = (mapping.get("can") or {}).get("map") or {}
         if "actuators" in can_map:
             can_map["actuators"] = {name: entry for name, entry in can_map["actuators"].items() if name == actuator}
@@ -541,15 +538,16 @@ def _arm(section: Section) -> Arm:
         raise ConfigError(f"config {section.source}: arm.links must be a list of links, base to tip")
     parsed = []
     for index, node in enumerate(links):
-        link = Section(section.source, f"arm.links[{index}]", node)
+        link = Section(section.source, list_entry("arm.links", index, node), node)
         masses = link.node.get("masses") or []
         parsed.append(ArmLink(
             joint=link.text("joint"),
             kind=_choice(link, "kind", ("revolute", "prismatic"), "revolute"),
             length=link.number("length"),
-            offset=link.number("offset", 0.0),
-            masses=tuple(_link_mass(Section(section.source, f"{link.key}.masses[{m}]", mass), m) for m, mass in enumerate(masses)),
             joint_range=link.numbers("range", 2),  # type: ignore[arg-type]
+            offset=link.number("offset", 0.0),
+            masses=tuple(_link_mass(Section(section.source, list_entry(f"{link.key}.masses", m, mass), mass), m)
+                         for m, mass in enumerate(masses)),
         ))
     origin = section.numbers("origin", 2) if "origin" in section.node else (0.0, 0.0)
     return Arm(links=tuple(parsed), origin=origin, payload=section.number("payload", 0.0))  # type: ignore[arg-type]

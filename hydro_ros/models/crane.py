@@ -282,10 +282,10 @@ def crane_arm(config: CraneConfig) -> Arm:
     for mass in config.masses:
         link = "lift" if mass.link == "lift" else "telescope" if mass.moves_with_extension else "tilt"
         on[link].append(LinkMass(mass.name, mass.mass, mass.s, 0.0 if link == "lift" else links.tilt_offset))
-    return Arm(links=(ArmLink(lift.name, "revolute", links.lift_length, 0.0, tuple(on["lift"]), (lift.q_min, lift.q_max)),
-                      ArmLink(tilt.name, "revolute", 0.0, 0.0, tuple(on["tilt"]), (tilt.q_min, tilt.q_max)),
-                      ArmLink(extension.name, "prismatic", links.extension_base, links.tilt_offset, tuple(on["telescope"]),
-                              (extension.q_min, extension.q_max))),
+    return Arm(links=(ArmLink(lift.name, "revolute", links.lift_length, (lift.q_min, lift.q_max), 0.0, tuple(on["lift"])),
+                      ArmLink(tilt.name, "revolute", 0.0, (tilt.q_min, tilt.q_max), 0.0, tuple(on["tilt"])),
+                      ArmLink(extension.name, "prismatic", links.extension_base, (extension.q_min, extension.q_max), links.tilt_offset,
+                              tuple(on["telescope"]))),
                origin=links.lift_joint)
 
 

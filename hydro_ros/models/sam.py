@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit, prange
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.contract.machine import NOTCHES, Machine
+from hydro_ros.contract.machine import NOTCHES, Load, Machine
 from hydro_ros.contract.names import Effect, Fault, Injection
 from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient, leak_flow
 from hydro_ros.models.friction import bristle_rate, friction_force, stribeck_curve
@@ -41,7 +41,7 @@ from hydro_ros.models.kinematics import (
     torque_arm_derivative,
     triangle_angle,
 )
-from hydro_ros.models.serial_arm import SerialArm, equivalent_load
+from hydro_ros.models.serial_arm import machine_load
 from hydro_ros.models.valve import (
     PILOT_TANK_SIGMAS,
     chamber_valve_flows,
@@ -367,6 +367,7 @@ class SamModel:
     effects: dict[str, float] = field(init=False)
     substeps: int = field(init=False)
     joint_name: str = field(init=False)
+    boom_refusal: str = field(init=False)  # why the boom's dynamics cannot move this cylinder alone, "" if they can
 
     def __post_init__(self) -> None:
         machine = self.machine
@@ -375,7 +376,11 @@ class SamModel:
         self.joint_name = act.joint
         cyl, mount, valve = act.cylinder, act.mount, act.valve
         fluid, fric = act.fluid, act.friction
-        load = act.load if act.load is not None else equivalent_load(SerialArm(machine.arm, machine.simulation.gravity), act.joint)
+        try:
+            load = machine_load(machine, act.name)
+            self.boom_refusal = ""
+        except ValueError as exc:  # the monitor needs no load; only the boom's dynamics refuse (require_boom)
+            load, self.boom_refusal = Load(*[math.nan] * 6), str(exc)
         sim = machine.simulation
         p = np.zeros(N_PARAMS)
         area_a = math.pi * cyl.piston_diameter ** 2 / 4.0
@@ -438,6 +443,8 @@ class SamModel:
         if self.machine.crane:
             raise InputError(f"config {self.machine.source}: actuator {self.actuator} is a crane's cylinder, moved by the crane's "
                              "dynamics (hydro_ros.sim.arm_cylinders), not by a SAM boom; this simulator runs SAM-type machines")
+        if self.boom_refusal:
+            raise InputError(f"config {self.machine.source}: actuator {self.actuator}: {self.boom_refusal}")
         if self.base[MOUNT_KIND] != MOUNT_KINDS.index("triangle") or self.base[MOUNT_SIGN] != 1.0:
             raise InputError(f"config {self.machine.source}: actuator {self.actuator}'s mount is not a triangle opening with its joint: "
                              "the one-cylinder boom model does not move it (its arm's simulator does: hydro_ros.sim.arm_cylinders)")

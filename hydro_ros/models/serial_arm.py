@@ -26,9 +26,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from hydro_ros.contract.machine import Arm, Load
+from hydro_ros.contract.machine import Arm, Load, Machine
 
 NUMPY = SimpleNamespace(cos=np.cos, sin=np.sin)
+MIN_COS = 0.1  # below this cos(q) of a middle pose, a one-cylinder model of the joint cannot carry the arm's torque
 
 Point = tuple[Any, Any]
 
@@ -106,29 +107,39 @@ class SerialArm:
 
 
 def equivalent_load(arm: SerialArm, joint: str) -> Load:
-    """The load a one-cylinder model of ``joint`` (the SAM's boom, P-I eqs. 20-21) carries: its link's own masses, and the
-    links and payload beyond it as one mass whose gravity moment and inertia about the joint are theirs with every joint
-    at the middle of its range. Exact there for a revolute joint; elsewhere the moment's direction and the beyond's
-    inertia move with the other joints, which only the arm's model follows."""
+    """The load a one-cylinder model of revolute ``joint`` (the SAM's boom, P-I eqs. 20-21: torque g cos(q) (m_B d + m_L L),
+    inertia m_B (L_B^2 / 12 + d^2) + m_L L^2) carries: its link's own masses as the boom, and what the arm adds beyond
+    them as one mass whose moment and inertia give the arm's gravity torque and inertia about the joint with every joint
+    at the middle of its range. Exact there; elsewhere the torque's phase and the inertia move with the other joints,
+    which only the arm's model follows. ValueError where the model cannot carry it: a prismatic joint, or a middle pose
+    where cos(q) vanishes but the arm's torque does not."""
     index = arm.joint_names.index(joint)
-    links = arm.links
-    q = [0.5 * (low + high) for low, high in (link.joint_range for link in links)]
-    frames = arm.frames(q)
-    own = links[index].masses
-    mass = sum(m.mass for m in own)
-    cog = sum(m.mass * m.along for m in own) / mass if mass else 0.0
-    about_cog = sum(m.inertia + m.mass * ((m.along - cog) ** 2 + m.across ** 2) for m in own)
+    link = arm.links[index]
+    if link.kind != "revolute":
+        raise ValueError(f"joint {joint} is prismatic: the one-cylinder boom model turns its joint")
+    q = [0.5 * (low + high) for low, high in (each.joint_range for each in arm.links)]
+    inertia, gravity = arm.inertia_gravity(q)
+    mass = sum(m.mass for m in link.masses)
+    cog = sum(m.mass * m.along for m in link.masses) / mass if mass else 0.0
+    about_cog = sum(m.inertia + m.mass * ((m.along - cog) ** 2 + m.across ** 2) for m in link.masses)
     # a slender boom of that inertia about its centre of gravity: I = m L^2 / 12
-    length = math.sqrt(12.0 * about_cog / mass) if mass and about_cog > 0.0 else links[index].length
-    (x0, y0), (c, s) = frames[index]
-    beyond = [(m.mass, arm._on_link(frames[i], m.along + (q[i] if links[i].kind == "prismatic" else 0.0), m.across), m.inertia)
-              for i in range(index + 1, len(links)) for m in links[i].masses]
-    beyond.append((arm.payload, arm.tip(q), 0.0))
-    moment = sum(m * ((x - x0) * c + (y - y0) * s) for m, (x, y), _ in beyond)  # [kg m] along the link
-    inertia = sum(m * ((x - x0) ** 2 + (y - y0) ** 2) + rotational for m, (x, y), rotational in beyond)
-    if not moment or not inertia:
-        return Load(mass, length, cog, 0.0, 0.0, links[index].length)
-    # one mass m_L at distance L with m_L L = moment and m_L L^2 = inertia; behind the joint it is the right-hand mass
-    distance = float(inertia / abs(moment))
-    carried = float(moment * moment / inertia)
+    length = math.sqrt(12.0 * about_cog / mass) if mass and about_cog > 0.0 else link.length
+    cos_q = math.cos(q[index])
+    if abs(cos_q) < MIN_COS:
+        raise ValueError(f"joint {joint}'s range {list(link.joint_range)} is centred at {q[index]:.2f} rad, where the one-cylinder "
+                         "model's gravity torque g cos(q) (...) vanishes")
+    moment = float(gravity[index]) / (arm.gravity * cos_q) - mass * cog  # [kg m] m_L L
+    added = float(inertia[index][index]) - mass * (length**2 / 12.0 + cog**2)  # [kg m^2] m_L L^2
+    if abs(moment) < 1e-9 or added <= 0.0:
+        return Load(mass, length, cog, 0.0, 0.0, link.length)
+    # one mass m_L at L with m_L L = moment and m_L L^2 = added; a negative moment is the right-hand mass
+    distance, carried = added / abs(moment), moment * moment / added
     return Load(mass, length, cog, carried if moment > 0 else 0.0, carried if moment < 0 else 0.0, distance)
+
+
+def machine_load(machine: Machine, actuator: str) -> Load:
+    """What ``actuator``'s one-cylinder model carries: its own ``load``, or its share of the machine's arm (ValueError why not)."""
+    own = machine.actuator(actuator)
+    if own.load is not None:
+        return own.load
+    return equivalent_load(SerialArm(machine.arm, machine.simulation.gravity), own.joint)  # type: ignore[arg-type]

@@ -44,7 +44,7 @@ from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine, load_machine_config
-from hydro_ros.contract.names import INJECTION_UNITS, Injection
+from hydro_ros.contract.names import INJECTION_UNITS
 from hydro_ros.contract.samples import Samples
 from hydro_ros.nodes.common import (
     CLOCK_QOS,
@@ -61,6 +61,7 @@ from hydro_ros.sim.scenario import MachineRun
 
 COMMAND_TIMEOUT_S = 0.5  # a valve command older than this closes the valve (fail safe)
 MAX_CATCH_UP_S = 0.25  # simulate at most this much per tick; beyond it the node reports lag
+TIP_PAYLOAD = "fault.payload_mass"  # on an arm (or crane) the payload hangs at the tip, not on a cylinder: one parameter
 
 
 PARAMETERS = {
@@ -82,8 +83,10 @@ PARAMETERS = {
     "trajectory_topic": Spec("joint_trajectory", "crane mode: JointTrajectory input (trajectory_server's output_topic)"),
     "start_tolerance": Spec(0.05, "[rad or m] crane mode: a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
                             read_only=False),
-    **{f"fault.{name}": Spec(0.0, f"[{unit}] size of the fault or effect {name} from the moment it is set; 0: none (crane mode: "
-                                  f"fault.<actuator>.{name})", read_only=False) for name, unit in sorted(INJECTION_UNITS.items())},
+    **{f"fault.{name}": Spec(0.0, f"[{unit}] size of the fault or effect {name} from the moment it is set; 0: none (several "
+                                  f"actuators: fault.<actuator>.{name}" + ("; an arm's or a crane's payload at its tip" if name == "payload_mass"
+                                                                           else "") + ")", read_only=False)
+       for name, unit in sorted(INJECTION_UNITS.items())},
 }
 
 
@@ -96,6 +99,7 @@ class SamSource:
 
         self.plant = MachineRun(machine, {}, seed=seed)
         self.not_per_cylinder = NOT_PER_CYLINDER if machine.arm is not None else {}
+        self.tip_payload = machine.arm is not None
         self.actuators = machine.actuator_names
         self.joints = {a.name: a.joint for a in machine.actuators}
         self.mobile = machine.mobile
@@ -116,16 +120,14 @@ class SamSource:
         return block_machine_payloads(block, k, stamp, self.joints, variance, self.mobile)
 
     def set_fault(self, actuator: str, name: str, value: float, now: float) -> None:
-        for holder in self.plant.injections(actuator):
-            _replace(holder, name, value, now)
+        self.plant.set_fault(actuator, name, value, now)
 
     def active_faults(self) -> list[str]:
-        named = len(self.actuators) > 1
-        return sorted({f"{actuator + ':' if named else ''}{i.name}={i.value:g}" for actuator in self.actuators
-                       for holder in self.plant.injections(actuator) for i in holder})
+        faults = self.plant.active_faults()
+        return faults if len(self.actuators) > 1 else [fault.split(":", 1)[-1] for fault in faults]
 
     def fault_parameter(self, name: str) -> tuple[str, str]:
-        if len(self.actuators) == 1:
+        if len(self.actuators) == 1 or name == TIP_PAYLOAD:
             return self.actuators[0], name.removeprefix("fault.")
         actuator, _, fault = name.removeprefix("fault.").partition(".")
         return actuator, fault
@@ -147,6 +149,7 @@ class CraneSource:
         self.mobile = machine.mobile
         self.topics = tuple(topics.sensor_topics(self.actuators, mobile=self.mobile))
         self.not_per_cylinder = NOT_PER_CYLINDER
+        self.tip_payload = True
 
     @property
     def time(self) -> float:
@@ -163,22 +166,16 @@ class CraneSource:
         return block_machine_payloads(block, k, stamp, self.joints, variance, self.mobile, self.held)
 
     def set_fault(self, actuator: str, name: str, value: float, now: float) -> None:
-        index = self.actuators.index(actuator)
-        _replace(self.plant.run.faults.setdefault(actuator, []), name, value, now)
-        _replace(self.plant.sensors[index].injections, name, value, now)
+        self.plant.set_fault(actuator, name, value, now)
 
     def active_faults(self) -> list[str]:
-        return sorted({f"{actuator}:{i.name}={i.value:g}" for actuator, injections in self.plant.run.faults.items() for i in injections})
+        return self.plant.active_faults()
 
     def fault_parameter(self, name: str) -> tuple[str, str]:
+        if name == TIP_PAYLOAD:
+            return self.actuators[0], name.removeprefix("fault.")
         actuator, _, fault = name.removeprefix("fault.").partition(".")
         return actuator, fault
-
-
-def _replace(holder: list[Injection], name: str, value: float, now: float) -> None:
-    holder[:] = [i for i in holder if i.name != name]
-    if value != 0.0:
-        holder.append(Injection(name, value, onset_s=now))
 
 
 class PlantSim(Node):
@@ -198,9 +195,9 @@ class PlantSim(Node):
             if self.excitation == "trajectory":
                 raise InputError(f"parameter excitation=trajectory: config {self.params['config']} is not a crane (kind: crane)")
             self.source = SamSource(self.machine, self.params["seed"])
+        self.add_on_set_parameters_callback(self._refuse_fault)
         if len(self.source.actuators) > 1:
             # faults name their cylinder: fault.<actuator>.<name>, declared once the config says which cylinders there are
-            self.add_on_set_parameters_callback(self._refuse_unnamed_cylinder)
             self.cylinder_params = Parameters(self, {
                 f"fault.{actuator}.{name}": Spec(0.0, f"[{unit}] size of {name} in {actuator}'s cylinder from the moment it is set; "
                                                       "0: none", read_only=False)
@@ -211,8 +208,9 @@ class PlantSim(Node):
         for params in (self.params, getattr(self, "cylinder_params", None)):
             for name, value in (params.values.items() if params else ()):
                 if name.startswith("fault.") and value:
-                    if len(self.source.actuators) > 1 and name.count(".") == 1:
-                        raise InputError(f"parameter {self._unnamed_cylinder(name)}")
+                    refusal = self._fault_refusal(name)
+                    if refusal:
+                        raise InputError(f"parameter {refusal}")
                     self._pending[name] = value
         self.variance = self.machine.sensors.pressure_noise_std ** 2
 
@@ -281,15 +279,25 @@ class PlantSim(Node):
             return False
         return publishes_sensor_topic(self.params["sensor_topics"], topic)
 
-    def _unnamed_cylinder(self, name: str) -> str:
-        return (f"{name} refused: on a machine of several actuators a fault names its cylinder, "
-                f"fault.<actuator>.{name.removeprefix('fault.')} "
-                f"(actuators: {', '.join(self.machine.actuator_names)})")
+    def _fault_refusal(self, name: str) -> str:
+        """Why a fault.<name> parameter cannot be set on this plant ("" if it can): on several actuators a fault names its
+        cylinder (an arm's payload hangs at its tip, fault.payload_mass); an arm does not simulate every fault."""
+        fault = name.rsplit(".", 1)[-1]
+        if name == TIP_PAYLOAD and self.source.tip_payload:
+            return ""
+        if fault in self.source.not_per_cylinder:
+            return f"{name} refused: {self.source.not_per_cylinder[fault]}"
+        if len(self.source.actuators) > 1 and name.count(".") == 1:
+            return (f"{name} refused: on a machine of several actuators a fault names its cylinder, fault.<actuator>.{fault} "
+                    f"(actuators: {', '.join(self.machine.actuator_names)})")
+        return ""
 
-    def _refuse_unnamed_cylinder(self, parameters: list) -> SetParametersResult:
+    def _refuse_fault(self, parameters: list) -> SetParametersResult:
         for parameter in parameters:
-            if parameter.name.startswith("fault.") and parameter.name.count(".") == 1 and parameter.value:
-                return SetParametersResult(successful=False, reason=self._unnamed_cylinder(parameter.name))
+            if parameter.name.startswith("fault.") and parameter.value:
+                refusal = self._fault_refusal(parameter.name)
+                if refusal:
+                    return SetParametersResult(successful=False, reason=refusal)
         return SetParametersResult(successful=True)
 
     def _on_parameter(self, name: str, value: float) -> None:

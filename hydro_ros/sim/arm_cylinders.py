@@ -58,12 +58,12 @@ from hydro_ros.models.sam import (
     injection_levels,
 )
 from hydro_ros.models.serial_arm import SerialArm
+from hydro_ros.sim.blocks import in_blocks, replace_injection
 from hydro_ros.sim.excitation import OperatorReference, WorkCycleReference
 from hydro_ros.sim.sensors import SensorModel
 
 FRICTION_VELOCITY = 0.005  # [m/s] tanh smoothing of the Coulomb force's sign (as the closed-loop crane plant)
 OPERATOR_SHARE = 0.8  # the operator's targets lie within this share of each joint's range, about its middle
-BLOCK = 1000  # samples per measured block
 MOUNT_AGREEMENT = 1e-3  # [m] the machine config's mount must give the crane config's stroke to this
 NOT_PER_CYLINDER = {  # injections the SAM's model takes that this plant does not, refused rather than ignored
     "payload_mass": "an arm's payload hangs at its tip, not on one cylinder (ArmRun.payload)",
@@ -219,11 +219,26 @@ class ArmCylinders:
             bias = bias + self.joint_friction(q, qd)
         return np.linalg.inv(np.asarray(inertia, dtype=float)), bias
 
+    def set_fault(self, actuator: str, name: str, value: float, now_s: float) -> None:
+        """``name`` of size ``value`` (0: none) in ``actuator``'s cylinder from ``now_s`` on, replacing its previous size; a
+        ``payload_mass`` hangs at the tip whichever actuator names it. InputError for a fault this plant does not simulate."""
+        if name == "payload_mass":
+            replace_injection(self.run.payload, name, value, now_s)
+            return
+        if name in NOT_PER_CYLINDER:
+            raise InputError(f"fault {actuator}:{name}: {NOT_PER_CYLINDER[name]}")
+        index = self.machine.actuator_names.index(actuator)
+        replace_injection(self.run.faults.setdefault(actuator, []), name, value, now_s)
+        replace_injection(self.sensors[index].injections, name, value, now_s)
+
+    def active_faults(self) -> list[str]:
+        """``actuator:name=value`` of every fault set, and ``payload_mass=value`` at the tip."""
+        return sorted({f"{actuator}:{i.name}={i.value:g}" for actuator, injections in self.run.faults.items() for i in injections}
+                      | {f"{i.name}={i.value:g}" for i in self.run.payload})
+
     def blocks(self) -> Iterator[tuple[np.ndarray, Samples]]:
         """(true states (n, A, 7), measured samples (n, A)) block by block over the run's duration."""
-        n_total = int(round(self.run.duration_s * self.machine.sample_rate_hz))
-        while self.sample_index < n_total:
-            yield self.step(min(BLOCK, n_total - self.sample_index))
+        yield from in_blocks(int(round(self.run.duration_s * self.machine.sample_rate_hz)) - self.sample_index, self.step)
 
     def follow(self, trajectory: JointPath) -> None:
         """Work ``trajectory`` as a cycle from its first point on; the caller checks that it starts where the joints are."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Callable, Iterator, Mapping, Sequence, TypeVar
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -14,11 +14,9 @@ from hydro_ros.contract.names import Injection
 from hydro_ros.contract.samples import PER_ACTUATOR, Samples
 from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.models.serial_arm import SerialArm
+from hydro_ros.sim.blocks import in_blocks, replace_injection
 from hydro_ros.sim.excitation import OperatorReference
 from hydro_ros.sim.sensors import SensorModel
-
-BLOCK = 1000  # samples per block: bounds memory for long runs
-T = TypeVar("T")
 
 
 @dataclass
@@ -81,17 +79,6 @@ def run_blocks(
     yield from in_blocks(int(round(scenario.duration_s * run.plant.model.sample_rate)), run.step, progress)
 
 
-def in_blocks(total: int, step: Callable[[int], T], progress: Callable[[int], None] | None = None) -> Iterator[T]:
-    """``step(n)`` over ``total`` samples in blocks of at most ``BLOCK``, ``progress(n)`` after each."""
-    done = 0
-    while done < total:
-        n = min(BLOCK, total - done)
-        yield step(n)
-        done += n
-        if progress is not None:
-            progress(n)
-
-
 def simulate(machine: Machine, scenario: Scenario) -> Samples:
     """The whole scenario's measurements as one actuator's (n, 1) columns (the monitor's layout)."""
     parts = [measured for _, _, measured in run_blocks(machine, scenario)]
@@ -151,12 +138,22 @@ class MachineRun:
     def step(self, n: int, commands: np.ndarray | None = None) -> Samples:
         return self.advance(n, commands)[1]
 
-    def injections(self, actuator: str) -> list[list[Injection]]:
-        """The lists of ``actuator``'s injections its plant and its sensors read now (a caller may change them)."""
-        index = self.actuators.index(actuator)
+    def set_fault(self, actuator: str, name: str, value: float, now_s: float) -> None:
+        """``name`` of size ``value`` (0: none) in ``actuator``'s cylinder from ``now_s`` on, replacing its previous size (on an
+        arm, ``ArmCylinders.set_fault``: a payload at the tip)."""
         if self.arm is not None:
-            return [self.arm.run.faults.setdefault(actuator, []), self.arm.sensors[index].injections]
-        return [self.runs[index].plant.injections, self.runs[index].sensors.injections]
+            self.arm.set_fault(actuator, name, value, now_s)
+            return
+        run = self.runs[self.actuators.index(actuator)]
+        for holder in (run.plant.injections, run.sensors.injections):
+            replace_injection(holder, name, value, now_s)
+
+    def active_faults(self) -> list[str]:
+        """``actuator:name=value`` of every fault set (on an arm, ``payload_mass=value`` at the tip)."""
+        if self.arm is not None:
+            return self.arm.active_faults()
+        return sorted({f"{actuator}:{i.name}={i.value:g}" for actuator, run in zip(self.actuators, self.runs)
+                       for i in run.plant.injections + run.sensors.injections})
 
     def blocks(self, duration_s: float, progress: Callable[[int], None] | None = None) -> Iterator[tuple[list[np.ndarray], Samples]]:
         """(true states per actuator, measurements) per block until ``duration_s``."""
