@@ -14,8 +14,10 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 from sensor_msgs.msg import JointState
 
+from hydro_ros.contract.config import ConfigError
+from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.nodes.common import SENSOR_QOS
-from test.conftest import SAM_CONFIG
+from test.conftest import REPO, SAM_CONFIG
 from test.ros_graph import probe_node, spin_until
 
 CLI = [sys.executable, "-m", "hydro_ros.cli"]
@@ -115,3 +117,13 @@ def test_a_damaged_first_chunk_costs_only_its_own_messages(short_bag, tmp_path):
                                capture_output=True, text=True, timeout=120)
     assert monitored.returncode == 0 and "Traceback" not in monitored.stderr, monitored.stderr
     assert "damaged chunk" in monitored.stderr
+
+
+def test_a_config_saying_a_key_twice_is_refused_naming_it(tmp_path):
+    """PyYAML keeps the last of two equal keys: a value the user wrote would be lost unsaid."""
+    text = (REPO / "config" / "boom_arm.yaml").read_text().replace("          along: 0.9 ", "          along: 0.9\n          along: 0.5 ", 1)
+    twice = tmp_path / "twice.yaml"
+    twice.write_text(text)
+    with pytest.raises(ConfigError, match=r"not valid YAML \(duplicate key 'along' \(line \d+\)\)"):
+        load_machine_config(twice)
+    assert load_machine_config(REPO / "config" / "k70m.yaml").crane  # YAML merge keys (<<) are not duplicates

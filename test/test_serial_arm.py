@@ -15,7 +15,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config, parse_machine
 from hydro_ros.models.crane import load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
-from hydro_ros.models.serial_arm import SerialArm, equivalent_load
+from hydro_ros.models.serial_arm import SerialArm, equivalent_load, holding_problems
 from hydro_ros.sim.scenario import MachineRun
 
 REPO = Path(__file__).resolve().parents[1]
@@ -181,3 +181,18 @@ def test_an_arm_is_checked_against_the_end_stops_and_refused_on_a_crane():
     k70m = load_machine_config(REPO / "config" / "k70m.yaml").to_yaml_mapping()
     k70m["arm"] = {"payload": 5000.0, "links": []}
     assert config_problems(k70m) == ["arm: a crane's links are its links:, joints: and masses: (kind: crane); remove arm:"]
+
+
+def test_an_arm_its_cylinders_cannot_hold_is_refused_naming_the_cylinder_and_pose():
+    """A mass typed in grams passes every range (a link may weigh 280 t) but no 80 mm cylinder holds it at 16 MPa: machine check
+    and the simulator say so instead of a bag of a flailing arm and a threshold seven times too high."""
+    machine = load_machine_config(REPO / "config" / "boom_arm.yaml")
+    assert holding_problems(machine) == []
+    grams = machine.with_overrides({"arm": {"links": [machine.to_yaml_mapping()["arm"]["links"][0],
+                                                      {**machine.to_yaml_mapping()["arm"]["links"][1],
+                                                       "masses": [{"name": "arm", "mass": 250000.0, "along": 0.9}]}]}})
+    problems = holding_problems(grams)
+    assert len(problems) == 2 and all("cannot hold the arm and its 100 kg payload: it must push" in p for p in problems), problems
+    assert problems[1].startswith("arm: actuator arm's cylinder") and "piston side gives 80.4 kN at supply pressure" in problems[1]
+    with pytest.raises(InputError, match="actuator boom's cylinder cannot hold the arm"):
+        MachineRun(grams, {})

@@ -78,7 +78,8 @@ def cmd_fdi_run(args: argparse.Namespace) -> int:
     for message in result.get("errors", []):
         print(f"hydro-ros fdi: warning: {message}", file=sys.stderr)
     for name, actuator in result["actuators"].items():
-        print(f"{name}: {actuator['fault']} (first detection {actuator['first_detection_s']} s)")
+        first = actuator["first_detection_s"]
+        print(f"{name}: {actuator['fault']}" + (f" (first detection {first} s)" if first is not None else " (nothing detected)"))
     return 0
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from pathlib import Path
 
 from hydro_ros.cli.common import add_config, add_out, output_file, write_json
@@ -15,7 +16,8 @@ from hydro_ros.contract.machine import load_machine_config
 
 def register(sub: argparse._SubParsersAction) -> None:
     machine = sub.add_parser("machine", help="describe your own machine: check a config, start a new one",
-                             description="A machine config describes every actuator (cylinder, mount, valve, load), "
+                             description="A machine config describes every actuator (cylinder, mount, valve, fluid, friction), "
+                             "the links they move (arm: or each actuator's own load), "
                              "the sensors and the supply, in SI units.")
     verbs = machine.add_subparsers(dest="machine_command", required=True)
     check = verbs.add_parser("check", help="every problem of a machine config at once, and the values it marks as not measured",
@@ -76,8 +78,13 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
               f"{', '.join(crane.paths)}); no actuators, so nothing to simulate at the cylinders or monitor: ok")
     elif not problems:
         from hydro_ros.fdi.settings import unset_threshold
+        from hydro_ros.models.serial_arm import holding_problems
 
         machine = load_machine_config(args.config)
+        problems = holding_problems(machine)
+        for problem in problems:
+            print(f"{args.config}: {problem}")
+    if not planner_only and not problems:
         print(f"{args.config}: {machine.name}: {len(machine.actuators)} actuator(s) "
               f"({', '.join(f'{a.name} on {a.joint}' for a in machine.actuators)}), {machine.sample_rate_hz:g} Hz, "
               f"supply {machine.supply_pressure / 1e6:g} MPa: ok")
@@ -159,7 +166,10 @@ def cmd_machine_new(args: argparse.Namespace) -> int:
         raise InputError(f"--like {args.like}: extends another config; start from the one it extends")
     header = (f"# Your machine, started from hydro_ros's {source.name} (`hydro-ros machine new --like {args.like}`).\n"
               f"# Replace every value with your machine's, then run `hydro-ros machine check {out}`.\n")
-    out.write_text(header + text.replace(f"machine: {args.like}\n", f"machine: {out.stem}\n", 1))
+    text = text.replace(f"machine: {args.like}\n", f"machine: {out.stem}\n", 1)
+    # the shipped machine's threshold is not yours: machine check then says how to derive one
+    text = re.sub(r"(?m)^(\s*)threshold_constant:.*$", rf"\1# threshold_constant: yours from `hydro-ros machine threshold {out}`", text)
+    out.write_text(header + text)
     print(f"{out}: written from {source.name}; next: hydro-ros machine check {out}")
     return 0
 

@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "actuators ACTUATOR:NAME=VALUE@T[:RAMP], e.g. lift:external_leakage_a=1.0@20")
     sim.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                      help="physical effect present from the start (repeatable); on a machine of several actuators "
-                          "ACTUATOR:NAME=VALUE; on a crane payload_mass=KG (also as a timed --fault) at the tip")
+                          "ACTUATOR:NAME=VALUE; on a crane or an arm payload_mass=KG (also as a timed --fault) at the tip")
     sim.add_argument("--seed", type=int, default=0, help="random seed of operator and sensor noise")
     sim.add_argument("--path", default=None, help="crane only: work this path id's trajectory (forwards, hold, back, hold) in "
                                                 "place of the random operator")
@@ -55,7 +55,8 @@ def actuatorinjections(args: argparse.Namespace, machine, machine_wide: dict[str
                 if len(machine.actuators) > 1:
                     form = "ACTUATOR:NAME=VALUE@T[:RAMP]" if kind == "fault" else "ACTUATOR:NAME=VALUE"
                     alone = "".join(f"; {name} alone is {where}" for name, where in machine_wide.items())
-                    raise InputError(f"--{kind} {text!r}: on a machine of several actuators a {kind} names its cylinder: {form} "
+                    raise InputError(f"--{kind} {text!r}: on a machine of several actuators {'an' if kind == 'effect' else 'a'} {kind} "
+                                     f"names its cylinder: {form} "
                                      f"(actuators: {', '.join(machine.actuator_names)}{alone})")
                 actuator, spec = machine.first.name, text
             if actuator not in machine.actuator_names:
@@ -86,7 +87,11 @@ def cmd_sim(args: argparse.Namespace) -> int:
             return sim_crane(args, machine)
     if given:
         raise InputError(f"{', '.join(given)}: crane configs only ({args.config} is not a crane)")
-    injections, _, truth = actuatorinjections(args, machine, {})
+    # an arm's payload hangs at its tip (MachineRun takes it from any actuator's list)
+    injections, payload, truth = actuatorinjections(args, machine, {"payload_mass": "at the tip"} if machine.arm is not None else {})
+    if payload:
+        injections.setdefault(machine.first.name, []).extend(payload)
+        truth["payload"] = [{"name": i.name, "value": i.value, "onset_s": i.onset_s, "ramp_s": i.ramp_s} for i in payload]
     plant = MachineRun(machine, injections, seed=args.seed)
     total = int(round(args.duration * machine.sample_rate_hz))
     with bag_or_nothing(args.out):

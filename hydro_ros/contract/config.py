@@ -49,16 +49,35 @@ def read_config(path: str | Path, *, required: tuple[str, ...], nonempty: str) -
     missing = [key for key in required if key not in config]
     if missing:
         raise ConfigError(f"config {path}: missing key(s) {', '.join(missing)}")
-    if not config[nonempty]:
+    if not config.get(nonempty):
         raise ConfigError(f"config {path}: no {nonempty}")
     return config
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML's safe loader refusing a mapping that says a key twice (PyYAML keeps the last, and a value is lost unsaid)."""
+
+
+def _unique_keys(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+    seen = set()
+    for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge":  # << merges a mapping in; its keys are the merged one's
+            continue
+        key = loader.construct_object(key_node, deep=deep)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r} (line {key_node.start_mark.line + 1})")
+        seen.add(key)
+    return loader.construct_mapping(node, deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_keys)
 
 
 def _read_merged(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise ConfigError(f"config {path}: no such file")
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = yaml.load(path.read_text(), Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as exc:
         first_line = str(exc).splitlines()[0]
         raise ConfigError(f"config {path}: not valid YAML ({first_line})") from None

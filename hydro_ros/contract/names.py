@@ -73,7 +73,7 @@ INJECTION_UNITS: dict[str, str] = {
     "entrained_air": "free-air volume fraction at atmospheric pressure",
     "coulomb_friction": "N added to the Coulomb and static friction",
     "viscous_friction": "N s/m added to the viscous friction",
-    "payload_mass": "kg added at the load distance",
+    "payload_mass": "kg added at the load distance (an arm, a crane: at the tip)",
     "pressure_sensor_bias_a": "Pa added to the p_A reading",
     "pressure_sensor_bias_b": "Pa added to the p_B reading",
     "supply_pressure_sensor_bias": "Pa added to the supply-pressure reading",

@@ -302,9 +302,10 @@ def load_crane(path: str | Path) -> tuple[Crane, CraneConfig]:
     config = read_config(path, required=("machine",), nonempty="machine")
     if config.get("kind") != "crane":
         joints = len(config.get("actuators") or {})
+        why = ("a planar tip path fixes two joints, so it has nothing to optimise" if joints <= 2 else
+               f"its {joints} joints may be redundant along a tip path, but the planner's inverse kinematics is the lift-tilt-"
+               "telescope crane's (kind: crane, with links, joints and paths as in k70m.yaml); other chains are not planned yet")
         raise ConfigError(f"config {path}: not a crane config (kind: crane): the planner needs one redundant degree of freedom "
-                          f"along a planar tip path (a lift, a tilt and a telescope, with links, joints and paths as in k70m.yaml); "
-                          f"this machine has {joints} joint(s) and no crane description"
-                          + ("; a planar tip path fixes two joints, so it has nothing to optimise" if joints <= 2 else ""))
+                          f"along a planar tip path; {why}")
     crane_config = parse_crane(config, Path(path).resolve())
     return Crane(crane_config), crane_config

@@ -27,6 +27,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from hydro_ros.contract.machine import Arm, Load, Machine
+from hydro_ros.models.kinematics import MOUNT_KINDS, mount_arm
 
 NUMPY = SimpleNamespace(cos=np.cos, sin=np.sin)
 MIN_COS = 0.1  # below this cos(q) of a middle pose, a one-cylinder model of the joint cannot carry the arm's torque
@@ -143,3 +144,34 @@ def machine_load(machine: Machine, actuator: str) -> Load:
     if own.load is not None:
         return own.load
     return equivalent_load(SerialArm(machine.arm, machine.simulation.gravity), own.joint)  # type: ignore[arg-type]
+
+
+def holding_problems(machine: Machine, points: int = 7) -> list[str]:
+    """Where a cylinder of the machine's arm cannot hold the arm and its payload still with the supply pressure on its
+    pushing or pulling side, over a grid of ``points`` poses per joint inside the ranges: one line each, at its worst
+    pose. A mass in grams or a payload in the wrong unit shows here before it makes the simulator flail."""
+    if machine.arm is None:
+        return []
+    arm = SerialArm(machine.arm, machine.simulation.gravity)
+    grid = np.meshgrid(*[np.linspace(low, high, points) for low, high in (link.joint_range for link in arm.links)], indexing="ij")
+    q = [g.ravel() for g in grid]
+    _, gravity = arm.inertia_gravity(q)
+    by_joint = {a.joint: a for a in machine.actuators}
+    out = []
+    for index, joint in enumerate(arm.joint_names):
+        actuator = by_joint[joint]
+        cylinder, mount = actuator.cylinder, actuator.mount
+        lever = mount_arm(q[index], MOUNT_KINDS.index(mount.kind), mount.l1, mount.l2, mount.l3, mount.theta_offset, mount.sign,
+                          mount.ratio)
+        force = np.broadcast_to(np.asarray(gravity[index], dtype=float), lever.shape) / lever  # [N] the piston holds, + pushes
+        area_a = math.pi * cylinder.piston_diameter**2 / 4.0
+        capacity = np.where(force > 0.0, machine.supply_pressure * area_a,
+                            machine.supply_pressure * (area_a - math.pi * cylinder.rod_diameter**2 / 4.0))
+        worst = int(np.argmax(np.abs(force) / capacity))
+        if abs(force[worst]) > capacity[worst]:
+            pose = ", ".join(f"{name} = {qi[worst]:.2f}" for name, qi in zip(arm.joint_names, q))
+            out.append(f"arm: actuator {actuator.name}'s cylinder cannot hold the arm and its {arm.payload:g} kg payload: it must "
+                       f"{'push' if force[worst] > 0 else 'pull'} {abs(force[worst]) / 1e3:.1f} kN at {pose}, its "
+                       f"{'piston' if force[worst] > 0 else 'rod'} side gives {capacity[worst] / 1e3:.1f} kN at supply pressure "
+                       "(a mass in grams? masses are kg)")
+    return out

@@ -208,7 +208,7 @@ class PlantSim(Node):
         for params in (self.params, getattr(self, "cylinder_params", None)):
             for name, value in (params.values.items() if params else ()):
                 if name.startswith("fault.") and value:
-                    refusal = self._fault_refusal(name)
+                    refusal = self._fault_refusal(name, value)
                     if refusal:
                         raise InputError(f"parameter {refusal}")
                     self._pending[name] = value
@@ -279,12 +279,13 @@ class PlantSim(Node):
             return False
         return publishes_sensor_topic(self.params["sensor_topics"], topic)
 
-    def _fault_refusal(self, name: str) -> str:
+    def _fault_refusal(self, name: str, value: float) -> str:
         """Why a fault.<name> parameter cannot be set on this plant ("" if it can): on several actuators a fault names its
         cylinder (an arm's payload hangs at its tip, fault.payload_mass); an arm does not simulate every fault."""
         fault = name.rsplit(".", 1)[-1]
         if name == TIP_PAYLOAD and self.source.tip_payload:
-            return ""
+            payload = self.machine.arm.payload if self.machine.arm is not None else 0.0
+            return f"{name} refused: the tip would carry {payload + value:g} kg" if payload + value < 0.0 else ""
         if fault in self.source.not_per_cylinder:
             return f"{name} refused: {self.source.not_per_cylinder[fault]}"
         if len(self.source.actuators) > 1 and name.count(".") == 1:
@@ -295,7 +296,7 @@ class PlantSim(Node):
     def _refuse_fault(self, parameters: list) -> SetParametersResult:
         for parameter in parameters:
             if parameter.name.startswith("fault.") and parameter.value:
-                refusal = self._fault_refusal(parameter.name)
+                refusal = self._fault_refusal(parameter.name, parameter.value)
                 if refusal:
                     return SetParametersResult(successful=False, reason=refusal)
         return SetParametersResult(successful=True)

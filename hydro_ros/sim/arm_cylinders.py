@@ -57,7 +57,7 @@ from hydro_ros.models.sam import (
     hydraulic_rates,
     injection_levels,
 )
-from hydro_ros.models.serial_arm import SerialArm
+from hydro_ros.models.serial_arm import SerialArm, holding_problems
 from hydro_ros.sim.blocks import in_blocks, replace_injection
 from hydro_ros.sim.excitation import OperatorReference, WorkCycleReference
 from hydro_ros.sim.sensors import SensorModel
@@ -169,6 +169,11 @@ class ArmCylinders:
             for injection in injections:
                 if injection.name in NOT_PER_CYLINDER:
                     raise InputError(f"fault {actuator}:{injection.name}: {NOT_PER_CYLINDER[injection.name]}")
+        steps = sorted(run.payload, key=lambda step: step.onset_s)
+        self._check_tip_mass(arm.payload + np.cumsum([step.value for step in steps]))
+        refused = holding_problems(machine) if machine.arm is not None else []
+        if refused:
+            raise InputError(f"config {machine.source}: {refused[0]}")
         self.models = [SamModel(machine, by_joint[name].name) for name in arm.joint_names]  # link order, as the state
         # the machine config's actuator i is link order[i]
         self.order = [arm.joint_names.index(a.joint) for a in machine.actuators]
@@ -223,6 +228,7 @@ class ArmCylinders:
         """``name`` of size ``value`` (0: none) in ``actuator``'s cylinder from ``now_s`` on, replacing its previous size; a
         ``payload_mass`` hangs at the tip whichever actuator names it. InputError for a fault this plant does not simulate."""
         if name == "payload_mass":
+            self._check_tip_mass(np.array([self.arm.payload + value]))
             replace_injection(self.run.payload, name, value, now_s)
             return
         if name in NOT_PER_CYLINDER:
@@ -230,6 +236,11 @@ class ArmCylinders:
         index = self.machine.actuator_names.index(actuator)
         replace_injection(self.run.faults.setdefault(actuator, []), name, value, now_s)
         replace_injection(self.sensors[index].injections, name, value, now_s)
+
+    def _check_tip_mass(self, masses: np.ndarray) -> None:
+        if len(masses) and masses.min() < 0.0:
+            raise InputError(f"payload_mass: the tip would carry {masses.min():g} kg (the arm's payload {self.arm.payload:g} kg plus the "
+                             "steps); a payload change is added to it")
 
     def active_faults(self) -> list[str]:
         """``actuator:name=value`` of every fault set, and ``payload_mass=value`` at the tip."""

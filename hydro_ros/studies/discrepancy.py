@@ -507,7 +507,9 @@ def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], No
     after_validation = simulate_recording(_with(machine, named, joint_calibration, forms), validation)
     model = _with(machine, named, joint_calibration, forms)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "model.yaml").write_text("# model of hydro-ros discrepancy: calibrated flow gain and bulk modulus, named effects\n"
+    (out / "model.yaml").write_text(f"# model of hydro-ros discrepancy of cylinder {machine.first.name} alone (on an arm: its share of "
+                                    "the arm as its load): calibrated flow gain and bulk modulus, named effects.\n# A study's model, "
+                                    "not your machine's config: carry the named effects into its effects: section.\n"
                                     + yaml.safe_dump(model.to_yaml_mapping(), sort_keys=False))
     labels = {f"{name} ({forms[name]})" if name in forms else name: value for name, value in named.items()}
     plot = plot_discrepancy(validation, machine, before=before_validation, after=after_validation, effects=labels,
