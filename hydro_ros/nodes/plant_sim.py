@@ -333,7 +333,7 @@ class PlantSim(Node):
     def _planar_path(self, msg: JointTrajectory) -> "_Path":
         """The received trajectory's columns of the crane's planar joints; InputError with the reason it cannot be worked."""
         plant = self.source.plant
-        names = [cylinder.name for cylinder in plant.planar]
+        names = plant.arm.joint_names
         missing = [name for name in names if name not in msg.joint_names]
         if missing:
             raise InputError(f"joint(s) {', '.join(missing)} missing")
