@@ -244,9 +244,12 @@ def test_the_hmi_shows_every_cylinder_of_a_two_joint_machine_and_the_leak_on_its
 
     config, port = REPO / "config" / "boom_arm.yaml", free_port()
     statuses: list = []
+    plant: list = []
     with probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics",
                                  lambda m: statuses.extend(s for s in m.status if s.name.startswith("hydro_ros/fdi/")), 50)
+        node.create_subscription(DiagnosticArray, "/diagnostics",
+                                 lambda m: plant.extend({v.key: v.value for v in s.values} for s in m.status if s.name == "hydro_ros/plant_sim"), 50)
         with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={config}", "-p", "seed:=3", "-p", "real_time_factor:=1.0"), \
                 node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={config}"), \
                 node_process("hydro_ros.nodes.hmi", "-p", f"config:={config}", "-p", f"port:={port}"):
@@ -258,6 +261,13 @@ def test_the_hmi_shows_every_cylinder_of_a_two_joint_machine_and_the_leak_on_its
             assert client.wait_for_services(10.0)
             future = client.set_parameters([Parameter("fault.arm.external_leakage_a", value=4.0)])
             assert spin_until(node, future.done, 10)
+            # the payload hangs at the arm's tip, named on no cylinder; a valve delay the arm's plant does not simulate is refused
+            future = client.set_parameters([Parameter("fault.payload_mass", value=150.0), Parameter("fault.valve_delay", value=0.05)])
+            assert spin_until(node, future.done, 10)
+            payload, delay = future.result().results
+            assert payload.successful and not delay.successful and "not simulated on an arm" in delay.reason, delay.reason
+            assert spin_until(node, lambda: bool(plant) and plant[-1].get("active_faults") == "arm:external_leakage_a=4,payload_mass=150", 10), \
+                plant[-1:]
 
             def tiles() -> dict[str, dict]:
                 spin_until(node, lambda: False, 0.2)
