@@ -21,7 +21,15 @@ from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.identification import flow_regression
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, simulate
-from hydro_ros.studies.commissioning import PARITY_FLOOR, PARITY_FLOOR_L_MIN, PARITY_MARGIN, FaultFreeRecording, commission, identify
+from hydro_ros.studies.commissioning import (
+    PARITY_FLOOR,
+    PARITY_FLOOR_L_MIN,
+    PARITY_MARGIN,
+    FaultFreeRecording,
+    commission,
+    identify,
+    threshold_excess,
+)
 from hydro_ros.studies.fdi_evaluation import mismatched_config
 from test.conftest import REPO
 
@@ -224,3 +232,9 @@ def test_long_recordings_give_rows_at_the_row_rate_and_the_blocks_do_not_change_
     for notch in NOTCHES:
         assert gains[0][notch] == pytest.approx(gains[1][notch], rel=2e-3), notch
 
+
+
+def test_a_threshold_is_not_taken_from_data_the_monitor_never_evaluated(sam_config):
+    """`machine threshold --duration 5` wrote threshold_constant 0.0: no armed window, no excess, a margin over nothing."""
+    with pytest.raises(InputError, match=r"5.0 s of data: the monitor evaluates only after \d+.\d s"):
+        threshold_excess(FdiMonitor(sam_config), simulate(sam_config, Scenario(5.0, seed=1)))

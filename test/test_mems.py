@@ -41,6 +41,13 @@ def test_config_that_extends_itself_fails_clearly(tmp_path):
     path.write_text("extends: loop.yaml\n")
     with pytest.raises(ConfigError, match="extends itself"):
         load_machine_config(path)
+    (tmp_path / "a.yaml").write_text("extends: b.yaml\n")
+    (tmp_path / "b.yaml").write_text("extends: a.yaml\n")
+    with pytest.raises(ConfigError, match="b.yaml: extends a.yaml, which extends it in turn"):
+        load_machine_config(tmp_path / "a.yaml")
+    (tmp_path / "alias.yaml").write_text("machine: x\narm: &a {payload: [*a]}\n")
+    with pytest.raises(ConfigError, match="a YAML alias contains itself"):
+        load_machine_config(tmp_path / "alias.yaml")
 
 
 @pytest.mark.parametrize(("fault", "value"), [(None, 0.0), ("external_leakage_b", 1.5), ("internal_leakage", 2.0)])

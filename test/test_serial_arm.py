@@ -13,9 +13,10 @@ from hydro_ros.cli.machine import reach_warnings
 from hydro_ros.contract.check import config_problems
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config, parse_machine
+from hydro_ros.contract.names import Injection
 from hydro_ros.models.crane import load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
-from hydro_ros.models.serial_arm import SerialArm, equivalent_load, holding_problems
+from hydro_ros.models.serial_arm import SerialArm, arm_problems, equivalent_load
 from hydro_ros.sim.scenario import MachineRun
 
 REPO = Path(__file__).resolve().parents[1]
@@ -187,12 +188,53 @@ def test_an_arm_its_cylinders_cannot_hold_is_refused_naming_the_cylinder_and_pos
     """A mass typed in grams passes every range (a link may weigh 280 t) but no 80 mm cylinder holds it at 16 MPa: machine check
     and the simulator say so instead of a bag of a flailing arm and a threshold seven times too high."""
     machine = load_machine_config(REPO / "config" / "boom_arm.yaml")
-    assert holding_problems(machine) == []
+    assert arm_problems(machine) == []
     grams = machine.with_overrides({"arm": {"links": [machine.to_yaml_mapping()["arm"]["links"][0],
                                                       {**machine.to_yaml_mapping()["arm"]["links"][1],
                                                        "masses": [{"name": "arm", "mass": 250000.0, "along": 0.9}]}]}})
-    problems = holding_problems(grams)
+    problems = arm_problems(grams)
     assert len(problems) == 2 and all("cannot hold the arm and its 100 kg payload: it must push" in p for p in problems), problems
     assert problems[1].startswith("arm: actuator arm's cylinder") and "piston side gives 80.4 kN at supply pressure" in problems[1]
     with pytest.raises(InputError, match="actuator boom's cylinder cannot hold the arm"):
         MachineRun(grams, {})
+
+
+def _boom_arm_with(change) -> dict:
+    mapping = load_machine_config(REPO / "config" / "boom_arm.yaml").to_yaml_mapping()
+    change(mapping)
+    return mapping
+
+
+@pytest.mark.parametrize("change, problem", [
+    (lambda m: m["arm"]["links"][1].update(joint=["arm_joint"]), "arm.links[1].joint: ['arm_joint']: must be the name of an actuator's joint"),
+    (lambda m: m["actuators"]["arm"].update(joint=1.0), "actuators.arm.joint: 1.0: must be a name (quote a number: '1.0')"),
+    (lambda m: m["arm"]["links"][1].update(range=[-float("inf"), 0.5]), "arm.links[arm_joint].range: [-inf, 0.5]: must be finite"),
+    (lambda m: m["arm"]["links"][1].update(range=[-10.0, 10.0]), "arm.links[arm_joint].range: [-10.0, 10.0] rad: must lie within +-7 "
+                                                                 "(radians: 90 deg is 1.571)"),
+    (lambda m: m["arm"].update(origin=[float("nan"), 0.0]), "arm.origin: [nan, 0.0]: expected [x, y], finite (m)"),
+    (lambda m: m["arm"]["links"][1].update(kind="prismatic", range=[0.0, 0.3]),
+     "arm.links[arm_joint].kind: prismatic, but actuator arm's mount is a triangle"),
+    (lambda m: m["arm"]["links"].append(dict(m["arm"]["links"][0])), "arm.links[boom_joint].joint: 'boom_joint': has an earlier link"),
+    (lambda m: m["arm"]["links"][1].update(range=[-0.5, 0.5 + 2 * np.pi]), "arm.links[arm_joint].range: 4.59823 puts actuator arm's piston at -0.098"),
+])
+def test_a_malformed_arm_is_refused_naming_its_key(change, problem):
+    """Each found by an attack on the arm: section; before, a traceback or a config accepted and simulated wrongly."""
+    problems = config_problems(_boom_arm_with(change))
+    assert any(p.startswith(problem) for p in problems), problems
+
+
+def test_an_arm_that_cannot_be_integrated_or_lifted_is_refused_before_it_runs():
+    machine = load_machine_config(REPO / "config" / "boom_arm.yaml")
+    massless = parse_machine(_boom_arm_with(lambda m: [link.update(masses=[]) for link in m["arm"]["links"]] and m["arm"].update(payload=0.0)),
+                             machine.source)
+    assert arm_problems(massless)[0].startswith("arm: its links' masses leave a joint with no inertia at boom_joint = -0.50")
+    with pytest.raises(InputError, match="no inertia"):  # was numpy's LinAlgError: Singular matrix
+        MachineRun(massless, {})
+    with pytest.raises(InputError, match="cannot hold the arm and its 1.0001e\\+06 kg payload"):  # given on the command line, not in the file
+        MachineRun(machine, {"arm": [Injection("payload_mass", 1e6, 1.0)]})
+    weightless = machine.with_overrides({"simulation": {"gravity": 0.0}})  # was a ZeroDivisionError in every command
+    arm = SerialArm(weightless.arm, 0.0)
+    load = equivalent_load(arm, "boom_joint")
+    inertia, _ = arm.inertia_gravity([0.0, 0.0])
+    assert load.boom_mass * (load.boom_length**2 / 12 + load.boom_cog_distance**2) + load.left_mass * load.load_distance**2 == \
+        pytest.approx(inertia[0][0])

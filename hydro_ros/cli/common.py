@@ -81,6 +81,7 @@ def one_actuator(machine, name: str | None, study: str):  # noqa: ANN001, ANN201
         return machine
     from hydro_ros.models.serial_arm import machine_load
 
+    machine.actuator(name)  # an unknown name is said first, on its own
     try:
         return machine.only(name, machine_load(machine, name))
     except ValueError as exc:

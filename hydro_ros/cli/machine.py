@@ -78,10 +78,10 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
               f"{', '.join(crane.paths)}); no actuators, so nothing to simulate at the cylinders or monitor: ok")
     elif not problems:
         from hydro_ros.fdi.settings import unset_threshold
-        from hydro_ros.models.serial_arm import holding_problems
+        from hydro_ros.models.serial_arm import arm_problems
 
         machine = load_machine_config(args.config)
-        problems = holding_problems(machine)
+        problems = arm_problems(machine)
         for problem in problems:
             print(f"{args.config}: {problem}")
     if not planner_only and not problems:

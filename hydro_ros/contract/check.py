@@ -16,6 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 NOTCHES = ("PA", "PB", "AT", "BT")
 ANNOTATIONS = ("PLACEHOLDER", "INFERRED")
 
@@ -98,6 +100,7 @@ CRANE_CHOICES = {"mapping": ("linear", "triangle"), "spool": ("non_differential"
 CRANE_KEYS = {"kind", "base_rotation", "gravity", "links", "joints", "masses", "extension_friction", "hydraulics", "dp", "paths", "controller",
               "plant", "catalog"}
 ARM = {"payload": _nonnegative("kg", 1.0e6)}
+RANGE_LIMIT = {"revolute": Rule("rad", -7.0, 7.0, hint="radians: 90 deg is 1.571"), "prismatic": Rule("m", -50.0, 50.0, hint="metres")}
 ARM_LINK = {"length": Rule("m", 0.0, 100.0, hint="SI: metres"), "offset": Rule("m", -100.0, 100.0)}
 LINK_MASS = {"mass": _nonnegative("kg", 1.0e6), "along": Rule("m", -100.0, 100.0), "across": Rule("m", -100.0, 100.0),
              "inertia": _nonnegative("kg m^2", 1.0e7)}
@@ -146,6 +149,8 @@ class _Problems:
         numbers = [_number(v) for v in value] if isinstance(value, (list, tuple)) else []
         if len(numbers) != 2 or None in numbers:
             self.add(_join(path, key), f"{value!r}: expected [low, high]")
+        elif not all(math.isfinite(n) for n in numbers):  # type: ignore[arg-type]
+            self.add(_join(path, key), f"{value!r}: must be finite")
         elif not numbers[0] < numbers[1]:  # type: ignore[operator]
             self.add(_join(path, key), f"{value!r}: low must be below high")
 
@@ -183,7 +188,7 @@ def config_problems(config: dict[str, Any]) -> list[str]:
         found.add("arm", "a crane's links are its links:, joints: and masses: (kind: crane); remove arm:")
     elif arm:
         _arm(found, config["arm"], actuators, simulation)
-    joints = [a.get("joint") for a in actuators.values() if isinstance(a, dict)]
+    joints = [a.get("joint") for a in actuators.values() if isinstance(a, dict) and isinstance(a.get("joint"), str)]
     for joint in sorted({j for j in joints if joints.count(j) > 1}, key=str):
         found.add("actuators", f"joint {joint!r} is driven by more than one actuator")
     for section, rules in (("sensors", SENSORS), ("simulation", SIMULATION), ("excitation", EXCITATION)):
@@ -238,7 +243,8 @@ def _choice(found: _Problems, node: dict, path: str, key: str, default: str | No
 
 def list_entry(section: str, index: int, entry: Any) -> str:
     """A list entry's key path, by its name (or an arm link's joint) where it has one, as ``annotated_values`` names it."""
-    return f"{section}[{entry.get('name', entry.get('joint', index)) if isinstance(entry, dict) else index}]"
+    label = entry.get("name", entry.get("joint")) if isinstance(entry, dict) else None
+    return f"{section}[{label if isinstance(label, str) else index}]"
 
 
 def _crane(found: _Problems, config: dict[str, Any]) -> None:
@@ -295,30 +301,44 @@ def _arm(found: _Problems, node: Any, actuators: dict, simulation: dict) -> None
     found.numbers(node, "arm", ARM)
     if "origin" in node:
         origin = node["origin"]
-        if not (isinstance(origin, list) and len(origin) == 2 and None not in map(_number, origin)):
-            found.add("arm.origin", f"{origin!r}: expected [x, y] (m)")
+        numbers = list(map(_number, origin)) if isinstance(origin, list) else []
+        if len(numbers) != 2 or None in numbers or not all(math.isfinite(n) for n in numbers):  # type: ignore[arg-type]
+            found.add("arm.origin", f"{origin!r}: expected [x, y], finite (m)")
     links = node.get("links")
     if not isinstance(links, list) or not links:
         found.add("arm.links", "must list the links, base to tip")
         return
-    by_joint = {a.get("joint"): (name, a) for name, a in actuators.items() if isinstance(a, dict)}
-    joints = []
+    by_joint = {a.get("joint"): (name, a) for name, a in actuators.items() if isinstance(a, dict) and isinstance(a.get("joint"), str)}
+    joints: list[str] = []
     for index, link in enumerate(links):
         path = list_entry("arm.links", index, link)
         values = found.numbers(link, path, ARM_LINK, required=("length",))
         if not isinstance(link, dict):
             continue
         found.unknown(link, path, set(ARM_LINK) | {"joint", "kind", "range", "masses"})
-        if link.get("kind", "revolute") not in ("revolute", "prismatic"):
-            found.add(f"{path}.kind", f"{link['kind']!r}: expected revolute or prismatic")
-        joints.append(link.get("joint"))
-        if link.get("joint") not in by_joint:
-            found.add(f"{path}.joint", f"{link.get('joint')!r}: no actuator drives it (actuators' joints: "
-                                       f"{', '.join(str(j) for j in by_joint)})")
+        kind = link.get("kind", "revolute")
+        if kind not in ("revolute", "prismatic"):
+            found.add(f"{path}.kind", f"{kind!r}: expected revolute or prismatic")
+        joint = link.get("joint")
+        if not isinstance(joint, str):
+            found.add(f"{path}.joint", f"{joint!r}: must be the name of an actuator's joint")
+            continue
+        if joint in joints:
+            found.add(f"{path}.joint", f"{joint!r}: has an earlier link already; each joint moves one link")
+        joints.append(joint)
+        if joint not in by_joint:
+            found.add(f"{path}.joint", f"{joint!r}: no actuator drives it (actuators' joints: {', '.join(by_joint)})")
+        elif kind == "prismatic" and (by_joint[joint][1].get("mount") or {}).get("kind", "triangle") != "linear":
+            found.add(f"{path}.kind", f"prismatic, but actuator {by_joint[joint][0]}'s mount is a triangle: a cylinder sliding a "
+                                      "link moves with it (mount.kind: linear)")
         if "range" not in link:
             found.add(f"{path}.range", "missing [rad] or [m]: where the joint may go")
         else:
             found.pair(link, path, "range")
+            limit = RANGE_LIMIT[kind] if kind in RANGE_LIMIT else None
+            ends = [_number(v) for v in link["range"]] if isinstance(link["range"], list) else []
+            if limit and len(ends) == 2 and None not in ends and any(abs(v) > limit.high for v in ends):  # type: ignore[arg-type]
+                found.add(f"{path}.range", f"{link['range']!r} {limit.unit}: must lie within +-{limit.high:g} ({limit.hint})")
         masses = link.get("masses") or []
         if not isinstance(masses, list):
             found.add(f"{path}.masses", "must be a list of masses")
@@ -344,6 +364,7 @@ def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuato
     if stroke is None or offset is None:
         return
     pistons = []
+    low_high = list(np.linspace(low_high[0], low_high[1], 21)) if all(math.isfinite(v) for v in low_high) else []  # type: ignore[arg-type]
     for q in low_high:
         if mount.get("kind", "triangle") == "linear":
             ratio = _number(mount.get("ratio"))
@@ -358,7 +379,8 @@ def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuato
             pistons.append(math.sqrt(max(l1 * l1 + l2 * l2 - 2.0 * l1 * l2 * math.cos(theta), 0.0)) - l3)
     lower = _number(simulation.get("end_stop_lower", 0.0)) or 0.0
     upper = min(stroke, _number(simulation.get("end_stop_upper", stroke)) or stroke)
-    outside = [(q, x) for q, x in zip(low_high, pistons) if not lower - RANGE_SLACK <= x <= upper + RANGE_SLACK]
+    beyond = [(max(lower - x, x - upper), q, x) for q, x in zip(low_high, pistons)]
+    outside = [(q, x) for excess, q, x in sorted(beyond, reverse=True)[:1] if excess > RANGE_SLACK]  # the worst of the range
     for q, x in outside:
         found.add(f"{path}.range", f"{q:g} puts actuator {name}'s piston at {x:g} m, outside its end stops {lower:g} to {upper:g} m "
                                    "(its stroke, or simulation.end_stop_lower / _upper)")
@@ -371,6 +393,8 @@ def _actuator(found: _Problems, path: str, node: Any, crane: bool, arm: bool, en
     found.unknown(node, path, ACTUATOR_KEYS)
     if "joint" not in node:
         found.add(f"{path}.joint", "missing (its name in /joint_states)")
+    elif not isinstance(node["joint"], str):
+        found.add(f"{path}.joint", f"{node['joint']!r}: must be a name (quote a number: '{node['joint']}')")
     cylinder = found.numbers(node.get("cylinder"), f"{path}.cylinder", CYLINDER, required=tuple(CYLINDER))
     if isinstance(node.get("cylinder"), dict):
         found.unknown(node["cylinder"], f"{path}.cylinder", set(CYLINDER))

@@ -73,23 +73,30 @@ def _unique_keys(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = 
 _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_keys)
 
 
-def _read_merged(path: Path) -> dict[str, Any]:
+def _read_merged(path: Path, extended_by: tuple[Path, ...] = ()) -> dict[str, Any]:
     if not path.is_file():
         raise ConfigError(f"config {path}: no such file")
     try:
-        raw = yaml.load(path.read_text(), Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader
+        raw = unshared(yaml.load(path.read_text(), Loader=_UniqueKeyLoader))  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as exc:
         first_line = str(exc).splitlines()[0]
         raise ConfigError(f"config {path}: not valid YAML ({first_line})") from None
+    except RecursionError:
+        raise ConfigError(f"config {path}: a YAML alias contains itself") from None
     if not isinstance(raw, dict):
         raise ConfigError(f"config {path}: expected a mapping at the top level")
-    raw = unshared(raw)
     if "extends" in raw:
         # a variant of another machine config: that file, with this file's keys merged over it
-        base_path = path.parent / str(raw.pop("extends"))
+        extends = raw.pop("extends")
+        if not isinstance(extends, str):
+            raise ConfigError(f"config {path}: extends = {extends!r}: expected the path of the config it varies")
+        base_path = path.parent / extends
+        chain = (*extended_by, path.resolve())
         if base_path.resolve() == path.resolve():
             raise ConfigError(f"config {path}: extends itself")
-        raw = with_overrides(_read_merged(base_path), raw)
+        if base_path.resolve() in chain:
+            raise ConfigError(f"config {path}: extends {extends}, which extends it in turn")
+        raw = with_overrides(_read_merged(base_path, chain), raw)
     if "fitted" in raw:
         # values a tool fitted (hydro-ros fdi fit) live in their own block at the end of the file
         fitted = raw.pop("fitted")

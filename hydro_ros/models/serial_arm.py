@@ -129,10 +129,13 @@ def equivalent_load(arm: SerialArm, joint: str) -> Load:
     if abs(cos_q) < MIN_COS:
         raise ValueError(f"joint {joint}'s range {list(link.joint_range)} is centred at {q[index]:.2f} rad, where the one-cylinder "
                          "model's gravity torque g cos(q) (...) vanishes")
-    moment = float(gravity[index]) / (arm.gravity * cos_q) - mass * cog  # [kg m] m_L L
+    moment = float(gravity[index]) / (arm.gravity * cos_q) - mass * cog if arm.gravity else 0.0  # [kg m] m_L L
     added = float(inertia[index][index]) - mass * (length**2 / 12.0 + cog**2)  # [kg m^2] m_L L^2
-    if abs(moment) < 1e-9 or added <= 0.0:
+    if added <= 1e-12:
         return Load(mass, length, cog, 0.0, 0.0, link.length)
+    if abs(moment) < 1e-9:  # no moment to carry (or no gravity): the inertia at the link's end
+        reach = link.length or 1.0
+        return Load(mass, length, cog, added / reach**2, 0.0, reach)
     # one mass m_L at L with m_L L = moment and m_L L^2 = added; a negative moment is the right-hand mass
     distance, carried = added / abs(moment), moment * moment / added
     return Load(mass, length, cog, carried if moment > 0 else 0.0, carried if moment < 0 else 0.0, distance)
@@ -146,16 +149,26 @@ def machine_load(machine: Machine, actuator: str) -> Load:
     return equivalent_load(SerialArm(machine.arm, machine.simulation.gravity), own.joint)  # type: ignore[arg-type]
 
 
-def holding_problems(machine: Machine, points: int = 7) -> list[str]:
-    """Where a cylinder of the machine's arm cannot hold the arm and its payload still with the supply pressure on its
-    pushing or pulling side, over a grid of ``points`` poses per joint inside the ranges: one line each, at its worst
-    pose. A mass in grams or a payload in the wrong unit shows here before it makes the simulator flail."""
+def arm_problems(machine: Machine, payload: float | None = None, points: int = 7) -> list[str]:
+    """What keeps the machine's arm from being simulated, over a grid of ``points`` poses per joint inside the ranges, one
+    line each: a joint that moves no mass (its inertia zero: nothing to integrate), or a cylinder that cannot hold the
+    arm and its payload (``payload`` [kg] in place of the arm's) still with the supply pressure on its pushing or pulling
+    side, at its worst pose. A mass in grams or a payload in the wrong unit shows here before it makes the simulator flail."""
     if machine.arm is None:
         return []
     arm = SerialArm(machine.arm, machine.simulation.gravity)
+    payload = arm.payload if payload is None else payload
     grid = np.meshgrid(*[np.linspace(low, high, points) for low, high in (link.joint_range for link in arm.links)], indexing="ij")
     q = [g.ravel() for g in grid]
-    _, gravity = arm.inertia_gravity(q)
+    inertia, gravity = arm.inertia_gravity(q, payload)
+    matrices = np.stack([np.stack([np.broadcast_to(np.asarray(m, dtype=float), q[0].shape) for m in row], axis=-1) for row in inertia],
+                        axis=-2)
+    singular = np.linalg.cond(matrices) > 1e12
+    if singular.any():
+        worst = int(np.argmax(singular))
+        pose = ", ".join(f"{name} = {qi[worst]:.2f}" for name, qi in zip(arm.joint_names, q))
+        return [f"arm: its links' masses leave a joint with no inertia at {pose} (M(q) singular): every joint must move a "
+                "mass off its axis (its link's, one beyond, or the payload)"]
     by_joint = {a.joint: a for a in machine.actuators}
     out = []
     for index, joint in enumerate(arm.joint_names):
@@ -170,7 +183,7 @@ def holding_problems(machine: Machine, points: int = 7) -> list[str]:
         worst = int(np.argmax(np.abs(force) / capacity))
         if abs(force[worst]) > capacity[worst]:
             pose = ", ".join(f"{name} = {qi[worst]:.2f}" for name, qi in zip(arm.joint_names, q))
-            out.append(f"arm: actuator {actuator.name}'s cylinder cannot hold the arm and its {arm.payload:g} kg payload: it must "
+            out.append(f"arm: actuator {actuator.name}'s cylinder cannot hold the arm and its {payload:g} kg payload: it must "
                        f"{'push' if force[worst] > 0 else 'pull'} {abs(force[worst]) / 1e3:.1f} kN at {pose}, its "
                        f"{'piston' if force[worst] > 0 else 'rod'} side gives {capacity[worst] / 1e3:.1f} kN at supply pressure "
                        "(a mass in grams? masses are kg)")

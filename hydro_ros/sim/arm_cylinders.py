@@ -57,7 +57,7 @@ from hydro_ros.models.sam import (
     hydraulic_rates,
     injection_levels,
 )
-from hydro_ros.models.serial_arm import SerialArm, holding_problems
+from hydro_ros.models.serial_arm import SerialArm, arm_problems
 from hydro_ros.sim.blocks import in_blocks, replace_injection
 from hydro_ros.sim.excitation import OperatorReference, WorkCycleReference
 from hydro_ros.sim.sensors import SensorModel
@@ -170,8 +170,9 @@ class ArmCylinders:
                 if injection.name in NOT_PER_CYLINDER:
                     raise InputError(f"fault {actuator}:{injection.name}: {NOT_PER_CYLINDER[injection.name]}")
         steps = sorted(run.payload, key=lambda step: step.onset_s)
-        self._check_tip_mass(arm.payload + np.cumsum([step.value for step in steps]))
-        refused = holding_problems(machine) if machine.arm is not None else []
+        tip = arm.payload + np.cumsum([0.0] + [step.value for step in steps])
+        self._check_tip_mass(tip)
+        refused = arm_problems(machine, float(tip.max()))
         if refused:
             raise InputError(f"config {machine.source}: {refused[0]}")
         self.models = [SamModel(machine, by_joint[name].name) for name in arm.joint_names]  # link order, as the state
@@ -229,6 +230,9 @@ class ArmCylinders:
         ``payload_mass`` hangs at the tip whichever actuator names it. InputError for a fault this plant does not simulate."""
         if name == "payload_mass":
             self._check_tip_mass(np.array([self.arm.payload + value]))
+            refused = arm_problems(self.machine, self.arm.payload + value)
+            if refused:
+                raise InputError(f"fault payload_mass={value:g}: {refused[0]}")
             replace_injection(self.run.payload, name, value, now_s)
             return
         if name in NOT_PER_CYLINDER:

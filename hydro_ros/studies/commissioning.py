@@ -200,7 +200,10 @@ def threshold_excess(monitor: FdiMonitor, samples: Samples) -> float:
         excess = excess[np.isfinite(excess)]
         if excess.size:
             maxima.append(float(excess.max()))
-    return max(maxima, default=0.0)
+    if not maxima:  # no margin over nothing: a threshold of 0 would alarm on the first sample
+        raise InputError(f"{len(samples) / monitor.sample_rate:.1f} s of data: the monitor evaluates only after "
+                         f"{arms / monitor.sample_rate:.1f} s, so there is no residual to take a threshold from")
+    return max(maxima)
 
 
 def adaptive_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequence[Samples],
