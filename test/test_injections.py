@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import INJECTABLE, Injection, parse_injection
 from hydro_ros.models.sam import SamModel, SamPlant
@@ -94,3 +95,16 @@ def test_injection_switches_on_at_onset_and_acts(machines, machine, name):
 def test_developing_fault_ramps():
     injection = parse_injection("internal_leakage=2@10:4")
     assert [injection.level(t) for t in (9.9, 10.0, 12.0, 14.0, 20.0)] == [0.0, 0.0, 1.0, 2.0, 2.0]
+
+
+@pytest.mark.parametrize("name, value, refusal", [
+    ("internal_leakage", -1.0, r"internal_leakage = -1: must be >= 0 \(L/min at 10 MPa across the piston\)"),
+    ("entrained_air", 1.5, r"entrained_air = 1.5: must be within \[0, 1\]"),
+    ("spool_offset", 5.0, r"spool_offset = 5: must be within \[-1, 1\]"),
+    ("valve_flow_gain", -1.5, r"valve_flow_gain = -1.5: must be >= -1"),
+    ("payload_mass", float("inf"), r"payload_mass: value inf is not finite"),
+])
+def test_a_fault_outside_what_a_machine_can_have_is_refused_with_its_unit(name, value, refusal):
+    """A negative leak or an air fraction above one is a typo or a wrong unit: said, not simulated."""
+    with pytest.raises(InputError, match=refusal):
+        Injection(name, value)

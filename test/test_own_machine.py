@@ -266,6 +266,11 @@ def test_the_hmi_shows_every_cylinder_of_a_two_joint_machine_and_the_leak_on_its
             assert spin_until(node, future.done, 10)
             payload, delay = future.result().results
             assert payload.successful and not delay.successful and "not simulated on an arm" in delay.reason, delay.reason
+            future = client.set_parameters([Parameter("fault.payload_mass", value=1e6), Parameter("fault.arm.internal_leakage", value=-1.0)])
+            assert spin_until(node, future.done, 10)
+            heavy, negative = future.result().results
+            assert not heavy.successful and "cannot hold the arm" in heavy.reason, heavy.reason
+            assert not negative.successful and "internal_leakage = -1: must be >= 0" in negative.reason, negative.reason
             assert spin_until(node, lambda: bool(plant) and plant[-1].get("active_faults") == "arm:external_leakage_a=4,payload_mass=150", 10), \
                 plant[-1:]
 

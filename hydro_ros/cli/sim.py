@@ -47,8 +47,11 @@ def actuatorinjections(args: argparse.Namespace, machine, machine_wide: dict[str
     for kind, texts in (("fault", args.fault), ("effect", args.effect)):
         for text in texts:
             actuator, separator, spec = text.partition(":")
-            if not separator or "=" in actuator:
-                injection = injections([text], kind, kind == "fault")[0]
+            named = bool(separator) and "=" not in actuator
+            injection = injections([spec if named else text], kind, kind == "fault")[0]
+            if injection.onset_s >= args.duration:
+                raise InputError(f"--{kind} {text!r}: starts after the run's end ({args.duration:g} s)")
+            if not named:
                 if injection.name in machine_wide:
                     shared.append(injection)
                     continue
@@ -58,10 +61,9 @@ def actuatorinjections(args: argparse.Namespace, machine, machine_wide: dict[str
                     raise InputError(f"--{kind} {text!r}: on a machine of several actuators {'an' if kind == 'effect' else 'a'} {kind} "
                                      f"names its cylinder: {form} "
                                      f"(actuators: {', '.join(machine.actuator_names)}{alone})")
-                actuator, spec = machine.first.name, text
+                actuator = machine.first.name
             if actuator not in machine.actuator_names:
                 raise InputError(f"--{kind} {text!r}: no actuator {actuator!r} (actuators: {', '.join(machine.actuator_names)})")
-            injection = injections([spec], kind, kind == "fault")[0]
             by_actuator.setdefault(actuator, []).append(injection)
             truth[f"{kind}s"].append({"actuator": actuator, "name": injection.name, "value": injection.value,
                                       "onset_s": injection.onset_s, "ramp_s": injection.ramp_s})

@@ -7,6 +7,7 @@ silently simulating a healthy machine.
 from __future__ import annotations
 
 import enum
+import math
 import re
 from dataclasses import dataclass
 
@@ -90,6 +91,16 @@ INJECTION_UNITS: dict[str, str] = {
 
 INJECTABLE = frozenset(INJECTION_UNITS)
 
+# [low, high] a VALUE can have on a machine (None: unbounded); what lies outside is a typo or a wrong unit, not a fault
+_FRACTION, _SIGNED_FRACTION, _NONNEGATIVE = (0.0, 1.0), (-1.0, 1.0), (0.0, None)
+INJECTION_LIMITS: dict[str, tuple[float | None, float | None]] = {
+    "external_leakage_a": _NONNEGATIVE, "external_leakage_b": _NONNEGATIVE, "external_leakage_ab": _NONNEGATIVE,
+    "internal_leakage": _NONNEGATIVE, "spool_too_small_opening": _FRACTION, "spool_too_large_opening": _NONNEGATIVE,
+    "spool_stuck_closed": _FRACTION, "spool_offset": _SIGNED_FRACTION, "valve_deadzone": _FRACTION, "valve_delay": _NONNEGATIVE,
+    "valve_flow_gain": (-1.0, None), "entrained_air": _FRACTION, "main_spool_locking": _FRACTION, "main_spool_erosion": _NONNEGATIVE,
+    "compensator_spool_locking": _FRACTION, "compensator_spool_erosion": _FRACTION, "pilot_pressure_spool_offset": _SIGNED_FRACTION,
+}
+
 
 # The physical forms an effect of the vocabulary takes on a real machine; the first is the form a bare
 # `effects:` entry has. A config picks another in `effect_forms:`, and `hydro-ros discrepancy` reports
@@ -127,8 +138,12 @@ class Injection:
             )
         if not (self.onset_s >= 0.0 and self.ramp_s >= 0.0):
             raise InputError(f"{self.name}: onset and ramp must be >= 0 s")
-        if self.value != self.value:
-            raise InputError(f"{self.name}: value is NaN")
+        if not math.isfinite(self.value):
+            raise InputError(f"{self.name}: value {self.value} is not finite")
+        low, high = INJECTION_LIMITS.get(self.name, (None, None))
+        if (low is not None and self.value < low) or (high is not None and self.value > high):
+            bounds = f"within [{low:g}, {high:g}]" if low is not None and high is not None else f">= {low:g}"
+            raise InputError(f"{self.name} = {self.value:g}: must be {bounds} ({INJECTION_UNITS[self.name]})")
 
     def level(self, t: float) -> float:
         """Injected value at time ``t`` [s]."""

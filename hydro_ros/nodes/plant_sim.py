@@ -44,7 +44,7 @@ from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine, load_machine_config
-from hydro_ros.contract.names import INJECTION_UNITS
+from hydro_ros.contract.names import INJECTION_UNITS, Injection
 from hydro_ros.contract.samples import Samples
 from hydro_ros.nodes.common import (
     CLOCK_QOS,
@@ -283,9 +283,18 @@ class PlantSim(Node):
         """Why a fault.<name> parameter cannot be set on this plant ("" if it can): on several actuators a fault names its
         cylinder (an arm's payload hangs at its tip, fault.payload_mass); an arm does not simulate every fault."""
         fault = name.rsplit(".", 1)[-1]
+        try:
+            Injection(fault, value)
+        except InputError as exc:
+            return f"{name} refused: {exc}"
         if name == TIP_PAYLOAD and self.source.tip_payload:
-            payload = self.machine.arm.payload if self.machine.arm is not None else 0.0
-            return f"{name} refused: the tip would carry {payload + value:g} kg" if payload + value < 0.0 else ""
+            if self.machine.arm is None:
+                return ""
+            from hydro_ros.models.serial_arm import arm_problems
+
+            payload = self.machine.arm.payload + value
+            refused = [f"the tip would carry {payload:g} kg"] if payload < 0.0 else arm_problems(self.machine, payload)
+            return f"{name} refused: {refused[0]}" if refused else ""
         if fault in self.source.not_per_cylinder:
             return f"{name} refused: {self.source.not_per_cylinder[fault]}"
         if len(self.source.actuators) > 1 and name.count(".") == 1:
@@ -353,7 +362,11 @@ class PlantSim(Node):
         now = self.source.time
         for name, value in self._pending.items():
             actuator, fault = self.source.fault_parameter(name)
-            self.source.set_fault(actuator, fault, value, now)
+            try:
+                self.source.set_fault(actuator, fault, value, now)
+            except InputError as exc:  # what only the plant can judge (a payload its arm cannot hold): not applied, said
+                self.get_logger().error(f"parameter {name} = {value:g} not applied: {exc}")
+                continue
             self.get_logger().info(f"fault {actuator}:{fault} = {value:g} from t = {now:.3f} s")
         self._pending.clear()
 
