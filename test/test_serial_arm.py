@@ -93,7 +93,7 @@ def test_a_cylinder_studied_alone_carries_the_arms_load_at_the_middle_of_its_ran
     """discrepancy and gsa look at one cylinder: its load (``equivalent_load``) gives the arm's gravity force and inertia about
     its joint with every joint at the middle of its range."""
     machine = load_machine_config(REPO / "config" / "boom_arm.yaml")
-    arm = SerialArm(machine.arm, machine.simulation.gravity)
+    arm = SerialArm.of(machine)
     joint = machine.actuator(actuator).joint
     alone = SamModel(machine.only(actuator, equivalent_load(arm, joint)))
     middle = [0.5 * (low + high) for low, high in (link.joint_range for link in arm.links)]

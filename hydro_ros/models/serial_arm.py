@@ -43,6 +43,13 @@ class SerialArm:
         self.joint_names = [link.joint for link in arm.links]
         self.payload = arm.payload
 
+    @classmethod
+    def of(cls, machine: Machine) -> "SerialArm":
+        """The arm of a machine config's ``arm:`` under its simulation's gravity."""
+        if machine.arm is None:
+            raise ValueError(f"config {machine.source}: no arm: section")
+        return cls(machine.arm, machine.simulation.gravity)
+
     def frames(self, q: Sequence[Any], xp: SimpleNamespace = NUMPY) -> list[tuple[Point, Point]]:
         """Each link's joint position and direction (cos, sin) in the plane."""
         x, y = self.arm.origin
@@ -146,7 +153,7 @@ def machine_load(machine: Machine, actuator: str) -> Load:
     own = machine.actuator(actuator)
     if own.load is not None:
         return own.load
-    return equivalent_load(SerialArm(machine.arm, machine.simulation.gravity), own.joint)  # type: ignore[arg-type]
+    return equivalent_load(SerialArm.of(machine), own.joint)
 
 
 def arm_problems(machine: Machine, payload: float | None = None, points: int = 7) -> list[str]:
@@ -156,7 +163,7 @@ def arm_problems(machine: Machine, payload: float | None = None, points: int = 7
     side, at its worst pose. A mass in grams or a payload in the wrong unit shows here before it makes the simulator flail."""
     if machine.arm is None:
         return []
-    arm = SerialArm(machine.arm, machine.simulation.gravity)
+    arm = SerialArm.of(machine)
     payload = arm.payload if payload is None else payload
     grid = np.meshgrid(*[np.linspace(low, high, points) for low, high in (link.joint_range for link in arm.links)], indexing="ij")
     q = [g.ravel() for g in grid]

@@ -108,7 +108,7 @@ class MachineRun:
         if machine.arm is not None:
             faults = {name: [i for i in found if i.name != "payload_mass"] for name, found in injections.items()}
             payload = [i for found in injections.values() for i in found if i.name == "payload_mass"]
-            self.arm = ArmCylinders(machine, SerialArm(machine.arm, machine.simulation.gravity), ArmRun(math.inf, seed, faults, payload))
+            self.arm = ArmCylinders(machine, SerialArm.of(machine), ArmRun(math.inf, seed, faults, payload))
         else:
             self.runs = [start(machine, Scenario(math.inf, tuple(injections.get(name, ())), seed=seed + i, actuator=name))
                          for i, name in enumerate(self.actuators)]

@@ -326,7 +326,7 @@ def plot_machine(machine: Machine, out: str | Path) -> Path:
 def _plot_arm(ax: plt.Axes, machine: Machine) -> None:
     from hydro_ros.models.serial_arm import SerialArm
 
-    arm = SerialArm(machine.arm, machine.simulation.gravity)
+    arm = SerialArm.of(machine)
     ranges = [link.joint_range for link in arm.links]
     grid = np.meshgrid(*[np.linspace(low, high, 25) for low, high in ranges], indexing="ij")
     tip_x, tip_y = arm.tip([g.ravel() for g in grid])
