@@ -216,6 +216,7 @@ def _boom_arm_with(change) -> dict:
      "arm.links[arm_joint].kind: prismatic, but actuator arm's mount is a triangle"),
     (lambda m: m["arm"]["links"].append(dict(m["arm"]["links"][0])), "arm.links[boom_joint].joint: 'boom_joint': has an earlier link"),
     (lambda m: m["arm"]["links"][1].update(range=[-0.5, 0.5 + 2 * np.pi]), "arm.links[arm_joint].range: 4.59823 puts actuator arm's piston at -0.098"),
+    (lambda m: m["arm"]["links"][1]["masses"][0].update(name={"a": 1}), "arm.links[arm_joint].masses[0].name: {'a': 1}: must be a name"),
 ])
 def test_a_malformed_arm_is_refused_naming_its_key(change, problem):
     """Each found by an attack on the arm: section; before, a traceback or a config accepted and simulated wrongly."""

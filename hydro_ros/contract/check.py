@@ -347,6 +347,8 @@ def _arm(found: _Problems, node: Any, actuators: dict, simulation: dict) -> None
             found.numbers(mass, list_entry(f"{path}.masses", m, mass), LINK_MASS, required=("mass", "along"))
             if isinstance(mass, dict):
                 found.unknown(mass, list_entry(f"{path}.masses", m, mass), set(LINK_MASS) | {"name"})
+                if "name" in mass and not isinstance(mass["name"], str):
+                    found.add(f"{path}.masses[{m}].name", f"{mass['name']!r}: must be a name")
         if link.get("joint") in by_joint and "length" in values:
             _range_in_stroke(found, path, link, *by_joint[link["joint"]], simulation)
     for joint, (name, _) in by_joint.items():
