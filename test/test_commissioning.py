@@ -27,10 +27,11 @@ from hydro_ros.studies.commissioning import (
     PARITY_MARGIN,
     FaultFreeRecording,
     commission,
+    evaluated_maximum,
     identify,
     threshold_excess,
 )
-from hydro_ros.studies.fdi_evaluation import mismatched_config
+from hydro_ros.studies.fdi_evaluation import calibrate_threshold_constant, mismatched_config
 from test.conftest import REPO
 
 # each notch off in its own direction, both moduli off, the centre leakage, friction and noise drawn too
@@ -236,5 +237,8 @@ def test_long_recordings_give_rows_at_the_row_rate_and_the_blocks_do_not_change_
 
 def test_a_threshold_is_not_taken_from_data_the_monitor_never_evaluated(sam_config):
     """`machine threshold --duration 5` wrote threshold_constant 0.0: no armed window, no excess, a margin over nothing."""
-    with pytest.raises(InputError, match=r"5.0 s of data: the monitor evaluates only after \d+.\d s"):
-        threshold_excess(FdiMonitor(sam_config), simulate(sam_config, Scenario(5.0, seed=1)))
+    assert np.isnan(threshold_excess(FdiMonitor(sam_config), simulate(sam_config, Scenario(5.0, seed=1))))
+    with pytest.raises(InputError, match=r"5 s of simulated data: too short for the monitor to evaluate"):
+        calibrate_threshold_constant(sam_config, [1], 5.0)
+    # a short recording beside long ones contributes nothing; only when none was evaluated is there no threshold
+    assert evaluated_maximum([float("nan"), 0.02, 0.01], "held-out parts") == 0.02

@@ -237,5 +237,20 @@ def test_an_arm_that_cannot_be_integrated_or_lifted_is_refused_before_it_runs():
     arm = SerialArm(weightless.arm, 0.0)
     load = equivalent_load(arm, "boom_joint")
     inertia, _ = arm.inertia_gravity([0.0, 0.0])
-    assert load.boom_mass * (load.boom_length**2 / 12 + load.boom_cog_distance**2) + load.left_mass * load.load_distance**2 == \
+    assert load.boom_mass * (load.boom_length**2 / 12 + load.boom_cog_distance**2) + (load.left_mass + load.right_mass) * load.load_distance**2 == \
         pytest.approx(inertia[0][0])
+
+
+def test_review_findings_on_malformed_input_stay_one_line(tmp_path):
+    """A key that is a list, a mount that is a word on a prismatic link, an effect a machine cannot have: said, not raised."""
+    from hydro_ros.contract.config import ConfigError
+
+    listed = tmp_path / "listed.yaml"
+    listed.write_text("machine: x\n? [a, b]\n: 1\n")
+    with pytest.raises(ConfigError, match=r"a key that is not a name: \['a', 'b'\] \(line 2\)"):
+        load_machine_config(listed)
+    worded = _boom_arm_with(lambda m: (m["arm"]["links"][1].update(kind="prismatic", range=[0.0, 0.3]),
+                                       m["actuators"]["arm"].update(mount="linear")))
+    assert any(p.startswith("actuators.arm.mount") for p in config_problems(worded))
+    assert "effects.spool_offset: spool_offset = 2: must be within [-1, 1]" in " ".join(
+        config_problems(_boom_arm_with(lambda m: m.update(effects={"spool_offset": 2.0}))))

@@ -18,6 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.names import Injection
+
 NOTCHES = ("PA", "PB", "AT", "BT")
 ANNOTATIONS = ("PLACEHOLDER", "INFERRED")
 
@@ -184,6 +187,15 @@ def config_problems(config: dict[str, Any]) -> list[str]:
     arm = "arm" in config
     for name, actuator in actuators.items():
         _actuator(found, f"actuators.{name}", actuator, crane, arm, _number(simulation.get("end_stop_upper")))
+    effects = config.get("effects")
+    if isinstance(effects, dict):
+        for name, value in effects.items():
+            try:
+                Injection(str(name), float(value))
+            except (InputError, TypeError, ValueError) as exc:
+                found.add(f"effects.{name}", str(exc))
+    elif effects is not None:
+        found.add("effects", "must be a mapping of effect names to values")
     if arm and crane:
         found.add("arm", "a crane's links are its links:, joints: and masses: (kind: crane); remove arm:")
     elif arm:
@@ -328,7 +340,8 @@ def _arm(found: _Problems, node: Any, actuators: dict, simulation: dict) -> None
         joints.append(joint)
         if joint not in by_joint:
             found.add(f"{path}.joint", f"{joint!r}: no actuator drives it (actuators' joints: {', '.join(by_joint)})")
-        elif kind == "prismatic" and (by_joint[joint][1].get("mount") or {}).get("kind", "triangle") != "linear":
+        elif kind == "prismatic" and isinstance(by_joint[joint][1].get("mount"), dict) and \
+                by_joint[joint][1]["mount"].get("kind", "triangle") != "linear":
             found.add(f"{path}.kind", f"prismatic, but actuator {by_joint[joint][0]}'s mount is a triangle: a cylinder sliding a "
                                       "link moves with it (mount.kind: linear)")
         if "range" not in link:
@@ -381,8 +394,11 @@ def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuato
             pistons.append(math.sqrt(max(l1 * l1 + l2 * l2 - 2.0 * l1 * l2 * math.cos(theta), 0.0)) - l3)
     lower = _number(simulation.get("end_stop_lower", 0.0)) or 0.0
     upper = min(stroke, _number(simulation.get("end_stop_upper", stroke)) or stroke)
-    beyond = [(max(lower - x, x - upper), q, x) for q, x in zip(low_high, pistons)]
-    outside = [(q, x) for excess, q, x in sorted(beyond, reverse=True)[:1] if excess > RANGE_SLACK]  # the worst of the range
+    if not pistons:
+        return
+    below = [(lower - x, q, x) for q, x in zip(low_high, pistons)]
+    above = [(x - upper, q, x) for q, x in zip(low_high, pistons)]
+    outside = [(q, x) for side in (below, above) for excess, q, x in [max(side)] if excess > RANGE_SLACK]  # the worst each way
     for q, x in outside:
         found.add(f"{path}.range", f"{q:g} puts actuator {name}'s piston at {x:g} m, outside its end stops {lower:g} to {upper:g} m "
                                    "(its stroke, or simulation.end_stop_lower / _upper)")
@@ -396,7 +412,8 @@ def _actuator(found: _Problems, path: str, node: Any, crane: bool, arm: bool, en
     if "joint" not in node:
         found.add(f"{path}.joint", "missing (its name in /joint_states)")
     elif not isinstance(node["joint"], str):
-        found.add(f"{path}.joint", f"{node['joint']!r}: must be a name (quote a number: '{node['joint']}')")
+        found.add(f"{path}.joint", f"{node['joint']!r}: must be a name" + (f" (quote a number: '{node['joint']}')"
+                                                                          if isinstance(node["joint"], (int, float)) else ""))
     cylinder = found.numbers(node.get("cylinder"), f"{path}.cylinder", CYLINDER, required=tuple(CYLINDER))
     if isinstance(node.get("cylinder"), dict):
         found.unknown(node["cylinder"], f"{path}.cylinder", set(CYLINDER))

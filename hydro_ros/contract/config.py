@@ -4,6 +4,7 @@ A valve-controlled machine's config is then typed by :mod:`hydro_ros.contract.ma
 
 from __future__ import annotations
 
+import collections.abc
 import copy
 from pathlib import Path
 from typing import Any
@@ -63,7 +64,9 @@ def _unique_keys(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = 
     for key_node, _ in node.value:
         if key_node.tag == "tag:yaml.org,2002:merge":  # << merges a mapping in; its keys are the merged one's
             continue
-        key = loader.construct_object(key_node, deep=deep)
+        key = loader.construct_object(key_node, deep=True)  # a key's own content, to name it
+        if not isinstance(key, collections.abc.Hashable):
+            raise yaml.constructor.ConstructorError(None, None, f"a key that is not a name: {key!r} (line {key_node.start_mark.line + 1})")
         if key in seen:
             raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r} (line {key_node.start_mark.line + 1})")
         seen.add(key)
@@ -92,10 +95,10 @@ def _read_merged(path: Path, extended_by: tuple[Path, ...] = ()) -> dict[str, An
             raise ConfigError(f"config {path}: extends = {extends!r}: expected the path of the config it varies")
         base_path = path.parent / extends
         chain = (*extended_by, path.resolve())
-        if base_path.resolve() == path.resolve():
-            raise ConfigError(f"config {path}: extends itself")
         if base_path.resolve() in chain:
-            raise ConfigError(f"config {path}: extends {extends}, which extends it in turn")
+            cycle = [p.name for p in chain[chain.index(base_path.resolve()):]] + [base_path.name]
+            raise ConfigError(f"config {path}: extends itself" if len(cycle) == 2 else
+                              f"config {path}: extends a config that extends it ({' -> '.join(cycle)})")
         raw = with_overrides(_read_merged(base_path, chain), raw)
     if "fitted" in raw:
         # values a tool fitted (hydro-ros fdi fit) live in their own block at the end of the file

@@ -96,7 +96,7 @@ _FRACTION, _SIGNED_FRACTION, _NONNEGATIVE = (0.0, 1.0), (-1.0, 1.0), (0.0, None)
 INJECTION_LIMITS: dict[str, tuple[float | None, float | None]] = {
     "external_leakage_a": _NONNEGATIVE, "external_leakage_b": _NONNEGATIVE, "external_leakage_ab": _NONNEGATIVE,
     "internal_leakage": _NONNEGATIVE, "spool_too_small_opening": _FRACTION, "spool_too_large_opening": _NONNEGATIVE,
-    "spool_stuck_closed": _FRACTION, "spool_offset": _SIGNED_FRACTION, "valve_deadzone": _FRACTION, "valve_delay": _NONNEGATIVE,
+    "spool_stuck_closed": _FRACTION, "spool_offset": _SIGNED_FRACTION, "valve_deadzone": (0.0, 0.95), "valve_delay": _NONNEGATIVE,
     "valve_flow_gain": (-1.0, None), "entrained_air": _FRACTION, "main_spool_locking": _FRACTION, "main_spool_erosion": _NONNEGATIVE,
     "compensator_spool_locking": _FRACTION, "compensator_spool_erosion": _FRACTION, "pilot_pressure_spool_offset": _SIGNED_FRACTION,
 }

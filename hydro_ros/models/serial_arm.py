@@ -140,9 +140,9 @@ def equivalent_load(arm: SerialArm, joint: str) -> Load:
     added = float(inertia[index][index]) - mass * (length**2 / 12.0 + cog**2)  # [kg m^2] m_L L^2
     if added <= 1e-12:
         return Load(mass, length, cog, 0.0, 0.0, link.length)
-    if abs(moment) < 1e-9:  # no moment to carry (or no gravity): the inertia at the link's end
+    if abs(moment) < 1e-9:  # no moment to carry (or no gravity): the inertia as two equal masses either side of the joint
         reach = link.length or 1.0
-        return Load(mass, length, cog, added / reach**2, 0.0, reach)
+        return Load(mass, length, cog, added / (2.0 * reach**2), added / (2.0 * reach**2), reach)
     # one mass m_L at L with m_L L = moment and m_L L^2 = added; a negative moment is the right-hand mass
     distance, carried = added / abs(moment), moment * moment / added
     return Load(mass, length, cog, carried if moment > 0 else 0.0, carried if moment < 0 else 0.0, distance)

@@ -287,6 +287,10 @@ class PlantSim(Node):
             Injection(fault, value)
         except InputError as exc:
             return f"{name} refused: {exc}"
+        from hydro_ros.models.sam import DELAY_BUFFER
+
+        if fault == "valve_delay" and value * self.machine.sample_rate_hz >= DELAY_BUFFER:
+            return f"{name} refused: {value:g} s is beyond the {DELAY_BUFFER / self.machine.sample_rate_hz:.2f} s of commands the plant keeps"
         if name == TIP_PAYLOAD and self.source.tip_payload:
             if self.machine.arm is None:
                 return ""

@@ -172,9 +172,11 @@ class ArmCylinders:
         steps = sorted(run.payload, key=lambda step: step.onset_s)
         tip = arm.payload + np.cumsum([0.0] + [step.value for step in steps])
         self._check_tip_mass(tip)
-        refused = arm_problems(machine, float(tip.max()))
-        if refused:
-            raise InputError(f"config {machine.source}: {refused[0]}")
+        for payload in sorted({float(tip.min()), float(tip.max())}):  # the lightest may leave a joint no inertia, the heaviest unheld
+            refused = arm_problems(machine, payload)
+            if refused:
+                given = f"config {machine.source}" if payload == arm.payload else f"payload_mass steps to {payload:g} kg at the tip"
+                raise InputError(f"{given}: {refused[0]}")
         self.models = [SamModel(machine, by_joint[name].name) for name in arm.joint_names]  # link order, as the state
         # the machine config's actuator i is link order[i]
         self.order = [arm.joint_names.index(a.joint) for a in machine.actuators]

@@ -29,6 +29,7 @@ the method's own, because each is what the thesis validated with its residual:
 from __future__ import annotations
 
 import datetime
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -189,7 +190,8 @@ def notch_gain_rows(regression: FlowRegression, model: SamModel, notches: Sequen
 
 
 def threshold_excess(monitor: FdiMonitor, samples: Samples) -> float:
-    """The largest armed 5 s mean residual above the quadratic term of eq. (25) [MPa] on fault-free samples."""
+    """The largest armed 5 s mean residual above the quadratic term of eq. (25) [MPa] on fault-free samples; NaN where the
+    monitor never armed on them."""
     settings = monitor.settings
     arms = monitor.startup + monitor.window  # where the monitor itself arms
     maxima = []
@@ -200,10 +202,17 @@ def threshold_excess(monitor: FdiMonitor, samples: Samples) -> float:
         excess = excess[np.isfinite(excess)]
         if excess.size:
             maxima.append(float(excess.max()))
-    if not maxima:  # no margin over nothing: a threshold of 0 would alarm on the first sample
-        raise InputError(f"{len(samples) / monitor.sample_rate:.1f} s of data: the monitor evaluates only after "
-                         f"{arms / monitor.sample_rate:.1f} s, so there is no residual to take a threshold from")
-    return max(maxima)
+    return max(maxima, default=math.nan)  # NaN: the monitor never evaluated this data (shorter than its arming)
+
+
+def evaluated_maximum(excesses: Sequence[float], data: str) -> float:
+    """The largest of ``threshold_excess`` over data the monitor evaluated; InputError naming ``data`` where it evaluated
+    none (a margin over nothing: a threshold of 0 would alarm on the first sample)."""
+    evaluated = [excess for excess in excesses if math.isfinite(excess)]
+    if not evaluated:
+        raise InputError(f"{data}: too short for the monitor to evaluate (it arms after startup_s + window_s), so there is no "
+                         "residual to take a threshold from")
+    return max(max(evaluated), 0.0)
 
 
 def adaptive_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequence[Samples],
@@ -213,12 +222,13 @@ def adaptive_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Se
     The residual must not drift: a held-out excess more than DRIFT_FACTOR times the identified part's (and above
     DRIFT_FLOOR) is a fault developing in the recording, and the recording is refused rather than learnt.
     """
-    worst = 0.0
+    reached = []
     for samples in held_out:
-        worst = max(worst, threshold_excess(FdiMonitor(machine), samples))
+        reached.append(threshold_excess(FdiMonitor(machine), samples))
         if progress:
             progress("threshold")
-    before = max((threshold_excess(FdiMonitor(machine), samples) for samples in fitted), default=0.0)
+    worst = evaluated_maximum(reached, "commission: the held-out parts (last thirds of the recordings)")
+    before = max((excess for samples in fitted if math.isfinite(excess := threshold_excess(FdiMonitor(machine), samples))), default=0.0)
     if worst > DRIFT_FLOOR and worst > DRIFT_FACTOR * before:
         raise InputError(f"commission: the residual drifts: the held-out part (last third) reaches {worst:.4f} MPa over the "
                          f"quadratic term, the identified part {before:.4f} MPa (more than {DRIFT_FACTOR:g}x): a fault developing "

@@ -25,7 +25,7 @@ from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds, closed_statistics, passes_nothing
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.sim.scenario import MachineRun, simulate_machine
-from hydro_ros.studies.commissioning import threshold_excess
+from hydro_ros.studies.commissioning import evaluated_maximum, threshold_excess
 
 # Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order
 # fit RMSE is 1-2 % of K_v, an identified valve on another day/temperature is worse: 5 %.
@@ -133,9 +133,9 @@ def calibrate_threshold_constant(machine: Machine, seeds: Iterable[int], duratio
     excess of a fault-free 5 s mean residual over the quadratic term, times a safety margin, over
     training seeds that the evaluation does not use.
     """
-    worst = max(threshold_excess(FdiMonitor(machine), simulate_machine(mismatched_config(machine, seed), duration_s, seed=seed))
-                for seed in seeds)
-    return margin * max(worst, 0.0)
+    worst = evaluated_maximum([threshold_excess(FdiMonitor(machine), simulate_machine(mismatched_config(machine, seed), duration_s, seed=seed))
+                               for seed in seeds], f"{duration_s:g} s of simulated data")
+    return margin * worst
 
 
 def run_case(machine: Machine, case: Case) -> Outcome:
