@@ -40,10 +40,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def actuatorinjections(args: argparse.Namespace, machine, machine_wide: dict[str, str]) -> tuple[dict[str, list], list, dict[str, list]]:
     """--fault / --effect of each actuator (ACTUATOR:NAME=VALUE@T[:RAMP]); a one-actuator machine may leave its actuator
-    out. ``machine_wide``: names that act on the whole machine (a crane's payload), with where they act."""
+    out. ``machine_wide``: names that act on the whole machine (a crane's or an arm's payload), with where they act; the
+    truth lists them as ``payload``."""
     by_actuator: dict[str, list] = {}
     shared: list = []
-    truth: dict[str, list] = {"faults": [], "effects": []}
+    truth: dict[str, list] = {"faults": [], "effects": [], **({"payload": []} if machine_wide else {})}
     for kind, texts in (("fault", args.fault), ("effect", args.effect)):
         for text in texts:
             actuator, separator, spec = text.partition(":")
@@ -54,6 +55,8 @@ def actuatorinjections(args: argparse.Namespace, machine, machine_wide: dict[str
             if not named:
                 if injection.name in machine_wide:
                     shared.append(injection)
+                    truth["payload"].append({"name": injection.name, "value": injection.value, "onset_s": injection.onset_s,
+                                             "ramp_s": injection.ramp_s})
                     continue
                 if len(machine.actuators) > 1:
                     form = "ACTUATOR:NAME=VALUE@T[:RAMP]" if kind == "fault" else "ACTUATOR:NAME=VALUE"
@@ -91,9 +94,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         raise InputError(f"{', '.join(given)}: crane configs only ({args.config} is not a crane)")
     # an arm's payload hangs at its tip (MachineRun takes it from any actuator's list)
     injections, payload, truth = actuatorinjections(args, machine, {"payload_mass": "at the tip"} if machine.arm is not None else {})
-    if payload:
-        injections.setdefault(machine.first.name, []).extend(payload)
-        truth["payload"] = [{"name": i.name, "value": i.value, "onset_s": i.onset_s, "ramp_s": i.ramp_s} for i in payload]
+    injections.setdefault(machine.first.name, []).extend(payload)
     plant = MachineRun(machine, injections, seed=args.seed)
     total = int(round(args.duration * machine.sample_rate_hz))
     with bag_or_nothing(args.out):
@@ -139,8 +140,7 @@ def sim_crane(args: argparse.Namespace, machine) -> int:
     with writer, tqdm(total=int(round(args.duration * machine.sample_rate_hz)), unit="sample", desc="simulate", disable=args.quiet) as bar:
         writer.set_truth({"machine": machine.name, "config": machine.source.name, "seed": args.seed, "duration_s": args.duration,
                           "work_cycle": work,
-                          **truth, "payload": [{"name": i.name, "value": i.value, "onset_s": i.onset_s, "ramp_s": i.ramp_s}
-                                               for i in payload]})
+                          **truth})
         for _, block in plant.blocks():
             writer.write_machine_block(block)
             bar.update(len(block))

@@ -26,7 +26,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from hydro_ros.contract.machine import Arm, Load, Machine
+from hydro_ros.contract.machine import Arm, ArmLink, Load, Machine
 from hydro_ros.models.kinematics import MOUNT_KINDS, mount_arm
 
 NUMPY = SimpleNamespace(cos=np.cos, sin=np.sin)
@@ -59,8 +59,13 @@ class SerialArm:
             if link.kind == "revolute":
                 angle = angle + qi
             frames.append(((x, y), (xp.cos(angle), xp.sin(angle))))
-            x, y = self._on_link(frames[-1], link.length + (qi if link.kind == "prismatic" else 0.0), link.offset)
+            x, y = self._on_link(frames[-1], link.length + self._slide(link, qi), link.offset)
         return frames
+
+    @staticmethod
+    def _slide(link: ArmLink, q: Any) -> Any:
+        """How far along itself a link has slid: a prismatic link by its joint, a revolute one not at all."""
+        return q if link.kind == "prismatic" else 0.0
 
     @staticmethod
     def _on_link(frame: tuple[Point, Point], along: Any, across: float) -> Point:
@@ -71,7 +76,7 @@ class SerialArm:
         """The end of the last link."""
         frames = self.frames(q, xp)
         last = self.links[-1]
-        return self._on_link(frames[-1], last.length + (q[-1] if last.kind == "prismatic" else 0.0), last.offset)
+        return self._on_link(frames[-1], last.length + self._slide(last, q[-1]), last.offset)
 
     def columns(self, point: Point, link: int, frames: list[tuple[Point, Point]]) -> list[Point]:
         """d point / d q_j of a point fixed on link ``link``, for every joint j."""
@@ -96,20 +101,18 @@ class SerialArm:
         frames = self.frames(q)
         inertia: list[list[Any]] = [[0.0] * n for _ in range(n)]
         gravity: list[Any] = [0.0] * n
-        carried = [(i, mass.mass, self._on_link(frames[i], mass.along + (q[i] if link.kind == "prismatic" else 0.0), mass.across),
+        carried = [(i, mass.mass, self._on_link(frames[i], mass.along + self._slide(link, q[i]), mass.across),
                     mass.inertia)
                    for i, link in enumerate(self.links) for mass in link.masses]
         tip_mass = self.payload if payload is None else payload
         if tip_mass:
             carried.append((n - 1, tip_mass, self.tip(q), 0.0))
         for link, mass, point, rotational in carried:
-            columns = self.columns(point, link, frames)
-            turned = [j <= link and self.links[j].kind == "revolute" for j in range(n)]
+            columns = self.columns(point, link, frames)[:link + 1]  # the joints beyond its link do not move it
+            turned = [self.links[j].kind == "revolute" for j in range(link + 1)]
             for j, (d_x, d_y) in enumerate(columns):
-                if j > link:
-                    continue
                 gravity[j] = gravity[j] + mass * self.gravity * d_y
-                for k, (e_x, e_y) in enumerate(columns[:link + 1]):
+                for k, (e_x, e_y) in enumerate(columns):
                     inertia[j][k] = inertia[j][k] + mass * (d_x * e_x + d_y * e_y) + (rotational if turned[j] and turned[k] else 0.0)
         return inertia, gravity
 
@@ -171,11 +174,13 @@ def arm_problems(machine: Machine, payload: float | None = None, points: int = 7
     matrices = np.stack([np.stack([np.broadcast_to(np.asarray(m, dtype=float), q[0].shape) for m in row], axis=-1) for row in inertia],
                         axis=-2)
     singular = np.linalg.cond(matrices) > 1e12
+
+    def pose(index: int) -> str:
+        return ", ".join(f"{name} = {qi[index]:.2f}" for name, qi in zip(arm.joint_names, q))
+
     if singular.any():
-        worst = int(np.argmax(singular))
-        pose = ", ".join(f"{name} = {qi[worst]:.2f}" for name, qi in zip(arm.joint_names, q))
-        return [f"arm: its links' masses leave a joint with no inertia at {pose} (M(q) singular): every joint must move a "
-                "mass off its axis (its link's, one beyond, or the payload)"]
+        return [f"arm: its links' masses leave a joint with no inertia at {pose(int(np.argmax(singular)))} (M(q) singular): every "
+                "joint must move a mass off its axis (its link's, one beyond, or the payload)"]
     by_joint = {a.joint: a for a in machine.actuators}
     out = []
     for index, joint in enumerate(arm.joint_names):
@@ -189,9 +194,8 @@ def arm_problems(machine: Machine, payload: float | None = None, points: int = 7
                             machine.supply_pressure * (area_a - math.pi * cylinder.rod_diameter**2 / 4.0))
         worst = int(np.argmax(np.abs(force) / capacity))
         if abs(force[worst]) > capacity[worst]:
-            pose = ", ".join(f"{name} = {qi[worst]:.2f}" for name, qi in zip(arm.joint_names, q))
             out.append(f"arm: actuator {actuator.name}'s cylinder cannot hold the arm and its {payload:g} kg payload: it must "
-                       f"{'push' if force[worst] > 0 else 'pull'} {abs(force[worst]) / 1e3:.1f} kN at {pose}, its "
+                       f"{'push' if force[worst] > 0 else 'pull'} {abs(force[worst]) / 1e3:.1f} kN at {pose(worst)}, its "
                        f"{'piston' if force[worst] > 0 else 'rod'} side gives {capacity[worst] / 1e3:.1f} kN at supply pressure "
                        "(a mass in grams? masses are kg)")
     return out

@@ -122,6 +122,10 @@ class SamSource:
     def set_fault(self, actuator: str, name: str, value: float, now: float) -> None:
         self.plant.set_fault(actuator, name, value, now)
 
+    def payload_problem(self, value: float) -> str:
+        """Why a tip payload_mass of ``value`` cannot be set (an arm's; ``tip_payload`` says whether there is one)."""
+        return self.plant.arm.payload_problem(value) if self.plant.arm is not None else ""
+
     def active_faults(self) -> list[str]:
         faults = self.plant.active_faults()
         return faults if len(self.actuators) > 1 else [fault.split(":", 1)[-1] for fault in faults]
@@ -167,6 +171,9 @@ class CraneSource:
 
     def set_fault(self, actuator: str, name: str, value: float, now: float) -> None:
         self.plant.set_fault(actuator, name, value, now)
+
+    def payload_problem(self, value: float) -> str:
+        return self.plant.payload_problem(value)
 
     def active_faults(self) -> list[str]:
         return self.plant.active_faults()
@@ -292,13 +299,8 @@ class PlantSim(Node):
         if fault == "valve_delay" and value * self.machine.sample_rate_hz >= DELAY_BUFFER:
             return f"{name} refused: {value:g} s is beyond the {DELAY_BUFFER / self.machine.sample_rate_hz:.2f} s of commands the plant keeps"
         if name == TIP_PAYLOAD and self.source.tip_payload:
-            if self.machine.arm is None:
-                return ""
-            from hydro_ros.models.serial_arm import arm_problems
-
-            payload = self.machine.arm.payload + value
-            refused = [f"the tip would carry {payload:g} kg"] if payload < 0.0 else arm_problems(self.machine, payload)
-            return f"{name} refused: {refused[0]}" if refused else ""
+            problem = self.source.payload_problem(value)
+            return f"{name} refused: {problem}" if problem else ""
         if fault in self.source.not_per_cylinder:
             return f"{name} refused: {self.source.not_per_cylinder[fault]}"
         if len(self.source.actuators) > 1 and name.count(".") == 1:

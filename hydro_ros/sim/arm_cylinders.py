@@ -171,12 +171,11 @@ class ArmCylinders:
                     raise InputError(f"fault {actuator}:{injection.name}: {NOT_PER_CYLINDER[injection.name]}")
         steps = sorted(run.payload, key=lambda step: step.onset_s)
         tip = arm.payload + np.cumsum([0.0] + [step.value for step in steps])
-        self._check_tip_mass(tip)
         for payload in sorted({float(tip.min()), float(tip.max())}):  # the lightest may leave a joint no inertia, the heaviest unheld
-            refused = arm_problems(machine, payload)
-            if refused:
+            problem = self.tip_problem(payload)
+            if problem:
                 given = f"config {machine.source}" if payload == arm.payload else f"payload_mass steps to {payload:g} kg at the tip"
-                raise InputError(f"{given}: {refused[0]}")
+                raise InputError(f"{given}: {problem}")
         self.models = [SamModel(machine, by_joint[name].name) for name in arm.joint_names]  # link order, as the state
         # the machine config's actuator i is link order[i]
         self.order = [arm.joint_names.index(a.joint) for a in machine.actuators]
@@ -231,10 +230,9 @@ class ArmCylinders:
         """``name`` of size ``value`` (0: none) in ``actuator``'s cylinder from ``now_s`` on, replacing its previous size; a
         ``payload_mass`` hangs at the tip whichever actuator names it. InputError for a fault this plant does not simulate."""
         if name == "payload_mass":
-            self._check_tip_mass(np.array([self.arm.payload + value]))
-            refused = arm_problems(self.machine, self.arm.payload + value)
-            if refused:
-                raise InputError(f"fault payload_mass={value:g}: {refused[0]}")
+            problem = self.payload_problem(value)
+            if problem:
+                raise InputError(f"fault payload_mass={value:g}: {problem}")
             replace_injection(self.run.payload, name, value, now_s)
             return
         if name in NOT_PER_CYLINDER:
@@ -243,10 +241,17 @@ class ArmCylinders:
         replace_injection(self.run.faults.setdefault(actuator, []), name, value, now_s)
         replace_injection(self.sensors[index].injections, name, value, now_s)
 
-    def _check_tip_mass(self, masses: np.ndarray) -> None:
-        if len(masses) and masses.min() < 0.0:
-            raise InputError(f"payload_mass: the tip would carry {masses.min():g} kg (the arm's payload {self.arm.payload:g} kg plus the "
-                             "steps); a payload change is added to it")
+    def payload_problem(self, value: float) -> str:
+        """Why a ``payload_mass`` of ``value`` [kg], added to the arm's payload, cannot be set ("" if it can)."""
+        return self.tip_problem(self.arm.payload + value)
+
+    def tip_problem(self, tip_mass: float) -> str:
+        """Why the arm cannot carry ``tip_mass`` [kg] at its tip ("" if it can): a negative mass, or ``arm_problems``."""
+        if tip_mass < 0.0:
+            return (f"the tip would carry {tip_mass:g} kg (the arm's payload {self.arm.payload:g} kg plus the steps; a payload change "
+                    "is added to it)")
+        problems = arm_problems(self.machine, tip_mass) if self.machine.arm is not None else []
+        return problems[0] if problems else ""
 
     def active_faults(self) -> list[str]:
         """``actuator:name=value`` of every fault set, and ``payload_mass=value`` at the tip."""
