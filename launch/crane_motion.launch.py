@@ -45,8 +45,10 @@ def generate_launch_description() -> LaunchDescription:
                                           "joint_state_source": LaunchConfiguration("joint_state_source"), "require_monitor": True}])
     configure = EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(executor), transition_id=Transition.TRANSITION_CONFIGURE),
                           condition=IfCondition(LaunchConfiguration("auto_configure")))
+    # activate after launch's own configure only (configuring -> inactive, once): a deactivate, or an operator's
+    # cleanup -> configure, also ends in inactive and must leave the node stopped (ros2_socketcan's launch habit)
     activate = RegisterEventHandler(OnStateTransition(
-        target_lifecycle_node=executor, goal_state="inactive",
+        target_lifecycle_node=executor, start_state="configuring", goal_state="inactive", handle_once=True,
         entities=[EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(executor), transition_id=Transition.TRANSITION_ACTIVATE))]),
         condition=IfCondition(LaunchConfiguration("auto_activate")))
     return LaunchDescription([*arguments, server, executor, activate, configure])

@@ -15,6 +15,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "hydro_ros"
 LAYER = {
     "contract": 0,
     "bags": 1,
+    "safety": 1,  # the safety core: pure state machines, no ROS
     "can": 2,
     "models": 3,
     "sim": 4, "fdi": 4, "planning": 4,
@@ -27,7 +28,7 @@ LAYER = {
     "reproduction": 9,  # the papers' claims against bench/results
     "docgen": 10,  # documents the nodes' tables and the CLI's parser
 }
-SCIENCE = {"contract", "bags", "can", "models", "sim", "fdi", "planning", "studies", "hmi"}
+SCIENCE = {"contract", "safety", "bags", "can", "models", "sim", "fdi", "planning", "studies", "hmi"}
 ROS_MODULES = ("rclpy", "rosidl", "rmw", "std_msgs", "sensor_msgs", "diagnostic_msgs", "trajectory_msgs", "std_srvs",
                "geometry_msgs", "rosgraph_msgs", "builtin_interfaces", "control_msgs")
 

@@ -23,8 +23,8 @@ from hydro_ros.fdi.residuals import BlockInput, MovingAverage, generator_for
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.fdi.ukf import PRESSURE_UNIT
 from hydro_ros.models.sam import SamModel
+from hydro_ros.safety.supervisor import ERROR, OK, STALE, WARN  # noqa: F401 - the levels, named once
 
-OK, WARN, ERROR, STALE = 0, 1, 2, 3  # diagnostic_msgs/DiagnosticStatus levels
 SUPPLY = CHANNELS.index("supply_pressure")
 
 

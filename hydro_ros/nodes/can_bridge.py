@@ -62,6 +62,7 @@ from hydro_ros.nodes.common import (
     run_node,
 )
 from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.safety.motion import ValveDeadman
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 QUEUE_LIMIT = 200_000  # frames; beyond this the oldest are dropped and counted (the node is far behind)
@@ -176,10 +177,9 @@ class CanBridge(LifecycleNode):
         self._entities: list[Any] = []  # publishers, timers and the subscription of the configured state
         self._request_counter = 0
         self.command_timeout = self.params["command_timeout"]
-        self.command_time: dict[str, float] = {}  # actuator -> monotonic time of its last command (or neutral request)
+        self.deadman: ValveDeadman | None = None  # the forwarded valves' last commands (or neutral requests), from activation
         self.refused_commands = 0
         self.deadman_neutrals = 0
-        self._forward_since = time.monotonic()
         if self.params["autostart"]:
             self._autostart(backoff[0])
 
@@ -269,8 +269,9 @@ class CanBridge(LifecycleNode):
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.active = True
-        self._forward_since = time.monotonic()
-        self.command_time.clear()
+        valves = [slot.actuator for slot in self.codec.slots]
+        self.deadman = ValveDeadman(valves, self.command_timeout)
+        self.deadman.command(dict.fromkeys(valves, 0.0), time.monotonic())  # neutral until a controller speaks
         self.get_logger().info("active: publishing" + (" and forwarding valve commands" if self.forward else ""))
         return super().on_activate(state)
 
@@ -376,25 +377,24 @@ class CanBridge(LifecycleNode):
             self.refused_commands += 1
             self.get_logger().error(f"{topics.VALVE_COMMANDS} refused: {'; '.join(f'{a} {why}' for a, why in refused.items())}: "
                                     "commanded neutral", throttle_duration_sec=2.0)
-        now = time.monotonic()
+        commands = {**dict.fromkeys(refused, 0.0), **accepted}
         for slot in self.codec.slots:
-            if slot.actuator in accepted or slot.actuator in refused:
-                command = accepted.get(slot.actuator, 0.0)
-                self.reader.send(*self.codec.encode_request(slot.actuator, command, self._request_counter))
-                self.command_time[slot.actuator] = now
+            if slot.actuator in commands:
+                self.reader.send(*self.codec.encode_request(slot.actuator, commands[slot.actuator], self._request_counter))
+        self.deadman.command(commands, time.monotonic())
         self._request_counter = (self._request_counter + 1) % 16
 
     def _deadman(self, now: float) -> None:
         """Neutral requests for every valve whose last command is older than command_timeout (a dead or silent controller)."""
-        stale = [slot for slot in self.codec.slots if now - self.command_time.get(slot.actuator, self._forward_since) > self.command_timeout]
+        stale = self.deadman.expired(now) if self.deadman is not None else []
         if not stale or self.reader is None:
             return
-        for slot in stale:
-            self.reader.send(*self.codec.encode_request(slot.actuator, 0.0, self._request_counter))
-            self.command_time[slot.actuator] = now
+        for actuator in stale:
+            self.reader.send(*self.codec.encode_request(actuator, 0.0, self._request_counter))
+        self.deadman.command(dict.fromkeys(stale, 0.0), now)  # sent again every command_timeout while none comes
         self._request_counter = (self._request_counter + 1) % 16
         self.deadman_neutrals += 1
-        self.get_logger().warning(f"no valve command for {self.command_timeout:g} s: {', '.join(s.actuator for s in stale)} "
+        self.get_logger().warning(f"no valve command for {self.command_timeout:g} s: {', '.join(stale)} "
                                   "commanded neutral", throttle_duration_sec=5.0)
 
     # health ------------------------------------------------------------------------------------

@@ -20,6 +20,7 @@ from rclpy.timer import Timer
 from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
 from hydro_ros.nodes.parameters import Spec
+from hydro_ros.safety.motion import HEARTBEAT_TIMEOUT_S, VALVE_COMMAND_TIMEOUT_S
 
 SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=topics.SENSOR_QUEUE_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
 # State that late joiners must see (halt, catalog, results).
@@ -31,12 +32,12 @@ LATEST_ONLY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliabili
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 # operator services: rclpy's default keeps 10 requests, and the rest of a burst was lost unanswered
 SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-# /fdi/halt: latched, and re-published every HALT_PERIOD_S with an offered deadline, so a consumer that
-# asks for a deadline (or watches the heartbeat) can tell "no halt" from "monitor dead"
-HALT_PERIOD_S = 0.5
+# /fdi/halt: latched, re-published every HEARTBEAT_PERIOD_S with an offered deadline of the heartbeat timeout, so a
+# consumer that asks for a deadline can tell a live monitor from a dead one; what a sample authorises is decided by its
+# source stamp (hydro_ros.safety.motion), never by its arrival: a latched sample replayed to a late joiner is old
 HALT_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    deadline=Duration(seconds=3 * HALT_PERIOD_S),
+    deadline=Duration(seconds=HEARTBEAT_TIMEOUT_S),
 )
 
 
@@ -51,8 +52,9 @@ SAMPLE_OUTPUT_PARAMETERS = {
 
 
 # every consumer of /hydraulics/valve_commands (can_bridge forwarding, plant_sim, crane_sim) goes neutral when its
-# freshest command is older than this: a controller that died (SIGKILL) cannot leave a valve open
-VALVE_COMMAND_TIMEOUT = Spec(0.2, "[s wall] a valve whose last command is older than this is commanded neutral (deadman)", 0.01, 5.0)
+# freshest command is older than this (hydro_ros.safety.motion.ValveDeadman): a controller that died cannot leave a valve open
+VALVE_COMMAND_TIMEOUT = Spec(VALVE_COMMAND_TIMEOUT_S, "[s wall] a valve whose last command is older than this is commanded "
+                                                      "neutral (deadman)", 0.01, 5.0)
 
 
 def checked_valve_commands(names: list[str], positions: list[float], actuators: list[str]) -> tuple[dict[str, float], dict[str, str]]:

@@ -35,11 +35,12 @@ from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import load_crane
-from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, checked_valve_commands, relative, run_node
+from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, VALVE_COMMAND_TIMEOUT, checked_valve_commands, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.planning.controller import CylinderReference
 from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import JointTrajectoryData
+from hydro_ros.safety.motion import ValveDeadman
 from hydro_ros.studies.execution import ClosedLoop, execution_from_rows, log_row, measures
 
 MAX_CATCH_UP_S = 0.25
@@ -59,8 +60,7 @@ PARAMETERS = {
     "publish_rate": Spec(50.0, "[Hz] rate of the sensor topics", 1.0, 1000.0),
     "external_commands": Spec(False, "take the valve commands from /hydraulics/valve_commands (an outside controller, e.g. "
                                      "trajectory_executor) instead of following trajectories itself"),
-    "command_timeout": Spec(0.1, "[s wall] with external_commands, valves go neutral when no command is this fresh",
-                            0.001, 10.0),
+    "command_timeout": VALVE_COMMAND_TIMEOUT,
 }
 
 
@@ -89,9 +89,7 @@ class CraneSim(Node):
         # relative names: /joint_states etc. by default, /<ns>/joint_states for a machine in a namespace
         self.pub_joints = self.create_publisher(JointState, relative(topics.JOINT_STATES), SENSOR_QOS)
         self.external = self.params["external_commands"]
-        self.command_timeout = self.params["command_timeout"]
-        self.external_command = np.zeros(len(self.names))
-        self.external_command_time = -math.inf
+        self.deadman = ValveDeadman(self.names, self.params["command_timeout"])
         if self.external:  # the valve commands are the outside controller's topic, not this node's
             self.pub_commands = None
             self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._on_valve_commands, SENSOR_QOS)
@@ -143,8 +141,8 @@ class CraneSim(Node):
         accepted, refused = checked_valve_commands(list(msg.name), list(msg.position), self.names)
         if refused:
             self.get_logger().error(f"{topics.VALVE_COMMANDS} refused: {refused}: neutral", throttle_duration_sec=2.0)
-        self.external_command = np.array([accepted.get(name, 0.0) for name in self.names])
-        self.external_command_time = time.monotonic()
+        # a message sets every cylinder: one it does not name (or refuses) is neutral
+        self.deadman.command({name: accepted.get(name, 0.0) for name in self.names}, time.monotonic())
 
     def _hold(self) -> None:
         """Stop where the crane is: track its current joints, at rest."""
@@ -181,8 +179,8 @@ class CraneSim(Node):
         steps = min(int((target - loop.time) / loop.plant.dt), int(MAX_CATCH_UP_S / loop.plant.dt))
         command = None
         if self.external:
-            fresh = time.monotonic() - self.external_command_time <= self.command_timeout
-            command = self.external_command if fresh else np.zeros(len(self.names))
+            outputs = self.deadman.outputs(time.monotonic())
+            command = np.array([outputs[name] for name in self.names])
         for _ in range(max(steps, 0)):
             loop.advance(command)
             if loop.steps % self.publish_every == 0:

@@ -18,10 +18,13 @@ reading is invalid (non-finite, implausible, frozen: ``hydro_ros/sensors/<actuat
 is STALE ``not_monitored``; when samples arrive incomplete it is WARN ``overloaded``. All counters
 are in the diagnostic values.
 
-Halt: ``true`` whenever a severe fault is latched; ``false`` only while every actuator is armed,
-evaluated (its evidence explained), fresh and not overloaded. While any actuator is blind (stale,
-not monitored, overloaded, inputs stopped) the heartbeat stops: silence means "not vouched for", and a
-trajectory_executor requiring the monitor stops within three heartbeat periods.
+Halt and alarms are decided by the safety core (:class:`hydro_ros.safety.supervisor.MonitorSupervisor`); this node
+feeds it what the monitor knows after every processing tick and publishes its decisions. ``/fdi/halt`` is a heartbeat
+(every ``HEARTBEAT_PERIOD_S`` and at once on a change): ``false`` only while every actuator is vouched for (armed,
+fresh, valid, not overloaded, its evidence explained, evaluated on a window of samples since its last gap, time jump,
+invalid reading, overload, restart or reset); ``true`` otherwise, so a late subscriber of the latch reads ``true``
+from a blind monitor. The reason ("paused: ..." for a hold, "stop: ..." for a severe fault) is the machine-wide status
+``hydro_ros/fdi_halt`` on /diagnostics.
 
 Acknowledge silences an alarm (``acknowledged`` in its status), never clears it: a latched fault stays
 until a reset. A reset re-arms the filters and keeps every fault that was latched shown (``rechecking``)
@@ -53,16 +56,18 @@ from hydro_ros.bags.cdr import CdrError
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.contract.names import Fault
 from hydro_ros.contract.samples import PER_ACTUATOR
 from hydro_ros.fdi.alarm_log import AlarmLog
-from hydro_ros.fdi.monitor import ERROR, OK, STALE, WARN, FdiMonitor
+from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.residuals import GENERATORS
 from hydro_ros.fdi.settings import unset_threshold
-from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, SENSOR_QOS, SERVICE_QOS, namespaced_statuses, relative, run_node
+from hydro_ros.nodes.common import HALT_QOS, SENSOR_QOS, SERVICE_QOS, namespaced_statuses, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.safety.motion import HEARTBEAT_PERIOD_S
+from hydro_ros.safety.supervisor import ERROR, OK, WARN, ActuatorView, AlarmEvent, Halt, MonitorSupervisor
 
 ALARM_LOG_STATUS = "hydro_ros/alarm_log"
+HALT_STATUS = "hydro_ros/fdi_halt"  # the machine-wide halt decision and its reason
 MAX_PENDING_NS = 5_000_000_000  # samples waiting for a missing topic longer than this are given up
 DRAIN_MAX = 200  # messages of one topic taken per callback at most, so one topic cannot starve the timers
 OVERLOAD_WINDOW_S = 2.0  # [s] of wall time over which the share of incomplete samples is measured
@@ -105,23 +110,18 @@ class FdiNode(Node):
             self.get_logger().warning(f"alarm log: {self.alarm_log.error}; events are kept in memory and written once it opens")
         for aside in self.alarm_log.moved_aside if self.alarm_log else []:
             self.get_logger().warning(f"alarm log {self.alarm_log.path} was not an alarm log: moved aside to {aside}, a new one started")
-        # faults shown although the monitor has not (re-)isolated them: latched before a restart (alarm log) until a
-        # reset, and after a reset until the re-armed monitor has evaluated them (rechecking)
-        self.held: dict[str, tuple[int, str, bool]] = {  # actuator -> (level, fault, rechecking)
-            a.actuator: (a.level, a.fault, False)
-            for a in (self.alarm_log.latched() if self.alarm_log else []) if a.actuator in self.monitor.actuators}
-        self._logged_faults = {actuator: fault for actuator, (_, fault, _) in self.held.items()}
-        for actuator, (_, fault, _) in self.held.items():
-            self.get_logger().warning(f"{actuator}: {fault} latched before the restart (alarm log), until a reset")
-        self.acknowledged: dict[str, str] = {}  # actuator -> the fault the operator acknowledged (silenced, still shown)
+        restored = {a.actuator: (a.level, a.fault) for a in (self.alarm_log.latched() if self.alarm_log else [])}
+        # the safety core: vouching, latched and held alarms, the halt decision (hydro_ros.safety.supervisor)
+        self.supervisor = MonitorSupervisor(self.monitor.actuators, self.monitor.startup + self.monitor.window,
+                                            self.params["reset_min_interval"], restored)
+        for actuator, held in self.supervisor.held.items():
+            self.get_logger().warning(f"{actuator}: {held.fault} latched before the restart (alarm log), until a reset")
         self._simulated_check: bool | None = None  # the self-test's simulated healthy machine, evaluated once
         actuators = self.monitor.actuators
         self.mobile = self.monitor.generator.needs_mobile_pressures
         self.layout = SampleLayout(actuators, self.monitor.joints, mobile=self.mobile)
         self.aligner = ContractAligner(self.layout, sync_window_ns=int(self.params["sync_window"] * 1e9), max_pending_ns=MAX_PENDING_NS,
                                        jump_ns=int(self.params["time_jump_threshold"] * 1e9))
-        self.reset_min_interval = self.params["reset_min_interval"]
-        self.last_reset = -math.inf
         self._hold_until = -math.inf  # monotonic time until which detection holds (overload)
         self._jumps_seen = 0
         self._recent: deque[tuple[float, int, int]] = deque()  # (wall time, samples, incomplete) per processed block
@@ -147,13 +147,14 @@ class FdiNode(Node):
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.started = time.monotonic()
         self.samples = 0
-        self.halt: bool | None = None
+        self.halt: Halt | None = None
         self._levels: list[tuple[int, str]] = []
         self._residual_interval_ns = int(1e9 / self.params["residual_rate"])
         self._last_residual_ns = -(1 << 62)
         self.create_timer(self.params["process_period"], self._process, clock=self.steady)
         self.create_timer(self.params["diagnostics_period"], self._on_diagnostics_tick, clock=self.steady)
-        self.create_timer(HALT_PERIOD_S, self._publish_halt, clock=self.steady)
+        self.create_timer(HEARTBEAT_PERIOD_S, self._publish_halt, clock=self.steady)
+        self._publish_halt()  # a late subscriber of the latch reads the truth from the start: not vouched yet
         self.get_logger().info(f"monitoring {', '.join(actuators)} of {self.machine} with the {self.monitor.method} method")
 
     def _on_parameter(self, name: str, value: Any) -> None:
@@ -162,7 +163,7 @@ class FdiNode(Node):
         elif name == "time_jump_threshold":
             self.aligner.jump_ns = int(value * 1e9)
         elif name == "reset_min_interval":
-            self.reset_min_interval = value
+            self.supervisor.reset_min_interval_s = value
 
     def _subscribe_contract_topics(self, actuators: list[str], index: Any) -> None:
         self._subscribe_raw(JointState, topics.JOINT_STATES, self.aligner.put_joint_states)
@@ -203,6 +204,7 @@ class FdiNode(Node):
         if len(self.aligner.time_jumps) != self._jumps_seen:
             self._jumps_seen = len(self.aligner.time_jumps)
             self.monitor.restart()
+            self.supervisor.disturb(f"a time jump of {self.aligner.time_jumps[-1]:+.3f} s")
             self.get_logger().warning(f"input time jumped by {self.aligner.time_jumps[-1]:+.3f} s: filters restart on the new "
                                       f"time base, detection re-arms after {self.monitor.settings.window_s:g} s of data")
         incomplete = self.aligner.incomplete
@@ -211,18 +213,31 @@ class FdiNode(Node):
         self._recent.append((now, len(stamps), self.aligner.incomplete - incomplete))
         while self._recent and now - self._recent[0][0] > OVERLOAD_WINDOW_S:
             self._recent.popleft()
-        if len(stamps) == 0:
-            self._check_levels()
-            return
-        if any(self._overloaded(i) for i in range(len(self.monitor.actuators))):
-            # no alarm from incomplete data: detection holds while overloaded and one window after
-            self._hold_until = now + self.monitor.settings.window_s
-        result = self.monitor.process(self.layout.samples(stamps * 1e-9, rows), hold=now < self._hold_until)
-        self.samples += len(stamps)
-        for alarm in result.alarms:
-            self.get_logger().warning(f"{alarm.actuator}: {alarm.fault.value} (pattern {alarm.code}) at stamp {alarm.time_s:.3f} s")
-        self._publish_residuals(stamps, result)
+        valid_tail = np.zeros(len(self.monitor.actuators), dtype=int)
+        if len(stamps):
+            if any(self._overloaded(i) for i in range(len(self.monitor.actuators))):
+                # no alarm from incomplete data: detection holds while overloaded and one window after
+                self._hold_until = now + self.monitor.settings.window_s
+            result = self.monitor.process(self.layout.samples(stamps * 1e-9, rows), hold=now < self._hold_until)
+            self.samples += len(stamps)
+            for alarm in result.alarms:
+                self.get_logger().warning(f"{alarm.actuator}: {alarm.fault.value} (pattern {alarm.code}) at stamp {alarm.time_s:.3f} s")
+            self._publish_residuals(stamps, result)
+            # valid samples at the end of the block, per actuator (all of them when none was invalid)
+            invalid = ~result.valid[::-1]
+            valid_tail = np.where(invalid.any(axis=0), np.argmax(invalid, axis=0), len(stamps))
+        self._log_alarms(self.supervisor.observe({a: self._view(i, len(stamps), int(valid_tail[i]))
+                                                  for i, a in enumerate(self.monitor.actuators)}))
         self._check_levels()
+
+    def _view(self, index: int, samples: int, valid_tail: int) -> ActuatorView:
+        """What the monitor knows of one actuator now, for the supervisor."""
+        status = self.monitor.status(index)
+        return ActuatorView(
+            fresh=not self._stale_topics(index), overloaded=self._overloaded(index),
+            sensor_problems=tuple(sorted(c for c in self.monitor.sensor_problems(index) if c != "supply_pressure")),
+            armed=self.monitor.armed, explained=self.monitor.explained(index),
+            fault=None if status.fault is None else status.fault.value, fault_level=status.level, samples=samples, valid_tail=valid_tail)
 
     def _publish_residuals(self, stamps: np.ndarray, result: Any) -> None:
         if stamps[-1] - self._last_residual_ns < self._residual_interval_ns:
@@ -262,81 +277,35 @@ class FdiNode(Node):
         flowing = time.monotonic() - max(self.first_arrival[topic] for topic in needed)
         return flowing > 2 * OVERLOAD_WINDOW_S and self._incomplete_share() > OVERLOAD_SHARE
 
-    def _blindness(self, index: int) -> tuple[int, str] | None:
-        """Why an actuator is not (fully) monitored now, or None while it is."""
-        if self._stale_topics(index):
-            return STALE, "stale"
-        if self._overloaded(index):
-            return WARN, "overloaded"
-        problems = {c: p for c, p in self.monitor.sensor_problems(index).items() if c != "supply_pressure"}
-        if problems or not self.monitor.armed:
-            return STALE, "not_monitored"
-        return None
-
-    def _state(self, index: int) -> tuple[int, str]:
-        """Level and message of an actuator: a latched or held fault first, then why it is not (fully) monitored."""
-        status = self.monitor.status(index)
-        held = self.held.get(self.monitor.actuators[index])
-        if status.fault is not None and not (held is not None and status.fault is Fault.UNISOLATED):
-            return status.level, status.message
-        if held is not None:
-            return max(held[0], status.level), held[1]
-        return self._blindness(index) or (OK, "ok")
-
-    def _release_rechecked(self) -> None:
-        """A fault held through a reset is dropped once the monitor has isolated it again or evaluated the actuator healthy."""
-        for i, actuator in enumerate(self.monitor.actuators):
-            held = self.held.get(actuator)
-            fault = self.monitor.status(i).fault
-            if held is not None and held[2] and (fault not in (None, Fault.UNISOLATED) or (fault is None and self.monitor.explained(i))):
-                del self.held[actuator]
-        for i, actuator in enumerate(self.monitor.actuators):
-            if self.acknowledged.get(actuator) not in (None, self._latched_fault(i)):
-                del self.acknowledged[actuator]  # a new fault is a new alarm: it is heard again
-
     def _check_levels(self) -> None:
-        self._release_rechecked()
-        levels = [self._state(i) for i in range(len(self.monitor.actuators))]
-        if levels != self._levels:
+        levels = [(state.level, state.message) for state in map(self.supervisor.state, self.monitor.actuators)]
+        if levels != self._levels or self.supervisor.halt() != self.halt:
             self._levels = levels
-            self._log_alarms()
             self._publish_diagnostics()
             self._publish_halt()
 
-    def _latched_fault(self, index: int) -> str:
-        level, message = self._state(index)
-        return message if self.monitor.status(index).fault is not None or self.monitor.actuators[index] in self.held else ""
-
-    def _log_alarms(self) -> None:
+    def _log_alarms(self, events: list[AlarmEvent]) -> None:
         """Each actuator's latched fault against the last one logged: raised, changed or cleared."""
         if self.alarm_log is None:
             return
-        for i, actuator in enumerate(self.monitor.actuators):
-            before, now = self._logged_faults.get(actuator, ""), self._latched_fault(i)
-            if now == before:
-                continue
-            event = "cleared" if not now else "changed" if before else "raised"
+        for event in events:
+            i = self.monitor.actuators.index(event.actuator)
             status = self.monitor.status(i)
             evidence = {"pattern": status.code, "mean_residual": self.monitor.last_mean_residual[i].round(5).tolist(),
-                        "threshold": self.monitor.last_threshold[i].round(5).tolist(), "before": before}
-            self.alarm_log.record(event, actuator, now or before, self._levels[i][0] if now else 0, stamp_s=status.detected_at,
-                                  evidence=evidence)
-            self._logged_faults[actuator] = now
-
-    def vouched(self) -> bool:
-        """Whether "no halt" is known: every actuator armed, its evidence explained, fresh and not overloaded."""
-        return self.monitor.confirmed and all(self._blindness(i) is None for i in range(len(self.monitor.actuators)))
+                        "threshold": self.monitor.last_threshold[i].round(5).tolist(), "before": event.before}
+            self.alarm_log.record(event.event, event.actuator, event.fault, event.level, stamp_s=status.detected_at, evidence=evidence)
 
     def _publish_halt(self) -> None:
-        """Heartbeat of the halt request: true on a severe fault (latched, or held from the log or through a reset);
-        false only while vouched; nothing while any actuator is blind or a crossing is pending."""
-        halt = self.monitor.halt or any(level == ERROR for level, _, _ in self.held.values())
-        if not halt and not self.vouched():
-            return
-        if halt != self.halt and halt:
-            self.get_logger().error(f"severe fault: requesting halt on {topics.FDI_HALT}")
+        """The halt heartbeat, every HEARTBEAT_PERIOD_S and at once on a change: true on a severe fault and whenever the
+        monitor cannot vouch for every actuator (the reason on /diagnostics, hydro_ros/fdi_halt); false only while it does."""
+        halt = self.supervisor.halt()
+        if halt != self.halt:
+            if halt.kind == "fault" and (self.halt is None or self.halt.kind != "fault"):
+                self.get_logger().error(f"severe fault: requesting halt on {topics.FDI_HALT}: {halt.reason}")
+            elif self.halt is not None and halt.kind != self.halt.kind:
+                self.get_logger().info(f"{topics.FDI_HALT}: {halt.reason}")
         self.halt = halt
-        self.pub_halt.publish(Bool(data=halt))
+        self.pub_halt.publish(Bool(data=halt.halt))
 
     def statuses(self) -> list[DiagnosticStatus]:
         out = []
@@ -346,8 +315,9 @@ class FdiNode(Node):
         for i, actuator in enumerate(self.monitor.actuators):
             status = self.monitor.status(i)
             stale = self._stale_topics(i)
-            held = self.held.get(actuator)
-            level, message = self._state(i)
+            held = self.supervisor.held.get(actuator)
+            state = self.supervisor.state(actuator)
+            level, message = state.level, state.message
             problems = self.monitor.sensor_problems(i)
             values = {
                 f"mean_r_{labels[0]}": f"{self.monitor.last_mean_residual[i, 0]:.5f}",
@@ -371,10 +341,11 @@ class FdiNode(Node):
                 "off_time_base_dropped": str(a.off_base),
                 "incomplete_share": f"{self._incomplete_share():.3f}",
                 "detection_held": str(time.monotonic() < self._hold_until).lower(),
-                "restored_from_alarm_log": str(held is not None and not held[2] and status.fault is None).lower(),
-                "rechecking": str(held is not None and held[2] and status.fault is None).lower(),
-                "acknowledged": str(actuator in self.acknowledged).lower(),
-                "vouched": str(self._blindness(i) is None and self.monitor.explained(i)).lower(),
+                "restored_from_alarm_log": str(held is not None and not held.rechecking and status.fault is None).lower(),
+                "rechecking": str(held is not None and held.rechecking and status.fault is None).lower(),
+                "acknowledged": str(actuator in self.supervisor.acknowledged).lower(),
+                "vouched": str(not state.hold).lower(),
+                "not_vouched_because": state.hold,
             }
             closed_threshold = self.monitor.generator.closed_threshold
             if closed_threshold is not None:  # the parity method's closed-valve evidence: empty until the valve was closed long enough
@@ -390,12 +361,16 @@ class FdiNode(Node):
                 level=bytes([WARN if problems else OK]), name=f"{topics.SENSOR_STATUS_PREFIX}{actuator}", hardware_id=self.machine,
                 message="; ".join(f"{self._source(c, actuator)} {p}" for c, p in problems.items()) or "ok",
                 values=[KeyValue(key=self._source(c, actuator), value=p) for c, p in problems.items()]))
+        halt = self.supervisor.halt()
+        out.append(DiagnosticStatus(level=bytes([{"clear": OK, "hold": WARN, "fault": ERROR}[halt.kind]]), name=HALT_STATUS,
+                                    message=halt.reason, hardware_id=self.machine,
+                                    values=[KeyValue(key="halt", value=str(halt.halt).lower()), KeyValue(key="kind", value=halt.kind)]))
         if self.alarm_log is not None:
             log = self.alarm_log
             trouble = log.error or (f"{log.dropped} events dropped (queue full)" if log.dropped else "")
             values = {"file": str(log.path), "failed_writes": log.failed_writes, "pending_events": len(log.pending),
                       "dropped_events": log.dropped, "reopened": log.reopened, "moved_aside": ",".join(map(str, log.moved_aside)),
-                      "restored_alarms": sum(not rechecking for _, _, rechecking in self.held.values())}
+                      "restored_alarms": sum(not held.rechecking for held in self.supervisor.held.values())}
             out.append(DiagnosticStatus(
                 level=bytes([WARN if trouble else OK]), name=ALARM_LOG_STATUS, hardware_id=self.machine,
                 message=f"alarm log not written: {trouble}; {len(log.pending)} events kept in memory" if trouble else "ok",
@@ -428,10 +403,9 @@ class FdiNode(Node):
 
     def _on_acknowledge(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """Silence the latched alarms the operator has seen; each stays shown, and halting, until a reset."""
-        latched = {a: self._latched_fault(i) for i, a in enumerate(self.monitor.actuators) if self._latched_fault(i)}
+        new, latched = self.supervisor.acknowledge()
         detail = "; ".join(f"{a}: {fault}" for a, fault in latched.items())
-        if latched.items() - self.acknowledged.items():
-            self.acknowledged.update(latched)
+        if new:
             if self.alarm_log is not None:
                 self.alarm_log.record("acknowledged", "", evidence={"detail": detail})
             return self._answer(response, f"acknowledged: {detail} (shown until a reset)")
@@ -440,19 +414,15 @@ class FdiNode(Node):
         return response
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        since = time.monotonic() - self.last_reset
-        if since < self.reset_min_interval:
+        before = "; ".join(f"{a}: {message}" for a, (_, message) in zip(self.monitor.actuators, self._levels)) or "no status yet"
+        accepted, why_not, events = self.supervisor.reset(time.monotonic())
+        if not accepted:
             response.success = False
-            response.message = f"reset refused: the last one was {since:.1f} s ago (at most one per {self.reset_min_interval:g} s)"
+            response.message = f"reset refused: {why_not}"
             self.get_logger().warning(response.message, throttle_duration_sec=1.0)
             return response
-        self.last_reset = time.monotonic()
-        before = "; ".join(f"{a}: {message}" for a, (_, message) in zip(self.monitor.actuators, self._levels)) or "no status yet"
-        # every fault latched now stays shown until the re-armed monitor has looked again
-        self.held = {a: (self._state(i)[0], self._latched_fault(i), True)
-                     for i, a in enumerate(self.monitor.actuators) if self._latched_fault(i)}
-        self.acknowledged.clear()
         self.monitor.reset()
+        self._log_alarms(events)
         if self.alarm_log is not None:
             self.alarm_log.record("reset", "", evidence={"detail": before})
         return self._answer(response, f"filters, averages and latches reset (before: {before}); detection re-arms after "

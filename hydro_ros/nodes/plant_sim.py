@@ -50,6 +50,7 @@ from hydro_ros.nodes.common import (
     CLOCK_QOS,
     SAMPLE_OUTPUT_PARAMETERS,
     SENSOR_QOS,
+    VALVE_COMMAND_TIMEOUT,
     checked_valve_commands,
     namespaced_statuses,
     publishes_sensor_topic,
@@ -57,9 +58,9 @@ from hydro_ros.nodes.common import (
     run_node,
 )
 from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.safety.motion import ValveDeadman
 from hydro_ros.sim.scenario import MachineRun
 
-COMMAND_TIMEOUT_S = 0.5  # a valve command older than this closes the valve (fail safe)
 MAX_CATCH_UP_S = 0.25  # simulate at most this much per tick; beyond it the node reports lag
 TIP_PAYLOAD = "fault.payload_mass"  # on an arm (or crane) the payload hangs at the tip, not on a cylinder: one parameter
 
@@ -72,6 +73,7 @@ PARAMETERS = {
                                    "(crane mode) the trajectories on trajectory_topic", choices=("operator", "topic", "trajectory")),
     "real_time_factor": Spec(1.0, "[-] simulated seconds per wall second", 0.01, 100.0),
     "publish_clock": Spec(False, "publish /clock from the simulation time (stamps then start at 0)"),
+    "command_timeout": VALVE_COMMAND_TIMEOUT,
     "tick_period": Spec(0.01, "[s] wall time between simulation steps (each publishes the samples due)", 0.001, 1.0),
     "can_interface": Spec("", "python-can interface that also carries the sensors as CAN frames (socketcan, udp_multicast); "
                               "empty: none"),
@@ -233,8 +235,7 @@ class PlantSim(Node):
         self.pub_block = (self.create_publisher(PointCloud2, relative(topics.SAMPLE_BLOCK), SENSOR_QOS,
                                                 qos_overriding_options=QoSOverridingOptions.with_default_policies())
                           if self.params["sample_blocks"] else None)
-        self.command = np.zeros(len(self.source.actuators))
-        self.command_wall = -math.inf
+        self.deadman = ValveDeadman(self.source.actuators, self.params["command_timeout"])
         if self.excitation == "topic":
             self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._on_command, SENSOR_QOS,
                                      qos_overriding_options=QoSOverridingOptions.with_default_policies())
@@ -324,10 +325,7 @@ class PlantSim(Node):
         accepted, refused = checked_valve_commands(list(msg.name), list(msg.position), self.source.actuators)
         if refused:
             self.get_logger().error(f"{topics.VALVE_COMMANDS} refused: {refused}: neutral", throttle_duration_sec=2.0)
-        for i, actuator in enumerate(self.source.actuators):
-            if actuator in accepted or actuator in refused:
-                self.command[i] = accepted.get(actuator, 0.0)
-                self.command_wall = time.monotonic()
+        self.deadman.command({**dict.fromkeys(refused, 0.0), **accepted}, time.monotonic())
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
         plant = self.source.plant
@@ -388,8 +386,10 @@ class PlantSim(Node):
         n = min(due, limit)
         commands = None
         if self.excitation == "topic":
-            self.command_stale = time.monotonic() - self.command_wall > COMMAND_TIMEOUT_S
-            commands = np.zeros((n, len(self.command))) if self.command_stale else np.repeat(self.command[None], n, axis=0)
+            now = time.monotonic()
+            outputs = self.deadman.outputs(now)
+            self.command_stale = not self.deadman.fresh(now)
+            commands = np.repeat(np.array([outputs[a] for a in self.source.actuators])[None], n, axis=0)
         self._publish(self.source.step(n, commands))
 
     def _publish(self, block: Samples) -> None:

@@ -13,11 +13,13 @@ process on SIGINT or SIGTERM (it handles them itself, so its publisher still wor
 (default true) configures and activates at start for machines without a lifecycle manager.
 
 It stops (neutral at once, the trajectory dropped, the reason on ``~/status``) on:
-- ``/fdi/halt`` true from any publisher: the halt latches until the configured ``monitor`` node itself
-  sends ``false`` (a ``false`` from anyone else is refused and its sender named);
-- with ``require_monitor`` (the default; opting out is logged at every configure), no ``false`` from
-  the monitor for three heartbeat periods: the monitor stops its heartbeat whenever it cannot vouch for
-  every actuator (blind, stale, not armed), so a blind monitor stops the crane;
+- ``/fdi/halt`` true from any publisher: no motion until the configured ``monitor`` node itself confirms (a
+  ``false`` from anyone else is refused and its sender named);
+- with ``require_monitor`` (the default; opting out is logged at every configure), no fresh confirmation: motion needs a
+  ``false`` from the monitor whose source stamp is at most HEARTBEAT_TIMEOUT_S (0.5 s) old, new (not a replay) and not
+  followed by a ``true`` (:class:`hydro_ros.safety.motion.MotionAuthority`). The monitor says ``true`` whenever it
+  cannot vouch for every actuator, and a latched or late-delivered ``false`` is old: a late joiner never moves on a stale
+  "all clear". The valves go neutral within HEARTBEAT_TIMEOUT_S plus one control period of the last confirmation;
 - a joint state from ``joint_state_source`` older than ``joint_state_timeout`` (a controller that cannot
   see the machine must not move it); joint states from other publishers are refused;
 - an empty trajectory (ros2_control's "stop the current one").
@@ -41,6 +43,7 @@ import json
 import math
 import queue
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -58,10 +61,11 @@ from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane, load_crane
 from hydro_ros.nodes.authority import PinnedSource
-from hydro_ros.nodes.common import HALT_PERIOD_S, HALT_QOS, LATCHED_QOS, SENSOR_QOS, destroy_entities, namespaced_statuses, relative, run_node
+from hydro_ros.nodes.common import HALT_QOS, LATCHED_QOS, SENSOR_QOS, destroy_entities, namespaced_statuses, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.planning.controller import CylinderReference, MotionController, controller_settings
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE, JointTrajectoryData
+from hydro_ros.safety.motion import Heartbeat, MotionAuthority
 
 PARAMETERS = {
     "config": Spec(str(default_config_path("k70m")), "crane config (YAML, kind: crane): joints, limits, valve table, controller",
@@ -114,8 +118,7 @@ class TrajectoryExecutor(LifecycleNode):
         self._entities: list[Any] = []
         self.joints: np.ndarray | None = None
         self.joints_time: Time | None = None
-        self.halted = False
-        self.halt_time: Time | None = None
+        self.authority = MotionAuthority(self.require_monitor)  # the safety core's heartbeat rule (hydro_ros.safety.motion)
         self.reference: CylinderReference | None = None
         self.started: Time | None = None
         self.holding_until = math.inf
@@ -211,7 +214,7 @@ class TrajectoryExecutor(LifecycleNode):
         with self.lock:
             self._stop("inactive", "deactivated")
             self.active = False
-        self.halted = False  # an operator's lifecycle action clears a halt no monitor is there to clear
+        self.authority.clear_halt()  # an operator's lifecycle action clears a halt no monitor is there to clear
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -253,21 +256,21 @@ class TrajectoryExecutor(LifecycleNode):
 
     def _on_halt(self, msg: Bool, info: dict[str, Any]) -> None:
         from_monitor = self.sources["halt"].accepts(info)
+        was_halted = self.authority.halted
+        beat = Heartbeat(bool(msg.data), from_monitor, bytes(info["publisher_gid"]["data"]), info.get("publication_sequence_number") or 0,
+                         int(info["source_timestamp"]))
+        refused = self.authority.receive(beat, time.time_ns())
         if msg.data:
-            if not self.halted:
+            if not was_halted:
                 source = "the monitor" if from_monitor else self.sources["halt"].last_sender or "an unidentified publisher"
-                self.get_logger().error(f"halt requested on /fdi/halt by {source}: latched until the monitor clears it")
-            self.halted = True
+                self.get_logger().warning(f"halt requested on /fdi/halt by {source}: no motion until the monitor confirms")
             with self.lock:
                 if self.reference is not None:
                     self._stop("stopped", "halt requested on /fdi/halt")
         elif not from_monitor:
             self._foreign("halt")  # only the monitor can say "no halt"
-            return
-        else:
-            self.halted = False
-        if from_monitor:
-            self.halt_time = self.get_clock().now()
+        elif refused:
+            self.get_logger().warning(f"/fdi/halt: heartbeat not taken: {refused}", throttle_duration_sec=5.0)
 
     def _foreign(self, kind: str) -> None:
         source = self.sources[kind]
@@ -368,14 +371,9 @@ class TrajectoryExecutor(LifecycleNode):
     # control -------------------------------------------------------------------------------------
     def _why_not_move(self) -> str:
         now = self.get_clock().now()
-        if self.halted:
-            return "halt requested on /fdi/halt"
-        if self.require_monitor:
-            if self.halt_time is None:
-                return "no condition monitor heartbeat on /fdi/halt (require_monitor)"
-            silent = (now - self.halt_time).nanoseconds * 1e-9
-            if silent > 3 * HALT_PERIOD_S:
-                return f"condition monitor silent for {silent:.1f} s (require_monitor)"
+        why_not = self.authority.why_not(time.time_ns())
+        if why_not:
+            return why_not
         if self.joints is None or self.joints_time is None:
             return f"no joint state on {topics.JOINT_STATES}"
         age = (now - self.joints_time).nanoseconds * 1e-9
@@ -456,7 +454,8 @@ class TrajectoryExecutor(LifecycleNode):
         level = 1 if foreign or present else 0
         message = "; ".join(f"{kind} refused from {', '.join(names)}" for kind, names in foreign.items()) or (
             "; ".join(f"other publishers on {kind}: {', '.join(names)}" for kind, names in present.items()) or "ok")
-        values = {"state": self.state, "reason": self.reason, "halted": str(self.halted).lower(),
+        values = {"state": self.state, "reason": self.reason, "halted": str(self.authority.halted).lower(),
+                  **{f"heartbeats_refused: {why}": str(n) for why, n in self.authority.refused.items()},
                   "require_monitor": str(self.require_monitor).lower(),
                   **{f"{kind}_source": source.source for kind, source in self.sources.items()},
                   **{f"{kind}_refused": str(source.refused) for kind, source in self.sources.items()},
