@@ -166,9 +166,10 @@ def test_a_frozen_pressure_sensor_is_never_reported_healthy(ros_domain, leak_bag
     assert boom[-1].message == "not_monitored" and boom[-1].level == bytes([3])
 
 
-def test_a_dead_monitor_goes_quiet_and_a_restarted_one_says_nothing_until_armed(ros_domain, monkeypatch):
-    """kill -9 while a spool fault asks for a halt: the heartbeat stops; the new monitor sends nothing on /fdi/halt before a
-    window of data is evaluated, then requests the halt again. The plant at half real time.
+def test_a_dead_monitor_goes_quiet_and_a_restarted_one_holds_until_it_re_isolates(ros_domain, monkeypatch):
+    """kill -9 while a spool fault asks for a halt: the heartbeat stops; the new monitor says true from its first heartbeat
+    (a hold: not vouched), never false, and names the fault as a stop once a window of data is evaluated. The plant at
+    half real time.
 
     The nodes talk over UDP only: over Fast DDS's shared-memory transport a participant restarted after a kill -9 is
     matched but may receive nothing (eProsima/Fast-DDS#5053, #2811); here the restarted monitor then said "stale" on
@@ -181,6 +182,9 @@ def test_a_dead_monitor_goes_quiet_and_a_restarted_one_says_nothing_until_armed(
         node.create_subscription(Bool, topics.FDI_HALT, lambda m: halts.append((time.monotonic(), m.data)), HALT_QOS)
         said: list = []  # what the monitors said of the boom, for a failure's message
         node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: said.extend(_statuses([m], "hydro_ros/fdi/boom")), 50)
+        stops: list[float] = []  # arrivals of the halt status saying "stop" (a severe fault), not a hold
+        node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: stops.extend(
+            time.monotonic() for s in _statuses([m], "hydro_ros/fdi_halt") if _values(s)["kind"] == "fault"), 50)
         client = AsyncParameterClient(node, "plant_sim")
         assert client.wait_for_services(10.0)
         future = client.set_parameters([Parameter("fault.spool_stuck_closed", value=1.0)])
@@ -196,10 +200,11 @@ def test_a_dead_monitor_goes_quiet_and_a_restarted_one_says_nothing_until_armed(
         assert len(halts) == heartbeats, "a dead monitor's halt heartbeat must stop"
         with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"):
             restarted = time.monotonic()
-            assert spin_until(node, lambda: any(h for _, h in halts[heartbeats:]), 120), \
-                f"the new monitor never requested the halt; it said {[(s.message, _values(s).get('stale_topics')) for s in said[-4:]]}"
-    first = halts[heartbeats][0]
-    assert first - restarted > 8.0  # 5 s of samples at half real time (and start-up) before anything is said
+            stops.clear()
+            assert spin_until(node, lambda: bool(stops), 120), \
+                f"the new monitor never named the fault; it said {[(s.message, _values(s).get('stale_topics')) for s in said[-4:]]}"
+    assert len(halts) > heartbeats and all(h for _, h in halts[heartbeats:])  # the new monitor: true from its first word
+    assert stops[0] - restarted > 8.0  # 5 s of samples at half real time (and start-up) before the fault is named again
 
 
 def test_reset_spam_is_refused_and_re_arming_is_not_ok(ros_domain):
@@ -321,9 +326,12 @@ def test_no_halt_is_said_only_while_the_monitor_sees_every_input(ros_domain, lea
     halts: list[tuple[float, bool]] = []
     statuses: list[tuple[float, str, bool]] = []  # (arrival, message, any topic stale)
 
+    kinds: set[str] = set()
+
     def on_diagnostics(message: DiagnosticArray) -> None:
         statuses.extend((time.monotonic(), s.message, bool(_values(s)["stale_topics"]))
                         for s in message.status if s.name == "hydro_ros/fdi/boom")
+        kinds.update(_values(s)["kind"] for s in message.status if s.name == "hydro_ros/fdi_halt")
 
     def ended() -> bool:
         blind = [t for t, m, _ in statuses if m == "not_monitored"]
@@ -347,7 +355,10 @@ def test_no_halt_is_said_only_while_the_monitor_sees_every_input(ros_domain, lea
     assert any(t < blind_at for t in vouched), "the monitor never vouched before the sensor failed"
     assert not [t for t in vouched if blind_at + 0.3 < t < back_at], "no halt said while p_A was NaN"
     assert not [t for t in vouched if t > stale_at + 0.3], "no halt said after the inputs stopped"
-    assert not any(halt for _, halt in halts)  # a leak is minor, never a halt
+    # not vouched is said, heartbeat by heartbeat: true while p_A was NaN and after the inputs stopped
+    assert [t for t, halt in halts if halt and blind_at + 0.3 < t < back_at]
+    assert [t for t, halt in halts if halt and t > stale_at + 0.3]
+    assert "fault" not in kinds  # a leak is minor: a hold, never a stop
 
 
 def test_a_present_leak_survives_acknowledge_reset_and_a_service_burst_and_its_blocked_log_catches_up(ros_domain, tmp_path):

@@ -25,10 +25,24 @@ from test.conftest import REPO, SAM_CONFIG
 from test.ros_graph import node_output, node_process, probe_node, spin_until
 
 FDI_STATUS = "hydro_ros/fdi/boom"
+HALT_STATUS = "hydro_ros/fdi_halt"
 
 
 def _fdi_statuses(messages: list[DiagnosticArray]) -> list:
     return [s for m in messages for s in m.status if s.name == FDI_STATUS]
+
+
+def _halt_status(messages: list[DiagnosticArray]):
+    return [s for m in messages for s in m.status if s.name == HALT_STATUS][-1]
+
+
+def _halt_kind(messages: list[DiagnosticArray]) -> str:
+    statuses = [s for m in messages for s in m.status if s.name == HALT_STATUS]
+    return {v.key: v.value for v in statuses[-1].values}["kind"] if statuses else ""
+
+
+def _values(status) -> dict[str, str]:
+    return {v.key: v.value for v in status.values}
 
 
 def _call(node, client, request, timeout=20.0):
@@ -48,9 +62,9 @@ def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
         node.create_subscription(Bool, "/fdi/halt", lambda m: halts.append(m.data), LATCHED_QOS)
         node.create_subscription(JointState, "/fdi/residuals", residuals.append, 10)
         assert spin_until(node, lambda: len(_fdi_statuses(diags)) >= 3, 30), "no fdi diagnostics"
-        # no halt heartbeat until the 5 s window has confirmed the machine healthy, then "no halt" every 0.5 s
-        assert spin_until(node, lambda: len(halts) >= 3, 30), "no halt heartbeat"
-        assert not any(halts)
+        # "true" (not vouched: a hold) until the 5 s window has confirmed the machine healthy, then "false" every 0.1 s
+        assert spin_until(node, lambda: len(halts) >= 3 and halts[-1] is False, 30), "no all-clear heartbeat"
+        assert halts[0] is True and _halt_status(diags).message == "all clear"
         spin_until(node, lambda: False, 1.0)
         # stale while plant_sim is still starting, not monitored while the window fills, never an alarm
         assert all(s.message in ("ok", "stale", "not_monitored") for s in _fdi_statuses(diags)), [s.message for s in _fdi_statuses(diags)]
@@ -64,7 +78,7 @@ def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
         alarmed = _fdi_statuses(diags)[-1]
         assert alarmed.message == "external_leakage_a" and alarmed.level == bytes([1])  # WARN, minor fault
         assert alarmed.hardware_id == "sam"
-        assert halts[-1] is False  # a leak is minor: no halt request
+        assert halts[-1] is False and _halt_status(diags).level == bytes([0])  # a leak is minor: no halt request
         ack = _call(node, node.create_client(Trigger, "/fdi_node/acknowledge"), Trigger.Request())
         assert ack.success and "external_leakage_a" in ack.message
         test = _call(node, node.create_client(SelfTest, "/fdi_node/self_test"), SelfTest.Request())
@@ -79,8 +93,16 @@ def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
         assert spin_until(node, future.done, 10)
         reset = _call(node, node.create_client(Trigger, "/fdi_node/reset"), Trigger.Request())
         assert reset.success and "re-arms" in reset.message
-        assert spin_until(node, lambda: bool(halts) and halts[-1] is True, 50), "no halt request"
-        assert _fdi_statuses(diags)[-1].level == bytes([2])
+        assert spin_until(node, lambda: _halt_kind(diags) == "fault", 50), "no halt request for the stuck spool"
+        assert halts[-1] is True and _fdi_statuses(diags)[-1].level == bytes([2])
+        # a reset while the spool is still stuck: the fault stays a halt (held, rechecking) until re-isolated
+        spin_until(node, lambda: False, 5.0)  # reset_min_interval since the last reset
+        reset_at = len(diags)
+        assert _call(node, node.create_client(Trigger, "/fdi_node/reset"), Trigger.Request()).success
+        spin_until(node, lambda: False, 8.0)
+        kinds = [_values(s)["kind"] for m in diags[reset_at:] for s in m.status if s.name == HALT_STATUS]
+        assert kinds and set(kinds) == {"fault"}, kinds
+        assert halts[-1] is True
 
 
 def test_live_parity_method_on_the_mobile_valve_machine(ros_domain):
