@@ -64,6 +64,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/mems.py --out bench/results/mems.json
 	$(PY) bench/savings_map.py --out bench/results/savings_map.json
 	$(PY) bench/gsa_convergence.py --out bench/results/gsa_convergence.json
+	$(PY) bench/safety_soak.py --duration 1800 --out bench/results/safety_soak.json
 
 docs: setup
 	$(PY) -m hydro_ros.docgen docs

@@ -184,12 +184,23 @@ def _memory(m: dict) -> tuple[str, str, str]:
             f"({runs[-1]['peak_vs_samples']:.1f}x); growth {m['growth_mb_per_recorded_hour']:.0f} MB per recorded hour")
 
 
+def _soak(s: dict) -> tuple[str, str, str]:
+    lost_sight = {k: v for k, v in s["measured_s"].items() if k in ("monitor_freeze", "monitor_kill", "plant_gap")}
+    return (f"live safety chain soak ({s['duration_s'] / 60:.0f} min; "
+            + ", ".join(f"{n} {kind}" for kind, n in s["impairments"].items()) + ")",
+            f"**{len(s['violations'])} violations**; last non-neutral command after the monitor lost sight: "
+            + ", ".join(f"{kind} {v['max']:.2f} s" for kind, v in lost_sight.items())
+            + f"; moving {s['moving_share_of_fault_free']:.0%} of the fault-free time",
+            "documented bounds: " + ", ".join(f"{kind} {bound:.2f} s" for kind, bound in s["bounds_s"].items()))
+
+
 ROWS: list[tuple[str, str, Callable[[dict], tuple[str, str, str]]]] = [  # (file, the part a row reads, the row)
     ("results", "sam_model_1khz", _model), ("results", "bag_read", _bag), ("results", "ukf", _ukf),
     ("results", "fdi_offline", _fdi_offline), ("results", "fdi_node_live", _fdi_live), ("results", "can_decode", _can),
     ("results", "can_bridge_live", _can_live), ("dp", "solver", _dp), ("trajectories", "throughput", _db),
     ("trajectories", "full_catalog", _catalog), ("trajectories", "latency", _server), ("hmi", "phases", _hmi),
-    ("crane_cpu", "sample_blocks", _crane_cpu), ("fleet", "runs", _fleet), ("commissioning_memory", "runs", _memory)]
+    ("crane_cpu", "sample_blocks", _crane_cpu), ("fleet", "runs", _fleet), ("commissioning_memory", "runs", _memory),
+    ("safety_soak", "violations", _soak)]
 
 
 def benchmarks_markdown() -> str:

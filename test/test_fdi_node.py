@@ -93,8 +93,8 @@ def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
         assert spin_until(node, future.done, 10)
         reset = _call(node, node.create_client(Trigger, "/fdi_node/reset"), Trigger.Request())
         assert reset.success and "re-arms" in reset.message
-        assert spin_until(node, lambda: _halt_kind(diags) == "fault", 50), "no halt request for the stuck spool"
-        assert halts[-1] is True and _fdi_statuses(diags)[-1].level == bytes([2])
+        assert spin_until(node, lambda: _halt_kind(diags) == "fault" and halts[-1] is True, 50), "no halt request for the stuck spool"
+        assert _fdi_statuses(diags)[-1].level == bytes([2])
         # a reset while the spool is still stuck: the fault stays a halt (held, rechecking) until re-isolated
         spin_until(node, lambda: False, 5.0)  # reset_min_interval since the last reset
         reset_at = len(diags)

@@ -83,7 +83,9 @@ def _transitions(path: Path, monkeypatch) -> dict[str, set[int]]:
         events = [entity] if type(entity).__name__ == "EmitEvent" else []
         if type(entity).__name__ == "RegisterEventHandler":
             handler = entity.args[0]
-            assert handler.kwargs["goal_state"] == "inactive"
+            # after launch's own configure only, once: a deactivate (active -> deactivating -> inactive) or an operator's
+            # cleanup -> configure must not re-activate (launch_ros matches every given field; test_safety_live.py)
+            assert (handler.kwargs["start_state"], handler.kwargs["goal_state"], handler.kwargs["handle_once"]) == ("configuring", "inactive", True)
             events = handler.kwargs["entities"]
         for event in events:
             change = event.kwargs["event"]

@@ -33,15 +33,15 @@ from test.ros_graph import change_state, lifecycle_state, node_process, probe_no
 from test.test_fdi_failsafe import tampered
 from test.test_launch import _fake_launch
 
-GAP_NS = (7_000_000_000, 13_000_000_000)  # inputs cut for 6 s, armed before, 7 s after
+GAP_NS = (7_000_000_000, 13_000_000_000)  # inputs cut for 6 s, armed before, 11 s after
 
 
 @pytest.fixture(scope="module")
 def gap_bag(tmp_path_factory, sam_config) -> Path:
-    """20 s of the fault-free SAM with every topic cut from 7 s to 13 s."""
+    """24 s of the fault-free SAM with every topic cut from 7 s to 13 s."""
     root = tmp_path_factory.mktemp("gap")
     with ContractBagWriter(root / "clean", actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
-        for _, _, block in run_blocks(sam_config, Scenario(20.0, [], seed=4)):
+        for _, _, block in run_blocks(sam_config, Scenario(24.0, [], seed=4)):
             writer.write_block("boom", block)
     return tampered(root / "clean", root / "gap", lambda topic, stamp, value: None if GAP_NS[0] <= stamp < GAP_NS[1] else (stamp, value))
 
@@ -55,8 +55,8 @@ def test_no_all_clear_after_a_gap_until_re_armed_and_a_blind_monitor_latches_tru
                 node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={gap_bag}", "-p", "publish_clock:=false", "-p", "rate:=1.0",
                              "-p", "start_delay:=3.0"):
             joints = lambda: [t for kind, t in events if kind == "joints"]  # noqa: E731
-            # played to the end, and the monitor has seen it stop
-            assert spin_until(node, lambda: len(joints()) > 100 and time.monotonic() - joints()[-1] > 2.0, 60)
+            # played to the end (18 s of samples around the gap), and the monitor has seen it stop
+            assert spin_until(node, lambda: len(joints()) > 16_000 and time.monotonic() - joints()[-1] > 2.0, 60)
             # 3: a late subscriber of the latch, with the monitor blind (no input for 2 s), reads true
             late: list[bool] = []
             node.create_subscription(Bool, topics.FDI_HALT, lambda m: late.append(m.data), HALT_QOS)
@@ -87,42 +87,52 @@ def _trajectory(joints: np.ndarray, names: list[str]) -> JointTrajectory:
 
 
 def test_a_late_joining_executor_never_moves_on_a_stale_latched_all_clear(ros_domain, k70m):
-    """The probe is the monitor: it says false once and falls silent; an executor started 2 s later gets that false from
-    the latch, and neither accepts a trajectory nor sends a non-neutral command. Then a live heartbeat lets it move."""
+    """The probe ``monitor`` says false once and falls silent; an executor started 2 s later gets that false from the
+    latch, and neither accepts a trajectory nor sends a non-neutral command. Then a live heartbeat lets it move. The
+    trajectories come from a second probe, ``client``."""
     names = k70m.joint_names
     with node_process("hydro_ros.nodes.crane_sim", "-r", "__ns:=/crane", "-p", f"config:={K70M}", "-p", "external_commands:=true",
                       "-p", "publish_rate:=100.0", "-p", "initial_path:=horizontal", "-p", "initial_extension:=0.3"), \
             probe_node("monitor") as node:
+        import rclpy
+
         halt = node.create_publisher(Bool, "/crane" + topics.FDI_HALT, HALT_QOS)
         halt.publish(Bool(data=False))
         seen: dict[str, list] = {"joints": [], "commands": [], "status": []}
         node.create_subscription(JointState, "/crane" + topics.JOINT_STATES, lambda m: seen["joints"].append(np.array(m.position)), 10)
         node.create_subscription(JointState, "/crane" + topics.VALVE_COMMANDS, lambda m: seen["commands"].append(np.array(m.position)), 2000)
         node.create_subscription(String, "/crane/trajectory_executor/status", lambda m: seen["status"].append(json.loads(m.data)), LATCHED_QOS)
-        trajectories = node.create_publisher(JointTrajectory, "/crane/trajectory_executor/joint_trajectory", 10)
         assert spin_until(node, lambda: seen["joints"], 30)
         spin_until(node, lambda: False, 2.0)
         with node_process("hydro_ros.nodes.trajectory_executor", "-r", "__ns:=/crane", "-p", f"config:={K70M}",
-                          "-p", "joint_state_source:=crane_sim", "-p", "trajectory_source:=/monitor", "-p", "monitor:=/monitor"):
+                          "-p", "joint_state_source:=crane_sim", "-p", "trajectory_source:=/client", "-p", "monitor:=/monitor",
+                          "-p", "joint_state_timeout:=1.0"):
+            client = rclpy.create_node("client")
+            trajectories = client.create_publisher(JointTrajectory, "/crane/trajectory_executor/joint_trajectory", 10)
             assert spin_until(node, lambda: seen["status"] and seen["status"][-1]["state"] == "idle"
                               and trajectories.get_subscription_count() > 0, 30)
             answers = []
-            for _ in range(6):  # until the executor's graph names the probe as the trajectory's publisher
+            for _ in range(20):  # until the executor's graph names the client as the trajectory's publisher
                 count = len(seen["status"])
                 trajectories.publish(_trajectory(seen["joints"][-1], names))
                 spin_until(node, lambda: len(seen["status"]) > count, 2.0)
                 answers = seen["status"][count:]
                 if answers and "not yet identified" not in answers[-1]["reason"] and "joint state" not in answers[-1]["reason"]:
                     break
+                spin_until(node, lambda: False, 0.5)
             assert answers and answers[-1]["state"] == "refused" and "heartbeat" in answers[-1]["reason"], answers
             assert seen["commands"] and not any(c.any() for c in seen["commands"])
             # liveness: with a live heartbeat the same executor moves
             node.create_timer(0.1, lambda: halt.publish(Bool(data=False)))
-            spin_until(node, lambda: False, 0.5)
-            count = len(seen["status"])
-            trajectories.publish(_trajectory(seen["joints"][-1], names))
-            assert spin_until(node, lambda: any(s["state"] == "executing" for s in seen["status"][count:]), 5), seen["status"][-2:]
+            for _ in range(20):  # the joint states' publisher identified too
+                spin_until(node, lambda: False, 0.5)
+                count = len(seen["status"])
+                trajectories.publish(_trajectory(seen["joints"][-1], names))
+                if spin_until(node, lambda: any(s["state"] == "executing" for s in seen["status"][count:]), 2.0):
+                    break
+            assert seen["status"][-1]["state"] == "executing", seen["status"][-2:]
             assert spin_until(node, lambda: np.abs(seen["commands"][-1]).max() > 0.01, 5)
+            client.destroy_node()
 
 
 # launch_ros's OnStateTransition matcher and launch's handle_once, as their sources have them (launch_ros
