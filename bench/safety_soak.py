@@ -14,8 +14,10 @@ the telescope whenever the executor is not moving. Impairments are injected at r
 The observer records every valve command (stamped by the executor's clock, the system clock here) and the joint
 states, and counts a violation for each non-neutral command stamped later than the documented bound after the monitor
 lost sight (a freeze, kill or gap began: ``HEARTBEAT_TIMEOUT_S`` + one control period + ``stale_timeout`` for a gap),
-until the impairment ended; for a severe fault, later than the detection budget after its onset; for a killed
-executor, the telescope still moving ``VALVE_COMMAND_TIMEOUT_S`` + 0.3 s after the kill. The machine must move at
+until the impairment ended; and for a killed executor, the telescope still moving ``VALVE_COMMAND_TIMEOUT_S`` + 0.3 s
+after the kill (the plant's deadman). A severe fault is not a loss of sight: whether the monitor named it and stopped
+the machine within ``DETECTION_BUDGET_S`` is measured and listed (``severe_faults_still_moving_after_budget``), a
+statement about detection on this machine, not about the safety core. The machine must move at
 least half of the fault-free time (outside impairments and the re-arming after them), or the soak proves nothing.
 
     python bench/safety_soak.py --duration 1800 --out bench/results/safety_soak.json
@@ -45,6 +47,7 @@ CONFIG = REPO / "config" / "k70m.yaml"
 CONTROL_PERIOD_S = 0.01
 STALE_TIMEOUT_S = 0.5  # fdi_node's default
 DETECTION_BUDGET_S = 20.0  # a severe fault named and the machine stopped within this of its onset (window 5 s + isolation)
+DRIFT_M_S = 0.005  # a telescope on neutral valves creeps slower than this (leakage); the commanded motion was 0.05 m/s
 REARM_ALLOWANCE_S = 8.0  # after an impairment, time for the monitor to re-arm before "fault-free" time counts again
 KINDS = ("monitor_freeze", "monitor_kill", "plant_gap", "executor_kill", "severe_fault")
 
@@ -187,25 +190,31 @@ def judge(commands: list[tuple[float, float]], joints: list[tuple[float, float]]
     moving = np.array([c > 1e-6 for _, c in commands])
     bounds = {"monitor_freeze": heartbeat_timeout + CONTROL_PERIOD_S, "monitor_kill": heartbeat_timeout + CONTROL_PERIOD_S,
               "plant_gap": STALE_TIMEOUT_S + heartbeat_timeout + CONTROL_PERIOD_S, "severe_fault": DETECTION_BUDGET_S}
-    violations, latencies = [], {kind: [] for kind in KINDS}
+    violations, undetected, latencies = [], [], {kind: [] for kind in KINDS}
     for event in events:
         kind, begin, end = event["kind"], event["begin"], event["end"]
         if kind == "executor_kill":
+            # the telescope's mean speed over the window (a displacement: the sensor noise of a derivative is not motion)
             t = np.array([s for s, _ in joints])
             x = np.array([q for _, q in joints])
             window = (t > begin + valve_timeout + 0.3) & (t < begin + 1.2)
             if window.sum() > 2:
-                speed = float(np.abs(np.diff(x[window]) / np.diff(t[window])).max())
+                speed = float(abs(x[window][-1] - x[window][0]) / (t[window][-1] - t[window][0]))
                 latencies[kind].append(speed)
-                if speed > 0.01:
+                if speed > DRIFT_M_S:
                     violations.append({**event, "telescope_speed_m_s": speed})
             continue
         inside = (stamps > begin) & (stamps < end)
-        late = inside & moving & (stamps > begin + bounds[kind])
-        if late.any():
-            violations.append({**event, "late_commands": int(late.sum()), "last_late_after_s": float(stamps[late].max() - begin)})
         moving_inside = inside & moving
         latencies[kind].append(float(stamps[moving_inside].max() - begin) if moving_inside.any() else 0.0)
+        if kind == "severe_fault":
+            # how the monitor's detection did: measured and reported, not a loss of sight (docs/monitoring.md)
+            if (moving_inside & (stamps > begin + bounds[kind])).any():
+                undetected.append(event)
+            continue
+        late = moving_inside & (stamps > begin + bounds[kind])
+        if late.any():
+            violations.append({**event, "late_commands": int(late.sum()), "last_late_after_s": float(stamps[late].max() - begin)})
     # fault-free time: outside every impairment and the re-arming after it
     blocked = [(e["begin"], e["end"] + REARM_ALLOWANCE_S) for e in events]
     grid = np.arange(started, stamps.max() if len(stamps) else started, 0.05)
@@ -219,9 +228,10 @@ def judge(commands: list[tuple[float, float]], joints: list[tuple[float, float]]
         "duration_s": float(grid[-1] - started) if len(grid) else 0.0,
         "impairments": {kind: sum(e["kind"] == kind for e in events) for kind in KINDS},
         "violations": violations,
+        "severe_faults_still_moving_after_budget": undetected,
         "bounds_s": bounds | {"executor_kill": valve_timeout + 0.3},
         "measured_s": {kind: {"max": max(v), "median": float(np.median(v))} for kind, v in latencies.items() if v}
-        | ({"executor_kill_speed_m_s": {"max": max(latencies["executor_kill"])}} if latencies["executor_kill"] else {}),
+        | ({"executor_kill": {"telescope_speed_m_s_max": max(latencies["executor_kill"])}} if latencies["executor_kill"] else {}),
         "fault_free_s": float(free.sum() * 0.05),
         "moving_share_of_fault_free": float(moving_now[free].mean()) if free.any() else 0.0,
         "commands": len(commands),

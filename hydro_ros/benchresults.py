@@ -190,7 +190,8 @@ def _soak(s: dict) -> tuple[str, str, str]:
             + ", ".join(f"{n} {kind}" for kind, n in s["impairments"].items()) + ")",
             f"**{len(s['violations'])} violations**; last non-neutral command after the monitor lost sight: "
             + ", ".join(f"{kind} {v['max']:.2f} s" for kind, v in lost_sight.items())
-            + f"; moving {s['moving_share_of_fault_free']:.0%} of the fault-free time",
+            + f"; moving {s['moving_share_of_fault_free']:.0%} of the fault-free time; severe faults still moving after "
+            f"{s['bounds_s']['severe_fault']:.0f} s: {len(s['severe_faults_still_moving_after_budget'])}",
             "documented bounds: " + ", ".join(f"{kind} {bound:.2f} s" for kind, bound in s["bounds_s"].items()))
 
 

@@ -61,6 +61,14 @@ def _crc_table() -> list[int]:
 _CRC = _crc_table()
 
 
+def _raw_range(signal: Any) -> tuple[float, float]:
+    """The physical values a signal's bits can carry (scale and offset applied), in DBC units."""
+    top = (1 << (signal.length - 1)) - 1 if signal.is_signed else (1 << signal.length) - 1
+    bottom = -(1 << (signal.length - 1)) if signal.is_signed else 0
+    ends = (bottom * signal.scale + signal.offset, top * signal.scale + signal.offset)
+    return min(ends), max(ends)
+
+
 def crc8(frame_id: int, payload: bytes, at: int = 7) -> int:
     """CRC-8/SAE-J1850 (poly 0x1D, init and xorout 0xFF) over the ID's two low bytes and every data byte but byte ``at``."""
     crc = 0xFF
@@ -122,18 +130,41 @@ def _default_map(machine: Machine, db: Any) -> dict[str, Any]:
     return {"supply_pressure": "SUPPLY_STATE.SUPPLY_P_S", "ls_pressure": "SUPPLY_STATE.SUPPLY_P_LS", "actuators": actuators, **framing}
 
 
+class BusMapError(InputError):
+    """Every problem of a machine's bus map against its DBC (``problems``), said as one line."""
+
+    def __init__(self, problems: list[str]) -> None:
+        super().__init__("; ".join(problems))
+        self.problems = problems
+
+
 class MachineBus:
-    """Encoding and checked decoding of one machine's frames through its signal map."""
+    """Encoding and checked decoding of one machine's frames through its signal map.
+
+    Building one checks the map against the DBC as the bridge will read it, every problem at once (BusMapError): the
+    DBC loads (cantools' strict mode refuses overlapping signals and signals beyond the DLC), no frame id twice, every
+    named message and signal exists, one signal per quantity, each in a unit of its quantity and able to carry the
+    machine's range (``sensors.pressure_range``, ``joint_range``) without being a hundred times too wide or ten times
+    too narrow: an angle in degrees labelled rad, a pressure in bar labelled Pa.
+    """
 
     def __init__(self, machine: Machine, dbc: str | Path | None = None) -> None:
         path = Path(dbc) if dbc else machine.source.parent / machine.dbc
-        if not path.is_file() and not dbc:
+        if not path.is_file() and not dbc and (config_dir() / machine.dbc).is_file():
             path = config_dir() / machine.dbc  # a config outside the package on the shipped bus
         try:
             self.db = cantools.database.load_file(str(path))
         except (OSError, cantools.database.UnsupportedDatabaseFormatError, ValueError) as exc:
-            raise InputError(f"dbc {path}: cannot load ({exc})") from None
+            raise BusMapError([f"dbc {path}: cannot load ({exc})"]) from None
         self.dbc_path = path
+        self.problems: list[str] = []
+        self._machine = machine
+        seen: dict[int, str] = {}
+        for message in self.db.messages:
+            if message.frame_id in seen:
+                self.problems.append(f"dbc {path}: frame id 0x{message.frame_id:X} is both {seen[message.frame_id]} and {message.name}")
+            seen.setdefault(message.frame_id, message.name)
+        self._mapped: dict[tuple[str, str], str] = {}  # (message, signal) -> the key that mapped it
         self.slots = [Slot(a.name, a.joint, a.can_slot, a.valve.mobile) for a in machine.actuators]
         self.by_id = {m.frame_id: m for m in self.db.messages}
         self.by_name = {m.name: m for m in self.db.messages}
@@ -144,21 +175,25 @@ class MachineBus:
         for quantity in MACHINE_WIDE:
             if quantity in raw and (machine.mobile or quantity not in MOBILE_ONLY):
                 self.machine_wide[quantity] = self._signal(raw[quantity], quantity, f"{where}.{quantity}")
-        if "supply_pressure" not in self.machine_wide:
-            raise InputError(f"dbc {path}: {where} names no supply_pressure signal")
-        if machine.mobile and "ls_pressure" not in self.machine_wide:
-            raise InputError(f"dbc {path}: {where} names no ls_pressure signal (the machine's valves are mobile)")
+        if "supply_pressure" not in raw:
+            self.problems.append(f"dbc {path}: {where} names no supply_pressure signal")
+        if machine.mobile and "ls_pressure" not in raw:
+            self.problems.append(f"dbc {path}: {where} names no ls_pressure signal (the machine's valves are mobile)")
         table = raw.get("actuators") or {}
         for slot in self.slots:
             entry = table.get(slot.actuator) or {}
             required = [q for q in PER_ACTUATOR if q not in OPTIONAL and (slot.mobile or q not in MOBILE_ONLY)]
             missing = [q for q in required if q not in entry]
             if missing:
-                raise InputError(f"dbc {path}: {where}.actuators.{slot.actuator} names no {', '.join(missing)} signal")
-            self.per_actuator[slot.actuator] = {q: self._signal(entry[q], q, f"{where}.actuators.{slot.actuator}.{q}")
-                                                for q in PER_ACTUATOR if q in entry and (slot.mobile or q not in MOBILE_ONLY)}
+                self.problems.append(f"dbc {path}: {where}.actuators.{slot.actuator} names no {', '.join(missing)} signal")
+            mapped = {q: self._signal(entry[q], q, f"{where}.actuators.{slot.actuator}.{q}")
+                      for q in PER_ACTUATOR if q in entry and (slot.mobile or q not in MOBILE_ONLY)}
+            self.per_actuator[slot.actuator] = {q: m for q, m in mapped.items() if m is not None}
+        self.machine_wide = {q: m for q, m in self.machine_wide.items() if m is not None}
         self.counters = self._framing(raw.get("counters") or {}, where, "counters")
         self.checksums = self._framing(raw.get("checksums") or {}, where, "checksums")
+        if self.problems:
+            raise BusMapError(self.problems)
         sensors = [*self.machine_wide.values(), *(s for m in self.per_actuator.values() for q, s in m.items() if q != "valve_request")]
         self.expected = frozenset(s.message for s in sensors)
         self.by_counter = self.expected <= self.counters.keys()  # else cycles are grouped by time
@@ -167,26 +202,58 @@ class MachineBus:
         self._velocity_filter_hz = machine.sensors.velocity_filter_hz
         self._last_position: dict[str, tuple[int, float, float]] = {}  # joint -> (stamp, position, filtered rate)
 
-    def _signal(self, text: Any, quantity: str, key: str) -> MappedSignal:
+    def _signal(self, text: Any, quantity: str, key: str) -> MappedSignal | None:
+        """The mapped signal, or None with the problem recorded."""
         message_name, _, signal_name = str(text).partition(".")
         message = self.by_name.get(message_name)
         if message is None:
-            raise InputError(f"dbc {self.dbc_path}: no message {message_name!r} (named by {key})")
+            self.problems.append(f"dbc {self.dbc_path}: no message {message_name!r} (named by {key})")
+            return None
         signal = next((s for s in message.signals if s.name == signal_name), None)
         if signal is None:
-            raise InputError(f"dbc {self.dbc_path}: message {message_name} has no signal {signal_name!r} (named by {key}; "
-                             f"it has {', '.join(s.name for s in message.signals)})")
+            self.problems.append(f"dbc {self.dbc_path}: message {message_name} has no signal {signal_name!r} (named by {key}; "
+                                 f"it has {', '.join(s.name for s in message.signals)})")
+            return None
+        twice = self._mapped.setdefault((message_name, signal_name), key)
+        if twice != key:
+            self.problems.append(f"dbc {self.dbc_path}: {message_name}.{signal_name} is named by both {twice} and {key}: one signal "
+                                 "carries one quantity")
         unit = (signal.unit or "").strip()
         if unit not in UNITS[quantity]:
-            raise InputError(f"dbc {self.dbc_path}: {message_name}.{signal_name} is in {unit!r}, not a unit of {quantity} "
-                             f"({', '.join(repr(u) for u in UNITS[quantity])}) (named by {key})")
+            self.problems.append(f"dbc {self.dbc_path}: {message_name}.{signal_name} is in {unit!r}, not a unit of {quantity} "
+                                 f"({', '.join(repr(u) for u in UNITS[quantity])}) (named by {key})")
+            return None
+        implausible = self._implausible(signal, quantity, unit, UNITS[quantity][unit])
+        if implausible:
+            self.problems.append(f"dbc {self.dbc_path}: {message_name}.{signal_name} in {unit!r} {implausible} (named by {key}): "
+                                 "is its unit right?")
         return MappedSignal(message_name, signal_name, UNITS[quantity][unit])
+
+    def _implausible(self, signal: Any, quantity: str, unit: str, scale: float) -> str:
+        """Why the signal's range (its DBC minimum and maximum; else what its bits can carry, for "too narrow" only) cannot
+        be the quantity's in this unit; "" when it can."""
+        sensors = self._machine.sensors
+        machine_range = {"joint_position": sensors.joint_range, "joint_velocity": (-sensors.joint_velocity_max, sensors.joint_velocity_max)}
+        low, high = machine_range.get(quantity, sensors.pressure_range if quantity in UNITS and UNITS[quantity] is PRESSURE_UNITS else (None, None))
+        if high is None:
+            return ""
+        widest = max(abs(low), abs(high))
+        declared = signal.minimum is not None and signal.maximum is not None
+        # what the bits can carry says only "too narrow": a wide raw range is how DBCs leave room
+        reach = scale * (max(abs(signal.minimum), abs(signal.maximum)) if declared else max(abs(v) for v in _raw_range(signal)))
+        if declared and unit in ("rad", "deg") and quantity == "joint_position" and reach > 4 * math.pi:
+            return f"reaches {reach:.4g} rad, more than two turns of a joint"
+        if declared and reach > 100 * widest:
+            return f"reaches {reach:.4g} SI, over 100x the machine's range ({widest:.4g})"
+        if reach < 0.1 * widest:
+            return f"reaches only {reach:.4g} SI, under a tenth of the machine's range ({widest:.4g})"
+        return ""
 
     def _framing(self, table: Mapping[str, Any], where: str, kind: str) -> dict[str, str]:
         for message_name, signal_name in table.items():
             message = self.by_name.get(message_name)
             if message is None or not any(s.name == signal_name for s in message.signals):
-                raise InputError(f"dbc {self.dbc_path}: no signal {message_name}.{signal_name} (named by {where}.{kind})")
+                self.problems.append(f"dbc {self.dbc_path}: no signal {message_name}.{signal_name} (named by {where}.{kind})")
         return {str(k): str(v) for k, v in table.items()}
 
     def is_extended(self, frame_id: int) -> bool:

@@ -80,8 +80,14 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
         from hydro_ros.fdi.settings import unset_threshold
         from hydro_ros.models.serial_arm import arm_problems
 
+        from hydro_ros.can.codec import BusMapError, MachineBus
+
         machine = load_machine_config(args.config)
         problems = arm_problems(machine)
+        try:  # the bus as can_bridge and bag convert will read it: the DBC beside the config, the map against it
+            MachineBus(machine)
+        except BusMapError as exc:
+            problems += exc.problems
         for problem in problems:
             print(f"{args.config}: {problem}")
     if not planner_only and not problems:
