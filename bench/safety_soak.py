@@ -38,10 +38,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+from hydro_ros.benchresults import write_result
 
-from hydro_ros.benchresults import write_result  # noqa: E402
+REPO = Path(__file__).resolve().parent.parent
 
 CONFIG = REPO / "config" / "k70m.yaml"
 CONTROL_PERIOD_S = 0.01

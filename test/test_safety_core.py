@@ -21,7 +21,7 @@ RESET_INTERVAL = 5.0
 SEVERE, MINOR = "spool_stuck_closed", "external_leakage_b"
 # Hypothesis' sequences: 2500 + 2000 + 600 = 5100 per run of the fast tier
 SUPERVISOR_RUNS, AUTHORITY_RUNS, DEADMAN_RUNS = 2500, 2000, 600
-STEPS = 30
+STEPS = 20
 
 actuators = st.sampled_from(ACTUATORS)
 
@@ -342,7 +342,7 @@ class DeadmanMachine(RuleBasedStateMachine):
 
 
 def _run(machine: type[RuleBasedStateMachine], examples: int) -> None:
-    machine.TestCase.settings = settings(max_examples=examples, stateful_step_count=STEPS, deadline=None,
+    machine.TestCase.settings = settings(max_examples=examples, stateful_step_count=STEPS, deadline=None, database=None,
                                          suppress_health_check=[HealthCheck.too_slow])
     machine.TestCase().runTest()
 

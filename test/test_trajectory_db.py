@@ -63,6 +63,7 @@ def test_rebuild_skips_what_is_stored_and_recomputes_what_changed(small_db, k70m
         assert report.computed == [("k70m", "vertical", "pinv_joint")]
 
 
+@pytest.mark.slow  # processes killed and a Dask cluster started: over 10 s on 2 cores
 def test_a_killed_build_resumes_without_recomputing_committed_entries(tmp_path, k70m):
     db_path = tmp_path / "killed.db"
     methods = ("pinv_joint", "dp_cp", "dp_ls")
@@ -115,6 +116,7 @@ def test_the_workers_of_a_killed_build_die_with_it(tmp_path):
     assert not alive, [worker.pid for worker in alive]
 
 
+@pytest.mark.slow  # processes killed and a Dask cluster started: over 10 s on 2 cores
 def test_dask_local_cluster_builds_the_same_catalog(tmp_path, small_db, k70m):
     distributed = pytest.importorskip("distributed")
     units = plan_units(k70m, methods=("dp_cp", "pinv_joint"), grid=SMALL_GRID, paths=("horizontal", "vertical"))

@@ -77,10 +77,9 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
         print(f"{args.config}: {crane.name}: a crane for the planner only ({', '.join(crane.joint_names)}; paths "
               f"{', '.join(crane.paths)}); no actuators, so nothing to simulate at the cylinders or monitor: ok")
     elif not problems:
+        from hydro_ros.can.codec import BusMapError, MachineBus
         from hydro_ros.fdi.settings import unset_threshold
         from hydro_ros.models.serial_arm import arm_problems
-
-        from hydro_ros.can.codec import BusMapError, MachineBus
 
         machine = load_machine_config(args.config)
         problems = arm_problems(machine)
