@@ -340,3 +340,39 @@ def test_the_crane_cylinders_reach_the_monitor_through_the_bus_in_sample_blocks(
         # what UDP multicast drops on a starved host is counted on both sides, never hidden (see the SAM's test)
         assert int(bus["incomplete_cycles"]) <= 0.002 * int(bus["published_cycles"]) + 1, bus
         assert int(tilt["samples"]) > 5000 and int(tilt["undecodable_messages"]) == 0, tilt
+
+
+def test_an_incomplete_cycle_is_dropped_whole_and_counted(ros_domain, sam_config):
+    """Ten cycles of the SAM's bus on an in-process virtual bus, the 2nd and 4th without their supply frame: the eight
+    complete ones reach ROS with every quantity, the two are dropped whole and counted as incomplete_cycles."""
+    import rclpy
+
+    from hydro_ros.nodes.can_bridge import CanBridge
+
+    channel = f"hydro_ros_incomplete_{os.getpid()}"
+    bus = MachineBus(sam_config)
+    supply_id = bus.by_name[bus.machine_wide["supply_pressure"].message].frame_id
+    rclpy.init(args=["--ros-args", "-p", f"config:={SAM_CONFIG}", "-p", "interface:=virtual", "-p", f"channel:={channel}"])
+    bridge = None
+    try:
+        bridge = CanBridge()
+        published: list[dict] = []
+        bridge._publish = lambda values, stamp: published.append(values)
+        assert _wait(lambda: bridge.active and bridge.reader is not None and bridge.reader.connected, 10.0)
+        sender = can.Bus(interface="virtual", channel=channel)
+        sample = {"joint_position": {"boom_joint": 0.1}, "joint_velocity": {"boom_joint": 0.0}, "valve_command": {"boom": 0.2},
+                  "pressure_a": {"boom": 5e6}, "pressure_b": {"boom": 3e6}, "supply_pressure": 1e7}
+        for k in range(10):
+            for frame_id, data in bus.encode_cycle(sample, k):
+                if not (k in (1, 3) and frame_id == supply_id):
+                    sender.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=bus.is_extended(frame_id)))
+            time.sleep(0.002)
+        assert _wait(lambda: bridge.reader.received >= 38, 5.0)
+        bridge._process()
+        sender.shutdown()
+    finally:
+        if bridge is not None:
+            bridge.destroy_node()
+        rclpy.shutdown()
+    assert len(published) == 8 and bridge.assembler.incomplete == 2
+    assert all(values["supply_pressure"] == pytest.approx(1e7, rel=1e-3) and values["pressure_a"]["boom"] > 0 for values in published)

@@ -335,13 +335,14 @@ class CanBridge(LifecycleNode):
             self.last_seen[name] = now
             self.counters(name, counter)
             for cycle in self.assembler.add(name, counter, values, int(round(message.timestamp * 1e9))):
-                if not self.active:  # configured but inactive: the bus is read and checked, nothing is published
+                # configured but inactive: the bus is read and checked, nothing is published; a cycle still missing a frame
+                # is dropped whole (counted in incomplete_cycles): the monitor sees a gap, never a part-sample
+                if not self.active or not cycle.complete(self.codec.expected):
                     continue
                 values = cycle_values(self.codec, cycle)
                 if self.pubs:
                     self._publish(values, cycle.stamp_ns)
-                # a block row needs every column: an incomplete cycle is a gap the monitor sees (counted in incomplete_cycles)
-                if self.pub_block is not None and cycle.complete(self.codec.expected):
+                if self.pub_block is not None:
                     block.append((cycle.stamp_ns, cycle_row(values, self.layout.columns)))
                 self.published_cycles += 1
         if block:
