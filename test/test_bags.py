@@ -290,3 +290,23 @@ def test_split_by_size_is_read_whole_and_a_killed_recording_keeps_its_closed_par
     assert len(killed.files) == 2 and len(info["files"]) == 3
     assert 8000 <= info["messages"] < 10000  # the open part's unflushed chunk is all that is lost
     assert any("killed_2.mcap" in error for error in info["errors"]), info["errors"]  # the open part is said to be cut
+
+
+def test_bag_info_stats_gives_each_field_in_si_units(tmp_path, sam_config, capsys):
+    """The samples a simulation wrote, their extremes read back per topic and field by `bag info --stats`."""
+    from hydro_ros.cli import main as cli
+
+    path = tmp_path / "stats"
+    blocks = [block for _, _, block in run_blocks(sam_config, Scenario(3.0, [], seed=2))]
+    with ContractBagWriter(path, actuators={"boom": "boom_joint"}, pressure_variance=1e10) as writer:
+        for block in blocks:
+            writer.write_block("boom", block)
+    pressure_b = np.concatenate([block.as_columns().pressure_b[:, 0] for block in blocks])
+    angle = np.concatenate([block.as_columns().joint_position[:, 0] for block in blocks])
+    stats = read_bag(path).stats()
+    row = stats["/hydraulics/boom/pressure_b fluid_pressure"]
+    assert row["unit"] == "Pa" and row["samples"] == len(pressure_b)
+    assert (row["min"], row["max"]) == pytest.approx((pressure_b.min(), pressure_b.max()))
+    assert stats["/joint_states name 'boom_joint' position"]["max"] == pytest.approx(angle.max())
+    assert cli(["bag", "info", str(path), "--stats"]) == 0
+    assert f"/hydraulics/boom/pressure_b fluid_pressure [Pa]: min {pressure_b.min():.6g}" in capsys.readouterr().out

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from hydro_ros.bags.align import Column, SampleLayout, place_at_keys
+from hydro_ros.bags.align import PER_JOINT, Column, SampleLayout, place_at_keys
 from hydro_ros.bags.cdr import CdrError, decode_joint_state, decode_sample_block
 from hydro_ros.bags.mcap_scan import (
     McapDamage,
@@ -29,6 +29,11 @@ from hydro_ros.bags.mcap_scan import (
 from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.samples import Samples
+
+# each quantity's SI unit as the contract carries it (a prismatic joint's position is in m, its rate in m/s)
+UNITS_OF = {"joint_position": "rad or m", "joint_velocity": "rad/s or m/s", "pressure_a": "Pa", "pressure_b": "Pa",
+            "pilot_pressure_1": "Pa", "pilot_pressure_2": "Pa", "compensator_pressure": "Pa", "supply_pressure": "Pa",
+            "ls_pressure": "Pa", "valve_command": "fraction of full opening"}
 
 
 class BagError(InputError):
@@ -66,6 +71,22 @@ class BagData:
     @property
     def complete(self) -> bool:
         return not self.errors
+
+    def stats(self) -> dict[str, dict[str, Any]]:
+        """Per topic and field, the finite values' min / mean / max in SI units and their count: what checks a CAN map's
+        units (a chamber pressure of 300 Pa was bar read as Pa; a joint at 90 rad was degrees read as rad)."""
+        out: dict[str, dict[str, Any]] = {}
+        for quantity, unit in UNITS_OF.items():
+            series = getattr(self, quantity)
+            for name, values in ({"": series} if isinstance(series, np.ndarray) else series or {}).items():
+                finite = np.asarray(values, dtype=float)
+                finite = finite[np.isfinite(finite)]
+                field_name = {"joint_velocity": "velocity"}.get(quantity, "position" if quantity in PER_JOINT or quantity == "valve_command"
+                                                                 else "fluid_pressure")
+                out[f"{SampleLayout.source((quantity, name))} {field_name}"] = {
+                    "unit": unit, "samples": int(len(finite)),
+                    **({"min": float(finite.min()), "mean": float(finite.mean()), "max": float(finite.max())} if len(finite) else {})}
+        return out
 
     def samples(self, layout: SampleLayout) -> Samples:
         """The bag's samples of a machine's actuators (times from the first sample); BagError names a missing topic."""

@@ -42,6 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                             "exits 1 when a file is damaged or disagrees with metadata.yaml.")
     info.add_argument("bag", help="bag directory or .mcap file")
     info.add_argument("--json", action="store_true", help="print JSON")
+    info.add_argument("--stats", action="store_true", help="also each topic's and field's min / mean / max in SI units (reads "
+                                                           "every message): check a CAN map's units on a converted log")
     info.set_defaults(func=cmd_bag_info)
 
     convert = verbs.add_parser("convert", help="a machine's CAN log (candump .log, .asc, .blf) -> contract bag",
@@ -82,6 +84,10 @@ def cmd_bag_info(args: argparse.Namespace) -> int:
     from hydro_ros.bags.reader import bag_info
 
     info = bag_info(args.bag)
+    if args.stats:
+        from hydro_ros.bags.reader import read_bag
+
+        info["stats"] = read_bag(args.bag).stats()
     if args.json:
         print(json.dumps(info, indent=1))
     else:
@@ -91,6 +97,9 @@ def cmd_bag_info(args: argparse.Namespace) -> int:
             print(f"  {row['path']}: {row['messages']} messages, {row['bytes']} bytes")
         for topic, row in info["topics"].items():
             print(f"  {topic} [{row['type']}]: {row['messages']}")
+        for field_name, row in info.get("stats", {}).items():
+            values = f"min {row['min']:.6g}, mean {row['mean']:.6g}, max {row['max']:.6g}" if row["samples"] else "no finite value"
+            print(f"  {field_name} [{row['unit']}]: {values} ({row['samples']} samples)")
         for error in info["errors"]:
             print(f"  error: {error}")
     return 1 if info["errors"] else 0
