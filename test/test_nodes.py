@@ -145,3 +145,24 @@ def test_record_in_a_namespace_takes_the_sample_blocks_and_the_bag_reads_whole(r
     data = read_bag(bag)
     assert len(data.stamps_ns) > 1000 and not data.errors
     assert np.all(np.isfinite(data.pressure_a["boom"])) and np.all(np.isfinite(data.valve_command["boom"]))
+
+
+def test_a_second_node_of_a_process_keeps_the_remaps_but_not_the_node_name():
+    from hydro_ros.nodes.common import without_node_name
+
+    argv = ["hmi", "--ros-args", "-r", "__node:=hmi", "-r", "__ns:=/m1", "--remap", "hmi:__name:=x", "-r", "/joint_states:=/a",
+            "-p", "port:=0", "--", "other"]
+    assert without_node_name(argv) == ["--ros-args", "-r", "__ns:=/m1", "-r", "/joint_states:=/a", "-p", "port:=0"]
+    assert without_node_name(["hmi"]) == []
+
+
+def test_the_hmi_started_as_launch_names_it_is_one_node_of_that_name(ros_domain):
+    """launch's ``name="hmi"`` and ``namespace="m1"`` as the remaps it passes: one /m1/hmi on the graph, its joint-state
+    sampler beside it in the namespace."""
+    with node_process("hydro_ros.nodes.hmi", "-r", "__node:=hmi", "-r", "__ns:=/m1", "-p", f"config:={SAM_CONFIG}", "-p", "port:=0",
+                      "-p", "foxglove_port:=-1"), probe_node("probe") as node:
+        names = lambda: node.get_node_names_and_namespaces()  # noqa: E731
+        assert spin_until(node, lambda: ("hmi_joint_state_sampler", "/m1") in names(), 30), names()
+        spin_until(node, lambda: False, 1.0)
+        listed = names()
+    assert listed.count(("hmi", "/m1")) == 1 and ("hmi_joint_state_sampler", "/m1") in listed, listed

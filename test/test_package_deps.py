@@ -54,8 +54,8 @@ def test_every_third_party_import_is_declared_or_an_optional_extra():
     for path in sorted((ROOT / "hydro_ros").rglob("*.py")):
         for name in sorted(_imports(path) - stdlib - set(OPTIONAL)):
             key = KEY_OF_IMPORT.get(name, name)  # a ROS package imports as its own name (sensor_msgs, rclpy)
-            # the filterpy twin and the node processes' CPU probe serve only the tests and the benchmarks
-            allowed = testing if path.name in ("filterpy_twin.py", "processes.py") else declared
+            # the filterpy twin serves only the tests and the benchmarks (it is imported by nothing that ships)
+            allowed = testing if path.name == "filterpy_twin.py" else declared
             if key not in allowed:
                 undeclared.append(f"{path.relative_to(ROOT)}: {name} ({key})")
     assert undeclared == []

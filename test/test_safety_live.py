@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Duration
+from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition, TransitionEvent
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
@@ -51,6 +52,9 @@ def test_no_all_clear_after_a_gap_until_re_armed_and_a_blind_monitor_latches_tru
     with probe_node("probe") as node:
         node.create_subscription(Bool, topics.FDI_HALT, lambda m: events.append((f"halt:{str(m.data).lower()}", time.monotonic())), HALT_QOS)
         node.create_subscription(JointState, topics.JOINT_STATES, lambda m: events.append(("joints", time.monotonic())), 2000)
+        sensors: list = []  # hydro_ros/sensors/boom: never OK without fresh values
+        node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, lambda m: sensors.extend(
+            s for s in m.status if s.name == "hydro_ros/sensors/boom"), 50)
         with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), \
                 node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={gap_bag}", "-p", "publish_clock:=false", "-p", "rate:=1.0",
                              "-p", "start_delay:=3.0"):
@@ -62,6 +66,8 @@ def test_no_all_clear_after_a_gap_until_re_armed_and_a_blind_monitor_latches_tru
             node.create_subscription(Bool, topics.FDI_HALT, lambda m: late.append(m.data), HALT_QOS)
             assert spin_until(node, lambda: late, 5)
             assert late[0] is True
+            assert spin_until(node, lambda: sensors and "no fresh values" in sensors[-1].message, 5)
+            assert sensors[-1].level == bytes([3])
     arrivals = np.array(joints())
     resumed = arrivals[1:][np.diff(arrivals) > 3.0][0]  # the first sample after the 6 s gap
     before = [t for kind, t in events if kind == "halt:false" and t < resumed]

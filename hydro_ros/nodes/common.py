@@ -79,6 +79,33 @@ def checked_valve_commands(names: list[str], positions: list[float], actuators: 
     return accepted, refused
 
 
+def without_node_name(argv: list[str]) -> list[str]:
+    """The ``--ros-args`` of a process's command line without its node-name remaps (``__node``/``__name``), as the
+    arguments of a second node of the process: launch's ``name`` (``-r __node:=hmi``) would otherwise name both, while
+    its namespace and topic remaps must apply to both."""
+    out, inside, skip = [], False, False
+    for k, arg in enumerate(argv):
+        if skip:
+            skip = False
+            continue
+        if arg == "--ros-args":
+            inside = True
+            continue
+        if arg == "--":
+            inside = False
+            continue
+        if not inside:
+            continue
+        if arg in ("-r", "--remap") and k + 1 < len(argv):
+            skip = True
+            if argv[k + 1].split(":=")[0].split(":")[-1] in ("__node", "__name"):  # also a node's own "hmi:__node:=..."
+                continue
+            out += [arg, argv[k + 1]]
+            continue
+        out.append(arg)
+    return ["--ros-args", *out] if out else []
+
+
 def publishes_sensor_topic(chosen: str, topic: str) -> bool:
     """Whether the sensor_topics choice ``chosen`` includes ``topic``."""
     return chosen == "all" or (chosen == "joint_states" and topic == topics.JOINT_STATES)

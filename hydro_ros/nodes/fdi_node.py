@@ -64,7 +64,7 @@ from hydro_ros.fdi.settings import unset_threshold
 from hydro_ros.nodes.common import HALT_QOS, SENSOR_QOS, SERVICE_QOS, namespaced_statuses, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.safety.motion import HEARTBEAT_PERIOD_S
-from hydro_ros.safety.supervisor import ERROR, OK, WARN, ActuatorView, AlarmEvent, Halt, MonitorSupervisor
+from hydro_ros.safety.supervisor import ERROR, OK, STALE, WARN, ActuatorView, AlarmEvent, Halt, MonitorSupervisor
 
 ALARM_LOG_STATUS = "hydro_ros/alarm_log"
 HALT_STATUS = "hydro_ros/fdi_halt"  # the machine-wide halt decision and its reason
@@ -356,11 +356,15 @@ class FdiNode(Node):
             out.append(DiagnosticStatus(level=bytes([level]), name=f"{topics.FDI_STATUS_PREFIX}{actuator}", message=message,
                                         hardware_id=self.machine,
                                         values=[KeyValue(key=k, value=v) for k, v in values.items()]))
-            # the sensors' own health: never OK while a reading is invalid
+            # the sensors' own health: never OK while a reading is invalid, nor without fresh values to judge
+            message = "; ".join(f"{self._source(c, actuator)} {p}" for c, p in problems.items())
+            if stale:
+                message = "; ".join(filter(None, [f"no fresh values on {', '.join(stale)}", message]))
             out.append(DiagnosticStatus(
-                level=bytes([WARN if problems else OK]), name=f"{topics.SENSOR_STATUS_PREFIX}{actuator}", hardware_id=self.machine,
-                message="; ".join(f"{self._source(c, actuator)} {p}" for c, p in problems.items()) or "ok",
-                values=[KeyValue(key=self._source(c, actuator), value=p) for c, p in problems.items()]))
+                level=bytes([STALE if stale else WARN if problems else OK]), name=f"{topics.SENSOR_STATUS_PREFIX}{actuator}",
+                hardware_id=self.machine, message=message or "ok",
+                values=[KeyValue(key=self._source(c, actuator), value=p) for c, p in problems.items()]
+                + [KeyValue(key=topic, value="stale") for topic in stale]))
         halt = self.supervisor.halt()
         out.append(DiagnosticStatus(level=bytes([{"clear": OK, "hold": WARN, "fault": ERROR}[halt.kind]]), name=HALT_STATUS,
                                     message=halt.reason, hardware_id=self.machine,

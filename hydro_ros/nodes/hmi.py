@@ -18,6 +18,7 @@ import ipaddress
 import json
 import logging
 import os
+import sys
 import threading
 from pathlib import Path
 from typing import Any
@@ -37,7 +38,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.hmi.server import GUARD_KEY, QuietBadRequests, create_app, foxglove_gate
 from hydro_ros.hmi.state import HmiState, StatusReport
-from hydro_ros.nodes.common import LATCHED_QOS, LATEST_ONLY_QOS, namespaced_statuses, own_statuses, relative, run_node
+from hydro_ros.nodes.common import LATCHED_QOS, LATEST_ONLY_QOS, namespaced_statuses, own_statuses, relative, run_node, without_node_name
 from hydro_ros.nodes.foxglove_live import FoxgloveLive
 from hydro_ros.nodes.parameters import Parameters, Spec
 
@@ -133,7 +134,9 @@ class HmiNode(Node):
         # /joint_states comes at 1 kHz and the page shows its newest sample: a node that is never spun holds a
         # depth-1 subscription, and the timer takes from it (as rclpy's wait_for_message does), so no callback
         # runs per message
-        self._sampler = rclpy.create_node("hmi_joint_state_sampler", namespace=self.get_namespace(), context=self.context)
+        # named apart from this node: the process's node-name remap (launch's name) is not passed on, its other arguments are
+        self._sampler = rclpy.create_node("hmi_joint_state_sampler", namespace=self.get_namespace(), context=self.context,
+                                          use_global_arguments=False, cli_args=without_node_name(sys.argv))
         self._joint_states = self._sampler.create_subscription(JointState, relative(topics.JOINT_STATES), lambda _: None, LATEST_ONLY_QOS,
                                                                raw=True)
         self.create_timer(1.0 / update_rate, self._sample_joint_state)
