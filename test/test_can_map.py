@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import yaml
+from cantools.autosar.end_to_end import compute_profile2_crc
+from crccheck.crc import Crc8SaeJ1850
 
-from hydro_ros.can.codec import BusMapError, MachineBus
+from hydro_ros.can.codec import BusMapError, FrameError, MachineBus
 from hydro_ros.cli import main as cli
 from hydro_ros.contract.machine import load_machine_config
 from test.conftest import REPO
@@ -125,3 +128,57 @@ def test_a_missing_dbc_is_named_beside_the_config(tmp_path, capsys):
 def test_the_shipped_configs_pass_their_own_bus_check():
     for name in ("sam", "sam_mobile", "sam_mems", "boom_arm", "k70m"):
         MachineBus(load_machine_config(REPO / "config" / f"{name}.yaml"))
+
+
+# each checksum a map can name, on frames built by an independent encoder: cantools encodes the signals, the checksum comes
+# from crccheck's catalogue CRCs, the J1939-71 formula written out, a plain sum, cantools' own AUTOSAR E2E profile 2
+def _j1939_4bit(frame_id: int, data: bytes) -> int:
+    total = sum(data) + (frame_id & 0xFF) + ((frame_id >> 8) & 0xFF) + ((frame_id >> 16) & 0xFF) + ((frame_id >> 24) & 0xFF)
+    return ((total >> 4) + total) & 0x0F
+
+
+CHECKSUMMED = {  # algorithm -> (DBC message, map entry, independent checksum of the frame with its checksum bits zero)
+    "crc8_sae_j1850_id": ('SG_ P : 0|16@1+ (0.01,0) [0|655.35] "bar"', 'CS : 56|8@1+ (1,0) [0|255] ""', {},
+                          lambda fid, d: Crc8SaeJ1850.calc(bytes([fid & 0xFF, fid >> 8 & 0xFF]) + d[:7])),
+    "crc8_sae_j1850": ('SG_ P : 0|16@1+ (0.01,0) [0|655.35] "bar"', 'CS : 56|8@1+ (1,0) [0|255] ""', {},
+                       lambda fid, d: Crc8SaeJ1850.calc(d[:7])),
+    "j1939_4bit": ('SG_ P : 0|16@1+ (0.01,0) [0|655.35] "bar"', 'CS : 60|4@1+ (1,0) [0|15] ""', {},
+                   lambda fid, d: _j1939_4bit(fid, d)),
+    "byte_sum": ('SG_ P : 0|16@1+ (0.01,0) [0|655.35] "bar"', 'CS : 56|8@1+ (1,0) [0|255] ""', {}, lambda fid, d: sum(d[:7]) & 0xFF),
+    "autosar_e2e_p2": ('SG_ P : 16|16@1+ (0.01,0) [0|655.35] "bar"', 'CS : 0|8@1+ (1,0) [0|255] ""', {"data_id": 0x3A},
+                       lambda fid, d: compute_profile2_crc(d, 0x3A)),
+}
+
+
+@pytest.mark.parametrize("algorithm", list(CHECKSUMMED))
+def test_each_checksum_algorithm_accepts_independently_built_frames_and_refuses_a_flipped_bit(tmp_path, algorithm):
+    import cantools
+
+    signal, checksum, extra, independent = CHECKSUMMED[algorithm]
+    messages = {**MESSAGES, "PUMP": (0x18FF1021 | 0x80000000, [signal.removeprefix("SG_ "), checksum])}
+    can_map = {**MAP, "supply_pressure": "PUMP.P", "checksums": {"PUMP": {"signal": "CS", "algorithm": algorithm, **extra}}}
+    bus = MachineBus(load_machine_config(_machine(tmp_path, messages, can_map)))
+    db = cantools.database.load_string(_dbc(messages))
+    message = db.get_message_by_name("PUMP")
+    rng = np.random.default_rng(7)
+    for value in rng.uniform(0, 600, 50):
+        zeroed = message.encode({"P": round(value, 2), "CS": 0})
+        data = message.encode({"P": round(value, 2), "CS": independent(message.frame_id, zeroed)})
+        name, _, values = bus.decode(message.frame_id, data)
+        assert name == "PUMP" and values["P"] == pytest.approx(round(value, 2))
+        assert bus._frame("PUMP", {"P": round(value, 2)}, 0)[1] == data  # our encoder writes the same frame
+        flipped = bytearray(data)
+        flipped[2] ^= 0x10  # a data bit in every layout above
+        with pytest.raises(FrameError) as refused:
+            bus.decode(message.frame_id, bytes(flipped))
+        assert refused.value.kind == "bad_checksum"
+
+
+def test_a_checksum_the_map_cannot_use_is_refused_naming_it(tmp_path):
+    messages = {**MESSAGES, "PUMP": (0x102, ['P_SUPPLY : 0|16@1+ (0.1,0) [0|6553.5] "psi"', 'CS : 56|8@1+ (1,0) [0|255] ""'])}
+    for entry, expected in (({"signal": "CS", "algorithm": "crc32"}, "algorithm: 'crc32': expected one of"),
+                            ({"signal": "CS", "algorithm": "j1939_4bit"}, "must be a raw 4-bit signal for j1939_4bit"),
+                            ({"signal": "CS", "algorithm": "autosar_e2e_p2"}, "autosar_e2e_p2 needs data_id"),
+                            ({"signal": "NOPE"}, "no signal PUMP.NOPE (named by can.map.checksums.PUMP)")):
+        problems = _problems(_machine(tmp_path, messages, {**MAP, "checksums": {"PUMP": entry}}))
+        assert any(expected in p for p in problems), (entry, problems)

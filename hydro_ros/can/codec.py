@@ -6,9 +6,11 @@ each quantity: ``supply_pressure`` (and ``ls_pressure`` on mobile valves) machin
 ``sensors.velocity_filter_hz`` when the bus has none), ``pressure_a``, ``pressure_b``, ``valve_command``,
 mobile valves' ``pilot_pressure_1``, ``pilot_pressure_2``, ``compensator_pressure``, and ``valve_request``
 (where can_bridge sends commands), each as ``MESSAGE.SIGNAL``. Units are converted from the DBC's (bar,
-kPa, MPa, psi, deg, deg/s, mm, %...). ``counters`` and ``checksums`` ({MESSAGE: SIGNAL}) name the rolling
-counters (4 bit) and CRC-8/SAE-J1850 checksums (over the ID's two low bytes and the other data bytes,
-AUTOSAR-E2E style) where the bus has them, and only there are they checked. Without counters the frames of a
+kPa, MPa, psi, deg, deg/s, mm, %...). ``counters`` ({MESSAGE: SIGNAL}) names the rolling counters (4 bit) and
+``checksums`` each message's checksum where the bus has them, and only there are they checked: ``{MESSAGE: SIGNAL}``
+is hydro_ros's own CRC-8/SAE-J1850 over the ID's two low bytes and the other data bytes; ``{MESSAGE: {signal,
+algorithm, data_id}}`` names another of ``CHECKSUM_ALGORITHMS`` (CRC-8/SAE-J1850 without the id, J1939-71's 4-bit
+message checksum, a byte sum, AUTOSAR E2E profile 2). Without counters the frames of a
 cycle are grouped by time (a message seen again starts the next cycle). 11- and 29-bit ids (J1939: the DBC's
 extended ids) and either byte order, as cantools reads them.
 
@@ -48,17 +50,30 @@ MOBILE_ONLY = ("ls_pressure", "pilot_pressure_1", "pilot_pressure_2", "compensat
 OPTIONAL = ("joint_velocity", "valve_request")
 
 
-def _crc_table() -> list[int]:
+def _crc_table(polynomial: int) -> list[int]:
     table = []
     for byte in range(256):
         crc = byte
         for _ in range(8):
-            crc = ((crc << 1) ^ 0x1D) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+            crc = ((crc << 1) ^ polynomial) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
         table.append(crc)
     return table
 
 
-_CRC = _crc_table()
+_CRC = {0x1D: _crc_table(0x1D), 0x2F: _crc_table(0x2F)}  # SAE J1850; AUTOSAR's CRC-8H2F (E2E profile 2)
+
+
+def _crc8(polynomial: int, data: bytes | list[int]) -> int:
+    """CRC-8 with init and xorout 0xFF over ``data`` (SAE J1850 with 0x1D, AUTOSAR CRC-8H2F with 0x2F)."""
+    table, crc = _CRC[polynomial], 0xFF
+    for byte in data:
+        crc = table[crc ^ byte]
+    return crc ^ 0xFF
+
+
+def crc8(frame_id: int, payload: bytes, at: int = 7) -> int:
+    """CRC-8/SAE-J1850 (poly 0x1D, init and xorout 0xFF) over the ID's two low bytes and every data byte but byte ``at``."""
+    return _crc8(0x1D, [frame_id & 0xFF, (frame_id >> 8) & 0xFF, *payload[:at], *payload[at + 1:]])
 
 
 def _raw_range(signal: Any) -> tuple[float, float]:
@@ -69,12 +84,40 @@ def _raw_range(signal: Any) -> tuple[float, float]:
     return min(ends), max(ends)
 
 
-def crc8(frame_id: int, payload: bytes, at: int = 7) -> int:
-    """CRC-8/SAE-J1850 (poly 0x1D, init and xorout 0xFF) over the ID's two low bytes and every data byte but byte ``at``."""
-    crc = 0xFF
-    for byte in (frame_id & 0xFF, (frame_id >> 8) & 0xFF, *payload[:at], *payload[at + 1:]):
-        crc = _CRC[crc ^ byte]
-    return crc ^ 0xFF
+# the checksums a map can name per message (``checksums: {MESSAGE: {signal, algorithm, data_id}}``), each computed over the
+# frame with the checksum's own bits zeroed (``masked``); the bytes the checksum occupies are left out of the CRCs and sums
+CHECKSUM_ALGORITHMS = {
+    "crc8_sae_j1850_id": "CRC-8/SAE-J1850 over the id's two low bytes and the other data bytes (hydro_ros's own bus)",
+    "crc8_sae_j1850": "CRC-8/SAE-J1850 over the other data bytes",
+    "j1939_4bit": "J1939-71's 4-bit message checksum (TSC1): the data bytes and the id's four bytes summed, folded to 4 bits",
+    "byte_sum": "the other data bytes summed, modulo 256",
+    "autosar_e2e_p2": "AUTOSAR E2E profile 2: CRC-8H2F over data bytes 1.. and the data id (per counter: data_ids), in byte 0",
+}
+
+
+@dataclass(frozen=True)
+class Checksum:
+    signal: str
+    algorithm: str = "crc8_sae_j1850_id"
+    data_ids: tuple[int, ...] = ()  # autosar_e2e_p2: one data id, or 16 (one per counter value, the counter in byte 1's low nibble)
+
+
+def checksum_value(checksum: Checksum, frame_id: int, masked: bytes, covered: frozenset[int]) -> int:
+    """The checksum of a frame whose checksum bits are zeroed (``masked``); ``covered``: the bytes the checksum occupies."""
+    other = [b for k, b in enumerate(masked) if k not in covered]
+    algorithm = checksum.algorithm
+    if algorithm == "crc8_sae_j1850_id":
+        return _crc8(0x1D, [frame_id & 0xFF, (frame_id >> 8) & 0xFF, *other])
+    if algorithm == "crc8_sae_j1850":
+        return _crc8(0x1D, other)
+    if algorithm == "j1939_4bit":
+        total = sum(masked) + sum((frame_id >> shift) & 0xFF for shift in (0, 8, 16, 24))
+        return ((total >> 4) + total) & 0x0F
+    if algorithm == "byte_sum":
+        return sum(other) & 0xFF
+    ids = checksum.data_ids
+    data_id = ids[masked[1] & 0x0F] if len(ids) == 16 else ids[0]
+    return _crc8(0x2F, [*masked[1:], data_id])
 
 
 class FrameError(InputError):
@@ -191,7 +234,7 @@ class MachineBus:
             self.per_actuator[slot.actuator] = {q: m for q, m in mapped.items() if m is not None}
         self.machine_wide = {q: m for q, m in self.machine_wide.items() if m is not None}
         self.counters = self._framing(raw.get("counters") or {}, where, "counters")
-        self.checksums = self._framing(raw.get("checksums") or {}, where, "checksums")
+        self.checksums = self._checksums(raw.get("checksums") or {}, f"{where}.checksums")
         if self.problems:
             raise BusMapError(self.problems)
         sensors = [*self.machine_wide.values(), *(s for m in self.per_actuator.values() for q, s in m.items() if q != "valve_request")]
@@ -256,6 +299,45 @@ class MachineBus:
                 self.problems.append(f"dbc {self.dbc_path}: no signal {message_name}.{signal_name} (named by {where}.{kind})")
         return {str(k): str(v) for k, v in table.items()}
 
+    def _checksums(self, table: Mapping[str, Any], where: str) -> dict[str, Checksum]:
+        """Each message's checksum: ``SIGNAL`` (hydro_ros's own CRC) or ``{signal, algorithm, data_id | data_ids}``; the
+        bits it occupies (``_mask``) and its bytes (``_covered``), found by encoding."""
+        out: dict[str, Checksum] = {}
+        self._mask: dict[str, bytes] = {}
+        self._covered: dict[str, frozenset[int]] = {}
+        for message_name, entry in table.items():
+            key = f"{where}.{message_name}"
+            entry = {"signal": entry} if isinstance(entry, str) else entry
+            if not isinstance(entry, Mapping) or "signal" not in entry:
+                self.problems.append(f"{key}: expected a signal name or {{signal, algorithm}}")
+                continue
+            algorithm = str(entry.get("algorithm", "crc8_sae_j1850_id"))
+            ids = entry.get("data_ids", [entry["data_id"]] if "data_id" in entry else [])
+            message = self.by_name.get(message_name)
+            signal = next((s for s in message.signals if s.name == entry["signal"]), None) if message else None
+            if signal is None:
+                self.problems.append(f"dbc {self.dbc_path}: no signal {message_name}.{entry['signal']} (named by {key})")
+                continue
+            width = 4 if algorithm == "j1939_4bit" else 8
+            if algorithm not in CHECKSUM_ALGORITHMS:
+                self.problems.append(f"{key}.algorithm: {algorithm!r}: expected one of {', '.join(CHECKSUM_ALGORITHMS)}")
+            elif signal.length != width or signal.scale != 1 or signal.offset != 0:
+                self.problems.append(f"{key}: {message_name}.{signal.name} must be a raw {width}-bit signal for {algorithm}")
+            elif algorithm == "autosar_e2e_p2" and (len(ids) not in (1, 16) or signal.start // 8 != 0):
+                self.problems.append(f"{key}: autosar_e2e_p2 needs data_id (or 16 data_ids) and its CRC in byte 0")
+            else:
+                zero = {s.name: s.offset for s in message.signals}
+                base = message.encode(zero, scaling=True, strict=False)
+                full = message.encode({**zero, signal.name: (1 << width) - 1}, scaling=True, strict=False)
+                self._mask[message_name] = bytes(a ^ b for a, b in zip(base, full))
+                self._covered[message_name] = frozenset(k for k, m in enumerate(self._mask[message_name]) if m)
+                out[message_name] = Checksum(signal.name, algorithm, tuple(int(i) for i in ids))
+        return out
+
+    def _checksum_of(self, name: str, frame_id: int, data: bytes) -> int:
+        masked = bytes(d & ~m for d, m in zip(data, self._mask[name]))
+        return checksum_value(self.checksums[name], frame_id, masked, self._covered[name])
+
     def is_extended(self, frame_id: int) -> bool:
         return bool(self.by_id[frame_id].is_extended_frame)
 
@@ -272,12 +354,9 @@ class MachineBus:
             values[self.counters[name]] = counter % COUNTER_MODULO
         checksum = self.checksums.get(name)
         if checksum is not None:
-            values[checksum] = 0
-        data = bytearray(message.encode(values, strict=True))
-        if checksum is not None:
-            at = message.get_signal_by_name(checksum).start // 8
-            data[at] = crc8(message.frame_id, bytes(data), at)
-        return message.frame_id, bytes(data)
+            values[checksum.signal] = 0
+            values[checksum.signal] = self._checksum_of(name, message.frame_id, message.encode(values, strict=True))
+        return message.frame_id, bytes(message.encode(values, strict=True))
 
     def encode_cycle(self, sample: dict[str, Any], counter: int) -> list[tuple[int, bytes]]:
         """Frames of one cycle from {'joint_position': {joint: v}, 'pressure_a': {act: v}, 'supply_pressure': v, ...} [SI]."""
@@ -312,17 +391,22 @@ class MachineBus:
         if len(data) != message.length:
             raise FrameError("wrong_dlc", f"{message.name}: {len(data)} data bytes, expected {message.length}")
         checksum = self.checksums.get(message.name)
-        if checksum is not None:
-            at = message.get_signal_by_name(checksum).start // 8
-            if data[at] != crc8(frame_id, data, at):
+        covered = self._covered.get(message.name, frozenset())
+        if checksum is not None and len(covered) == 1 and self._mask[message.name][next(iter(covered))] == 0xFF:
+            # a whole byte (the common case): compared before anything is decoded
+            if data[next(iter(covered))] != self._checksum_of(message.name, frame_id, data):
                 raise FrameError("bad_checksum", f"{message.name}: checksum mismatch")
+            checksum = None
         try:
             values = message.decode(bytes(data), decode_choices=False)
         except Exception as exc:  # noqa: BLE001 - cantools raises several types on bad payloads
             raise FrameError("undecodable", f"{message.name}: {exc}") from None
+        if checksum is not None and int(values[checksum.signal]) != self._checksum_of(message.name, frame_id, data):
+            raise FrameError("bad_checksum", f"{message.name}: checksum mismatch")
+        checksum = self.checksums.get(message.name)
         counter = int(values.pop(self.counters[message.name])) if message.name in self.counters else None
         if checksum is not None:
-            values.pop(checksum)
+            values.pop(checksum.signal)
         if not all(math.isfinite(float(v)) for v in values.values()):
             raise FrameError("undecodable", f"{message.name}: non-finite value")
         return message.name, counter, {k: float(v) for k, v in values.items()}
