@@ -166,3 +166,33 @@ def test_the_hmi_started_as_launch_names_it_is_one_node_of_that_name(ros_domain)
         spin_until(node, lambda: False, 1.0)
         listed = names()
     assert listed.count(("hmi", "/m1")) == 1 and ("hmi_joint_state_sampler", "/m1") in listed, listed
+
+
+def test_can_bridge_says_its_state_on_diagnostics_in_every_lifecycle_state(ros_domain):
+    """autostart off (launch drives it): unconfigured, a configure that fails (no such bus) with its error, asked twice and
+    logged twice, then configured on another interface: inactive. Each said on /diagnostics by the periodic status."""
+    from lifecycle_msgs.msg import Transition
+
+    from test.ros_graph import change_state, node_output
+
+    statuses: list = []
+    with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={SAM_CONFIG}", "-p", "autostart:=false", "-p", "interface:=socketcan",
+                      "-p", "channel:=hydro_ros_no_such_bus", "-p", "diagnostics_period:=0.2") as bridge, probe_node("operator") as node:
+        node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, lambda m: statuses.extend(
+            {v.key: v.value for v in s.values} | {"message": s.message, "level": s.level[0]}
+            for s in m.status if s.name == "hydro_ros/can_bridge/bus"), 50)
+        assert spin_until(node, lambda: any(s["lifecycle_state"] == "unconfigured" for s in statuses), 30)
+        for _ in range(2):  # a person asks twice: refused twice, said twice
+            assert not change_state(node, "/can_bridge", Transition.TRANSITION_CONFIGURE)
+        count = len(statuses)
+        assert spin_until(node, lambda: len(statuses) > count + 2, 5)
+        assert statuses[-1]["lifecycle_state"] == "unconfigured" and "hydro_ros_no_such_bus" in statuses[-1]["message"]
+        assert statuses[-1]["level"] == 2 and statuses[-1]["configure_attempts"] == "2"
+        assert node_output(bridge).count("bus socketcan:hydro_ros_no_such_bus cannot be opened") >= 2
+        parameters = AsyncParameterClient(node, "can_bridge")
+        assert parameters.wait_for_services(10.0)
+        future = parameters.set_parameters([Parameter("interface", value="virtual")])
+        assert spin_until(node, future.done, 10)
+        assert change_state(node, "/can_bridge", Transition.TRANSITION_CONFIGURE)
+        assert spin_until(node, lambda: statuses[-1]["lifecycle_state"] == "inactive", 5), statuses[-1]
+        assert statuses[-1]["level"] == 1 and "nothing published" in statuses[-1]["message"]

@@ -180,6 +180,10 @@ class CanBridge(LifecycleNode):
         self.deadman: ValveDeadman | None = None  # the forwarded valves' last commands (or neutral requests), from activation
         self.refused_commands = 0
         self.deadman_neutrals = 0
+        self._autostarting = False
+        # the bus status in every lifecycle state, as diagnostic_updater's periodic Updater publishes: unconfigured with
+        # the last configure error, inactive, active (every message's rate and health), finalized
+        self.create_timer(self.params["diagnostics_period"], self._diagnose, clock=Clock(clock_type=ClockType.STEADY_TIME))
         if self.params["autostart"]:
             self._autostart(backoff[0])
 
@@ -188,20 +192,29 @@ class CanBridge(LifecycleNode):
         if self._retry is not None:
             self.destroy_timer(self._retry)
             self._retry = None
-        if self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
+        self._autostarting = True
+        configured = self.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        self._autostarting = False
+        if configured:
             self.trigger_activate()
             return
-        self._publish_unconfigured()
+        self._diagnose()
         retry_in = min(delay, self.params["reconnect_backoff"][1])
         self._retry = self.create_timer(retry_in, lambda: self._autostart(min(2.0 * retry_in, self.params["reconnect_backoff"][1])),
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
 
-    def _publish_unconfigured(self) -> None:
-        status = self._status("hydro_ros/can_bridge/bus", ERROR, f"unconfigured: {self.configure_error}",
-                              {"connected": "False", "reconnects": str(self.configure_attempts), "last_error": self.configure_error})
-        array = DiagnosticArray(status=namespaced_statuses(self, [status]))
-        array.header.stamp = self.get_clock().now().to_msg()
-        self.pub_diag.publish(array)
+    def _state_status(self) -> DiagnosticStatus:
+        """The bus status outside the active state: the lifecycle state, and the last configure error while unconfigured."""
+        state = self._state_machine.current_state[1]
+        if state == "unconfigured" and self.configure_error:
+            level, message = ERROR, f"unconfigured: {self.configure_error}"
+        elif state == "inactive":
+            level, message = WARN, f"inactive: bus {self.bus_name} open and checked, nothing published or forwarded"
+        else:
+            level, message = WARN, f"{state}: waiting for a lifecycle transition"
+        return self._status("hydro_ros/can_bridge/bus", level, message, {
+            "lifecycle_state": state, "connected": str(self.reader is not None and self.reader.connected),
+            "configure_attempts": str(self.configure_attempts), "last_error": self.configure_error})
 
     # life cycle ----------------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -227,7 +240,9 @@ class CanBridge(LifecycleNode):
             opened = can.Bus(**kwargs)
         except (InputError, can.CanError, OSError, ValueError, ImportError, NotImplementedError) as exc:
             self.configure_error = f"bus {self.bus_name} cannot be opened: {type(exc).__name__}: {exc}"
-            self.get_logger().error(self.configure_error, throttle_duration_sec=30.0)
+            # a configure a person asked for is answered every time; autostart's retries once in 30 s
+            self.get_logger().error(self.configure_error, throttle_duration_sec=30.0 if self._autostarting else 0.0)
+            self._diagnose()
             return TransitionCallbackReturn.FAILURE
         self.machine = machine.name
         self.configure_error = ""
@@ -261,7 +276,6 @@ class CanBridge(LifecycleNode):
         self.started = time.monotonic()
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._entities.append(self.create_timer(self.params["process_period"], self._process, clock=steady))
-        self._entities.append(self.create_timer(self.params["diagnostics_period"], self._diagnose, clock=steady))
         self.reader.start()
         self.get_logger().info(f"bus {self.bus_name} open ({self.codec.dbc_path.name}) for {self.machine}; "
                                f"forward_commands={self.forward}")
@@ -401,6 +415,9 @@ class CanBridge(LifecycleNode):
     # health ------------------------------------------------------------------------------------
     def _diagnose(self) -> None:
         if not self.active or self.reader is None:
+            array = DiagnosticArray(status=namespaced_statuses(self, [self._state_status()]))
+            array.header.stamp = self.get_clock().now().to_msg()
+            self.pub_diag.publish(array)
             return
         now = time.monotonic()
         elapsed = max(now - self._window_start, 1e-6)
