@@ -127,3 +127,32 @@ def test_a_config_saying_a_key_twice_is_refused_naming_it(tmp_path):
     with pytest.raises(ConfigError, match=r"not valid YAML \(duplicate key 'along' \(line \d+\)\)"):
         load_machine_config(twice)
     assert load_machine_config(REPO / "config" / "k70m.yaml").crane  # YAML merge keys (<<) are not duplicates
+
+
+@pytest.mark.parametrize("case", ["binary", "not_utf8", "folder", "oversized", "alias_bomb"])
+def test_a_config_that_cannot_be_one_is_refused_in_one_line_at_once(tmp_path, case):
+    """Every command and node reads configs through contract.config: a binary, a Latin-1 file, a folder, 10 MB of YAML and
+    a 'billion laughs' of aliases are refused in one line naming the file, in well under a second."""
+    import time
+
+    path = tmp_path / "machine.yaml"
+    if case == "binary":
+        path.write_bytes(bytes(range(256)) * 4)
+    elif case == "not_utf8":
+        path.write_bytes("machine: säge\n".encode("latin-1"))
+    elif case == "folder":
+        path.mkdir()
+    elif case == "oversized":
+        path.write_text("machine: big\nnotes:\n" + "".join(f"  - line {k} of a very long list of notes\n" for k in range(300_000)))
+    else:
+        lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
+        lines += [f"a{k}: &a{k} [{', '.join([f'*a{k - 1}'] * 10)}]" for k in range(1, 9)]
+        path.write_text("machine: bomb\n" + "\n".join(lines) + "\n")
+    started = time.monotonic()
+    with pytest.raises(ConfigError) as refused:
+        load_machine_config(path)
+    message = str(refused.value)
+    assert str(path) in message and "\n" not in message and time.monotonic() - started < 2.0
+    expected = {"binary": "not UTF-8", "not_utf8": "not UTF-8", "folder": "is a folder", "oversized": "MB, more than",
+                "alias_bomb": "aliases expand"}[case]
+    assert expected in message, message

@@ -76,16 +76,39 @@ def _unique_keys(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = 
 _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_keys)
 
 
-def _read_merged(path: Path, extended_by: tuple[Path, ...] = ()) -> dict[str, Any]:
+MAX_CONFIG_BYTES = 1_000_000  # the largest shipped config is 25 kB; a commissioned one with its report under 100 kB
+MAX_CONFIG_VALUES = 200_000  # values a config may expand to through its YAML aliases (the shipped ones: under 5 000)
+
+
+def _config_text(path: Path) -> str:
+    """The file's text, refused in one line when it cannot be a config: missing, a folder, too large, not UTF-8."""
+    if path.is_dir():
+        raise ConfigError(f"config {path}: is a folder, not a file")
     if not path.is_file():
         raise ConfigError(f"config {path}: no such file")
+    size = path.stat().st_size
+    if size > MAX_CONFIG_BYTES:
+        raise ConfigError(f"config {path}: {size / 1e6:.1f} MB, more than a config's {MAX_CONFIG_BYTES / 1e6:g} MB")
+    data = path.read_bytes()
     try:
-        raw = unshared(yaml.load(path.read_text(), Loader=_UniqueKeyLoader))  # noqa: S506 - a SafeLoader
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"config {path}: not UTF-8 text (byte 0x{data[exc.start]:02X} at offset {exc.start}): "
+                          "is it a YAML config?") from None
+
+
+def _read_merged(path: Path, extended_by: tuple[Path, ...] = ()) -> dict[str, Any]:
+    text = _config_text(path)
+    try:
+        raw = unshared(yaml.load(text, Loader=_UniqueKeyLoader))  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as exc:
         first_line = str(exc).splitlines()[0]
         raise ConfigError(f"config {path}: not valid YAML ({first_line})") from None
     except RecursionError:
         raise ConfigError(f"config {path}: a YAML alias contains itself") from None
+    except _TooManyValues:
+        raise ConfigError(f"config {path}: its YAML aliases expand to more than {MAX_CONFIG_VALUES} values "
+                          "(aliases of aliases: a 'billion laughs')") from None
     if not isinstance(raw, dict):
         raise ConfigError(f"config {path}: expected a mapping at the top level")
     if "extends" in raw:
@@ -114,13 +137,22 @@ def _read_merged(path: Path, extended_by: tuple[Path, ...] = ()) -> dict[str, An
     return raw
 
 
-def unshared(node: Any) -> Any:
+class _TooManyValues(Exception):
+    pass
+
+
+def unshared(node: Any, budget: list[int] | None = None) -> Any:
     """A copy in which no mapping or list appears twice. YAML anchors (``valve: *valve``) and ``copy.deepcopy`` share
-    one object between actuators, and a patch of one actuator's entry would then change every actuator's."""
+    one object between actuators, and a patch of one actuator's entry would then change every actuator's. At most
+    MAX_CONFIG_VALUES values are copied (_TooManyValues): aliases of aliases expand exponentially."""
+    budget = [MAX_CONFIG_VALUES] if budget is None else budget
+    budget[0] -= 1
+    if budget[0] < 0:
+        raise _TooManyValues
     if isinstance(node, dict):
-        return {key: unshared(value) for key, value in node.items()}
+        return {key: unshared(value, budget) for key, value in node.items()}
     if isinstance(node, list):
-        return [unshared(value) for value in node]
+        return [unshared(value, budget) for value in node]
     return copy.copy(node)
 
 
