@@ -331,3 +331,17 @@ def test_the_alarm_log_is_served_paged_and_read_only(tmp_path):
         assert answer.status == 404 and "no alarm log" in (await answer.json())["error"]
 
     _serve(TOKEN, without)
+
+
+def test_the_page_tells_a_pause_from_a_stop():
+    """/fdi/halt is true for a hold (the monitor cannot vouch) and for a severe fault; the monitor's hydro_ros/fdi_halt status
+    says which, and the page's state carries it (hmi.js: PAUSED against HALT REQUESTED)."""
+    state = HmiState(plot_window_s=10.0, plot_period_s=0.1, stale_timeout_s=3.0)
+    state.on_halt(True)
+    state.on_diagnostics(1.0, [StatusReport("hydro_ros/fdi_halt", 1, "paused: monitor not vouching (boom: inputs stale)", "sam",
+                                            {"halt": "true", "kind": "hold"})])
+    view = state.snapshot()[0]
+    assert view["halt"] is True and view["halt_kind"] == "hold" and "inputs stale" in view["halt_reason"]
+    state.on_diagnostics(2.0, [StatusReport("hydro_ros/fdi_halt", 2, "stop: severe fault (boom: spool_stuck_closed)", "sam",
+                                            {"halt": "true", "kind": "fault"})])
+    assert state.snapshot()[0]["halt_kind"] == "fault" and not state.snapshot()[0]["tiles"]

@@ -196,3 +196,36 @@ def test_can_bridge_says_its_state_on_diagnostics_in_every_lifecycle_state(ros_d
         assert change_state(node, "/can_bridge", Transition.TRANSITION_CONFIGURE)
         assert spin_until(node, lambda: statuses[-1]["lifecycle_state"] == "inactive", 5), statuses[-1]
         assert statuses[-1]["level"] == 1 and "nothing published" in statuses[-1]["message"]
+
+
+STOP_ARGS = {  # each executable of setup.py with what it needs to start on its own
+    "plant_sim": [], "crane_sim": [], "fdi_node": [], "trajectory_executor": [],
+    "bag_player": ["-p", "bag:=" + str(SAM_CONFIG.parent.parent / "bags" / "fault_free"), "-p", "loop:=true"],
+    "can_bridge": ["-p", "interface:=virtual", "-p", "channel:=hydro_ros_stop_test"],
+    "trajectory_server": ["-p", "database:=/nonexistent/catalog.db"],
+    "hmi": ["-p", "port:=0", "-p", "foxglove_port:=-1"],
+}
+
+
+@pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("executable", sorted(STOP_ARGS))
+def test_every_node_stops_cleanly_within_two_seconds(ros_domain, executable, signal_name):
+    import re
+    import signal
+
+    from test.conftest import REPO
+    from test.ros_graph import node_output
+
+    entry_points = set(re.findall(r'"(\w+) = hydro_ros\.nodes\.', (REPO / "setup.py").read_text()))
+    assert entry_points == set(STOP_ARGS)  # a new executable is covered by this test
+    with node_process(f"hydro_ros.nodes.{executable}", *STOP_ARGS[executable]) as process, probe_node("probe") as node:
+        assert spin_until(node, lambda: executable in [name for name, _ in node.get_node_names_and_namespaces()], 30)
+        spin_until(node, lambda: False, 1.0)  # its timers running
+        process.send_signal(getattr(signal, signal_name))
+        sent = time.monotonic()
+        code = process.wait(timeout=10)
+        stopped_after = time.monotonic() - sent
+        output = node_output(process)
+    assert "Traceback" not in output, output[-2000:]
+    assert code == 0, (code, output[-1000:])
+    assert stopped_after < 2.0, f"{executable} took {stopped_after:.1f} s"

@@ -11,6 +11,7 @@ FDI_HALT = "/fdi/halt"
 FDI_RESIDUALS = "/fdi/residuals"
 FDI_STATUS_PREFIX = "hydro_ros/fdi/"  # + actuator: one DiagnosticStatus per monitored actuator
 SENSOR_STATUS_PREFIX = "hydro_ros/sensors/"  # + actuator: the health of its readings (fdi_node)
+FDI_HALT_STATUS = "hydro_ros/fdi_halt"  # the halt decision and its reason, machine-wide (values: halt, kind clear/hold/fault)
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 FLUID_PRESSURE_TYPE = "sensor_msgs/msg/FluidPressure"

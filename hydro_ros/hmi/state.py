@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Callable
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.contract.topics import FDI_STATUS_PREFIX
+from hydro_ros.contract.topics import FDI_HALT_STATUS, FDI_STATUS_PREFIX
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 HEALTHY_MESSAGES = ("ok", "stale", "not_monitored", "overloaded")  # fdi_node's messages that name no fault
@@ -103,6 +103,8 @@ class HmiState:
         self.residuals = Residuals()
         self.halt: bool | None = None
         self.halt_since_wall: float | None = None
+        self.halt_kind = ""  # the monitor's FDI_HALT_STATUS: "hold" (paused: the monitor cannot vouch) or "fault" (stop)
+        self.halt_reason = ""
         self.joints: dict[str, float] = {}
         self.joint_stamp_s: float | None = None
         self.catalog: list[dict[str, Any]] | None = None
@@ -123,6 +125,9 @@ class HmiState:
         now = self.clock()
         with self.lock:
             for report in reports:
+                if report.name == FDI_HALT_STATUS:
+                    self.halt_kind, self.halt_reason = report.values.get("kind", ""), report.message
+                    continue
                 if not report.name.startswith(FDI_STATUS_PREFIX):
                     continue
                 actuator = report.name[len(FDI_STATUS_PREFIX):]
@@ -252,6 +257,8 @@ class HmiState:
             "alarms": [dict(asdict(a), active=a.active) for a in self.alarms],
             "halt": self.halt,
             "halt_since_wall": self.halt_since_wall,
+            "halt_kind": self.halt_kind,
+            "halt_reason": self.halt_reason,
             "joints": self.joints,
             "joint_stamp_s": self.joint_stamp_s,
             "catalog": self.catalog,

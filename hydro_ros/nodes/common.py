@@ -142,19 +142,16 @@ def message_class(type_name: str) -> Any:
     return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
 
-def run_node(factory: Callable[[], Node], args: list[str] | None = None, *, last_words: bool = False) -> None:
-    """Init, spin, shut down cleanly; Ctrl-C exits without a traceback.
+def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None:
+    """Init, spin, shut down cleanly: SIGINT and SIGTERM end the spin without a traceback.
 
-    ``last_words``: a node that must still publish as it goes (neutral valve commands) handles SIGINT and
-    SIGTERM itself. rclpy's own handlers shut the context down first, after which nothing can be sent;
-    here the signal ends the spin and the node is destroyed while its publishers still work.
+    Every node handles the two signals itself: rclpy's own handlers shut the context down first, after which a timer
+    still due publishes into an invalid context (a traceback) and nothing can be sent (a valve's neutral command). Here
+    the signal ends the spin, and the node is destroyed while its publishers still work.
     """
-    if last_words:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-        signal.signal(signal.SIGTERM, _interrupt)
-        signal.signal(signal.SIGINT, _interrupt)
-    else:
-        rclpy.init(args=args)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGINT, _interrupt)
     node = None
     try:
         try:
@@ -166,6 +163,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None, *, last
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second signal does not cut the node's last words short
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         if node is not None:
             node.destroy_node()
         if rclpy.ok():

@@ -67,7 +67,6 @@ from hydro_ros.safety.motion import HEARTBEAT_PERIOD_S
 from hydro_ros.safety.supervisor import ERROR, OK, STALE, WARN, ActuatorView, AlarmEvent, Halt, MonitorSupervisor
 
 ALARM_LOG_STATUS = "hydro_ros/alarm_log"
-HALT_STATUS = "hydro_ros/fdi_halt"  # the machine-wide halt decision and its reason
 MAX_PENDING_NS = 5_000_000_000  # samples waiting for a missing topic longer than this are given up
 DRAIN_MAX = 200  # messages of one topic taken per callback at most, so one topic cannot starve the timers
 OVERLOAD_WINDOW_S = 2.0  # [s] of wall time over which the share of incomplete samples is measured
@@ -366,7 +365,7 @@ class FdiNode(Node):
                 values=[KeyValue(key=self._source(c, actuator), value=p) for c, p in problems.items()]
                 + [KeyValue(key=topic, value="stale") for topic in stale]))
         halt = self.supervisor.halt()
-        out.append(DiagnosticStatus(level=bytes([{"clear": OK, "hold": WARN, "fault": ERROR}[halt.kind]]), name=HALT_STATUS,
+        out.append(DiagnosticStatus(level=bytes([{"clear": OK, "hold": WARN, "fault": ERROR}[halt.kind]]), name=topics.FDI_HALT_STATUS,
                                     message=halt.reason, hardware_id=self.machine,
                                     values=[KeyValue(key="halt", value=str(halt.halt).lower()), KeyValue(key="kind", value=halt.kind)]))
         if self.alarm_log is not None:

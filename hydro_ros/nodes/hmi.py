@@ -51,7 +51,8 @@ class WebServerThread:
     def __init__(self, app: web.Application, host: str, port: int, ssl_context: Any = None) -> None:
         self.loop = asyncio.new_event_loop()
         logging.getLogger("aiohttp.server").addFilter(QuietBadRequests())
-        self.runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        # open websockets (a page) are closed within half a second on shutdown, not aiohttp's default minute
+        self.runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=0.5)
         self.loop.run_until_complete(self.runner.setup())
         site = web.TCPSite(self.runner, host, port, ssl_context=ssl_context)
         try:

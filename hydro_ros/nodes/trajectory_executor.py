@@ -468,7 +468,7 @@ class TrajectoryExecutor(LifecycleNode):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(TrajectoryExecutor, args, last_words=True)
+    run_node(TrajectoryExecutor, args)
 
 
 if __name__ == "__main__":

@@ -65,8 +65,11 @@ function renderHalt(message) {
   const halt = document.getElementById("halt");
   if (message.halt === null) {
     halt.className = "halt unknown"; halt.textContent = "halt state unknown: nothing on /fdi/halt yet";
+  } else if (message.halt && message.halt_kind === "hold") {
+    halt.className = "halt paused"; halt.textContent = `PAUSED since ${clockTime(message.halt_since_wall)}: ${message.halt_reason}`;
   } else if (message.halt) {
-    halt.className = "halt requested"; halt.textContent = `HALT REQUESTED since ${clockTime(message.halt_since_wall)}: severe fault`;
+    halt.className = "halt requested";
+    halt.textContent = `HALT REQUESTED since ${clockTime(message.halt_since_wall)}: ${message.halt_reason || "severe fault"}`;
   } else {
     halt.className = "halt running"; halt.textContent = "no halt request";
   }
