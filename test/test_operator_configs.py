@@ -20,7 +20,7 @@ LAYOUT = REPO / "config" / "foxglove_layout.json"
 
 
 def _published_status_names() -> list[str]:
-    names = ["hydro_ros/plant_sim", "hydro_ros/can_bridge/bus", HMI_STATUS, ALARM_LOG_STATUS]
+    names = ["hydro_ros/plant_sim", "hydro_ros/can_bridge/bus", HMI_STATUS, ALARM_LOG_STATUS, topics.FDI_HALT_STATUS]
     for machine in ("sam", "sam_mobile", "sam_mems"):
         config = load_machine_config(REPO / "config" / f"{machine}.yaml")
         names += [f"{prefix}{actuator}" for actuator in config.actuator_names
