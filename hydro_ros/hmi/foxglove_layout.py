@@ -40,7 +40,8 @@ def foxglove_layout(machine: Machine, namespace: str = "") -> dict[str, Any]:
     panels: dict[str, Any] = {
         "Indicator!halt": {"title": f"Halt request ({halt})", "path": f"{halt}.data", "style": "background",
                            "fallbackColor": "#2e7d32", "fallbackLabel": "no halt request",
-                           "rules": [{"operator": "=", "rawValue": "true", "color": "#c62828", "label": "HALT REQUESTED: severe fault"}]},
+                           "rules": [{"operator": "=", "rawValue": "true", "color": "#c62828",
+                                      "label": "HALT: a severe fault or the monitor not vouching (hydro_ros/fdi_halt says which)"}]},
         "DiagnosticSummary!hydro_ros": {"topicToRender": topics.DIAGNOSTICS, "minLevel": 0, "pinnedIds": [], "hardwareIdFilter": "",
                                         "sortByLevel": True},
     }
