@@ -229,3 +229,15 @@ def test_every_node_stops_cleanly_within_two_seconds(ros_domain, executable, sig
     assert "Traceback" not in output, output[-2000:]
     assert code == 0, (code, output[-1000:])
     assert stopped_after < 2.0, f"{executable} took {stopped_after:.1f} s"
+
+
+@pytest.mark.parametrize("args, expected", [(["-r", "__ns:=/m1"], "m1"), (["-r", "__ns:=/m1", "-p", "machine_id:=crane7"], "crane7"),
+                                            ([], "sam")])
+def test_statuses_name_the_machine_instance_as_their_hardware_id(ros_domain, args, expected):
+    """Two machines of one type on one graph are told apart by hardware_id: the machine_id parameter, else the namespace,
+    else the machine's name."""
+    seen: list = []
+    with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", *args), probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, lambda m: seen.extend(m.status), 20)
+        assert spin_until(node, lambda: any(s.name.endswith("hydro_ros/fdi/boom") for s in seen), 30)
+    assert {s.hardware_id for s in seen} == {expected}

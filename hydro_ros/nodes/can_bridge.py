@@ -51,11 +51,13 @@ from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.nodes.common import (
+    MACHINE_ID,
     SAMPLE_OUTPUT_PARAMETERS,
     SENSOR_QOS,
     VALVE_COMMAND_TIMEOUT,
     checked_valve_commands,
     destroy_entities,
+    machine_instance,
     namespaced_statuses,
     publishes_sensor_topic,
     relative,
@@ -133,6 +135,7 @@ class BusReader(threading.Thread):
 
 AT_CONFIGURE = " (read at configure: set it, then cleanup and configure)"
 PARAMETERS = {
+    "machine_id": MACHINE_ID,
     "config": Spec(str(default_config_path("sam")), "machine config (YAML) whose sensors are on the bus" + AT_CONFIGURE, existing_file=True,
                    read_only=False),
     "dbc": Spec("", "DBC file of the bus; empty: the config's can.dbc" + AT_CONFIGURE, existing_file=True, read_only=False),
@@ -164,7 +167,7 @@ class CanBridge(LifecycleNode):
         backoff = self.params["reconnect_backoff"]
         if not 0 < backoff[0] <= backoff[1]:
             raise InputError(f"parameter reconnect_backoff={backoff}: expected [first, longest] with 0 < first <= longest")
-        self.machine = load_machine_config(self.params["config"]).name
+        self.machine = machine_instance(self, load_machine_config(self.params["config"]).name)
         self.forward = False
         self.bus_name = f"{self.params['interface']}:{self.params['channel']}"
         # /diagnostics in every state: a bus that cannot be opened is reported while the node waits unconfigured
@@ -244,7 +247,7 @@ class CanBridge(LifecycleNode):
             self.get_logger().error(self.configure_error, throttle_duration_sec=30.0 if self._autostarting else 0.0)
             self._diagnose()
             return TransitionCallbackReturn.FAILURE
-        self.machine = machine.name
+        self.machine = machine_instance(self, machine.name)
         self.configure_error = ""
         backoff = self.params["reconnect_backoff"]
         extended = frozenset(frame_id for frame_id, message in self.codec.by_id.items() if message.is_extended_frame)

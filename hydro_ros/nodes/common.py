@@ -57,6 +57,16 @@ VALVE_COMMAND_TIMEOUT = Spec(VALVE_COMMAND_TIMEOUT_S, "[s wall] a valve whose la
                                                       "neutral (deadman)", 0.01, 5.0)
 
 
+# the hardware_id of every status a node publishes: the machine instance, so two machines of one type stay apart
+MACHINE_ID = Spec("", "this machine instance's hardware_id on /diagnostics; empty: the node's namespace (m1), else the "
+                      "machine's name from its config")
+
+
+def machine_instance(node: Node, machine_name: str) -> str:
+    """The hardware_id of ``node``'s statuses: its ``machine_id`` parameter, else its namespace, else the machine's name."""
+    return node.params["machine_id"] or node.get_namespace().strip("/") or machine_name
+
+
 def checked_valve_commands(names: list[str], positions: list[float], actuators: list[str]) -> tuple[dict[str, float], dict[str, str]]:
     """The valve commands of a /hydraulics/valve_commands message for ``actuators``: (accepted, refused with the reason).
 

@@ -61,7 +61,16 @@ from hydro_ros.fdi.alarm_log import AlarmLog
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.residuals import GENERATORS
 from hydro_ros.fdi.settings import unset_threshold
-from hydro_ros.nodes.common import HALT_QOS, SENSOR_QOS, SERVICE_QOS, namespaced_statuses, relative, run_node
+from hydro_ros.nodes.common import (
+    HALT_QOS,
+    MACHINE_ID,
+    SENSOR_QOS,
+    SERVICE_QOS,
+    machine_instance,
+    namespaced_statuses,
+    relative,
+    run_node,
+)
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.safety.motion import HEARTBEAT_PERIOD_S
 from hydro_ros.safety.supervisor import ERROR, OK, STALE, WARN, ActuatorView, AlarmEvent, Halt, MonitorSupervisor
@@ -74,6 +83,7 @@ OVERLOAD_SHARE = 0.05  # more incomplete samples than this: the input outruns th
 
 
 PARAMETERS = {
+    "machine_id": MACHINE_ID,
     "config": Spec(str(default_config_path("sam")), "machine config (YAML) whose actuators are monitored", existing_file=True),
     "method": Spec("", "residual generator; empty: the config's fdi.method", choices=("", *GENERATORS)),
     "input": Spec("topics", "where samples come from: the contract's per-sample sensor topics, or the sample blocks on "
@@ -102,7 +112,7 @@ class FdiNode(Node):
         self.monitor = FdiMonitor(self.machine_config, self.params["method"] or None)
         if self.monitor.method == "ukf" and unset_threshold(self.machine_config):
             self.get_logger().warning(unset_threshold(self.machine_config))
-        self.machine = self.machine_config.name
+        self.machine = machine_instance(self, self.machine_config.name)
         self.stale_timeout = self.params["stale_timeout"]
         self.alarm_log = AlarmLog(self.params["alarm_log"], self.machine) if self.params["alarm_log"] else None
         if self.alarm_log is not None and self.alarm_log.error:

@@ -38,7 +38,17 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.hmi.server import GUARD_KEY, QuietBadRequests, create_app, foxglove_gate
 from hydro_ros.hmi.state import HmiState, StatusReport
-from hydro_ros.nodes.common import LATCHED_QOS, LATEST_ONLY_QOS, namespaced_statuses, own_statuses, relative, run_node, without_node_name
+from hydro_ros.nodes.common import (
+    LATCHED_QOS,
+    LATEST_ONLY_QOS,
+    MACHINE_ID,
+    machine_instance,
+    namespaced_statuses,
+    own_statuses,
+    relative,
+    run_node,
+    without_node_name,
+)
 from hydro_ros.nodes.foxglove_live import FoxgloveLive
 from hydro_ros.nodes.parameters import Parameters, Spec
 
@@ -77,6 +87,7 @@ class WebServerThread:
 
 
 PARAMETERS = {
+    "machine_id": MACHINE_ID,
     "config": Spec(str(default_config_path("sam")), "machine config (YAML): its actuators get tiles before their first status",
                    existing_file=True),
     "host": Spec("127.0.0.1", "address the page listens on; beyond loopback only with a token on a trusted network"),
@@ -153,7 +164,7 @@ class HmiNode(Node):
         app = create_app(self.state, self, token=token, update_period_s=1.0 / update_rate, log=self.get_logger().info,
                          allowed_hosts=self.allowed_hosts, alarm_log=Path(self.params["alarm_log"]) if self.params["alarm_log"] else None)
         self.guard = app[GUARD_KEY]
-        self.machine = str(config["machine"])
+        self.machine = machine_instance(self, str(config["machine"]))
         self.pub_diag = self.create_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
         self.create_timer(1.0, self._publish_diagnostics)
         self.web = WebServerThread(app, host, port)

@@ -48,10 +48,12 @@ from hydro_ros.contract.names import INJECTION_UNITS, Injection
 from hydro_ros.contract.samples import Samples
 from hydro_ros.nodes.common import (
     CLOCK_QOS,
+    MACHINE_ID,
     SAMPLE_OUTPUT_PARAMETERS,
     SENSOR_QOS,
     VALVE_COMMAND_TIMEOUT,
     checked_valve_commands,
+    machine_instance,
     namespaced_statuses,
     publishes_sensor_topic,
     relative,
@@ -66,6 +68,7 @@ TIP_PAYLOAD = "fault.payload_mass"  # on an arm (or crane) the payload hangs at 
 
 
 PARAMETERS = {
+    "machine_id": MACHINE_ID,
     "config": Spec(str(default_config_path("sam")), "machine config (YAML) of the simulated machine: a SAM-style one, or a crane "
                                                     "with an actuator per planar joint (crane mode)", existing_file=True),
     "seed": Spec(0, "seed of the operator's moves and the sensor noise", 0),
@@ -430,7 +433,7 @@ class PlantSim(Node):
         super().destroy_node()
 
     def _diagnose(self) -> None:
-        status = DiagnosticStatus(name="hydro_ros/plant_sim", hardware_id=self.machine.name)
+        status = DiagnosticStatus(name="hydro_ros/plant_sim", hardware_id=machine_instance(self, self.machine.name))
         sim_time = self.source.time
         wall = time.monotonic() - self.start_wall
         achieved = sim_time / wall if wall > 0 else 0.0

@@ -61,13 +61,14 @@ from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane, load_crane
 from hydro_ros.nodes.authority import PinnedSource
-from hydro_ros.nodes.common import HALT_QOS, LATCHED_QOS, SENSOR_QOS, destroy_entities, namespaced_statuses, relative, run_node
+from hydro_ros.nodes.common import HALT_QOS, LATCHED_QOS, MACHINE_ID, SENSOR_QOS, destroy_entities, machine_instance, namespaced_statuses, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.planning.controller import CylinderReference, MotionController, controller_settings
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE, JointTrajectoryData
 from hydro_ros.safety.motion import Heartbeat, MotionAuthority
 
 PARAMETERS = {
+    "machine_id": MACHINE_ID,
     "config": Spec(str(default_config_path("k70m")), "crane config (YAML, kind: crane): joints, limits, valve table, controller",
                    existing_file=True),
     "autostart": Spec(True, "configure and activate at start; false: wait for a lifecycle manager"),
@@ -462,7 +463,8 @@ class TrajectoryExecutor(LifecycleNode):
                   **{f"{kind}_unidentified": str(source.unidentified) for kind, source in self.sources.items()}}
         array = DiagnosticArray(status=namespaced_statuses(self, [
             DiagnosticStatus(level=bytes([level]), name="hydro_ros/trajectory_executor", message=message,
-                             hardware_id=self.crane.name if self.crane else "", values=[KeyValue(key=k, value=v) for k, v in values.items()])]))
+                             hardware_id=machine_instance(self, self.crane.name if self.crane else ""),
+                             values=[KeyValue(key=k, value=v) for k, v in values.items()])]))
         array.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(array)
 
