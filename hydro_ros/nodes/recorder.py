@@ -28,7 +28,7 @@ from hydro_ros.contract.machine import Machine
 from hydro_ros.nodes.common import SENSOR_QOS, message_class, relative
 
 DISCOVERY_S = 2.0  # wait for publishers before subscribing, so their QoS is known
-BLOCK_LOOK_S = 1.0  # [s] how often the graph is asked for a sample-block publisher that came late
+BLOCK_LOOK_S = 1.0  # [s] how often the graph is asked for publishers that came late (sample blocks, slow discovery)
 
 
 def _offered(info: Any) -> Qos:
@@ -58,12 +58,17 @@ class Recorder(Node):
         self._handles: dict[str, int] = {}
         self._subscribed: dict[str, Any] = {}
 
-    def subscribe_all(self) -> None:
+    def subscribe_all(self, *, unseen_too: bool = False) -> None:
+        """Subscribe to each wanted topic once a publisher offers it, with a QoS that matches what it offers (a reliable
+        subscription never matches a best-effort publisher: subscribing before the publisher is known lost every
+        message of a loaded machine's slow discovery). ``unseen_too``: the rest as well, so the bag lists them."""
         for topic, type_name in self.wanted.items():
             if topic in self._subscribed:
                 continue
             name = self.resolve_topic_name(relative(topic))
             offered = self.get_publishers_info_by_topic(name)
+            if not offered and not unseen_too:
+                continue
             qos = SENSOR_QOS
             if offered and all(info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for info in offered):
                 qos = QoSProfile(depth=SENSOR_QOS.depth, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -113,8 +118,9 @@ def record(machine: Machine, out: Path, *, duration_s: float | None, split_durat
                 next_look = started
                 while rclpy.ok() and time.monotonic() < stop:
                     rclpy.spin_once(node, timeout_sec=0.1)
-                    if time.monotonic() >= next_look:  # a bridge or simulator started after the recorder still gets its blocks recorded
+                    if time.monotonic() >= next_look:  # a publisher discovered late, or started after the recorder, is recorded
                         node.take_sample_blocks()
+                        node.subscribe_all()
                         next_look += BLOCK_LOOK_S
                     if time.monotonic() >= next_split:
                         writer.split()
@@ -124,6 +130,7 @@ def record(machine: Machine, out: Path, *, duration_s: float | None, split_durat
             except KeyboardInterrupt:
                 pass
             finally:
+                node.subscribe_all(unseen_too=True)  # every wanted topic is listed in the bag, with 0 messages if none came
                 counts = dict(node.counts)
                 node.destroy_node()
     finally:
