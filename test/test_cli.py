@@ -104,3 +104,23 @@ def test_the_previous_releases_spellings_still_work_and_say_the_new_one(old, new
     assert new in result.stderr and "the old spelling works for one release" in result.stderr
     assert "invalid choice" not in result.stderr and "unrecognized arguments" not in result.stderr
     assert result.returncode == (0 if old[0] == "fdi" else 1), result.stderr
+
+
+@pytest.mark.parametrize("argv, argument", [
+    (["sim", "--config", "config/sam.yaml", "--duration", "nan", "--out", "x"], "--duration"),
+    (["sim", "--config", "config/sam.yaml", "--duration", "inf", "--out", "x"], "--duration"),
+    (["sim", "--config", "config/sam.yaml", "--duration", "10", "--seed", "-1", "--out", "x"], "--seed"),
+    (["machine", "threshold", "config/sam.yaml", "--duration", "1e308", "--out", "x"], "--duration"),
+    (["fdi", "eval", "--duration", "-1"], "--duration"), (["fdi", "eval", "--duration", "0"], "--duration"),
+    (["dp", "execute", "--config", "config/k70m.yaml", "--path", "horizontal", "--start-extension", "nan"], "--start-extension"),
+    (["bag", "record", "--config", "config/sam.yaml", "--out", "x", "--split-size", "inf"], "--split-size"),
+    (["bag", "record", "--config", "config/sam.yaml", "--out", "x", "--duration", "inf"], "--duration"),
+    (["demo", "--duration", "1e308"], "--duration"),
+])
+def test_numbers_that_mean_nothing_are_refused_with_their_range(argv, argument, capsys):
+    from hydro_ros.cli import main as cli
+
+    with pytest.raises(SystemExit) as exited:
+        cli(argv)
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert exited.value.code == 2 and f"argument {argument}: " in error and "is outside" in error, error

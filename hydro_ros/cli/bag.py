@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from hydro_ros.cli.common import add_config, add_quiet, bag_or_nothing, new_output
+from hydro_ros.cli.common import SECONDS, add_config, add_quiet, bag_or_nothing, new_output, number
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 
@@ -20,9 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                            "stops and closes the bag.")
     add_config(rec, "machine config: which topics the machine has")
     rec.add_argument("--out", required=True, help="bag directory to create")
-    rec.add_argument("--duration", type=float, default=None, help="stop after S seconds of wall time (default: until Ctrl-C)")
-    rec.add_argument("--split-duration", type=float, default=None, metavar="S", help="start a new file every S seconds of log time")
-    rec.add_argument("--split-size", type=float, default=None, metavar="MB",
+    rec.add_argument("--duration", type=SECONDS, default=None, help="stop after S seconds of wall time (default: until Ctrl-C)")
+    rec.add_argument("--split-duration", type=SECONDS, default=None, metavar="S", help="start a new file every S seconds of log time")
+    rec.add_argument("--split-size", type=number(float, 0.0, 1e6, above=True, unit="MB"), default=None, metavar="MB",
                      help="start a new file after MB megabytes of messages (before compression)")
     rec.add_argument("--outputs", action="store_true", help="also record /diagnostics")
     add_quiet(rec)
@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     replay = verbs.add_parser("replay", help="play a contract bag onto ROS topics, like ros2 bag play")
     replay.add_argument("bag", help="bag directory")
-    replay.add_argument("--rate", type=float, default=1.0, help="playback rate (1 = recorded speed)")
+    replay.add_argument("--rate", type=number(float, 0.0, 1000.0, above=True), default=1.0, help="playback rate (1 = recorded speed)")
     replay.add_argument("--loop", action="store_true", help="start again at the end")
     replay.add_argument("--clock", action="store_true", help="publish /clock with the bag's log times (for use_sim_time nodes; off "
                         "by default, as ros2 bag play)")

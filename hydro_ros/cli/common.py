@@ -5,12 +5,37 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import shutil
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.names import parse_injection
+
+
+def number(kind: type, low: float, high: float, *, above: bool = False, unit: str = "") -> Any:
+    """An argparse type: a finite ``kind`` (int or float) in [low, high] (``above``: greater than low), refused with the
+    range otherwise. NaN, inf, -1 or 1e308 as a duration reached the simulator and hung or crashed there."""
+    def parse(text: str) -> int | float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if not math.isfinite(value) or value < low or value > high or (above and value == low):
+            shown = (str(low), str(high)) if kind is int else (f"{low:g}", f"{high:g}")
+            bounds = f"{'(' if above else '['}{shown[0]}, {shown[1]}]"
+            raise argparse.ArgumentTypeError(f"{text} is outside {bounds}{' ' + unit if unit else ''}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the expected type in its messages
+    return parse
+
+
+SECONDS = number(float, 0.0, 1e6, above=True, unit="s")  # a duration: more than nothing, under twelve days
+SEED = number(int, 0, 2**32 - 1)
+COUNT = number(int, 1, 1_000_000)
+PORT = number(int, 0, 65535)
 
 
 def add_config(parser: argparse.ArgumentParser, help: str = "machine config, e.g. config/sam.yaml") -> None:  # noqa: A002

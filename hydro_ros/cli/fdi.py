@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from hydro_ros.cli.common import add_config, add_out, add_quiet, at_least_one, output_file, write_json
+from hydro_ros.cli.common import COUNT, add_config, add_out, add_quiet, at_least_one, number, output_file, write_json
 from hydro_ros.contract.config import plain_data
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
@@ -27,20 +27,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     ev = verbs.add_parser("eval", help="score the FDI on simulated faults with plant-model mismatch (table, JSON, plot)")
     add_config(ev)
     add_out(ev, "directory for fdi_eval.json, fdi_eval.md and fdi_eval.png")
-    ev.add_argument("--seeds", type=int, default=5, help="mismatched plants per fault type and size")
-    ev.add_argument("--calibration-seeds", type=int, default=10, help="fault-free training plants for the threshold constant")
-    ev.add_argument("--duration", type=float, default=90.0, help="seconds per fault run (onset at 20 s)")
-    ev.add_argument("--fault-free-minutes", type=float, default=60.0, help="total fault-free minutes for the false-alarm rate")
-    ev.add_argument("--workers", type=int, default=2, help="parallel processes")
+    ev.add_argument("--seeds", type=COUNT, default=5, help="mismatched plants per fault type and size")
+    ev.add_argument("--calibration-seeds", type=COUNT, default=10, help="fault-free training plants for the threshold constant")
+    ev.add_argument("--duration", type=number(float, 20.0, 1e6, above=True, unit="s (the onset is at 20 s)"),
+                    default=90.0, help="seconds per fault run (onset at 20 s)")
+    ev.add_argument("--fault-free-minutes", type=number(float, 0.0, 1e5, above=True, unit="min"),
+                    default=60.0, help="total fault-free minutes for the false-alarm rate")
+    ev.add_argument("--workers", type=COUNT, default=2, help="parallel processes")
     add_quiet(ev)
     ev.set_defaults(func=cmd_fdi_eval)
 
     fit = verbs.add_parser("fit", help="fit the parity method: statistical thresholds and the signature table (mobile valves); "
                                        "on a crane config the thresholds from its cylinders at work")
     add_config(fit, "machine config with valve.type mobile, e.g. config/sam_mobile.yaml or config/k70m.yaml")
-    fit.add_argument("--train", type=int, default=8, help="fault-free training plants (2 min each)")
-    fit.add_argument("--held-out", type=int, default=8, help="fault-free plants that set the threshold factor")
-    fit.add_argument("--signature-seeds", type=int, default=6, help="plants per fault for the signature table (the closed-valve "
+    fit.add_argument("--train", type=COUNT, default=8, help="fault-free training plants (2 min each)")
+    fit.add_argument("--held-out", type=COUNT, default=8, help="fault-free plants that set the threshold factor")
+    fit.add_argument("--signature-seeds", type=COUNT, default=6, help="plants per fault for the signature table (the closed-valve "
                                                                   "codes a fault makes on some plants only, a held B's leak, need several)")
     fit.add_argument("--write", action="store_true", help="write the result into the config's fitted block")
     add_quiet(fit)

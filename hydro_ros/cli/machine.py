@@ -8,7 +8,7 @@ import json
 import re
 from pathlib import Path
 
-from hydro_ros.cli.common import add_config, add_out, output_file, write_json
+from hydro_ros.cli.common import COUNT, SECONDS, add_config, add_out, number, output_file, write_json
 from hydro_ros.contract.config import write_extending
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
@@ -33,9 +33,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                  "its data sheet) and take a margin over the largest 5 s mean residual: the UKF monitor's "
                                  "fdi.threshold_constant until `hydro-ros commission` replaces it.")
     threshold.add_argument("config", help="machine config (YAML)")
-    threshold.add_argument("--variants", type=int, default=8, help="simulated variants (default 8)")
-    threshold.add_argument("--duration", type=float, default=120.0, help="[s] simulated per variant (default 120)")
-    threshold.add_argument("--margin", type=float, default=1.25, help="factor over the largest excess (default 1.25)")
+    threshold.add_argument("--variants", type=COUNT, default=8, help="simulated variants (default 8)")
+    threshold.add_argument("--duration", type=SECONDS, default=120.0, help="[s] simulated per variant (default 120)")
+    threshold.add_argument("--margin", type=number(float, 1.0, 100.0), default=1.25, help="factor over the largest excess (default 1.25)")
     add_out(threshold, "write a config that extends CONFIG with this threshold", required=False)
     threshold.set_defaults(func=cmd_machine_threshold)
     new = verbs.add_parser("new", help="write a commented starting point for your machine's config",

@@ -7,7 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-from hydro_ros.cli.common import add_out, add_quiet, output_file, write_json
+from hydro_ros.cli.common import COUNT, PORT, add_out, add_quiet, number, output_file, write_json
 from hydro_ros.contract.errors import InputError
 
 
@@ -22,8 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     analyse.add_argument("dir", help="the fleet folder")
     add_out(analyse, "output folder (the store lives here: a rerun analyses only new recordings)")
     analyse.add_argument("--scheduler", default=None, help="Dask scheduler address (default: local processes)")
-    analyse.add_argument("--workers", type=int, default=None, help="local processes (default: one per core)")
-    analyse.add_argument("--service-limit", type=float, default=0.5, help="[L/min at 10 MPa] a leak that needs service")
+    analyse.add_argument("--workers", type=COUNT, default=None, help="local processes (default: one per core)")
+    analyse.add_argument("--service-limit", type=number(float, 0.0, 1000.0, above=True, unit="L/min"),
+                         default=0.5, help="[L/min at 10 MPa] a leak that needs service")
     add_quiet(analyse)
     analyse.set_defaults(func=cmd_fleet_analyse)
 
@@ -38,9 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     demo = sub.add_parser("demo", help="the main job: simulate a developing leak and run it through the nodes")
     demo.add_argument("--out", default="out/demo", help="directory for the bag and plots")
     demo.add_argument("--config", default=None, help="machine config (default: the installed sam.yaml)")
-    demo.add_argument("--duration", type=float, default=60.0, help="simulated seconds")
-    demo.add_argument("--hmi-port", type=int, default=8080, help="port of the operator HMI on localhost (0: any free port)")
-    demo.add_argument("--linger", type=float, default=0.0, help="seconds to keep the graph and the HMI up after the replay")
+    demo.add_argument("--duration", type=number(float, 0.0, 86400.0, above=True, unit="s"), default=60.0, help="simulated seconds")
+    demo.add_argument("--hmi-port", type=PORT, default=8080, help="port of the operator HMI on localhost (0: any free port)")
+    demo.add_argument("--linger", type=number(float, 0.0, 86400.0, unit="s"), default=0.0, help="seconds to keep the graph and the HMI up after the replay")
     demo.set_defaults(func=cmd_demo)
 
 

@@ -7,7 +7,7 @@ import argparse
 import json
 import time
 
-from hydro_ros.cli.common import add_grid, add_out, add_quiet, new_output, output_file, write_json
+from hydro_ros.cli.common import COUNT, SEED, add_grid, add_out, add_quiet, new_output, number, output_file, write_json
 
 CRANE_CONFIG = "crane config: config/k70m.yaml or config/crane3dof.yaml"
 
@@ -42,9 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     execute.add_argument("--supply", choices=["cp", "ls"], default="cp", help="pump of the simulated crane (default cp)")
     execute.add_argument("--db", default=None, help="take the solution from this trajectory database (default: plan it now)")
     add_grid(execute, "dp.grid, when planning now")
-    execute.add_argument("--start-extension", type=float, default=None, metavar="M",
+    execute.add_argument("--start-extension", type=number(float, 0.0, 100.0, unit="m"), default=None, metavar="M",
                          help="start with the extension cylinder at this stroke (re-planned from there)")
-    execute.add_argument("--seed", type=int, default=0, help="seed of the plant's valve spread")
+    execute.add_argument("--seed", type=SEED, default=0, help="seed of the plant's valve spread")
     add_out(execute, "bag directory to create (must not exist)")
     execute.add_argument("--summary", default=None, help="also write the summary as JSON here")
     execute.set_defaults(func=cmd_dp_execute)
@@ -57,7 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     build.add_argument("--config", required=True, help=CRANE_CONFIG)
     build.add_argument("--db", required=True, help="SQLite file (created if missing)")
     build.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler, e.g. tcp://host:8786 (default: local processes)")
-    build.add_argument("--workers", type=int, default=None, help="local processes (default: one per core)")
+    build.add_argument("--workers", type=COUNT, default=None, help="local processes (default: one per core)")
     build.add_argument("--methods", nargs="+", default=None, help="methods (default: the config's catalog.methods)")
     build.add_argument("--paths", nargs="+", default=None, help="path ids (default: all of the config)")
     add_grid(build, "catalog.grid, else dp.grid")

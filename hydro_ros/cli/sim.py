@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from hydro_ros.cli.common import add_config, add_quiet, bag_or_nothing, injections
+from hydro_ros.cli.common import SECONDS, SEED, add_config, add_quiet, bag_or_nothing, injections, number
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import INJECTION_UNITS
@@ -20,19 +20,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=f"Simulate the machine under its simulated operator into a contract bag. VALUE units: {units}.",
     )
     add_config(sim)
-    sim.add_argument("--duration", type=float, required=True, help="simulated seconds")
+    sim.add_argument("--duration", type=SECONDS, required=True, help="simulated seconds")
     sim.add_argument("--fault", action="append", default=[], metavar="NAME=VALUE@T[:RAMP]",
                      help="fault switched on at T s, developing linearly over RAMP s (repeatable); on a machine of several "
                           "actuators ACTUATOR:NAME=VALUE@T[:RAMP], e.g. lift:external_leakage_a=1.0@20")
     sim.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                      help="physical effect present from the start (repeatable); on a machine of several actuators "
                           "ACTUATOR:NAME=VALUE; on a crane or an arm payload_mass=KG (also as a timed --fault) at the tip")
-    sim.add_argument("--seed", type=int, default=0, help="random seed of operator and sensor noise")
+    sim.add_argument("--seed", type=SEED, default=0, help="random seed of operator and sensor noise")
     sim.add_argument("--path", default=None, help="crane only: work this path id's trajectory (forwards, hold, back, hold) in "
                                                 "place of the random operator")
     sim.add_argument("--method", default=None, help="crane only: the trajectory method of --path (default dp_cp)")
     sim.add_argument("--db", default=None, help="crane only: trajectory database --path is served from; default: plan it now")
-    sim.add_argument("--hold", type=float, default=None, help="crane only: [s] hold at either end of the work cycle (default 4)")
+    sim.add_argument("--hold", type=number(float, 0.0, 3600.0, unit="s"), default=None, help="crane only: [s] hold at either end of the work cycle (default 4)")
     sim.add_argument("--out", required=True, help="bag directory to create (must not exist)")
     add_quiet(sim)
     sim.set_defaults(func=cmd_sim)

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from hydro_ros.cli.common import add_actuator, add_config, add_out, add_quiet, one_actuator, output_file, write_json
+from hydro_ros.cli.common import COUNT, add_actuator, add_config, add_out, add_quiet, number, one_actuator, output_file, write_json
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 
@@ -14,8 +14,8 @@ from hydro_ros.contract.machine import load_machine_config
 def register(sub: argparse._SubParsersAction) -> None:
     gsa = sub.add_parser("gsa", help="Sobol' sensitivity of the SAM model (P-I): parameters and leakages")
     add_config(gsa)
-    gsa.add_argument("--samples", type=int, default=1024, help="Sobol' base sample N (power of two); runs = N (k + 2)")
-    gsa.add_argument("--workers", type=int, default=2, help="parallel processes")
+    gsa.add_argument("--samples", type=number(int, 2, 2**20), default=1024, help="Sobol' base sample N (power of two); runs = N (k + 2)")
+    gsa.add_argument("--workers", type=COUNT, default=2, help="parallel processes")
     add_out(gsa, "output JSON; the plot goes beside it as .png")
     add_actuator(gsa, "study")
     add_quiet(gsa)
