@@ -106,3 +106,31 @@ def test_the_same_results_on_a_dask_cluster(fleet, tmp_path):
                 assert mine["alarm"] == theirs["alarm"] and mine["start_unix_s"] == theirs["start_unix_s"]
                 for leak, value in mine["leak_l_min"].items():  # another process's BLAS may round the last digits otherwise
                     assert theirs["leak_l_min"][leak] == pytest.approx(value, abs=1e-9)
+
+
+def test_a_trend_needs_a_day_of_recordings_and_a_foreign_recording_is_listed_not_analysed(tmp_path):
+    """Three recordings 1 ms apart gave slopes of 2.5e8 L/min/day: too short to trend now. A boom_arm recording in the SAM
+    machine's folder (its metadata names boom_arm) is listed as foreign; a copy of a recording is analysed once."""
+    import shutil
+
+    from hydro_ros.sim.scenario import Scenario
+    from hydro_ros.studies.fleet import trend
+
+    short = trend([(1.7e9, 0.1), (1.7e9 + 0.001, 0.3), (1.7e9 + 0.002, 0.6)], limit=0.5)
+    assert short["slope_l_min_per_day"] is None and not short["growing"] and "too short to trend" in short["too_short"]
+    long = trend([(1.7e9, 0.1), (1.7e9 + DAY_S, 0.3), (1.7e9 + 2 * DAY_S, 0.6)], limit=5.0)
+    assert long["slope_l_min_per_day"] == pytest.approx(0.25) and not long["too_short"]
+
+    folder = tmp_path / "fleet" / "sam1"
+    folder.mkdir(parents=True)
+    shutil.copy(REPO / "config" / "sam.yaml", folder / "machine.yaml")
+    arm = load_machine_config(REPO / "config" / "boom_arm.yaml")
+    with ContractBagWriter(folder / "foreign", actuators={a.name: a.joint for a in arm.actuators}, pressure_variance=1e10) as writer:
+        writer.set_truth(Scenario(5.0, []).truth(arm))
+        for _, block in MachineRun(arm, {}, 1).blocks(5.0):
+            writer.write_machine_block(block)
+    shutil.copytree(folder / "foreign", folder / "copy_of_foreign")
+    report = analyse(tmp_path / "fleet", tmp_path / "out")
+    assert report["recordings"] == 1 and report["analysed"] == 1 and len(report["duplicates"]) == 1
+    assert len(report["foreign"]) == 1 and "recorded on machine 'boom_arm'" in report["foreign"][0]["error"]
+    assert report["machines"] == {} and report["unreadable"] == []

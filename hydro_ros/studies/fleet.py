@@ -48,6 +48,8 @@ CORRELATION_S = 0.5  # [s] rows closer than this are one observation (the rows a
 SHORT = {"external_leakage_a": "a", "external_leakage_b": "b", "internal_leakage": "internal"}
 SERVICE_LIMIT_L_MIN = 0.5  # [L/min at 10 MPa] default: the smallest leak P-II names on its test bed is 0.17-0.4
 MIN_TREND_POINTS = 3
+MIN_TREND_SPAN_S = 86400.0  # [s] a trend needs its recordings' start times spread over a day at least: recordings 1 ms apart
+# gave slopes of 2.5e8 L/min/day
 GROWTH_MIN_L_MIN = 0.1  # [L/min at 10 MPa] growth over the recordings' span below this is not flagged: below the smallest leak
 # P-II names (0.17), and within what a changing payload and temperature move an estimate (INFERRED)
 
@@ -119,6 +121,10 @@ def analyse_recording(unit: Unit) -> dict[str, Any]:
         samples = data.samples(layout)
         if len(samples) == 0:
             raise InputError(f"{unit.bag}: no samples")
+        recorded_on = (data.truth or {}).get("machine")
+        if recorded_on not in (None, machine.name):  # a recording of another machine placed in this machine's folder
+            return {"unit": unit.__dict__, "error": f"foreign: recorded on machine {recorded_on!r} (its metadata), this folder's "
+                                                    f"config is {machine.name!r}: not analysed as this machine"}
         run = run_monitor(FdiMonitor(machine), samples)
     except (InputError, OSError, ValueError) as exc:
         return {"unit": unit.__dict__, "error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
@@ -176,9 +182,13 @@ def trend(points: list[tuple[float, float]], limit: float) -> dict[str, Any]:
 
     points = sorted((t, v) for t, v in points if math.isfinite(v))
     latest = points[-1][1] if points else math.nan
+    span = points[-1][0] - points[0][0] if points else 0.0
     out: dict[str, Any] = {"points": len(points), "latest_l_min": latest, "slope_l_min_per_day": None, "slope_95": None,
-                           "growing": False, "above_limit": bool(latest > limit), "projected_unix_s": None}
-    if len(points) >= MIN_TREND_POINTS:
+                           "growing": False, "above_limit": bool(latest > limit), "projected_unix_s": None, "too_short": ""}
+    if len(points) < MIN_TREND_POINTS or span < MIN_TREND_SPAN_S:
+        out["too_short"] = (f"too short to trend: {len(points)} recording(s) over {span / 3600.0:.3g} h (needs {MIN_TREND_POINTS} "
+                            f"over {MIN_TREND_SPAN_S / 3600.0:g} h)")
+    else:
         t = np.array([p[0] for p in points]) / 86400.0
         v = np.array([p[1] for p in points])
         slope, intercept, low, high = theilslopes(v, t)
@@ -200,13 +210,16 @@ def summarise(rows: list[dict[str, Any]], failures: list[dict[str, str]], limit:
     for machine in machines.values():
         for entry in machine["actuators"].values():
             entry["recordings"].sort(key=lambda r: r["start_unix_s"])
-            entry["trend"] = {leak: trend([(r["start_unix_s"], r["leak_l_min"][leak]) for r in entry["recordings"]], limit)
+            # a recording read with errors is listed, and kept out of the trend: part of it is missing
+            whole = [r for r in entry["recordings"] if not r["errors"]]
+            entry["trend"] = {leak: trend([(r["start_unix_s"], r["leak_l_min"][leak]) for r in whole], limit)
                               for leak in SHORT.values()}
             entry["flagged"] = sorted(leak for leak, t in entry["trend"].items() if t["growing"] or t["above_limit"])
             dates = [t["projected_unix_s"] for leak, t in entry["trend"].items() if leak in entry["flagged"] and t["projected_unix_s"]]
             entry["service_by_unix_s"] = min(dates) if dates else None
         machine["flagged"] = sorted(a for a, e in machine["actuators"].items() if e["flagged"])
-    return {"service_limit_l_min": limit, "machines": machines, "unreadable": failures}
+    return {"service_limit_l_min": limit, "machines": machines, "unreadable": [f for f in failures if not f["error"].startswith("foreign:")],
+            "foreign": [f for f in failures if f["error"].startswith("foreign:")]}
 
 
 def analyse(root: Path, out: Path, *, scheduler: str | None = None, workers: int | None = None, limit: float = SERVICE_LIMIT_L_MIN,
@@ -217,7 +230,10 @@ def analyse(root: Path, out: Path, *, scheduler: str | None = None, workers: int
     store = Store(out / "fleet.sqlite")
     try:
         done = store.done()
-        todo = [u for u in units if u.content_hash not in done]
+        # one analysis per recording: a copy of a recording (the same content) is listed, not analysed twice
+        unique = {u.content_hash: u for u in reversed(units)}
+        duplicates = [u.bag for u in units if unique[u.content_hash] is not u]
+        todo = [u for h, u in unique.items() if h not in done]
         with ExitStack() as stack:
             executor, where = work_executor(stack, scheduler, workers, len(todo))
             results = (analyse_recording(u) for u in todo) if executor is None else _as_completed(executor, todo)
@@ -228,7 +244,7 @@ def analyse(root: Path, out: Path, *, scheduler: str | None = None, workers: int
         report = summarise(store.rows(), store.failures(), limit)
     finally:
         store.close()
-    report.update(analysed=len(todo), already_analysed=len(units) - len(todo), ran_on=where)
+    report.update(recordings=len(unique), analysed=len(todo), already_analysed=len(unique) - len(todo), duplicates=duplicates, ran_on=where)
     (out / "fleet.json").write_text(json.dumps(report, indent=2) + "\n")
     _write_csv(report, out / "fleet.csv")
     (out / "fleet.html").write_text(fleet_page(report))
