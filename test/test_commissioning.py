@@ -242,3 +242,14 @@ def test_a_threshold_is_not_taken_from_data_the_monitor_never_evaluated(sam_conf
         calibrate_threshold_constant(sam_config, [1], 5.0)
     # a short recording beside long ones contributes nothing; only when none was evaluated is there no threshold
     assert evaluated_maximum([float("nan"), 0.02, 0.01], "held-out parts") == 0.02
+
+
+@pytest.mark.slow
+def test_a_leaky_recording_among_good_ones_is_refused_naming_it_and_its_chamber(sam_config):
+    """Two fault-free recordings and one with a 1 L/min chamber-B leak from its start: the joint fit spreads the leak thin
+    (it passed); the check of each recording on its own names the leaky one and the leak."""
+    plant, _, _ = _plant(sam_config)
+    recordings = [FaultFreeRecording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2)]
+    recordings.append(FaultFreeRecording("leaky", _samples(plant, 3, 120.0, [Injection("external_leakage_b", 1.0)])))
+    with pytest.raises(InputError, match=r"^leaky: actuator boom loses oil in this recording: external_leakage_b of"):
+        commission(sam_config, recordings)
