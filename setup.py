@@ -14,6 +14,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml") + glob("config/*.dbc") + glob("config/*.json")),
         ("share/" + package_name + "/config/params", glob("config/params/*.yaml")),
+        ("share/" + package_name + "/config/sros2", glob("config/sros2/*.xml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
     ],
     install_requires=["setuptools"],

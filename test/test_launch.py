@@ -204,3 +204,20 @@ def test_every_node_has_an_enclave_and_only_its_owner_may_publish_halt_commands_
     assert publishers("hydraulics/valve_commands") == {"trajectory_executor", "plant_sim", "crane_sim"}
     assert publishers("trajectory_executor/joint_trajectory") == {"trajectory_server"}
     assert "can_bridge" in publishers("joint_states") and not publishers("joint_states") & {"trajectory_server", "trajectory_executor", "hmi"}
+
+
+def test_the_sros2_policy_of_a_namespaced_machine_is_generated_and_installed(capsys):
+    import xml.etree.ElementTree as ET
+
+    from hydro_ros.cli import main as cli
+    from hydro_ros.nodes.bringup import ABSOLUTE_TOPICS
+
+    assert cli(["sros2", "policy", "--namespace", "m1"]) == 0
+    generated = ET.fromstring(capsys.readouterr().out.split("\n", 1)[1])
+    shipped = ET.parse(REPO / "config" / "sros2" / "policy.xml").getroot()
+    assert {p.get("ns") for p in generated.iter("profile")} == {"/m1"}
+    assert [p.get("node") for p in generated.iter("profile")] == [p.get("node") for p in shipped.iter("profile")]
+    for ours, theirs in zip(generated.iter("topic"), shipped.iter("topic")):
+        assert ours.text == ("/" + theirs.text if theirs.text in ABSOLUTE_TOPICS else theirs.text)
+    assert [s.text for s in generated.iter("service")] == [s.text for s in shipped.iter("service")]
+    assert '("share/" + package_name + "/config/sros2", glob("config/sros2/*.xml"))' in (REPO / "setup.py").read_text()

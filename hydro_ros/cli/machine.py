@@ -51,6 +51,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config(params, "machine config, e.g. config/sam.yaml or your own")
     params.set_defaults(func=cmd_params)
 
+    sros2 = sub.add_parser("sros2", help="SROS2 for a machine")
+    sros2_verbs = sros2.add_subparsers(dest="sros2_command", required=True)
+    policy = sros2_verbs.add_parser("policy", help="the SROS2 access-control policy of a machine in a namespace",
+                                    description="Print config/sros2/policy.xml for the machine in NAMESPACE (machine.launch.py's "
+                                    "namespace): every enclave with only the access it needs, its names in that namespace.")
+    policy.add_argument("--namespace", default="", help="the machine's namespace (m1); empty: the root namespace")
+    policy.set_defaults(func=cmd_sros2_policy)
+
     foxglove = sub.add_parser("foxglove", help="Foxglove for a machine")
     verbs = foxglove.add_subparsers(dest="foxglove_command", required=True)
     layout = verbs.add_parser("layout", help="a Foxglove layout for a machine: every actuator's status and residual plots",
@@ -176,6 +184,13 @@ def cmd_machine_new(args: argparse.Namespace) -> int:
     text = re.sub(r"(?m)^(\s*)threshold_constant:.*$", rf"\1# threshold_constant: yours from `hydro-ros machine threshold {out}`", text)
     out.write_text(header + text)
     print(f"{out}: written from {source.name}; next: hydro-ros machine check {out}")
+    return 0
+
+
+def cmd_sros2_policy(args: argparse.Namespace) -> int:
+    from hydro_ros.nodes.bringup import sros2_policy
+
+    print(sros2_policy(args.namespace), end="")
     return 0
 
 

@@ -44,3 +44,27 @@ def machine_params(config: Path) -> str:
               .replace(f"{name}:\n", f"/**/{name}:\n", 1)
               for name, specs in BRINGUP.items()]
     return header + "\n".join(blocks)
+
+
+# topics the nodes use by their absolute names in any namespace (/diagnostics, as diagnostic_updater keeps it; /clock;
+# rclcpp's /rosout and /parameter_events)
+ABSOLUTE_TOPICS = ("diagnostics", "clock", "rosout", "parameter_events")
+
+
+def sros2_policy(namespace: str) -> str:
+    """config/sros2/policy.xml for the machine in ``namespace`` (machine.launch.py's namespace argument): every profile in
+    that namespace, the topics used by absolute name made absolute. The shipped file is the root namespace's."""
+    import xml.etree.ElementTree as ET
+
+    tree = ET.parse(config_dir() / "sros2" / "policy.xml")
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else "/"
+    for profile in tree.getroot().iter("profile"):
+        profile.set("ns", ns)
+    for topic in tree.getroot().iter("topic"):
+        if topic.text in ABSOLUTE_TOPICS and ns != "/":
+            topic.text = "/" + topic.text
+    ET.indent(tree)
+    # (no double hyphen in an XML comment: the option is named, not spelled)
+    comment = (f"<!-- SROS2 access control for the hydro_ros machine in namespace {ns}, written by hydro-ros sros2 policy from "
+               "config/sros2/policy.xml: every enclave and its access as there. -->\n")
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + comment + ET.tostring(tree.getroot(), encoding="unicode") + "\n"
