@@ -18,7 +18,9 @@ def test_colcon_build_installs_executables_in_the_ament_index(tmp_path):
     shutil.copytree(REPO, src, ignore=shutil.ignore_patterns(".venv", ".git", "build", "install", "log", "out", "bags", "*.egg-info", "__pycache__"))
     colcon = Path(sys.executable).parent / "colcon"
     env = dict(os.environ, PATH=f"{Path(sys.executable).parent}:{os.environ['PATH']}")
-    result = subprocess.run([str(colcon), "build", "--base-paths", "src"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    # the README's step as written: colcon build --packages-select hydro_ros, in the workspace root
+    result = subprocess.run([str(colcon), "build", "--packages-select", "hydro_ros"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                            timeout=600)
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
     prefix = tmp_path / "install" / "hydro_ros"
     # ros2 run: ament index -> prefix -> lib/<package>/<executable>
@@ -29,7 +31,7 @@ def test_colcon_build_installs_executables_in_the_ament_index(tmp_path):
     for name in EXECUTABLES:
         exe = prefix / "lib" / "hydro_ros" / name
         assert exe.is_file() and os.access(exe, os.X_OK), f"{exe} missing"
-    for name in ("sam.yaml", "foxglove_layout.json", "diagnostic_aggregator.yaml", "params/sam.yaml"):
+    for name in ("sam.yaml", "foxglove_layout.json", "diagnostic_aggregator.yaml", "params/sam.yaml", "sros2/policy.xml"):
         assert (prefix / "share" / "hydro_ros" / "config" / name).is_file(), name
     assert (prefix / "share" / "hydro_ros" / "launch" / "machine.launch.py").is_file()
     pages = list(prefix.glob("lib/python3*/site-packages/hydro_ros/hmi/static/index.html"))
