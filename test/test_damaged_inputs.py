@@ -156,3 +156,38 @@ def test_a_config_that_cannot_be_one_is_refused_in_one_line_at_once(tmp_path, ca
     expected = {"binary": "not UTF-8", "not_utf8": "not UTF-8", "folder": "is a folder", "oversized": "MB, more than",
                 "alias_bomb": "aliases expand"}[case]
     assert expected in message, message
+
+
+def test_a_damaged_schema_record_in_the_first_chunk_costs_nothing_the_summary_repeats(short_bag, tmp_path):
+    """Writers that put schemas and channels inside uncompressed chunks without CRCs (and in the summary again): a byte
+    flipped in the first chunk's schema name stopped the whole bag at 0 messages ('utf-8' codec can't decode)."""
+    from mcap.writer import CompressionType
+
+    from hydro_ros.bags.reader import read_bag
+
+    source = next(short_bag.glob("*.mcap"))
+    target = tmp_path / "flipped"
+    target.mkdir()
+    with source.open("rb") as stream, (target / "flipped.mcap").open("wb") as out:
+        writer = Writer(out, compression=CompressionType.NONE, enable_crcs=False)
+        writer.start("ros2", "test")
+        ids: dict[int, int] = {}
+        for schema, channel, message in make_reader(stream).iter_messages():
+            if channel.id not in ids:
+                ids[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                          writer.register_schema(schema.name, schema.encoding, schema.data))
+            writer.add_message(ids[channel.id], message.log_time, message.data, message.publish_time)
+        writer.finish()
+    meta = _metadata(short_bag)
+    meta["rosbag2_bagfile_information"]["relative_file_paths"] = ["flipped.mcap"]
+    (target / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    data = bytearray((target / "flipped.mcap").read_bytes())
+    first_schema = data.find(b"sensor_msgs/msg/")
+    assert first_schema < data.rfind(b"sensor_msgs/msg/")  # the chunk's copy, not the summary's
+    data[first_schema + 3] = 0xFF  # not UTF-8 any more
+    (target / "flipped.mcap").write_bytes(bytes(data))
+    whole, damaged = read_bag(short_bag), read_bag(target)
+    assert damaged.message_count == whole.message_count and damaged.topic_counts == whole.topic_counts
+    done = subprocess.run([*CLI, "fdi", "run", "--bag", str(target), "--config", str(SAM_CONFIG), "--out", str(tmp_path / "fdi.json"),
+                           "--quiet"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr

@@ -256,7 +256,7 @@ class McapScanner:
     def _records(self, buf: np.ndarray, raw: bytes) -> Iterator[MessageBatch]:
         ops, starts, ends, channel_ids, _ = scan_records(buf)
         for k in np.flatnonzero(ops != OP_MESSAGE):
-            self._metadata(int(ops[k]), raw[starts[k] : ends[k]])
+            self._metadata(int(ops[k]), raw[starts[k] : ends[k]], in_chunk=True)
         messages = ops == OP_MESSAGE
         ids = channel_ids[messages]
         self.messages += int(messages.sum())
@@ -281,14 +281,24 @@ class McapScanner:
                 return True
             start = k + 1
 
-    def _metadata(self, op: int, content: bytes) -> None:
-        if op == OP_SCHEMA:
-            (schema_id,) = struct.unpack_from("<H", content, 0)
-            self.schemas[schema_id], _ = _string(content, 2)
-        elif op == OP_CHANNEL:
-            channel_id, schema_id = struct.unpack_from("<HH", content, 0)
-            topic, _ = _string(content, 4)
-            self.channels[channel_id] = Channel(topic, self.schemas.get(schema_id, ""))
+    def _metadata(self, op: int, content: bytes, *, in_chunk: bool = False) -> None:
+        """A schema or channel record. One inside a chunk (rosbags writes them there, and the summary again) never
+        replaces what the summary said, and one that cannot be decoded costs only itself: the summary's stands."""
+        try:
+            if op == OP_SCHEMA:
+                (schema_id,) = struct.unpack_from("<H", content, 0)
+                if not (in_chunk and schema_id in self.schemas):
+                    self.schemas[schema_id], _ = _string(content, 2)
+            elif op == OP_CHANNEL:
+                channel_id, schema_id = struct.unpack_from("<HH", content, 0)
+                if not (in_chunk and channel_id in self.channels):
+                    topic, _ = _string(content, 4)
+                    self.channels[channel_id] = Channel(topic, self.schemas.get(schema_id, ""))
+        except (struct.error, UnicodeDecodeError) as exc:
+            if not in_chunk:
+                raise
+            self.skipped.append(f"a damaged {'schema' if op == OP_SCHEMA else 'channel'} record in a chunk ({type(exc).__name__}): "
+                                "the summary's is used")
 
     def _summary_channels(self, size: int) -> None:
         """The schemas and channels the file's summary section repeats, read first: a damaged chunk that defined them
