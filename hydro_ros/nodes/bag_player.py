@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Iterator, Sequence
 
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -55,6 +56,7 @@ class BagPlayer(Node):
         self.clock_pub = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.params["publish_clock"] else None
         self.finished = False
         self.published = 0
+        self.publish_errors = 0  # messages rmw would not send (a transient DDS failure): counted, said once, the rest played
         self._advertise()
         self._delay = self.params["start_delay"]
         self._restart()
@@ -111,8 +113,14 @@ class BagPlayer(Node):
             topic, type_name, log_time, data = self._next
             publisher = self._publisher(topic, type_name)
             if publisher is not None:
-                publisher.publish(data)
-                self.published += 1
+                try:
+                    publisher.publish(data)
+                    self.published += 1
+                except RCLError as exc:
+                    self.publish_errors += 1
+                    if self.publish_errors == 1:
+                        self.get_logger().warning(f"{topic}: a message could not be published ({exc}); going on, the count is "
+                                                  "given at the end")
             last = log_time
             self._next = next(self._stream, None)
         if last is not None and self.clock_pub is not None:
@@ -124,7 +132,8 @@ class BagPlayer(Node):
                 self._restart()
             else:
                 self.finished = True
-                self.get_logger().info(f"played {self.published} messages from {self.path}")
+                self.get_logger().info(f"played {self.published} messages from {self.path}"
+                                       + (f"; {self.publish_errors} could not be published" if self.publish_errors else ""))
 
 
 def replay(bag: str, *, rate: float = 1.0, loop: bool = False, clock: bool = False, ros_args: Sequence[str] = ()) -> int:
