@@ -193,12 +193,13 @@ def judge(commands: list[tuple[float, float]], joints: list[tuple[float, float]]
     for event in events:
         kind, begin, end = event["kind"], event["begin"], event["end"]
         if kind == "executor_kill":
-            # the telescope's mean speed over the window (a displacement: the sensor noise of a derivative is not motion)
+            # the telescope's speed over the window, the least-squares slope of its position: a difference of two noisy
+            # samples (the first soak's estimate) reads sensor noise as motion
             t = np.array([s for s, _ in joints])
             x = np.array([q for _, q in joints])
             window = (t > begin + valve_timeout + 0.3) & (t < begin + 1.2)
             if window.sum() > 2:
-                speed = float(abs(x[window][-1] - x[window][0]) / (t[window][-1] - t[window][0]))
+                speed = float(abs(np.polyfit(t[window] - begin, x[window], 1)[0]))
                 latencies[kind].append(speed)
                 if speed > DRIFT_M_S:
                     violations.append({**event, "telescope_speed_m_s": speed})

@@ -113,6 +113,10 @@ class Identification:
                                                         "hose_bulk_modulus": self.hose_bulk_modulus}}}}
 
 
+class LeakError(InputError):
+    """A leak fits the recordings: commissioning needs a fault-free machine."""
+
+
 def identify(model: SamModel, regression: FlowRegression, source: str) -> Identification:
     """Per-notch polynomials and bulk moduli of one actuator; InputError when the data cannot say or hold a leak."""
     unseen = [n for n in NOTCHES if regression.open_s[n] < MIN_OPEN_S]
@@ -130,7 +134,7 @@ def identify(model: SamModel, regression: FlowRegression, source: str) -> Identi
     leaking = {name: value for name, value in leaks.items() if value > LEAK_LIMIT}
     if leaking:
         name, value = max(leaking.items(), key=lambda item: item[1])
-        raise InputError(f"{source}: actuator {model.actuator} loses oil: {name} of {value:.2f} L/min at 10 MPa fits the "
+        raise LeakError(f"{source}: actuator {model.actuator} loses oil: {name} of {value:.2f} L/min at 10 MPa fits the "
                          f"recordings (limit {LEAK_LIMIT:g}); commissioning needs a fault-free machine: repair it, then record")
     fitted, error = least_squares(scaled, valve_and_fluid)
     nominal_error = rms_flow_error(regression, nominal_coefficients(model))
@@ -352,7 +356,23 @@ def commission(machine: Machine, recordings: Sequence[FaultFreeRecording], progr
         regression = FlowRegression.concatenate(
             [flow_regression(model, r.samples.slice(slice(0, split)), index) for r, split in zip(recordings, splits)])
         source = ", ".join(r.name for r in recordings)
-        ident = identify(model, regression, source)
+        try:
+            ident = identify(model, regression, source)
+        except LeakError:
+            # which recording leaks: the others identify a clean model, against which that one's own leak is named
+            # (a leak fitted together with the valve is often given to the wrong chamber)
+            for k, suspect in enumerate(recordings):
+                others = [(r, split) for j, (r, split) in enumerate(zip(recordings, splits)) if j != k]
+                if not others:
+                    break
+                try:
+                    clean = identify(model, FlowRegression.concatenate(
+                        [flow_regression(model, r.samples.slice(slice(0, split)), index) for r, split in others]),
+                        ", ".join(r.name for r, _ in others))
+                except InputError:
+                    continue
+                held_out_leaks(model, flow_regression(model, suspect.samples, index), clean, suspect.name, "this recording")
+            raise
         held_regression = FlowRegression.concatenate(
             [flow_regression(model, r.samples.slice(slice(split, None)), index) for r, split in zip(recordings, splits)])
         held_out_leaks(model, held_regression, ident, source)
