@@ -187,7 +187,7 @@ def test_can_bridge_says_its_state_on_diagnostics_in_every_lifecycle_state(ros_d
         count = len(statuses)
         assert spin_until(node, lambda: len(statuses) > count + 2, 5)
         assert statuses[-1]["lifecycle_state"] == "unconfigured" and "hydro_ros_no_such_bus" in statuses[-1]["message"]
-        assert statuses[-1]["level"] == 2 and statuses[-1]["configure_attempts"] == "2"
+        assert statuses[-1]["level"] == 2 and statuses[-1]["reconnects"] == "2"
         assert node_output(bridge).count("bus socketcan:hydro_ros_no_such_bus cannot be opened") >= 2
         parameters = AsyncParameterClient(node, "can_bridge")
         assert parameters.wait_for_services(10.0)

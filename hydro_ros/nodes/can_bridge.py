@@ -217,7 +217,7 @@ class CanBridge(LifecycleNode):
             level, message = WARN, f"{state}: waiting for a lifecycle transition"
         return self._status("hydro_ros/can_bridge/bus", level, message, {
             "lifecycle_state": state, "connected": str(self.reader is not None and self.reader.connected),
-            "configure_attempts": str(self.configure_attempts), "last_error": self.configure_error})
+            "reconnects": str(self.configure_attempts), "last_error": self.configure_error})  # reconnects: configure attempts
 
     # life cycle ----------------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -245,7 +245,6 @@ class CanBridge(LifecycleNode):
             self.configure_error = f"bus {self.bus_name} cannot be opened: {type(exc).__name__}: {exc}"
             # a configure a person asked for is answered every time; autostart's retries once in 30 s
             self.get_logger().error(self.configure_error, throttle_duration_sec=30.0 if self._autostarting else 0.0)
-            self._diagnose()
             return TransitionCallbackReturn.FAILURE
         self.machine = machine_instance(self, machine.name)
         self.configure_error = ""
