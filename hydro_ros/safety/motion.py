@@ -97,7 +97,8 @@ class MotionAuthority:
         self.confirmed_ns = None
 
     def _refuse(self, why: str) -> str:
-        self.refused[why.split(" stamped")[0]] = self.refused.get(why.split(" stamped")[0], 0) + 1
+        kind = why.split(" stamped")[0]  # counted by kind, without the age
+        self.refused[kind] = self.refused.get(kind, 0) + 1
         return why
 
 

@@ -20,7 +20,7 @@ I4  An acknowledgement silences (it is shown) and never clears a fault or change
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3  # diagnostic_msgs/DiagnosticStatus levels
 UNISOLATED = "unisolated"  # contract.names.Fault.UNISOLATED: a fault detected, its cause not yet known
@@ -134,8 +134,7 @@ class MonitorSupervisor:
         self.acknowledged.clear()
         for actuator in self.actuators:
             # the monitor's latches are cleared by the reset: what it showed lives on in held
-            self.views[actuator] = ActuatorView(**{**self.views[actuator].__dict__, "fault": None, "fault_level": OK,
-                                                   "armed": False, "explained": False})
+            self.views[actuator] = replace(self.views[actuator], fault=None, fault_level=OK, armed=False, explained=False)
         self.disturb("a reset")
         return True, "", self._alarm_events()
 
