@@ -464,10 +464,11 @@ class FdiNode(Node):
 
     def _on_self_test(self, _request: SelfTest.Request, response: SelfTest.Response) -> SelfTest.Response:
         """The residual generator's own checks, a simulated healthy machine without alarm, sensor topics fresh."""
-        checks = self.monitor.generator.self_check()
-        checks.append(("residuals stay within thresholds on a simulated healthy machine, no alarm", self._simulated_healthy_machine()))
+        # freshness is read at the request: the simulation below blocks this node's callbacks for a while
         n_act = len(self.monitor.actuators)
         fresh = [i for i in range(n_act) if not self._stale_topics(i)]
+        checks = self.monitor.generator.self_check()
+        checks.append(("residuals stay within thresholds on a simulated healthy machine, no alarm", self._simulated_healthy_machine()))
         checks.append((f"sensor topics fresh for {len(fresh)}/{n_act} actuators", len(fresh) == n_act))
         response.id = f"hydro_ros/fdi/{self.machine}"
         response.passed = bytes([all(ok for _, ok in checks)])  # `byte passed` in SelfTest.srv
