@@ -138,7 +138,7 @@ def can_decode(config: Machine, cycles: int = 5000) -> dict:
               "pressure_b": {"boom": 2e6}, "valve_command": {"boom": 0.2}, "supply_pressure": 1e7}
     frames = [f for c in range(cycles) for f in bus.encode_cycle(sample, c % 16)]
     start = time.perf_counter()
-    assembler, counters = CycleAssembler(bus.expected), CounterCheck()
+    assembler, counters = CycleAssembler(bus.expected, bus.clock()), CounterCheck()
     for frame_id, data in frames:
         name, counter, values = bus.decode(frame_id, data)
         counters(name, counter)

@@ -37,6 +37,7 @@ class SupervisorMachine(RuleBasedStateMachine):
         self.fresh = dict.fromkeys(ACTUATORS, True)
         self.problem = dict.fromkeys(ACTUATORS, False)  # an invalid reading (NaN, out of range) in the next block
         self.overloaded = False
+        self.irregular = False  # the samples' stamps irregular (safety.timing)
         self.present: dict[str, str] = {}  # faults physically present: actuator -> fault
         self.latched: dict[str, str] = {}  # what the monitor has latched (until its reset)
         self.crossing = dict.fromkeys(ACTUATORS, False)  # a threshold crossing not yet latched
@@ -53,7 +54,8 @@ class SupervisorMachine(RuleBasedStateMachine):
         level = OK if fault is None else ERROR if fault == SEVERE else WARN
         armed = self.seen >= REARM
         return ActuatorView(
-            fresh=self.fresh[actuator], overloaded=self.overloaded, sensor_problems=("pressure_a",) if invalid_at is not None else (),
+            fresh=self.fresh[actuator], overloaded=self.overloaded, timing="5% of the intervals off" if self.irregular else "",
+            sensor_problems=("pressure_a",) if invalid_at is not None else (),
             armed=armed, explained=armed and (fault is not None or not self.crossing[actuator]), fault=fault, fault_level=level,
             samples=samples, valid_tail=samples if invalid_at is None else samples - invalid_at - 1)
 
@@ -72,7 +74,7 @@ class SupervisorMachine(RuleBasedStateMachine):
             bad = invalid_at if (self.problem[a] and delivered) else None
             views[a] = self._view(a, delivered, bad)
             # the test's account of I1: what counts as clean data
-            if not self.fresh[a] or self.overloaded or bad is not None:
+            if not self.fresh[a] or self.overloaded or self.irregular or bad is not None:
                 self.clean[a] = 0  # an invalid reading is shown (sensor_problems) for the block: nothing before it counts
             else:
                 self.clean[a] += delivered
@@ -84,7 +86,7 @@ class SupervisorMachine(RuleBasedStateMachine):
             if fault == SEVERE:
                 self.severe_shown[a], self.reset_since[a] = True, False
             elif self.severe_shown[a] and self.reset_since[a]:
-                vouched = (self.fresh[a] and not self.overloaded and views[a].explained and self.clean[a] >= REARM
+                vouched = (self.fresh[a] and not self.overloaded and not self.irregular and views[a].explained and self.clean[a] >= REARM
                            and not views[a].sensor_problems)
                 if (fault not in (None, "unisolated")) or (fault is None and vouched):
                     self.severe_shown[a] = False  # re-checked after the reset: isolated anew, or vouched for without a fault
@@ -125,6 +127,11 @@ class SupervisorMachine(RuleBasedStateMachine):
     @rule(on=st.booleans())
     def overload(self, on: bool) -> None:
         self.overloaded = on
+        self._tick(0, None)
+
+    @rule(on=st.booleans())
+    def timing(self, on: bool) -> None:
+        self.irregular = on
         self._tick(0, None)
 
     @rule(forward=st.booleans())
@@ -191,7 +198,7 @@ class SupervisorMachine(RuleBasedStateMachine):
         if not halt.halt:
             assert halt.kind == "clear"
             for a in ACTUATORS:
-                assert self.fresh[a] and not self.overloaded, a
+                assert self.fresh[a] and not self.overloaded and not self.irregular, a
                 assert self.seen >= REARM and self.clean[a] >= REARM, (a, self.seen, self.clean[a])
                 assert self.latched.get(a) != SEVERE and not self.severe_shown[a], a
                 assert not self.unexplained[a], a
@@ -208,13 +215,13 @@ class SupervisorMachine(RuleBasedStateMachine):
         assert halt.halt == (halt.kind != "clear") and halt.reason
         for a in ACTUATORS:
             state = self.supervisor.state(a)
-            if not self.fresh[a] or self.overloaded:
+            if not self.fresh[a] or self.overloaded or self.irregular:
                 assert halt.halt and state.hold
                 assert state.level != OK
 
     @invariant()
     def all_clear_when_everything_is_seen(self) -> None:  # liveness: a core that always halts fails here
-        if (self.seen >= REARM and not self.overloaded and not any(self.severe_shown.values())
+        if (self.seen >= REARM and not self.overloaded and not self.irregular and not any(self.severe_shown.values())
                 and all(self.fresh[a] and self.clean[a] >= REARM for a in ACTUATORS)
                 and not any(self.unexplained.values()) and all(self.latched.get(a) in (None, MINOR) for a in ACTUATORS)):
             assert not self.supervisor.halt().halt, self.supervisor.halt()
@@ -357,3 +364,26 @@ def test_motion_authority_invariants_on_random_sequences():
 
 def test_valve_deadman_on_random_sequences():
     _run(DeadmanMachine, DEADMAN_RUNS)
+
+
+def test_sample_timing_holds_on_jittered_stamps_not_on_lost_samples():
+    import numpy as np
+
+    from hydro_ros.safety.timing import SampleTiming
+
+    rng = np.random.default_rng(0)
+    period = 1_000_000  # ns, 1 kHz
+    timing = SampleTiming(1e-3, window=1000)
+    regular = np.arange(5000) * period
+    regular = np.delete(regular, [100, 101, 102, 2500])  # lost samples: gaps of whole periods, not a timing fault
+    for block in np.array_split(regular, 50):
+        assert timing.observe(block) == ""
+    # arrival times of a loaded host: 15 % of intervals under 0.2 ms
+    start = regular[-1] + period
+    jittered = start + np.arange(2000) * period + rng.uniform(0, 1.5e6, 2000).astype(np.int64)
+    problems = [timing.observe(block) for block in np.array_split(np.sort(jittered), 20)]
+    assert "off the 1 ms period" in problems[-1]
+    # regular again: held for a whole window more (no chatter), then clear
+    start = jittered[-1] + 2 * period
+    after = [timing.observe(block) for block in np.array_split(start + np.arange(3000) * period, 30)]
+    assert after[0] and after[5] and after[-1] == ""

@@ -29,11 +29,11 @@ from typing import Any, Mapping
 import cantools
 import numpy as np
 
+from hydro_ros.can.clock import COUNTER_MODULO, CycleClock
 from hydro_ros.contract.config import config_dir
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
 
-COUNTER_MODULO = 16
 PRESSURE_UNITS = {"Pa": 1.0, "kPa": 1e3, "MPa": 1e6, "bar": 1e5, "mbar": 1e2, "psi": 6894.757}
 UNITS = {  # quantity -> DBC unit -> factor to SI
     "joint_position": {"rad": 1.0, "deg": math.pi / 180.0, "m": 1.0, "mm": 1e-3},
@@ -146,7 +146,8 @@ class MappedSignal:
 
 @dataclass
 class Cycle:
-    """The frames of one sensor cycle, decoded; ``stamp_ns`` = timestamp of its first frame."""
+    """The frames of one sensor cycle, decoded; ``stamp_ns``: its first frame's arrival, once released its stamp on the
+    machine's clock (:class:`CycleAssembler`)."""
 
     counter: int | None
     stamp_ns: int
@@ -244,6 +245,10 @@ class MachineBus:
         self.cycle_ms = {name: self.by_name[name].cycle_time or period_ms for name in self.expected}
         self._velocity_filter_hz = machine.sensors.velocity_filter_hz
         self._last_position: dict[str, tuple[int, float, float]] = {}  # joint -> (stamp, position, filtered rate)
+
+    def clock(self) -> CycleClock:
+        """A clock for this bus's sensor cycles: the machine's sample period, the config's ``can.latency_limit``."""
+        return CycleClock(1.0 / self._machine.sample_rate_hz, self._machine.can_latency_limit)
 
     def _signal(self, text: Any, quantity: str, key: str) -> MappedSignal | None:
         """The mapped signal, or None with the problem recorded."""
@@ -446,10 +451,12 @@ class CounterCheck:
 class CycleAssembler:
     """Groups valid frames into cycles by their shared counter, or without counters by time (a message seen again
     starts the next cycle); a cycle is released complete, or incomplete once ``horizon`` newer cycles have started
-    (its missing frames are counted)."""
+    (its missing frames are counted). Every released cycle, complete or not, is stamped by ``clock`` in the order the
+    cycles began, so lost and incomplete cycles keep their slots."""
 
-    def __init__(self, expected: frozenset[str], horizon: int = 4, *, by_counter: bool = True) -> None:
+    def __init__(self, expected: frozenset[str], clock: CycleClock, horizon: int = 4, *, by_counter: bool = True) -> None:
         self.expected = expected
+        self.clock = clock
         self.horizon = horizon if by_counter else 1
         self.by_counter = by_counter
         self.open: list[Cycle] = []
@@ -466,16 +473,18 @@ class CycleAssembler:
         cycle.values[name] = values
         released = []
         while self.open and (self.open[0].complete(self.expected) or len(self.open) > self.horizon):
-            first = self.open.pop(0)
-            if not first.complete(self.expected):
-                self.incomplete += 1
-            released.append(first)
+            released.append(self._release(self.open.pop(0)))
         return released
 
     def flush(self) -> list[Cycle]:
         out, self.open = self.open, []
-        self.incomplete += sum(not c.complete(self.expected) for c in out)
-        return out
+        return [self._release(cycle) for cycle in out]
+
+    def _release(self, cycle: Cycle) -> Cycle:
+        if not cycle.complete(self.expected):
+            self.incomplete += 1
+        cycle.stamp_ns = self.clock.stamp(cycle.stamp_ns, cycle.counter if self.by_counter else None)
+        return cycle
 
 
 def cycle_values(bus: MachineBus, cycle: Cycle) -> dict[str, Any]:

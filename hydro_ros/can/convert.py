@@ -1,8 +1,9 @@
 """`hydro-ros bag convert`: a machine's CAN log (candump .log, Vector .asc, .blf) -> contract bag.
 
 Every frame goes through the same checks as on the live bus (MachineBus.decode through the machine's
-signal map, counters and checksums where the map names them, cycle grouping); only complete cycles
-become samples, stamped with their first frame's time.
+signal map, counters and checksums where the map names them, cycle grouping, the machine's clock:
+hydro_ros.can.clock); only complete cycles become samples, so a converted log and a recording of the
+bridge's output carry the same stamps.
 Bad frames are counted by kind and reported, never written.
 """
 
@@ -97,7 +98,7 @@ def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Ca
     bus = MachineBus(machine, dbc)
     slots = bus.slots
     mobile = machine.mobile
-    assembler = CycleAssembler(bus.expected, by_counter=bus.by_counter)
+    assembler = CycleAssembler(bus.expected, bus.clock(), by_counter=bus.by_counter)
     counters = CounterCheck()
     report = ConversionReport()
     rows: list[dict[str, Any]] = []

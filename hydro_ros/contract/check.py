@@ -51,6 +51,7 @@ def _nonnegative(unit: str, high: float | None = None, hint: str = "") -> Rule:
     return Rule(unit, 0.0, high, hint=hint)
 
 
+CAN = {"latency_limit": Rule("s", 1.0e-3, 1.0, hint="how late a sensor cycle may reach the host (hydro_ros.can.clock)")}
 PRESSURE = Rule("Pa", 1.0e5, 7.0e7, hint="SI: 10 MPa is 10.0e+6; a smaller value looks like MPa or bar")
 TOP = {"sample_rate_hz": _positive("Hz", 1.0e5), "supply_pressure": PRESSURE, "tank_pressure": _nonnegative("Pa", 1.0e7)}
 CYLINDER = {"piston_diameter": Rule("m", 0.005, 1.0, hint="SI: an 80 mm bore is 0.080"),
@@ -217,7 +218,8 @@ def config_problems(config: dict[str, Any]) -> list[str]:
     if not isinstance(can, dict):
         found.add("can", "must be a mapping (dbc, map)")
     else:
-        found.unknown(can, "can", {"dbc", "map"})
+        found.unknown(can, "can", {"dbc", "map", "latency_limit"})
+        found.numbers(can, "can", CAN)
         if "map" in can and not isinstance(can["map"], dict):
             found.add("can.map", "must be a mapping (hydro_ros.can.codec names its keys)")
         elif isinstance(can.get("map"), dict):

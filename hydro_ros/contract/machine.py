@@ -349,6 +349,8 @@ class Machine:
     """the ``fdi:`` section; :class:`hydro_ros.fdi.settings.FdiSettings` types it with the method it tunes"""
     dbc: str
     """the machine bus description (DBC), relative to the config's directory"""
+    can_latency_limit: float
+    """[s] how late a sensor cycle's frames may reach the host and still be numbered right (``hydro_ros.can.clock``)"""
     can_map: Mapping[str, Any] | None
     """which DBC signal carries each quantity (``hydro_ros.can.codec``); None: hydro_ros's own bus layout"""
     arm: Arm | None
@@ -475,6 +477,7 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
         effect_forms=_effect_forms(top.section("effect_forms", optional=True)),
         fdi=dict(dict(top.section("fdi", optional=True).node)),
         dbc=can.text("dbc", "machine_bus.dbc"),
+        can_latency_limit=can.number("latency_limit", 0.02),
         can_map=dict(can.node["map"]) if isinstance(can.node.get("map"), dict) else None,
         arm=arm,
         mapping=dict(config),

@@ -3,7 +3,9 @@
 A reader thread takes frames off a python-can bus (any interface: socketcan on a machine,
 virtual / udp_multicast in tests) into a queue; a timer decodes them with the checked codec,
 groups the frames of one sensor cycle by their rolling counter and publishes each cycle's values
-with the timestamp of its first frame, so consumers see consistent samples. Bad frames are
+stamped on the machine's clock (hydro_ros.can.clock: the bus's period, locked to the earliest arrivals; its
+jitter, drift and lost cycles on /diagnostics as hydro_ros/can_bridge/clock), so consumers see consistent,
+regularly sampled data. Bad frames are
 counted by kind and never published. Per-message health goes to /diagnostics
 (`hydro_ros/can_bridge/<MESSAGE>`: rate against the DBC cycle time, stale, counter gaps, checksum
 and length errors) with a bus status (`hydro_ros/can_bridge/bus`: connection, error frames,
@@ -265,7 +267,7 @@ class CanBridge(LifecycleNode):
         if self.forward:
             self._entities.append(self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._forward, SENSOR_QOS))
 
-        self.assembler = CycleAssembler(self.codec.expected, by_counter=self.codec.by_counter)
+        self.assembler = CycleAssembler(self.codec.expected, self.codec.clock(), by_counter=self.codec.by_counter)
         self.counters = CounterCheck()
         self.rejected: collections.Counter = collections.Counter()
         self.frames_per_message: collections.Counter = collections.Counter()
@@ -453,6 +455,17 @@ class CanBridge(LifecycleNode):
             problems.append(f"{sum(self.rejected.values())} bad frames")
             bus_level = max(bus_level, WARN)
         statuses.append(self._status("hydro_ros/can_bridge/bus", bus_level, "; ".join(problems) or "ok", bus_values))
+        clock = self.assembler.clock
+        health = clock.health
+        if health.locked:
+            level, message = OK, "ok"
+        elif clock.acquiring:
+            level, message = OK, "locking"
+        else:
+            level, message = WARN, (f"not locked: arrival jitter (p99) {health.jitter_p99_s * 1e3:.1f} ms is above half the latency limit "
+                                    f"{clock.limit_ns * 1e-6:.0f} ms (can.latency_limit); samples carry arrival times")
+        statuses.append(self._status("hydro_ros/can_bridge/clock", level, message,
+                                     {**health.values(), "period_ms": f"{clock.period_ns * 1e-6:.6f}"}))
         array = DiagnosticArray(status=namespaced_statuses(self, statuses))
         array.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(array)

@@ -74,6 +74,7 @@ from hydro_ros.nodes.common import (
 from hydro_ros.nodes.parameters import Parameters, Spec
 from hydro_ros.safety.motion import HEARTBEAT_PERIOD_S
 from hydro_ros.safety.supervisor import ERROR, OK, STALE, WARN, ActuatorView, AlarmEvent, Halt, MonitorSupervisor
+from hydro_ros.safety.timing import SampleTiming
 
 ALARM_LOG_STATUS = "hydro_ros/alarm_log"
 MAX_PENDING_NS = 5_000_000_000  # samples waiting for a missing topic longer than this are given up
@@ -132,6 +133,8 @@ class FdiNode(Node):
         self.aligner = ContractAligner(self.layout, sync_window_ns=int(self.params["sync_window"] * 1e9), max_pending_ns=MAX_PENDING_NS,
                                        jump_ns=int(self.params["time_jump_threshold"] * 1e9))
         self._hold_until = -math.inf  # monotonic time until which detection holds (overload)
+        rate = self.machine_config.sample_rate_hz
+        self.timing = SampleTiming(1.0 / rate, int(self.monitor.settings.window_s * rate))
         self._jumps_seen = 0
         self._recent: deque[tuple[float, int, int]] = deque()  # (wall time, samples, incomplete) per processed block
         self.undecodable = 0
@@ -213,6 +216,7 @@ class FdiNode(Node):
         if len(self.aligner.time_jumps) != self._jumps_seen:
             self._jumps_seen = len(self.aligner.time_jumps)
             self.monitor.restart()
+            self.timing.restart()
             self.supervisor.disturb(f"a time jump of {self.aligner.time_jumps[-1]:+.3f} s")
             self.get_logger().warning(f"input time jumped by {self.aligner.time_jumps[-1]:+.3f} s: filters restart on the new "
                                       f"time base, detection re-arms after {self.monitor.settings.window_s:g} s of data")
@@ -223,6 +227,7 @@ class FdiNode(Node):
         while self._recent and now - self._recent[0][0] > OVERLOAD_WINDOW_S:
             self._recent.popleft()
         valid_tail = np.zeros(len(self.monitor.actuators), dtype=int)
+        self.timing.observe(stamps)
         if len(stamps):
             if any(self._overloaded(i) for i in range(len(self.monitor.actuators))):
                 # no alarm from incomplete data: detection holds while overloaded and one window after
@@ -243,7 +248,7 @@ class FdiNode(Node):
         """What the monitor knows of one actuator now, for the supervisor."""
         status = self.monitor.status(index)
         return ActuatorView(
-            fresh=not self._stale_topics(index), overloaded=self._overloaded(index),
+            fresh=not self._stale_topics(index), overloaded=self._overloaded(index), timing=self.timing.problem,
             sensor_problems=tuple(sorted(c for c in self.monitor.sensor_problems(index) if c != "supply_pressure")),
             armed=self.monitor.armed, explained=self.monitor.explained(index),
             fault=None if status.fault is None else status.fault.value, fault_level=status.level, samples=samples, valid_tail=valid_tail)

@@ -5,10 +5,10 @@ events around it (a time jump or restart of the filters, an operator's acknowled
 actuator's level and message, the alarm-log events and the halt decision (:class:`Halt`). It holds no ROS object and
 no monitor, so its invariants are tested on random event sequences (test/test_safety_core.py):
 
-I1  "All clear" (halt false) only while every actuator is vouched: its inputs fresh, not overloaded, every reading
-    valid, the monitor armed and its evidence explained, and at least ``rearm_samples`` valid samples evaluated
-    since the actuator's last disturbance (a gap in its inputs, an invalid reading, an overload, a time jump, a
-    restart or reset of the filters, the node's own start). A first sample after a gap is never "all clear".
+I1  "All clear" (halt false) only while every actuator is vouched: its inputs fresh, not overloaded, regularly
+    timed, every reading valid, the monitor armed and its evidence explained, and at least ``rearm_samples`` valid
+    samples evaluated since the actuator's last disturbance (a gap in its inputs, an invalid reading, an overload,
+    irregular sample times, a time jump, a restart or reset of the filters, the node's own start). A first sample after a gap is never "all clear".
 I2  Not vouched is a halt (``kind`` "hold", with the reason): the absence of confirmation trips, so a late subscriber
     of the latched ``/fdi/halt`` reads ``true`` from a blind monitor.
 I3  A severe fault (latched by the monitor, restored from the alarm log after a restart, or held through a reset) is
@@ -32,6 +32,7 @@ class ActuatorView:
 
     fresh: bool = False  # every input topic of the actuator arrived within the stale timeout
     overloaded: bool = False  # samples arrive incomplete: the input outruns the node
+    timing: str = ""  # why the samples' stamps are not regular enough to trust ("" while they are: safety.timing)
     sensor_problems: tuple[str, ...] = ()  # readings invalid within the health hold time (the supply is substituted, not here)
     armed: bool = False  # the monitor has evaluated a full window since its start, reset or restart
     explained: bool = False  # armed, and its evidence explained: a fault latched or no threshold crossing now
@@ -153,6 +154,8 @@ class MonitorSupervisor:
             return "inputs stale"
         if view.overloaded:
             return "overloaded: samples arrive incomplete"
+        if view.timing:
+            return f"timing: {view.timing}"
         if view.sensor_problems:
             return f"invalid readings: {', '.join(view.sensor_problems)}"
         if not view.armed or self.clean[actuator] < self.rearm_samples:
@@ -197,6 +200,8 @@ class MonitorSupervisor:
             return "a gap in its inputs"
         if view.overloaded:
             return "an overload"
+        if view.timing:
+            return "irregular sample times"
         if view.sensor_problems:
             return "an invalid reading"
         return ""  # a restart of the filters (not armed) is disturbed by the caller, when it restarts them
