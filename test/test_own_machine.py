@@ -16,6 +16,7 @@ import sys
 import time
 import urllib.request
 from pathlib import Path
+from typing import Callable
 
 import can
 import numpy as np
@@ -29,7 +30,7 @@ from hydro_ros.contract.names import Injection
 from hydro_ros.sim.scenario import MachineRun
 from hydro_ros.studies.fdi_evaluation import mismatched_config
 from test.conftest import REPO
-from test.ros_graph import node_process, probe_node, spin_until
+from test.ros_graph import node_process, probe_node, spin_until, spinning, wait_for
 
 # J1939: priority 3, PDU2 PGNs 0xFF10.. of the proprietary range, source address 0x21; DBC ids carry bit 31 for extended
 J1939 = {name: 0x80000000 | (3 << 26) | ((0xFF10 + i) << 8) | 0x21
@@ -77,16 +78,22 @@ def hydro_ros(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "hydro_ros.cli", *args], capture_output=True, text=True, timeout=600)
 
 
+def machine_cycles(bus: MachineBus, plant, seconds: float, injections: dict, seed: int):
+    """(time, frames) per sensor cycle of the plant, as the machine's ECUs send them."""
+    joints = {a.name: a.joint for a in plant.actuators}
+    for _, samples in MachineRun(plant, injections, seed).blocks(seconds):
+        for k in range(len(samples.times)):
+            yield float(samples.times[k]), bus.encode_cycle(sample_values(samples, k, joints), 0)
+
+
 def write_log(bus: MachineBus, plant, path: Path, seconds: float, injections: dict, seed: int) -> None:
     """The plant's sensors as the machine's frames in a candump log, in time order, as a recording would hold them."""
-    joints = {a.name: a.joint for a in plant.actuators}
     writer = can.Logger(str(path))
     try:
-        for _, samples in MachineRun(plant, injections, seed).blocks(seconds):
-            for k in range(len(samples.times)):
-                for i, (frame_id, data) in enumerate(bus.encode_cycle(sample_values(samples, k, joints), 0)):
-                    writer.on_message_received(can.Message(timestamp=1.7e9 + samples.times[k] + i * 1e-5, arbitration_id=frame_id,
-                                                           data=data, is_extended_id=True))
+        for t, frames in machine_cycles(bus, plant, seconds, injections, seed):
+            for i, (frame_id, data) in enumerate(frames):
+                writer.on_message_received(can.Message(timestamp=1.7e9 + t + i * 1e-5, arbitration_id=frame_id, data=data,
+                                                       is_extended_id=True))
     finally:
         writer.stop()
 
@@ -160,21 +167,22 @@ def test_a_described_machine_is_checked_and_a_bad_one_refused_in_one_line_per_pr
     assert not (tmp_path / "bag").exists()
 
 
-@pytest.mark.slow
-def test_own_bus_commissioning_and_a_leak_named_on_its_second_cylinder(excavator, tmp_path):
+@pytest.fixture(scope="module")
+def commissioned(excavator, tmp_path_factory) -> tuple[Path, Path]:
+    """The maker's way: a safe threshold derived, then commissioned from a converted recording of the machine (a plant
+    that is not the config: every notch, bulk modulus and friction drawn off it); (commissioned config, leak log)."""
+    folder = tmp_path_factory.mktemp("commissioned")
     derived = excavator.with_name("excavator_safe.yaml")
     threshold = hydro_ros("machine", "threshold", str(excavator), "--variants", "3", "--duration", "60", "--out", str(derived))
     assert threshold.returncode == 0, threshold.stderr
     machine = load_machine_config(derived)
     assert machine.fdi["threshold_constant"] > 0.012  # this machine's own, not P-II's
 
-    plant = mismatched_config(machine, seed=3)  # the real machine: not the data sheet
     bus = MachineBus(machine)
     assert bus.expected == frozenset(J1939) and not bus.by_counter
-    healthy_log, leak_log = tmp_path / "healthy.log", tmp_path / "leak.log"
-    write_log(bus, plant, healthy_log, 150.0, {}, seed=21)
-    write_log(bus, plant, leak_log, 60.0, {"dipper": [Injection("external_leakage_b", 1.0, LEAK_ONSET_S)]}, seed=22)
-
+    healthy_log, leak_log = folder / "healthy.log", folder / "leak.log"
+    write_log(bus, PLANT(machine), healthy_log, 150.0, {}, seed=21)
+    write_log(bus, PLANT(machine), leak_log, 60.0, {"dipper": [Injection("external_leakage_b", 1.0, LEAK_ONSET_S)]}, seed=22)
     for log in (healthy_log, leak_log):
         converted = hydro_ros("bag", "convert", str(log), "--config", str(derived), "--dbc", str(excavator.with_suffix(".dbc")),
                               "--out", str(log.with_suffix("")))
@@ -182,17 +190,89 @@ def test_own_bus_commissioning_and_a_leak_named_on_its_second_cylinder(excavator
         report = json.loads(converted.stdout)
         assert report["incomplete_cycles"] <= 1 and not report["rejected_frames"], report
 
-    commissioned = tmp_path / "excavator_commissioned.yaml"
-    done = hydro_ros("commission", "--bag", str(healthy_log.with_suffix("")), "--config", str(derived), "--out", str(commissioned),
-                     "--quiet")
+    config = excavator.with_name("excavator_commissioned.yaml")  # beside its DBC, as the bridge reads it
+    done = hydro_ros("commission", "--bag", str(healthy_log.with_suffix("")), "--config", str(derived), "--out", str(config), "--quiet")
     assert done.returncode == 0, done.stderr
-    monitored = hydro_ros("fdi", "run", "--bag", str(leak_log.with_suffix("")), "--config", str(commissioned), "--out", str(tmp_path / "fdi.json"),
+    return config, leak_log
+
+
+def PLANT(machine):
+    return mismatched_config(machine, seed=3)  # the real machine: not the data sheet
+
+
+@pytest.mark.slow
+def test_own_bus_commissioning_and_a_leak_named_on_its_second_cylinder(commissioned, tmp_path):
+    config, leak_log = commissioned
+    monitored = hydro_ros("fdi", "run", "--bag", str(leak_log.with_suffix("")), "--config", str(config), "--out", str(tmp_path / "fdi.json"),
                           "--quiet")
     assert monitored.returncode == 0, monitored.stderr
     result = json.loads((tmp_path / "fdi.json").read_text())
     assert result["actuators"]["dipper"]["fault"] == "external_leakage_b", result["actuators"]
     assert result["actuators"]["lift"]["fault"] == "none"
     assert all(alarm["actuator"] == "dipper" and alarm["time_s"] > LEAK_ONSET_S for alarm in result["alarms"]), result["alarms"]
+
+
+def play_jittered(wire: can.BusABC, cycles, seed: int, stop: Callable[[], bool]) -> dict[str, int]:
+    """Send each cycle at its time plus the delays of real ECUs and a loaded host: a random 0-1.5 ms, and 1 % stalls of
+    6 ms behind which the next frames queue. Returns how many cycles and stalls were sent."""
+    rng = np.random.default_rng(seed)
+    start, released, sent, stalls = time.monotonic() + 0.5, 0.0, 0, 0
+    for t, frames in cycles:
+        stalled = rng.random() < 0.01
+        stalls += stalled
+        released = max(released, t + rng.uniform(0.0, 1.5e-3) + (6e-3 if stalled else 0.0))
+        while (wait := start + released - time.monotonic()) > 0:
+            time.sleep(min(wait, 0.002))
+        for frame_id, data in frames:
+            wire.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=True))
+        sent += 1
+        if stop():
+            break
+    return {"cycles": sent, "stalls": stalls}
+
+
+@pytest.mark.solo
+def test_a_jittered_bus_live_leaves_a_healthy_machine_quiet_and_names_the_leak(commissioned, ros_domain):
+    """The commissioned machine live: its ECUs' frames with jitter and stalls on a UDP-multicast bus -> can_bridge (the
+    bus clock) -> fdi_node. Before the leak a payload is picked up and nothing is alarmed; the leak is named on its
+    cylinder and chamber after its onset, the other cylinder quiet."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    config, _ = commissioned
+    machine = load_machine_config(config)
+    bus = MachineBus(machine)
+    onset = 30.0
+    injections = {"lift": [Injection("payload_mass", 100.0, 12.0)], "dipper": [Injection("external_leakage_b", 1.0, onset)]}
+    group = f"239.76.{ros_domain % 250}.{os.getpid() % 250}"
+    statuses: list = []
+    clock: list = []
+    stamps: dict[str, float] = {}
+
+    def diagnostics(message: DiagnosticArray) -> None:
+        for status in message.status:
+            if status.name.startswith("hydro_ros/fdi/") and status.name.count("/") == 2:
+                statuses.append((time.monotonic() - stamps["start"], status.name.rsplit("/", 1)[1], status.level[0], status.message))
+            elif status.name.endswith("can_bridge/clock"):
+                clock.append(status)
+
+    with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={config}", "-p", "interface:=udp_multicast", "-p", f"channel:={group}"), \
+            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={config}"), probe_node("probe") as node, \
+            can.Bus(interface="udp_multicast", channel=group) as wire:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics, 50)
+        named = lambda: any(a == "dipper" and m == "external_leakage_b" for _, a, _, m in statuses)  # noqa: E731
+        with spinning(node):
+            stamps["start"] = time.monotonic() + 0.5
+            played = play_jittered(wire, machine_cycles(bus, PLANT(machine), 45.0, injections, seed=23), seed=5, stop=named)
+            wait_for(named, 10.0)
+    assert played["stalls"] > 20, played
+    alarms = [(t, a, m) for t, a, level, m in statuses if level in (1, 2) and m not in ("overloaded",)]
+    before = [alarm for alarm in alarms if alarm[0] < onset]
+    assert not before, before  # the payload picked up, the bus jittered: quiet
+    assert any(m == "ok" for t, a, _, m in statuses if a == "lift" and t < onset), "never monitored before the leak"
+    assert named(), alarms[-5:]
+    assert all(a == "dipper" and t > onset for t, a, m in alarms), alarms
+    locked = [s for s in clock if dict((v.key, v.value) for v in s.values)["clock_locked"] == "True"]
+    assert locked and locked[-1].message == "ok", [s.message for s in clock[-3:]]
 
 
 def test_can_bridge_reads_the_machines_own_bus(excavator, ros_domain):
