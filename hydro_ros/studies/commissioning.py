@@ -74,6 +74,8 @@ DRIFT_FACTOR = 4.0  # held-out over identified excess: fault-free recordings of 
 DRIFT_FLOOR = 0.004  # [MPa] excesses below this are noise, whatever their ratio (the shipped c0 0.075, a commissioned 0.006)
 THRESHOLD_MARGIN = 2.0  # c0 = margin x the worst held-out excess: an hour holds 30x the 24 windows of 2 min held
 # out, and the largest of 720 Gaussian 5 s means is ~1.6x the largest of 24; times the evaluation's 1.25
+NOISE_FLOOR_SIGMA = 3.0  # c0 >= this x the spread of the armed 5 s mean residual: a held-out part that never crossed zero
+# gave c0 = 0 (a two-joint arm from 2 x 120 s, then 3 false alarms in 4 fault-free runs; issue 50)
 LEAK_LIMIT = 0.15  # [L/min at 10 MPa] a fitted leak above this refuses the recording (fault-free fits stay below ~0.05)
 COMMISSIONED_FLOW_FRACTION = 0.02  # k of the commissioned thresholds: what identification leaves of each notch's coefficient
 # (gains recovered within 2 %, test_commissioning); a notch error puts k x the chamber's valve flow into its residual whatever
@@ -197,17 +199,25 @@ def notch_gain_rows(regression: FlowRegression, model: SamModel, notches: Sequen
 def threshold_excess(monitor: FdiMonitor, samples: Samples) -> float:
     """The largest armed 5 s mean residual above the quadratic term of eq. (25) [MPa] on fault-free samples; NaN where the
     monitor never armed on them."""
+    return residual_excesses(monitor, samples)[0]
+
+
+def residual_excesses(monitor: FdiMonitor, samples: Samples) -> tuple[float, float]:
+    """(the largest armed 5 s mean residual above the quadratic term of eq. (25), the standard deviation of the armed 5 s
+    mean residuals) [MPa] on fault-free samples; NaN where the monitor never armed on them."""
     settings = monitor.settings
     arms = monitor.startup + monitor.window  # where the monitor itself arms
-    maxima = []
+    maxima, means = [], []
     for start, block in monitor_blocks(monitor, samples):
         armed = slice(max(arms - start, 0), None)
         mean_pressure_sq = (block.threshold[armed] - settings.threshold_constant) / settings.threshold_quadratic
         excess = np.abs(block.mean_residual[armed]) - settings.threshold_quadratic * mean_pressure_sq
+        means.append(block.mean_residual[armed][np.isfinite(block.mean_residual[armed])])
         excess = excess[np.isfinite(excess)]
         if excess.size:
             maxima.append(float(excess.max()))
-    return max(maxima, default=math.nan)  # NaN: the monitor never evaluated this data (shorter than its arming)
+    spread = np.concatenate(means) if means else np.zeros(0)
+    return max(maxima, default=math.nan), float(spread.std()) if spread.size > 1 else math.nan
 
 
 def evaluated_maximum(excesses: Sequence[float], data: str) -> float:
@@ -221,27 +231,45 @@ def evaluated_maximum(excesses: Sequence[float], data: str) -> float:
 
 
 def adaptive_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequence[Samples],
-                       progress: Callable[[str], None] | None) -> dict[str, Any]:
-    """P-II's c0 + c2 p^2 (UKF method): c0 = margin x the worst held-out excess over the quadratic term.
+                       progress: Callable[[str], None] | None, left_out: Sequence[Machine | None] = ()) -> dict[str, Any]:
+    """P-II's c0 + c2 p^2 (UKF method): c0 = margin x the worst excess over the quadratic term on data the model did not
+    fit, never below a floor, never crossed by the training recordings.
 
-    The residual must not drift: a held-out excess more than DRIFT_FACTOR times the identified part's (and above
-    DRIFT_FLOOR) is a fault developing in the recording, and the recording is refused rather than learnt.
+    - Cross-validated: each recording's held-out part is judged by the model identified without that recording
+      (``left_out[k]``, leave one recording out), so the threshold carries how far the identification moves from
+      one stretch of work to another; with one recording (or where the others cannot identify the machine) by the
+      joint model.
+    - Never below NOISE_FLOOR_SIGMA x the spread of the armed 5 s mean residual: a held-out part that never crossed
+      zero says nothing about the next hour.
+    - Never crossed by the identified parts themselves: the monitor does not alarm on its own training recordings.
+    - The residual must not drift: a held-out excess (joint model) more than DRIFT_FACTOR times the identified
+      part's (and above DRIFT_FLOOR) is a fault developing in the recording, and the recording is refused.
     """
-    reached = []
-    for samples in held_out:
+    reached, crossvalidated = [], []
+    for k, samples in enumerate(held_out):
         reached.append(threshold_excess(FdiMonitor(machine), samples))
+        model = left_out[k] if k < len(left_out) else None
+        crossvalidated.append(threshold_excess(FdiMonitor(model), samples) if model is not None else reached[-1])
         if progress:
             progress("threshold")
     worst = evaluated_maximum(reached, "commission: the held-out parts (last thirds of the recordings)")
-    before = max((excess for samples in fitted if math.isfinite(excess := threshold_excess(FdiMonitor(machine), samples))), default=0.0)
+    training = [residual_excesses(FdiMonitor(machine), samples) for samples in fitted]
+    before = max((excess for excess, _ in training if math.isfinite(excess)), default=0.0)
     if worst > DRIFT_FLOOR and worst > DRIFT_FACTOR * before:
         raise InputError(f"commission: the residual drifts: the held-out part (last third) reaches {worst:.4f} MPa over the "
                          f"quadratic term, the identified part {before:.4f} MPa (more than {DRIFT_FACTOR:g}x): a fault developing "
                          "during the recording would be learnt into the threshold; check the machine, then record again")
-    c0 = THRESHOLD_MARGIN * worst
+    unseen = evaluated_maximum(crossvalidated, "commission: the held-out parts (last thirds of the recordings)")
+    spreads = [spread for _, spread in training if math.isfinite(spread)]
+    floor = NOISE_FLOOR_SIGMA * max(spreads, default=0.0)
+    c0 = max(THRESHOLD_MARGIN * max(unseen, before), floor)
+    basis = ("the floor" if c0 == floor else "the identified part" if before >= unseen
+             else "left-out recordings" if any(m is not None for m in left_out) else "the held-out part")
     return {"fdi": {"threshold_constant": c0}, "form": "P-II eq. (25) c0 + c2 p^2, c0 fitted", "parameter": "c0 [MPa]",
-            "before": FdiMonitor(machine).settings.threshold_constant, "reached": worst, "reached_identified": before, "value": c0,
-            "margin": THRESHOLD_MARGIN, "budget": "no crossing on the held-out data"}
+            "before": FdiMonitor(machine).settings.threshold_constant, "reached": worst, "reached_left_out": unseen,
+            "reached_identified": before, "floor": floor, "value": c0, "basis": basis, "margin": THRESHOLD_MARGIN,
+            "cross_validated": sum(m is not None for m in left_out),
+            "budget": "no crossing on data the model did not fit (each recording by the others' model) nor on its training data"}
 
 
 def armed_parity_residuals(machine: Machine, samples: Samples) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -340,6 +368,26 @@ def load_recordings(bags: Sequence[str | Path], machine: Machine) -> list[FaultF
     return out
 
 
+def left_out_models(machine: Machine, recordings: Sequence[FaultFreeRecording],
+                    fitted_rows: Sequence[Sequence[FlowRegression]]) -> list[Machine | None]:
+    """Per recording, the machine identified from the other recordings' identified parts (leave one recording out); None
+    where there is no other recording or the others cannot identify every actuator."""
+    if len(recordings) < 2:
+        return [None] * len(recordings)
+    models: list[Machine | None] = []
+    for k in range(len(recordings)):
+        overrides: dict[str, Any] = {"actuators": {}}
+        try:
+            for index, actuator in enumerate(machine.actuator_names):
+                rows = FlowRegression.concatenate([r for j, r in enumerate(fitted_rows[index]) if j != k])
+                overrides["actuators"].update(identify(SamModel(machine, actuator), rows, "the other recordings").overrides()["actuators"])
+        except InputError:
+            models.append(None)
+            continue
+        models.append(machine.with_overrides(overrides))
+    return models
+
+
 def commission(machine: Machine, recordings: Sequence[FaultFreeRecording], progress: Callable[[str], None] | None = None, *,
                force: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
     """(the config's ``commissioned`` block, the report) from fault-free recordings of ``machine``.
@@ -351,10 +399,11 @@ def commission(machine: Machine, recordings: Sequence[FaultFreeRecording], progr
         raise InputError("commission: no recordings given")
     splits = [int(round((1.0 - HELD_OUT_SHARE) * len(r.samples))) for r in recordings]
     identified = []
+    fitted_rows: list[list[FlowRegression]] = []  # per actuator, per recording: the identified part's regression
     for index, actuator in enumerate(machine.actuator_names):
         model = SamModel(machine, actuator)
-        regression = FlowRegression.concatenate(
-            [flow_regression(model, r.samples.slice(slice(0, split)), index) for r, split in zip(recordings, splits)])
+        fitted_rows.append([flow_regression(model, r.samples.slice(slice(0, split)), index) for r, split in zip(recordings, splits)])
+        regression = FlowRegression.concatenate(fitted_rows[-1])
         source = ", ".join(r.name for r in recordings)
         try:
             ident = identify(model, regression, source)
@@ -395,7 +444,7 @@ def commission(machine: Machine, recordings: Sequence[FaultFreeRecording], progr
     if machine.mobile:
         threshold = parity_threshold(model_only, fitted_parts, held_out, progress)
     else:
-        threshold = adaptive_threshold(model_only, fitted_parts, held_out, progress)
+        threshold = adaptive_threshold(model_only, fitted_parts, held_out, progress, left_out_models(machine, recordings, fitted_rows))
     above = above_shipped(threshold)
     if above and not force:
         raise InputError(f"commission: {above}: the recordings may hold a fault or be noisier than this machine should be; "
