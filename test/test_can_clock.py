@@ -82,7 +82,9 @@ def test_a_silence_relocks_and_a_bus_too_jittery_is_not_trusted():
     clock = CycleClock(PERIOD, LIMIT)
     stamps = _stamps(clock, arrival)
     assert clock.relocks == 1 and clock.health.locked
-    assert stamps[1500] == pytest.approx(arrival[1500], abs=1e-9)  # re-locking: the arrival time, until the envelope is found
+    # re-locking: from the first arrival at the nominal period until the envelope is found, then one step onto it
+    assert stamps[1500] == pytest.approx(arrival[1500], abs=1e-9)
+    assert np.allclose(np.diff(stamps[1500:1500 + BLOCK_CYCLES]), PERIOD, atol=1e-9)
     # delays up to 40 ms on a 20 ms limit: numbering is uncertain, the stamps are the arrivals (a monitor then holds)
     sent, arrival = _arrivals(2000, seed=5, jitter_s=0.04, stall_share=0.0)
     clock = CycleClock(PERIOD, LIMIT)

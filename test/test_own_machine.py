@@ -25,7 +25,7 @@ import yaml
 from sensor_msgs.msg import FluidPressure, JointState
 
 from hydro_ros.can.codec import MachineBus, sample_values
-from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.contract.names import Injection
 from hydro_ros.sim.scenario import MachineRun
 from hydro_ros.studies.fdi_evaluation import mismatched_config
@@ -168,9 +168,9 @@ def test_a_described_machine_is_checked_and_a_bad_one_refused_in_one_line_per_pr
 
 
 @pytest.fixture(scope="module")
-def commissioned(excavator, tmp_path_factory) -> tuple[Path, Path]:
-    """The maker's way: a safe threshold derived, then commissioned from a converted recording of the machine (a plant
-    that is not the config: every notch, bulk modulus and friction drawn off it); (commissioned config, leak log)."""
+def commissioned(excavator, tmp_path_factory) -> tuple[Path, Path, Machine]:
+    """The maker's way: a safe threshold derived, then commissioned from converted recordings of the machine (a plant
+    that is not the config: every notch, bulk modulus and friction drawn off it); (commissioned config, leak log, the plant)."""
     folder = tmp_path_factory.mktemp("commissioned")
     derived = excavator.with_name("excavator_safe.yaml")
     threshold = hydro_ros("machine", "threshold", str(excavator), "--variants", "3", "--duration", "60", "--out", str(derived))
@@ -180,10 +180,12 @@ def commissioned(excavator, tmp_path_factory) -> tuple[Path, Path]:
 
     bus = MachineBus(machine)
     assert bus.expected == frozenset(J1939) and not bus.by_counter
-    healthy_log, leak_log = folder / "healthy.log", folder / "leak.log"
-    write_log(bus, PLANT(machine), healthy_log, 150.0, {}, seed=21)
-    write_log(bus, PLANT(machine), leak_log, 60.0, {"dipper": [Injection("external_leakage_b", 1.0, LEAK_ONSET_S)]}, seed=22)
-    for log in (healthy_log, leak_log):
+    plant = mismatched_config(machine, seed=3)  # the real machine: not the data sheet
+    healthy_logs, leak_log = [folder / "healthy1.log", folder / "healthy2.log"], folder / "leak.log"
+    for seed, log in zip((21, 24), healthy_logs):  # the documented minimum: two recordings of two minutes
+        write_log(bus, plant, log, 120.0, {}, seed=seed)
+    write_log(bus, plant, leak_log, 60.0, {"dipper": [Injection("external_leakage_b", 1.0, LEAK_ONSET_S)]}, seed=22)
+    for log in (*healthy_logs, leak_log):
         converted = hydro_ros("bag", "convert", str(log), "--config", str(derived), "--dbc", str(excavator.with_suffix(".dbc")),
                               "--out", str(log.with_suffix("")))
         assert converted.returncode == 0, converted.stderr
@@ -191,18 +193,15 @@ def commissioned(excavator, tmp_path_factory) -> tuple[Path, Path]:
         assert report["incomplete_cycles"] <= 1 and not report["rejected_frames"], report
 
     config = excavator.with_name("excavator_commissioned.yaml")  # beside its DBC, as the bridge reads it
-    done = hydro_ros("commission", "--bag", str(healthy_log.with_suffix("")), "--config", str(derived), "--out", str(config), "--quiet")
+    done = hydro_ros("commission", *(f"--bag={log.with_suffix('')}" for log in healthy_logs), "--config", str(derived), "--out", str(config),
+                     "--quiet")
     assert done.returncode == 0, done.stderr
-    return config, leak_log
-
-
-def PLANT(machine):
-    return mismatched_config(machine, seed=3)  # the real machine: not the data sheet
+    return config, leak_log, plant
 
 
 @pytest.mark.slow
 def test_own_bus_commissioning_and_a_leak_named_on_its_second_cylinder(commissioned, tmp_path):
-    config, leak_log = commissioned
+    config, leak_log, _ = commissioned
     monitored = hydro_ros("fdi", "run", "--bag", str(leak_log.with_suffix("")), "--config", str(config), "--out", str(tmp_path / "fdi.json"),
                           "--quiet")
     assert monitored.returncode == 0, monitored.stderr
@@ -238,7 +237,7 @@ def test_a_jittered_bus_live_leaves_a_healthy_machine_quiet_and_names_the_leak(c
     cylinder and chamber after its onset, the other cylinder quiet."""
     from diagnostic_msgs.msg import DiagnosticArray
 
-    config, _ = commissioned
+    config, _, plant = commissioned
     machine = load_machine_config(config)
     bus = MachineBus(machine)
     onset = 30.0
@@ -246,15 +245,18 @@ def test_a_jittered_bus_live_leaves_a_healthy_machine_quiet_and_names_the_leak(c
     group = f"239.76.{ros_domain % 250}.{os.getpid() % 250}"
     statuses: list = []
     clock: list = []
+    holds: list[str] = []
     stamps: dict[str, float] = {}
 
     def diagnostics(message: DiagnosticArray) -> None:
         for status in message.status:
             if status.name.startswith("hydro_ros/fdi/") and status.name.count("/") == 2:
                 statuses.append((time.monotonic() - stamps["start"], status.name.rsplit("/", 1)[1], status.level[0], status.message))
+                holds.append(dict((v.key, v.value) for v in status.values).get("not_vouched_because", ""))
             elif status.name.endswith("can_bridge/clock"):
                 clock.append(status)
 
+    cycles = list(machine_cycles(bus, plant, 45.0, injections, seed=23))  # simulated first: the sender's only delays are ours
     with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={config}", "-p", "interface:=udp_multicast", "-p", f"channel:={group}"), \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={config}"), probe_node("probe") as node, \
             can.Bus(interface="udp_multicast", channel=group) as wire:
@@ -262,13 +264,15 @@ def test_a_jittered_bus_live_leaves_a_healthy_machine_quiet_and_names_the_leak(c
         named = lambda: any(a == "dipper" and m == "external_leakage_b" for _, a, _, m in statuses)  # noqa: E731
         with spinning(node):
             stamps["start"] = time.monotonic() + 0.5
-            played = play_jittered(wire, machine_cycles(bus, PLANT(machine), 45.0, injections, seed=23), seed=5, stop=named)
+            played = play_jittered(wire, cycles, seed=5, stop=named)
             wait_for(named, 10.0)
     assert played["stalls"] > 20, played
     alarms = [(t, a, m) for t, a, level, m in statuses if level in (1, 2) and m not in ("overloaded",)]
     before = [alarm for alarm in alarms if alarm[0] < onset]
-    assert not before, before  # the payload picked up, the bus jittered: quiet
-    assert any(m == "ok" for t, a, _, m in statuses if a == "lift" and t < onset), "never monitored before the leak"
+    timeline = sorted({(round(t), a, m, h) for (t, a, _, m), h in zip(statuses, holds) if t < onset})
+    clocks = [(s.message, dict((v.key, v.value) for v in s.values)) for s in clock]
+    assert not before, "; ".join(map(str, timeline[:30] + clocks[:10]))  # the payload picked up, the bus jittered: quiet
+    assert any(m == "ok" for t, a, _, m in statuses if a == "lift" and t < onset), "never monitored before the leak: " + "; ".join(map(str, timeline))
     assert named(), alarms[-5:]
     assert all(a == "dipper" and t > onset for t, a, m in alarms), alarms
     locked = [s for s in clock if dict((v.key, v.value) for v in s.values)["clock_locked"] == "True"]

@@ -7,7 +7,8 @@ cycles and stamps cycle ``n`` at ``t0 + n * period``; the phase and period follo
 never early, only late), so the lower envelope of the arrival times is the clock:
 
 - locking: for the first block after a start or re-lock the clock's phase steps back to any earlier arrival (the
-  envelope is found) and the cycles keep their arrival times; then the period starts at the bus's nominal one and
+  envelope is found) and the cycles are stamped at the nominal period from the first arrival (one step at the
+  lock, not a block of jitter; after a block that broke the lock, at their arrival times); then the period starts at the bus's nominal one and
   is trimmed by a phase-locked loop on each block's smallest latency (an ECU's oscillator drifts by tens of ppm):
   every ``block`` cycles that smallest latency is removed by slewing the clock over the next block (never a step:
   a step would be a spike in a derived rate) and a quarter of it goes into the period (critically damped);
@@ -20,7 +21,7 @@ never early, only late), so the lower envelope of the arrival times is the clock
   *before* the clock (cycles counted lost that were only late), the clock re-locks.
 
 The latency above the envelope is the bus's jitter. While a block's largest latency exceeds the limit (numbering is
-then uncertain), or while locking, the clock is not locked and :meth:`CycleClock.stamp` gives arrival
+then uncertain) the clock is not locked and :meth:`CycleClock.stamp` gives arrival
 times, so that a monitor that checks the regularity of its sample times holds rather than trusts them. Stamps only
 increase.
 """
@@ -72,6 +73,8 @@ class CycleClock:
         self.slew_ns = 0.0  # phase correction spread over the current block, per cycle
         self.phase_ns: float | None = None  # the machine-clock time of the last cycle
         self.acquiring = True  # the first block after a (re-)lock: the phase follows the earliest arrival
+        self.origin_ns, self.count = 0, 0  # the first arrival after a (re-)lock, and the cycles counted since
+        self.fresh_start = True
         self.last_arrival = 0
         self.last_counter: int | None = None
         self.last_stamp = -1
@@ -88,7 +91,7 @@ class CycleClock:
         """The stamp of a cycle whose first frame arrived at ``arrival_ns`` (its rolling counter, if any): the machine's
         clock while locked, else the arrival time; never before the last stamp."""
         if self.phase_ns is None or arrival_ns - self.last_arrival > self.relock_ns or arrival_ns < self.last_arrival - self.limit_ns:
-            self._relock(arrival_ns, counter)
+            self._relock(arrival_ns, counter, fresh=True)
         else:
             step = self.period_ns + self.slew_ns
             if counter is not None and self.last_counter is not None:
@@ -97,6 +100,7 @@ class CycleClock:
                 beyond = arrival_ns - (self.phase_ns + step) - self.limit_ns
                 advance = 1 + max(0, math.ceil(beyond / step))
             self.lost += advance - 1
+            self.count += advance
             self.phase_ns += advance * step
             self.last_arrival, self.last_counter = max(self.last_arrival, arrival_ns), counter
             if self.acquiring and arrival_ns < self.phase_ns:
@@ -104,14 +108,23 @@ class CycleClock:
             self._latencies.append(arrival_ns - self.phase_ns)
             if len(self._latencies) >= self.block:
                 self._close_block(arrival_ns, counter)
-        stamp = int(round(self.phase_ns)) if self.health.locked else int(arrival_ns)
+        if self.health.locked:
+            stamp = int(round(self.phase_ns))
+        elif self.acquiring and self.fresh_start:  # the nominal period from the first arrival: one step at the lock
+            stamp = int(round(self.origin_ns + self.count * self.nominal_ns))
+        else:
+            stamp = int(arrival_ns)
         self.last_stamp = max(stamp, self.last_stamp + 1)
         return self.last_stamp
 
-    def _relock(self, arrival_ns: int, counter: int | None) -> None:
+    def _relock(self, arrival_ns: int, counter: int | None, fresh: bool) -> None:
+        """Lock anew on this arrival; ``fresh`` after a start or a silence, not after a block that broke the lock (until a
+        block is good again those cycles keep their arrival times)."""
         if self.phase_ns is not None:
             self.relocks += 1
+        self.fresh_start = fresh
         self.phase_ns, self.slew_ns, self._latencies, self.acquiring = float(arrival_ns), 0.0, [], True
+        self.origin_ns, self.count = arrival_ns, 0
         self.last_arrival, self.last_counter = arrival_ns, counter
         self.health = replace(self.health, lost_cycles=self.lost, relocks=self.relocks, locked=False)
 
@@ -120,7 +133,7 @@ class CycleClock:
         self._latencies = []
         envelope = float(latencies.min())
         if envelope <= -0.5 * self.period_ns:  # arrived before the clock: cycles counted lost were only late
-            self._relock(arrival_ns, counter)
+            self._relock(arrival_ns, counter, fresh=False)
             return
         whole = math.floor(envelope / self.period_ns + 0.5)
         if whole:  # cycles lost inside the latency limit: the whole block arrived a period late or more

@@ -229,8 +229,8 @@ class FdiNode(Node):
         valid_tail = np.zeros(len(self.monitor.actuators), dtype=int)
         self.timing.observe(stamps)
         if len(stamps):
-            if any(self._overloaded(i) for i in range(len(self.monitor.actuators))):
-                # no alarm from incomplete data: detection holds while overloaded and one window after
+            if self.timing.problem or any(self._overloaded(i) for i in range(len(self.monitor.actuators))):
+                # no alarm from incomplete or irregularly timed data: detection holds while they come and one window after
                 self._hold_until = now + self.monitor.settings.window_s
             result = self.monitor.process(self.layout.samples(stamps * 1e-9, rows), hold=now < self._hold_until)
             self.samples += len(stamps)
