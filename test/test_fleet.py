@@ -29,7 +29,7 @@ EPOCH_S = 1.75e9  # recordings stamped in wall time, as a recorder does
 ARM_LEAK = (0.1, 0.3, 0.5, 0.7)  # [L/min at 10 MPa] machine m2's arm, one recording every ten days
 
 
-def write_recording(plant, path: Path, start_s: float, injections: dict, seed: int, seconds: float = 60.0) -> None:
+def write_recording(plant, path: Path, start_s: float, injections: dict, seed: int, seconds: float = 45.0) -> None:
     with ContractBagWriter(path, actuators={a.name: a.joint for a in plant.actuators}, pressure_variance=plant.sensors.pressure_noise_std ** 2,
                            mobile=plant.mobile) as writer:
         for _, block in MachineRun(plant, injections, seed).blocks(seconds):
@@ -50,11 +50,11 @@ def build_fleet(root: Path) -> Path:
         machine = load_machine_config(config)
         plant = mismatched_config(machine, seed=40 + index)
         # each machine commissioned on a fault-free recording of its own, as it left the factory
-        write_recording(plant, commissioning / name, 0.0, {}, seed=900 + index, seconds=150.0)
+        write_recording(plant, commissioning / name, 0.0, {}, seed=900 + index, seconds=99.0)
         block, _ = commission(machine, load_recordings([commissioning / name], machine))
         write_config(config, folder / "machine.yaml", block)
         for k in range(len(ARM_LEAK)):
-            injections = {"boom": [Injection("payload_mass", 150.0, 30.0)]}  # a payload gripped half-way
+            injections = {"boom": [Injection("payload_mass", 150.0, 22.0)]}  # a payload gripped half-way
             if name == "m2":
                 injections["arm"] = [Injection("external_leakage_b", ARM_LEAK[k], 0.0)]
             write_recording(plant, folder / "2026-11" / f"run{k}", EPOCH_S + k * 10 * DAY_S, injections, seed=100 * index + k)

@@ -1,4 +1,5 @@
-"""Every contract fault and effect switches on at its time t and acts in its physical direction."""
+"""Every contract fault and effect switches on at its time t and acts in its physical direction (a fault whose sign
+is flipped in the plant fails here)."""
 
 from __future__ import annotations
 
@@ -15,13 +16,17 @@ from test.conftest import REPO
 ONSET = 1.0
 N = 3000
 COMMANDS = np.concatenate([np.zeros(500), np.full(1500, 0.3), np.full(1000, -0.3)])
+EXTEND, RETRACT = slice(1000, 2000), slice(2000, 3000)  # after the onset, extending then retracting
 
 # name -> (value, observable(clean, faulty) that must be True after onset)
 EXPECTED = {
     "external_leakage_a": (2.0, lambda c, f: f["p_a"][-1] < c["p_a"][-1] - 1e5 or f["x"][-1] < c["x"][-1] - 1e-3),
-    "external_leakage_b": (2.0, lambda c, f: f["x"][-1] != c["x"][-1]),
-    "external_leakage_ab": (2.0, lambda c, f: f["x"][-1] != c["x"][-1]),
-    "internal_leakage": (2.0, lambda c, f: f["x"][-1] != c["x"][-1]),
+    # oil lost from B: B's pressure falls, and retracting (filling B) the piston travels less
+    "external_leakage_b": (2.0, lambda c, f: np.mean(f["p_b"][RETRACT] - c["p_b"][RETRACT]) < -1e5 and f["x"][-1] > c["x"][-1] + 1e-3),
+    "external_leakage_ab": (2.0, lambda c, f: np.mean(f["p_a"][RETRACT] - c["p_a"][RETRACT]) < -1e5
+                            and np.mean(f["p_b"][RETRACT] - c["p_b"][RETRACT]) < -1e5),
+    # across the piston the load-bearing chamber loses its oil to the other: the boom ends lower moving either way
+    "internal_leakage": (2.0, lambda c, f: f["x"][1999] < c["x"][1999] - 1e-3 and f["x"][-1] < c["x"][-1] - 1e-3),
     "spool_too_small_opening": (0.5, lambda c, f: abs(f["x"][1999] - f["x"][999]) < 0.8 * abs(c["x"][1999] - c["x"][999])),
     "spool_too_large_opening": (0.3, lambda c, f: abs(f["x"][1999] - f["x"][999]) > 1.1 * abs(c["x"][1999] - c["x"][999])),
     "spool_stuck_closed": (1.0, lambda c, f: abs(f["x"][1999] - f["x"][999]) < 1e-3),
@@ -29,7 +34,8 @@ EXPECTED = {
     "valve_deadzone": (0.2, lambda c, f: abs(f["x"][1999] - f["x"][999]) < 0.8 * abs(c["x"][1999] - c["x"][999])),
     "valve_delay": (0.1, lambda c, f: (f["x"][2080] - f["x"][1999]) > (c["x"][2080] - c["x"][1999]) + 1e-4),
     "valve_flow_gain": (0.3, lambda c, f: abs(f["x"][1999] - f["x"][999]) > 1.1 * abs(c["x"][1999] - c["x"][999])),
-    "entrained_air": (0.02, lambda c, f: not np.allclose(f["p_b"], c["p_b"], atol=1e3)),
+    # air makes the oil softer: the pressures move less from sample to sample
+    "entrained_air": (0.02, lambda c, f: np.std(np.diff(f["p_b"][EXTEND])) < 0.8 * np.std(np.diff(c["p_b"][EXTEND]))),
     "coulomb_friction": (3000.0, lambda c, f: f["x"][1999] < c["x"][1999]),
     "viscous_friction": (2e5, lambda c, f: f["x"][1999] < c["x"][1999]),
     "payload_mass": (200.0, lambda c, f: f["p_a"][-1] > c["p_a"][-1] + 1e5),
