@@ -168,15 +168,44 @@ def window_study() -> dict:
     return study
 
 
+def replanning() -> dict:
+    """trajectory_server's re-planning pass (the compiled policy, ``follow``) against the step-by-step search (``forward``)
+    from the middle of each K70M path's start window, the fastest of 5 runs each."""
+    from hydro_ros.contract.config import default_config_path
+    from hydro_ros.models.crane import load_crane
+    from hydro_ros.planning.costs import Cost
+    from hydro_ros.planning.dp import DpGrid, solve, start_position
+    from hydro_ros.planning.paths import path_from_config
+
+    crane, config = load_crane(default_config_path("k70m"))
+    out = {}
+    for path in ("horizontal", "vertical", "half_cycle"):
+        samples = path_from_config(config, path).sample(config.dp.sample_time)
+        grid = DpGrid.for_path(crane, samples, (80, 41, 61))
+        solution = solve(crane, samples, Cost.CP, grid)
+        start = start_position(crane, samples, grid, "middle")
+        solution.follow(start)  # compiled once
+        timed = {}
+        for name, run in (("search_s", solution.forward), ("policy_s", solution.follow)):
+            runs = []
+            for _ in range(5):
+                began = time.perf_counter()
+                run(start)
+                runs.append(time.perf_counter() - began)
+            timed[name] = min(runs)
+        out[path] = {**timed, "policy_over_search": timed["policy_s"] / timed["search_s"]}
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", default="bench/results/dp.json")
-    parser.add_argument("--parts", default="solver,convergence,compare,window",
+    parser.add_argument("--parts", default="solver,convergence,compare,window,replanning",
                         help="comma-separated parts to run; the others are kept from an existing --out")
     args = parser.parse_args()
     out = Path(args.out)
     parts = {"solver": solver_speed, "convergence": lambda: convergence(out.parent), "compare": lambda: comparisons(out.parent),
-             "window": window_study}
+             "window": window_study, "replanning": replanning}
     unknown = set(args.parts.split(",")) - set(parts)
     if unknown:
         parser.error(f"--parts: unknown {', '.join(sorted(unknown))} (known: {', '.join(parts)})")

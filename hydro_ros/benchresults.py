@@ -195,13 +195,19 @@ def _soak(s: dict) -> tuple[str, str, str]:
             "documented bounds: " + ", ".join(f"{kind} {bound:.2f} s" for kind, bound in s["bounds_s"].items()))
 
 
+def _mutants(m: dict) -> tuple[str, str, str]:
+    return (f"listed mutation run ({m['total']} mutants of the plant's injections and the isolation table)",
+            f"**{m['killed']} of {m['total']} killed**" + (f"; survived: {', '.join(m['survivors'])}" if m["survivors"] else ""),
+            "the unmutated tree passes the same tests")
+
+
 ROWS: list[tuple[str, str, Callable[[dict], tuple[str, str, str]]]] = [  # (file, the part a row reads, the row)
     ("results", "sam_model_1khz", _model), ("results", "bag_read", _bag), ("results", "ukf", _ukf),
     ("results", "fdi_offline", _fdi_offline), ("results", "fdi_node_live", _fdi_live), ("results", "can_decode", _can),
     ("results", "can_bridge_live", _can_live), ("dp", "solver", _dp), ("trajectories", "throughput", _db),
     ("trajectories", "full_catalog", _catalog), ("trajectories", "latency", _server), ("hmi", "phases", _hmi),
     ("crane_cpu", "sample_blocks", _crane_cpu), ("fleet", "runs", _fleet), ("commissioning_memory", "runs", _memory),
-    ("safety_soak", "violations", _soak)]
+    ("safety_soak", "violations", _soak), ("mutants", "mutants", _mutants)]
 
 
 def benchmarks_markdown() -> str:

@@ -79,28 +79,26 @@ def test_policy_runs_forward_from_another_start_without_a_new_backward_pass() ->
 @pytest.mark.parametrize("path_id", ["horizontal", "vertical", "half_cycle"])
 def test_the_compiled_policy_pass_stays_admissible_costs_what_the_search_costs_and_is_far_faster(path_id: str) -> None:
     """The re-planning pass of trajectory_server: from starts across the window (a moving one too), every limit
-    holds at the exact states and the energy is the step-by-step search's within 1 %, at a small fraction of its time."""
-    import time
-
+    holds at the exact states and the energy is the step-by-step search's within 1 %; a start the search refuses, it refuses."""
     crane, _, samples, grid = _setup("k70m", path_id, (80, 41, 61))
     solution = solve(crane, samples, Cost.CP, grid)
     window = grid.positions[0]
     solution.follow(start_position(crane, samples, grid))  # compiled (or loaded from numba's cache) once
-    follow_s = search_s = 0.0
+    feasible = 0
     for start, velocity in [(window[0] + f * (window[-1] - window[0]), 0.0) for f in (0.1, 0.45, 0.8)] + [(window[len(window) // 2], 0.02)]:
-        began = time.perf_counter()
         try:
             searched = solution.forward(start, velocity)
         except InfeasibleStart:
+            with pytest.raises(InfeasibleStart):  # the compiled pass refuses what the search refuses
+                solution.follow(start, velocity)
             continue
-        middle = time.perf_counter()
+        feasible += 1
         followed = solution.follow(start, velocity)
-        follow_s, search_s = follow_s + time.perf_counter() - middle, search_s + middle - began
         assert followed.position[0] == start and followed.velocity[0] == velocity
         result = evaluate(crane, samples, followed)
         assert all(result["limits"].values()) and result["tip_error_max_m"] < 1e-9, (start, result["limits"])
         assert result["cp_energy_J"] == pytest.approx(evaluate(crane, samples, searched)["cp_energy_J"], rel=0.01)
-    assert search_s > 0.0 and follow_s < 0.2 * search_s
+    assert feasible >= 3  # not a test of refusals only (the two passes' speed: bench/dp.py, part replanning)
     with pytest.raises(InfeasibleStart, match="stage 0"):
         solution.follow(-0.05)  # below the retracted end: the search's clear error
 
