@@ -122,4 +122,15 @@ def test_numbers_that_mean_nothing_are_refused_with_their_range(argv, argument, 
     with pytest.raises(SystemExit) as exited:
         cli(argv)
     error = capsys.readouterr().err.strip().splitlines()[-1]
-    assert exited.value.code == 2 and f"argument {argument}: " in error and "is outside" in error, error
+    assert exited.value.code == 1 and f"argument {argument}: " in error and "is outside" in error, error
+
+
+def test_a_usage_error_and_a_refused_input_exit_alike(tmp_path, capsys):
+    """One exit code for bad input, whoever finds it: argparse (an unknown option) or the command (a missing file)."""
+    from hydro_ros.cli import main as cli
+
+    with pytest.raises(SystemExit) as usage:
+        cli(["sim", "--config", "config/sam.yaml", "--bogus"])
+    assert usage.value.code == 1 and "unrecognized arguments: --bogus" in capsys.readouterr().err
+    assert cli(["bag", "info", str(tmp_path / "missing")]) == 1
+    assert "error:" in capsys.readouterr().err

@@ -3,7 +3,8 @@
 As ``hydro-ros bag info`` or ``hydro-ros fdi run``; a file or folder a command writes is ``--out``, and ``--json`` only
 ever asks for JSON on the screen.
 
-Every command exits 0 on success and non-zero with a one-line error naming the bad input. The spellings of the previous
+Every command exits 0 on success and 1 with a one-line error naming the bad input, whether argparse or the command
+found it (argparse's own code would be 2). The spellings of the previous
 release (``fdi-eval``, ``record``, ``fdi --json``, ...) still work for one release, with a note saying the new one.
 """
 
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Callable, Sequence
+from typing import Callable, NoReturn, Sequence
 
 from hydro_ros.cli import bag, fdi, machine, operations, planning, sim, studies
 from hydro_ros.contract.errors import InputError
@@ -36,8 +37,16 @@ LEGACY: tuple[tuple[tuple[str, ...], tuple[str, ...], dict[str, str]], ...] = (
 FDI_VERBS = ("run", "eval", "fit", "-h", "--help")
 
 
+class CommandParser(argparse.ArgumentParser):
+    """argparse's parser whose usage errors exit 1, as every other refusal of bad input does (one exit code for a script)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.print_usage(sys.stderr)
+        self.exit(1, f"{self.prog}: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="hydro-ros", description=__doc__.splitlines()[0])
+    parser = CommandParser(prog="hydro-ros", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     for family in FAMILIES:
         family.register(sub)
