@@ -130,7 +130,7 @@ def test_a_usage_error_and_a_refused_input_exit_alike(tmp_path, capsys):
     from hydro_ros.cli import main as cli
 
     with pytest.raises(SystemExit) as usage:
-        cli(["sim", "--config", "config/sam.yaml", "--bogus"])
+        cli(["sim", "--config", "config/sam.yaml", "--duration", "1", "--out", str(tmp_path / "x"), "--bogus"])
     assert usage.value.code == 1 and "unrecognized arguments: --bogus" in capsys.readouterr().err
     assert cli(["bag", "info", str(tmp_path / "missing")]) == 1
     assert "error:" in capsys.readouterr().err
