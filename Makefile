@@ -35,11 +35,11 @@ lint: setup
 # Then the CAN bridge's bus tests alone (the "solo" mark): their frames over UDP multicast are lost whenever anything else runs
 test: lint $(CHROMIUM)
 	@mkdir -p out; echo "the live-graph tests run beside these; their report follows (out/test-live.log)"; \
-	TEST_ROS_DOMAINS=10-119 $(PY) -m pytest -q -p no:cacheprovider -m "ros_graph and not browser and not solo" test \
+	TEST_ROS_DOMAINS=10-119 $(PY) -m pytest -q -p no:cacheprovider --durations=12 -m "ros_graph and not browser and not solo" test \
 		> out/test-live.log 2>&1 & live=$$!; \
-	TEST_ROS_DOMAINS=120-229 nice -n 5 $(PY) -m pytest -q -n 2 -m "(not ros_graph or browser) and not solo" test; library=$$?; \
+	TEST_ROS_DOMAINS=120-229 nice -n 5 $(PY) -m pytest -q -n 2 --durations=12 -m "(not ros_graph or browser) and not solo" test; library=$$?; \
 	wait $$live; graph=$$?; cat out/test-live.log; [ $$library = 0 ] && [ $$graph = 0 ]
-	$(PY) -m pytest -q -m solo test
+	$(PY) -m pytest -q --durations=12 -m solo test
 
 # the library tests without a ROS graph, a browser or a long study: the loop while changing code
 test-fast: lint

@@ -26,7 +26,10 @@ def generate_launch_description() -> LaunchDescription:
     share = FindPackageShare("hydro_ros")
     namespace = LaunchConfiguration("namespace")
     config = LaunchConfiguration("config")
-    ros_arguments = ["--log-level", LaunchConfiguration("log_level")]
+    def ros_arguments(name: str) -> list:
+        # each node in its own SROS2 enclave under the root (docs/deploy.md); without ROS_SECURITY_ENABLE it is not read
+        return ["--log-level", LaunchConfiguration("log_level"), "--enclave", PathJoinSubstitution([LaunchConfiguration("enclave"), name])]
+
     arguments = [
         DeclareLaunchArgument("namespace", default_value="", description="namespace of the crane's nodes and topics"),
         DeclareLaunchArgument("config", default_value=PathJoinSubstitution([share, "config", "k70m.yaml"]), description="crane config"),
@@ -34,13 +37,14 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("joint_state_source", default_value="can_bridge", description="the only node whose /joint_states move it"),
         DeclareLaunchArgument("auto_configure", default_value="true", description="configure trajectory_executor at launch"),
         DeclareLaunchArgument("auto_activate", default_value="true", description="activate trajectory_executor once configured"),
+        DeclareLaunchArgument("enclave", default_value="/hydro_ros", description="SROS2 enclave root: each node runs in <enclave>/<node>"),
         DeclareLaunchArgument("log_level", default_value="info", description="log level of both nodes"),
     ]
     server = Node(package="hydro_ros", executable="trajectory_server", name="trajectory_server", namespace=namespace, output="screen",
                   parameters=[{"database": LaunchConfiguration("database"), "config": config,
-                               "output_topic": "trajectory_executor/joint_trajectory"}], ros_arguments=ros_arguments)
+                               "output_topic": "trajectory_executor/joint_trajectory"}], ros_arguments=ros_arguments("trajectory_server"))
     executor = LifecycleNode(package="hydro_ros", executable="trajectory_executor", name="trajectory_executor", namespace=namespace,
-                             output="screen", ros_arguments=ros_arguments,
+                             output="screen", ros_arguments=ros_arguments("trajectory_executor"),
                              parameters=[{"config": config, "autostart": False, "trajectory_source": "trajectory_server",
                                           "joint_state_source": LaunchConfiguration("joint_state_source"), "require_monitor": True}])
     configure = EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(executor), transition_id=Transition.TRANSITION_CONFIGURE),

@@ -5,9 +5,10 @@ monitor), the operator HMI and, where installed, diagnostic_aggregator.
 
 Arguments: ``namespace`` (every node and topic under it, so machines share a graph; /diagnostics stays absolute and
 names the namespace in each status), ``params_file`` (one per machine: config/params/<machine>.yaml, written by
-``hydro-ros params``), ``interface`` and ``channel`` of the bus, ``log_level``, ``use_sim_time``, and ``start_<node>``
-for each node. can_bridge is a lifecycle node driven by launch, as ros2_socketcan's: ``auto_configure`` emits its
-configure transition, and ``auto_activate`` its activate once it reaches inactive; a configure that fails (no such
+``hydro-ros params``), ``interface`` and ``channel`` of the bus, ``log_level``, ``use_sim_time``, ``enclave`` (the SROS2
+enclave root: each node runs in <enclave>/<node>, read only when security is enabled), and ``start_<node>`` for each
+node. can_bridge is a lifecycle node driven by launch, as ros2_socketcan's: ``auto_configure`` emits its configure
+transition, and ``auto_activate`` its activate once it reaches inactive; a configure that fails (no such
 bus) leaves it unconfigured and says why. The HMI's operator token comes from HYDRO_ROS_HMI_TOKEN in the environment of
 ``ros2 launch``; without it the page is read-only.
 """
@@ -42,7 +43,10 @@ def generate_launch_description() -> LaunchDescription:
     namespace = LaunchConfiguration("namespace")
     use_sim_time = LaunchConfiguration("use_sim_time")
     params = ParameterFile(LaunchConfiguration("params_file"), allow_substs=True)
-    ros_arguments = ["--log-level", LaunchConfiguration("log_level")]
+    def ros_arguments(name: str) -> list:
+        # each node in its own SROS2 enclave under the root (docs/deploy.md); without ROS_SECURITY_ENABLE it is not read
+        return ["--log-level", LaunchConfiguration("log_level"), "--enclave", PathJoinSubstitution([LaunchConfiguration("enclave"), name])]
+
     arguments = [
         DeclareLaunchArgument("namespace", default_value="", description="namespace of every node and topic of this machine"),
         DeclareLaunchArgument("params_file", default_value=PathJoinSubstitution([share, "config", "params", "sam.yaml"]),
@@ -51,6 +55,7 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("channel", default_value="can0", description="channel of the machine's bus"),
         DeclareLaunchArgument("auto_configure", default_value="true", description="configure can_bridge (open the bus) at launch"),
         DeclareLaunchArgument("auto_activate", default_value="true", description="activate can_bridge once configured"),
+        DeclareLaunchArgument("enclave", default_value="/hydro_ros", description="SROS2 enclave root: each node runs in <enclave>/<node>"),
         DeclareLaunchArgument("log_level", default_value="info", description="log level of every node"),
         DeclareLaunchArgument("use_sim_time", default_value="false", description="take the time from /clock"),
         *(DeclareLaunchArgument(f"start_{name}", default_value="true", description=f"start {name}") for name in NODES),
@@ -60,7 +65,7 @@ def generate_launch_description() -> LaunchDescription:
     bridge = LifecycleNode(package="hydro_ros", executable="can_bridge", name="can_bridge", namespace=namespace, output="screen",
                            parameters=[params, {"use_sim_time": use_sim_time, "autostart": False, "interface": LaunchConfiguration("interface"),
                                                 "channel": LaunchConfiguration("channel")}],
-                           ros_arguments=ros_arguments, condition=IfCondition(LaunchConfiguration("start_can_bridge")))
+                           ros_arguments=ros_arguments("can_bridge"), condition=IfCondition(LaunchConfiguration("start_can_bridge")))
     configure = EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(bridge), transition_id=Transition.TRANSITION_CONFIGURE),
                           condition=IfCondition(LaunchConfiguration("auto_configure")))
     # activate after launch's own configure only (configuring -> inactive, once): a deactivate, or an operator's
@@ -71,7 +76,7 @@ def generate_launch_description() -> LaunchDescription:
         condition=IfCondition(LaunchConfiguration("auto_activate")))
     nodes = [
         Node(package="hydro_ros", executable=name, name=name, namespace=namespace, output="screen",
-             parameters=[params, {"use_sim_time": use_sim_time}], ros_arguments=ros_arguments,
+             parameters=[params, {"use_sim_time": use_sim_time}], ros_arguments=ros_arguments(name),
              condition=IfCondition(LaunchConfiguration(f"start_{name}")))
         for name in NODES if name != "can_bridge"
     ]

@@ -84,6 +84,7 @@ def test_commissioning_recovers_each_notch_the_bulk_modulus_and_the_centre_leaka
     assert threshold["reached_left_out"] > threshold["reached"]  # judged by the others' model: further than by its own
 
 
+@pytest.mark.slow
 def test_the_commissioned_monitor_never_alarms_on_its_own_training_recordings(sam_config, commissioned):
     plant, block, _ = commissioned
     machine = sam_config.with_overrides(block["model"])
@@ -92,6 +93,7 @@ def test_the_commissioned_monitor_never_alarms_on_its_own_training_recordings(sa
         assert run.alarms == [], (seed, [a.to_json() for a in run.alarms])
 
 
+@pytest.mark.slow
 def test_after_commissioning_a_small_leak_is_isolated_and_payload_steps_raise_no_alarm(sam_config, commissioned):
     plant, block, _ = commissioned
     machine = sam_config.with_overrides(block["model"])
@@ -106,6 +108,7 @@ def test_after_commissioning_a_small_leak_is_isolated_and_payload_steps_raise_no
     assert run.alarms and run.alarms[0].time_s > 20.0 and named and named[0].fault.value == "external_leakage_b"
 
 
+@pytest.mark.slow
 def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_and_p_iv_thresholds(sam_config):
     """The parity method's machine: spool from the pilot pressures, notches fed by the compensator; thresholds
     per operating point from the recordings, sharper on the whole than fdi-fit's from simulated plants, and
@@ -211,6 +214,7 @@ def test_live_commissioned_monitor_names_a_leak_the_shipped_threshold_cannot_see
         assert statuses()[-1].level == bytes([1])
 
 
+@pytest.mark.slow
 def test_a_leak_that_begins_in_the_held_out_part_is_refused_never_learnt(sam_config):
     """The leak starts inside the last third, which only sets the threshold: refused by the held-out leak check, and a
     threshold above the config's safe one is refused unless forced."""

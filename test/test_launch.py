@@ -206,6 +206,19 @@ def test_every_node_has_an_enclave_and_only_its_owner_may_publish_halt_commands_
     assert "can_bridge" in publishers("joint_states") and not publishers("joint_states") & {"trajectory_server", "trajectory_executor", "hmi"}
 
 
+def test_every_launched_node_runs_in_its_own_enclave_of_the_policy(monkeypatch):
+    """The launch files' ``enclave`` argument: each of our nodes gets ``--enclave <enclave>/<node>``, an enclave the policy has."""
+    import xml.etree.ElementTree as ET
+
+    enclaves = {e.get("path") for e in ET.parse(REPO / "config" / "sros2" / "policy.xml").getroot().iter("enclave")}
+    for launch_file in ("machine.launch.py", "crane_motion.launch.py"):
+        arguments, nodes = _launch(REPO / "launch" / launch_file, monkeypatch)
+        for node in (n for n in nodes if n.kwargs["package"] == "hydro_ros"):
+            ros_arguments = node.kwargs["ros_arguments"]
+            enclave = str(_resolve(ros_arguments[ros_arguments.index("--enclave") + 1], arguments))
+            assert enclave == f"/hydro_ros/{node.kwargs['name']}" and enclave in enclaves, (launch_file, enclave)
+
+
 def test_the_sros2_policy_of_a_namespaced_machine_is_generated_and_installed(capsys):
     import xml.etree.ElementTree as ET
 

@@ -97,6 +97,7 @@ def test_closed_valve_evidence_follows_the_physics_of_each_fault(mobile):
         assert np.all(np.abs(_closed_mean_change(mobile, fault, value)) < 0.15), fault
 
 
+@pytest.mark.slow
 def test_every_actuator_gets_its_own_evidence(mobile):
     """A second cylinder like the boom, with its own mismatch and operator: its internal leak and its velocity-sensor bias are
     named there (by the closed-valve evidence: their signs while metering are shared), and the boom raises nothing."""
