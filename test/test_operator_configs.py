@@ -47,6 +47,25 @@ def test_the_aggregator_groups_every_published_status_exactly_once():
     assert fdi["remove_prefix"] == [topics.FDI_STATUS_PREFIX]
 
 
+def test_an_aggregator_for_several_machines_groups_by_machine_then_function(capsys):
+    from hydro_ros.cli import main as cli
+
+    assert cli(["aggregator", "config", "--namespace", "m1", "--namespace", "/m2", "--namespace", ""]) == 0
+    machines = yaml.safe_load(capsys.readouterr().out)["analyzers"]["ros__parameters"]
+    groups = {key: value for key, value in machines.items() if isinstance(value, dict)}
+    assert set(groups) == {"m1", "m2", "root"} and all(g["type"] == "diagnostic_aggregator/AnalyzerGroup" for g in groups.values())
+    root_names = [name for name in _published_status_names() if not name.startswith("machine1/")]
+    for machine, prefix in (("m1", "m1/"), ("m2", "m2/"), ("root", "")):
+        for name in root_names:
+            where = [(g, key, analyzer) for g, group in groups.items() for key, analyzer in group["analyzers"].items()
+                     if _matches(analyzer, prefix + name)]
+            assert len(where) == 1 and where[0][0] == machine, (prefix + name, [(g, k) for g, k, _ in where])
+            shown = prefix + name
+            for removed in where[0][2]["remove_prefix"]:
+                shown = shown.removeprefix(removed)
+            assert not shown.startswith(("m1/", "m2/")) and "hydro_ros/fdi/" not in shown, shown  # the leaf: boom, bus, ...
+
+
 def _leaves(node) -> set[str]:
     return {node} if isinstance(node, str) else _leaves(node["first"]) | _leaves(node["second"])
 

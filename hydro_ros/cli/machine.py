@@ -59,6 +59,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     policy.add_argument("--namespace", default="", help="the machine's namespace (m1); empty: the root namespace")
     policy.set_defaults(func=cmd_sros2_policy)
 
+    aggregator = sub.add_parser("aggregator", help="diagnostic_aggregator for machines on one graph")
+    aggregator_verbs = aggregator.add_subparsers(dest="aggregator_command", required=True)
+    grouped = aggregator_verbs.add_parser("config", help="an aggregator config grouping by machine, then by function",
+                                          description="Print config/diagnostic_aggregator.yaml for the machines in the given "
+                                          "namespaces: a group per machine, in it a group per function.")
+    grouped.add_argument("--namespace", action="append", required=True,
+                         help="a machine's namespace (m1), once per machine; '' for one in the root namespace")
+    grouped.set_defaults(func=cmd_aggregator_config)
+
     foxglove = sub.add_parser("foxglove", help="Foxglove for a machine")
     verbs = foxglove.add_subparsers(dest="foxglove_command", required=True)
     layout = verbs.add_parser("layout", help="a Foxglove layout for a machine: every actuator's status and residual plots",
@@ -184,6 +193,13 @@ def cmd_machine_new(args: argparse.Namespace) -> int:
     text = re.sub(r"(?m)^(\s*)threshold_constant:.*$", rf"\1# threshold_constant: yours from `hydro-ros machine threshold {out}`", text)
     out.write_text(header + text)
     print(f"{out}: written from {source.name}; next: hydro-ros machine check {out}")
+    return 0
+
+
+def cmd_aggregator_config(args: argparse.Namespace) -> int:
+    from hydro_ros.nodes.bringup import aggregator_config
+
+    print(aggregator_config(args.namespace), end="")
     return 0
 
 

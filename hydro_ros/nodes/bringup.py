@@ -68,3 +68,27 @@ def sros2_policy(namespace: str) -> str:
     comment = (f"<!-- SROS2 access control for the hydro_ros machine in namespace {ns}, written by hydro-ros sros2 policy from "
                "config/sros2/policy.xml: every enclave and its access as there. -->\n")
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + comment + ET.tostring(tree.getroot(), encoding="unicode") + "\n"
+
+
+def aggregator_config(namespaces: list[str]) -> str:
+    """config/diagnostic_aggregator.yaml for the machines in ``namespaces`` on one graph: a group per machine (its
+    namespace; "" the root namespace), in it the shipped file's group per function, each matching only that machine's
+    statuses and showing them without the machine's and the function's prefix (m1/hydro_ros/fdi/boom -> m1 > Condition
+    monitoring > boom)."""
+    import yaml
+
+    shipped = yaml.safe_load((config_dir() / "diagnostic_aggregator.yaml").read_text())["analyzers"]["ros__parameters"]
+    functions = {key: value for key, value in shipped.items() if isinstance(value, dict)}
+    machines = {}
+    for namespace in dict.fromkeys(n.strip("/") for n in namespaces):
+        prefix = f"{namespace}/" if namespace else ""
+        group = {}
+        for key, analyzer in functions.items():
+            leaf = {k: v for k, v in analyzer.items() if k not in ("contains", "remove_prefix")}
+            leaf["startswith"] = [prefix + text for text in analyzer["contains"]]
+            leaf["remove_prefix"] = [prefix + text for text in analyzer.get("remove_prefix", analyzer["contains"])]
+            group[key] = leaf
+        machines[namespace or "root"] = {"type": "diagnostic_aggregator/AnalyzerGroup", "path": namespace or "root", "analyzers": group}
+    header = (f"# diagnostic_aggregator for the hydro_ros machines {', '.join(n or '(root)' for n in machines)}: written by hydro-ros "
+              "aggregator config from config/diagnostic_aggregator.yaml, a group per machine, in it a group per function\n")
+    return header + yaml.safe_dump({"analyzers": {"ros__parameters": {"path": shipped["path"], **machines}}}, sort_keys=False)
