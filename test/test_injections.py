@@ -20,7 +20,9 @@ EXTEND, RETRACT = slice(1000, 2000), slice(2000, 3000)  # after the onset, exten
 
 # name -> (value, observable(clean, faulty) that must be True after onset)
 EXPECTED = {
-    "external_leakage_a": (2.0, lambda c, f: f["p_a"][-1] < c["p_a"][-1] - 1e5 or f["x"][-1] < c["x"][-1] - 1e-3),
+    # oil lost from A at A's pressure (~8 MPa extending: ~1.8 L/min): over the second of extension the piston falls
+    # behind by more than 3 mm (4.9 measured; a leak driven by B's ~1 MPa, 1.5 mm)
+    "external_leakage_a": (2.0, lambda c, f: np.mean(f["p_a"][EXTEND] - c["p_a"][EXTEND]) < -1e5 and f["x"][1999] < c["x"][1999] - 3e-3),
     # oil lost from B: B's pressure falls, and retracting (filling B) the piston travels less
     "external_leakage_b": (2.0, lambda c, f: np.mean(f["p_b"][RETRACT] - c["p_b"][RETRACT]) < -1e5 and f["x"][-1] > c["x"][-1] + 1e-3),
     "external_leakage_ab": (2.0, lambda c, f: np.mean(f["p_a"][RETRACT] - c["p_a"][RETRACT]) < -1e5
