@@ -94,6 +94,25 @@ def test_the_commissioned_monitor_never_alarms_on_its_own_training_recordings(sa
 
 
 @pytest.mark.slow
+def test_outside_what_commissioning_saw_the_monitor_holds_and_never_alarms(sam_config, commissioned):
+    plant, block, report = commissioned
+    machine = sam_config.with_overrides(block["model"])
+    seen = block["model"]["fdi"]["coverage"]["boom"]
+    assert seen["valve_command"][1] < 0.8 and seen["pressure_a"][0] < seen["pressure_a"][1]  # the operator's lever stops at 0.8
+    # the same kind of work as the recordings: monitored nearly all the time
+    usual = FdiMonitor(machine)
+    assert run_monitor(usual, _samples(plant, 31, 120.0)).alarms == []
+    assert usual.outside_held_samples[0] < 0.10 * usual.evaluated_samples
+    # moves at full opening and 500 kg more than the recordings ever held: held there, never an alarm
+    harder = FdiMonitor(machine)
+    wider = plant.with_overrides({"excitation": {"max_command": 1.0, "move_speed": [0.2, 0.5]}})
+    run = run_monitor(harder, _samples(wider, 32, 120.0, [Injection("payload_mass", 500.0, 20.0)]))
+    assert run.alarms == [], [a.to_json() for a in run.alarms]
+    assert harder.outside_held_samples[0] > 0.2 * harder.evaluated_samples and harder.outside(0)
+    assert any("faster" in motion or "heavier" in motion for motion in block["record_next"]["boom"])
+
+
+@pytest.mark.slow
 def test_after_commissioning_a_small_leak_is_isolated_and_payload_steps_raise_no_alarm(sam_config, commissioned):
     plant, block, _ = commissioned
     machine = sam_config.with_overrides(block["model"])

@@ -38,6 +38,7 @@ class SupervisorMachine(RuleBasedStateMachine):
         self.problem = dict.fromkeys(ACTUATORS, False)  # an invalid reading (NaN, out of range) in the next block
         self.overloaded = False
         self.irregular = False  # the samples' stamps irregular (safety.timing)
+        self.outside = dict.fromkeys(ACTUATORS, False)  # the monitor's window outside what commissioning saw
         self.present: dict[str, str] = {}  # faults physically present: actuator -> fault
         self.latched: dict[str, str] = {}  # what the monitor has latched (until its reset)
         self.crossing = dict.fromkeys(ACTUATORS, False)  # a threshold crossing not yet latched
@@ -55,6 +56,7 @@ class SupervisorMachine(RuleBasedStateMachine):
         armed = self.seen >= REARM
         return ActuatorView(
             fresh=self.fresh[actuator], overloaded=self.overloaded, timing="5% of the intervals off" if self.irregular else "",
+            coverage="valve_command 0.95 outside 0..0.7" if self.outside[actuator] else "",
             sensor_problems=("pressure_a",) if invalid_at is not None else (),
             armed=armed, explained=armed and (fault is not None or not self.crossing[actuator]), fault=fault, fault_level=level,
             samples=samples, valid_tail=samples if invalid_at is None else samples - invalid_at - 1)
@@ -86,8 +88,8 @@ class SupervisorMachine(RuleBasedStateMachine):
             if fault == SEVERE:
                 self.severe_shown[a], self.reset_since[a] = True, False
             elif self.severe_shown[a] and self.reset_since[a]:
-                vouched = (self.fresh[a] and not self.overloaded and not self.irregular and views[a].explained and self.clean[a] >= REARM
-                           and not views[a].sensor_problems)
+                vouched = (self.fresh[a] and not self.overloaded and not self.irregular and not self.outside[a] and views[a].explained
+                           and self.clean[a] >= REARM and not views[a].sensor_problems)
                 if (fault not in (None, "unisolated")) or (fault is None and vouched):
                     self.severe_shown[a] = False  # re-checked after the reset: isolated anew, or vouched for without a fault
 
@@ -132,6 +134,11 @@ class SupervisorMachine(RuleBasedStateMachine):
     @rule(on=st.booleans())
     def timing(self, on: bool) -> None:
         self.irregular = on
+        self._tick(0, None)
+
+    @rule(actuator=actuators, on=st.booleans())
+    def coverage(self, actuator: str, on: bool) -> None:
+        self.outside[actuator] = on
         self._tick(0, None)
 
     @rule(forward=st.booleans())
@@ -198,7 +205,7 @@ class SupervisorMachine(RuleBasedStateMachine):
         if not halt.halt:
             assert halt.kind == "clear"
             for a in ACTUATORS:
-                assert self.fresh[a] and not self.overloaded and not self.irregular, a
+                assert self.fresh[a] and not self.overloaded and not self.irregular and not self.outside[a], a
                 assert self.seen >= REARM and self.clean[a] >= REARM, (a, self.seen, self.clean[a])
                 assert self.latched.get(a) != SEVERE and not self.severe_shown[a], a
                 assert not self.unexplained[a], a
@@ -215,13 +222,13 @@ class SupervisorMachine(RuleBasedStateMachine):
         assert halt.halt == (halt.kind != "clear") and halt.reason
         for a in ACTUATORS:
             state = self.supervisor.state(a)
-            if not self.fresh[a] or self.overloaded or self.irregular:
+            if not self.fresh[a] or self.overloaded or self.irregular or self.outside[a]:
                 assert halt.halt and state.hold
                 assert state.level != OK
 
     @invariant()
     def all_clear_when_everything_is_seen(self) -> None:  # liveness: a core that always halts fails here
-        if (self.seen >= REARM and not self.overloaded and not self.irregular and not any(self.severe_shown.values())
+        if (self.seen >= REARM and not self.overloaded and not self.irregular and not any(self.outside.values()) and not any(self.severe_shown.values())
                 and all(self.fresh[a] and self.clean[a] >= REARM for a in ACTUATORS)
                 and not any(self.unexplained.values()) and all(self.latched.get(a) in (None, MINOR) for a in ACTUATORS)):
             assert not self.supervisor.halt().halt, self.supervisor.halt()

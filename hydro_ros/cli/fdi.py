@@ -197,4 +197,7 @@ def cmd_commission(args: argparse.Namespace) -> int:
 
     print(f"threshold {threshold['parameter']} {values(threshold['value'])} (config had {values(threshold['before'])}; "
           f"{threshold['form']}); written to {out}")
+    for actuator, motions in block["record_next"].items():
+        if motions:
+            print(f"{actuator}: detection holds outside what the recordings held; to cover more, record {'; '.join(motions)}")
     return 0

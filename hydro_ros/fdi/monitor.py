@@ -84,6 +84,11 @@ class FdiMonitor:
         self.supply_substituted = 0
         self.nominal_supply = machine.supply_pressure
         self.health = SensorHealth(machine, 9 if self.generator.needs_mobile_pressures else 6, self.sample_rate)
+        # outside what commissioning saw (fdi.coverage): samples since the last such sample, and why it was outside
+        self._since_outside = np.full(n, np.iinfo(np.int64).max // 2, dtype=np.int64)
+        self._outside_reason = [""] * n
+        self.outside_held_samples = np.zeros(n, dtype=np.int64)  # evaluated samples held for it, per actuator
+        self.evaluated_samples = 0
 
     @property
     def method(self) -> str:
@@ -183,6 +188,11 @@ class FdiMonitor:
         code[~armed] = 0
         if hold:
             code[:] = 0
+        if self.settings.coverage is not None:
+            outside = self._outside_window(raw, valid)
+            code[outside] = 0
+            self.outside_held_samples += np.count_nonzero(outside & armed[:, None], axis=0)
+        self.evaluated_samples += int(np.count_nonzero(armed))
         pa_gt_pb = mean_pressure[:, :, 0] > mean_pressure[:, :, 1]
         large = self.generator.large(mean_residual, operating_point)
         s = self.settings
@@ -195,6 +205,27 @@ class FdiMonitor:
         self.last_closed_mean = closed_mean[-1]
         return BlockResult(block.times, residual, mean_residual, threshold, code, valid, alarms, mean_command, operating_point, closed_mean,
                            closed_code)
+
+    def _outside_window(self, raw: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """(n, A): whether the window ending at each sample holds a valid sample outside the commissioned region."""
+        n = len(raw)
+        held = np.zeros((n, len(self.actuators)), dtype=bool)
+        index = np.arange(n)
+        for a, actuator in enumerate(self.actuators):
+            beyond, reason = self.settings.coverage.outside(
+                actuator, {"valve_command": raw[:, a, 2], "pressure_a": raw[:, a, 4], "pressure_b": raw[:, a, 5]})
+            beyond &= valid[:, a]
+            if reason and beyond.any():
+                self._outside_reason[a] = reason
+            last = np.maximum.accumulate(np.where(beyond, index, -1))
+            since = np.where(last >= 0, index - last, self._since_outside[a] + index + 1)
+            held[:, a] = since < self.window
+            self._since_outside[a] = since[-1]
+        return held
+
+    def outside(self, index: int) -> str:
+        """Why detection holds for the actuator: its window holds a sample outside what commissioning saw ("" if not)."""
+        return self._outside_reason[index] if self._since_outside[index] < self.window else ""
 
     def _hold_last(self, values: np.ndarray, valid: np.ndarray) -> np.ndarray:
         """Forward-fill invalid samples per actuator with the last valid one (kept across blocks)."""

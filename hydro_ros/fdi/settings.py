@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Fault
+from hydro_ros.fdi.coverage import Coverage
 from hydro_ros.fdi.isolation import PatternRow, signature_rows
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.fdi.ukf import UkfSettings
@@ -46,6 +47,7 @@ class FdiSettings:
     ukf: UkfSettings = field(default_factory=UkfSettings)
     parity_thresholds: ParityThresholds | None = None  # fitted by `fdi fit` on fault-free data
     parity_signatures: tuple[PatternRow, ...] = ()  # built by simulation (`fdi fit`)
+    coverage: Coverage | None = None  # what commissioning saw: outside it detection holds (hydro_ros.fdi.coverage)
 
     @classmethod
     def from_machine(cls, machine: Machine) -> "FdiSettings":
@@ -55,6 +57,7 @@ class FdiSettings:
         severe = section.pop("severe_faults", None)
         thresholds = ParityThresholds.from_config(section.pop("parity_thresholds", None))
         signatures = signature_rows(section.pop("parity_signatures", None) or [])
+        coverage = Coverage.from_config(section.pop("coverage", None))
         unknown = [name for name in section if name not in cls.__dataclass_fields__]
         if unknown:
             raise InputError(f"fdi: unknown key(s) {', '.join(sorted(unknown))}")
@@ -63,7 +66,10 @@ class FdiSettings:
                 section["severe_faults"] = tuple(Fault(name) for name in severe)
             except ValueError as exc:
                 raise InputError(f"fdi.severe_faults: {exc}") from None
-        settings = cls(ukf=ukf, parity_thresholds=thresholds, parity_signatures=signatures, **section)
+        settings = cls(ukf=ukf, parity_thresholds=thresholds, parity_signatures=signatures, coverage=coverage, **section)
+        if coverage is not None and set(coverage.ranges) != set(machine.actuator_names):
+            raise InputError(f"fdi.coverage: describes {', '.join(sorted(coverage.ranges))}, the machine has "
+                             f"{', '.join(machine.actuator_names)}: commission again")
         if settings.residual not in ("posterior", "prior"):
             raise InputError(f"fdi.residual {settings.residual!r}: expected posterior or prior")
         return settings

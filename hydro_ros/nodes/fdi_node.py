@@ -249,6 +249,7 @@ class FdiNode(Node):
         status = self.monitor.status(index)
         return ActuatorView(
             fresh=not self._stale_topics(index), overloaded=self._overloaded(index), timing=self.timing.problem,
+            coverage=self.monitor.outside(index),
             sensor_problems=tuple(sorted(c for c in self.monitor.sensor_problems(index) if c != "supply_pressure")),
             armed=self.monitor.armed, explained=self.monitor.explained(index),
             fault=None if status.fault is None else status.fault.value, fault_level=status.level, samples=samples, valid_tail=valid_tail)
@@ -359,6 +360,7 @@ class FdiNode(Node):
                 "rechecking": str(held is not None and held.rechecking and status.fault is None).lower(),
                 "acknowledged": str(actuator in self.supervisor.acknowledged).lower(),
                 "vouched": str(not state.hold).lower(),
+                "held_outside_commissioned_share": f"{self.monitor.outside_held_samples[i] / max(self.monitor.evaluated_samples, 1):.3f}",
                 "not_vouched_because": state.hold,
             }
             closed_threshold = self.monitor.generator.closed_threshold

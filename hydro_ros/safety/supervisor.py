@@ -6,7 +6,7 @@ actuator's level and message, the alarm-log events and the halt decision (:class
 no monitor, so its invariants are tested on random event sequences (test/test_safety_core.py):
 
 I1  "All clear" (halt false) only while every actuator is vouched: its inputs fresh, not overloaded, regularly
-    timed, every reading valid, the monitor armed and its evidence explained, and at least ``rearm_samples`` valid
+    timed, inside what commissioning saw, every reading valid, the monitor armed and its evidence explained, and at least ``rearm_samples`` valid
     samples evaluated since the actuator's last disturbance (a gap in its inputs, an invalid reading, an overload,
     irregular sample times, a time jump, a restart or reset of the filters, the node's own start). A first sample after a gap is never "all clear".
 I2  Not vouched is a halt (``kind`` "hold", with the reason): the absence of confirmation trips, so a late subscriber
@@ -33,6 +33,7 @@ class ActuatorView:
     fresh: bool = False  # every input topic of the actuator arrived within the stale timeout
     overloaded: bool = False  # samples arrive incomplete: the input outruns the node
     timing: str = ""  # why the samples' stamps are not regular enough to trust ("" while they are: safety.timing)
+    coverage: str = ""  # why the monitor's window lies outside what commissioning saw ("" while inside: fdi.coverage)
     sensor_problems: tuple[str, ...] = ()  # readings invalid within the health hold time (the supply is substituted, not here)
     armed: bool = False  # the monitor has evaluated a full window since its start, reset or restart
     explained: bool = False  # armed, and its evidence explained: a fault latched or no threshold crossing now
@@ -156,6 +157,8 @@ class MonitorSupervisor:
             return "overloaded: samples arrive incomplete"
         if view.timing:
             return f"timing: {view.timing}"
+        if view.coverage:
+            return f"outside the commissioned range: {view.coverage}"
         if view.sensor_problems:
             return f"invalid readings: {', '.join(view.sensor_problems)}"
         if not view.armed or self.clean[actuator] < self.rearm_samples:

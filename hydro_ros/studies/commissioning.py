@@ -42,6 +42,7 @@ from hydro_ros.contract.config import write_extending
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.samples import Samples
+from hydro_ros.fdi.coverage import Coverage
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import monitor_blocks
 from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS, ParityThresholds, closed_statistics
@@ -451,6 +452,8 @@ def commission(machine: Machine, recordings: Sequence[FaultFreeRecording], progr
                          "check them, or accept it with --force")
     threshold["forced"] = bool(above)
     overrides["fdi"] = threshold.pop("fdi")
+    coverage = Coverage.seen(machine.actuator_names, [r.samples for r in recordings])
+    overrides["fdi"]["coverage"] = coverage.to_config()
     block = {
         "model": overrides,
         "date": datetime.date.today().isoformat(),
@@ -462,6 +465,8 @@ def commission(machine: Machine, recordings: Sequence[FaultFreeRecording], progr
                              "leaks_l_min_at_10mpa": {n: round(v, 4) for n, v in i.leaks_l_min.items()}}
                 for i in identified},
         "threshold": {key: value for key, value in threshold.items() if key != "before"},
+        # outside what the recordings held, detection holds (hydro_ros.fdi.coverage); what to record to widen it
+        "record_next": {a: coverage.advice(a, machine.supply_pressure) for a in machine.actuator_names},
     }
     report = {"identification": [i.__dict__ for i in identified], "threshold": threshold, "held_out_s": held_out_s, "block": block}
     return block, report

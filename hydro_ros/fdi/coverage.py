@@ -1,0 +1,105 @@
+"""What commissioning saw of each actuator, and whether the machine now works outside it.
+
+A commissioned model and threshold are known only where the recordings took them: the valve openings in each
+direction and the chamber pressures (the load) they held. Outside that region the residual carries what the
+identification could not see (a notch extrapolated past its widest opening, a load the threshold never met), and a
+two-joint arm commissioned from 2 x 120 s false-alarmed exactly there (issue 50). So commissioning writes the region
+(``fdi.coverage``: per actuator the 0.5-99.5 % range of the valve command and of each chamber's pressure over every
+recording), and the monitor holds detection for an actuator (never an alarm) while its 5 s window holds a sample
+outside the region widened by a margin; it monitors again a whole window after the last such sample (hysteresis).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from hydro_ros.contract.errors import InputError
+
+QUANTITIES = ("valve_command", "pressure_a", "pressure_b")
+PERCENTILES = (0.5, 99.5)  # a few stray samples of a recording do not widen the region
+COMMAND_MARGIN = 0.05  # [-] of the valve command beyond what was seen
+PRESSURE_MARGIN = 0.1  # of the pressure span seen, ...
+PRESSURE_MARGIN_MIN = 0.5e6  # [Pa] ... at least this
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """Per actuator and quantity the (low, high) range commissioning saw [-, Pa]."""
+
+    ranges: Mapping[str, Mapping[str, tuple[float, float]]]
+
+    @classmethod
+    def seen(cls, actuators: Sequence[str], recordings: Sequence[Any]) -> "Coverage":
+        """The region of Samples ``recordings`` ((n, A) columns in ``actuators`` order), valid samples only."""
+        ranges: dict[str, dict[str, tuple[float, float]]] = {}
+        for index, actuator in enumerate(actuators):
+            ranges[actuator] = {}
+            for quantity in QUANTITIES:
+                values = np.concatenate([np.asarray(getattr(r, quantity), dtype=float).reshape(len(r), -1)[:, index] for r in recordings])
+                values = values[np.isfinite(values)]
+                if not values.size:
+                    raise InputError(f"commission: actuator {actuator}: no finite {quantity} in the recordings")
+                low, high = np.percentile(values, PERCENTILES)
+                ranges[actuator][quantity] = (float(low), float(high))
+        return cls(ranges)
+
+    @classmethod
+    def from_config(cls, section: Any) -> "Coverage | None":
+        if section is None:
+            return None
+        try:
+            ranges = {str(a): {q: (float(entry[q][0]), float(entry[q][1])) for q in QUANTITIES} for a, entry in dict(section).items()}
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise InputError(f"fdi.coverage: expected per actuator {', '.join(QUANTITIES)} as [low, high] ({exc})") from None
+        for actuator, entry in ranges.items():
+            for quantity, (low, high) in entry.items():
+                if not (np.isfinite(low) and np.isfinite(high) and low <= high):
+                    raise InputError(f"fdi.coverage.{actuator}.{quantity}: [{low:g}, {high:g}] is not a range")
+        return cls(ranges)
+
+    def to_config(self) -> dict[str, dict[str, list[float]]]:
+        return {a: {q: [float(v) for v in r] for q, r in entry.items()} for a, entry in self.ranges.items()}
+
+    def bounds(self, actuator: str, quantity: str) -> tuple[float, float]:
+        """The range a sample may take before it is outside: what was seen, widened by the margin."""
+        low, high = self.ranges[actuator][quantity]
+        margin = COMMAND_MARGIN if quantity == "valve_command" else max(PRESSURE_MARGIN * (high - low), PRESSURE_MARGIN_MIN)
+        return low - margin, high + margin
+
+    def outside(self, actuator: str, values: Mapping[str, np.ndarray]) -> tuple[np.ndarray, str]:
+        """Which samples (``values``: quantity -> (n,)) lie outside, and why the last of them does ("" if none)."""
+        mask = np.zeros(len(next(iter(values.values()))), dtype=bool)
+        reason = ""
+        last = -1
+        for quantity in QUANTITIES:
+            low, high = self.bounds(actuator, quantity)
+            series = np.asarray(values[quantity], dtype=float)
+            beyond = (series < low) | (series > high)
+            if beyond.any():
+                mask |= beyond
+                k = int(np.flatnonzero(beyond)[-1])
+                if k >= last:
+                    last = k
+                    seen = self.ranges[actuator][quantity]
+                    unit, scale = ("", 1.0) if quantity == "valve_command" else (" MPa", 1e-6)
+                    reason = (f"{quantity} {series[k] * scale:.2f}{unit} outside the commissioned "
+                              f"{seen[0] * scale:.2f}..{seen[1] * scale:.2f}{unit}")
+        return mask, reason
+
+    def advice(self, actuator: str, supply_pressure: float) -> list[str]:
+        """The motions to record so the monitor covers more of the machine's work (its valve's full stroke, its
+        chambers up to the supply)."""
+        entry = self.ranges[actuator]
+        (c_low, c_high), (a_low, a_high), (b_low, b_high) = (entry[q] for q in QUANTITIES)
+        out = []
+        if c_high < 0.9:
+            out.append(f"extending faster (valve openings above {c_high:.2f} were not seen)")
+        if c_low > -0.9:
+            out.append(f"retracting faster (valve openings below {c_low:.2f} were not seen)")
+        if max(a_high, b_high) < 0.8 * supply_pressure:
+            out.append(f"heavier loads (chamber pressures above {max(a_high, b_high) * 1e-6:.1f} MPa of the "
+                       f"{supply_pressure * 1e-6:.0f} MPa supply were not seen)")
+        return out
