@@ -18,6 +18,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from hydro_ros.benchresults import write_result
+
 REPO = Path(__file__).resolve().parents[1]
 SAM = "hydro_ros/models/sam.py"
 ISOLATION = "hydro_ros/fdi/isolation.py"
@@ -78,7 +80,7 @@ def main() -> None:
     rows = [run_mutant(*mutant) for mutant in tqdm(MUTANTS, desc="mutants", unit="mutant")]
     result = {"mutants": rows, "killed": sum(r["killed"] for r in rows), "total": len(rows),
               "survivors": [r["mutant"] for r in rows if not r["killed"]]}
-    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
+    write_result(args.out, result)
     print(json.dumps({k: v for k, v in result.items() if k != "mutants"}))
     if result["survivors"]:
         raise SystemExit(f"mutants not killed by the suite: {', '.join(result['survivors'])}")

@@ -41,6 +41,8 @@ class FdiRun:
                 "first_detection_s": None if status.detected_at is None else round(status.detected_at, 4),
                 "level": ["ok", "warn", "error"][status.level],
                 "code": status.code,
+                # detection held outside what commissioning saw (fdi.coverage), as a share of the evaluated samples
+                "held_outside_commissioned_share": round(float(self.monitor.outside_held_samples[i]) / max(self.monitor.evaluated_samples, 1), 4),
             }
         out: dict[str, Any] = {"actuators": actuators, "alarms": [alarm.to_json() for alarm in self.alarms]}
         if self.data is not None:
