@@ -171,6 +171,43 @@ def test_bag_replay_with_sim_time_isolates_the_recorded_fault(ros_domain):
         assert not any(s.message not in ("ok", "stale", "not_monitored", "unisolated", "external_leakage_b") for s in _fdi_statuses(diags))
 
 
+def test_under_sim_time_freshness_is_the_datas_clock_and_a_stopped_clock_goes_stale(ros_domain):
+    """A replay far slower than real time (0.7 s of wall time between samples, /clock following them) is fresh on the
+    data's clock, where wall time (stale_timeout 0.5 s) would call it stale; when /clock and the data stop, the steady
+    watchdog makes the monitor stale within its 2 s: never a frozen "all clear"."""
+    from rclpy.time import Time
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import FluidPressure
+    from std_msgs.msg import Header
+
+    from hydro_ros.contract import topics
+    from hydro_ros.nodes.common import SENSOR_QOS
+
+    diags: list[DiagnosticArray] = []
+    with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", "use_sim_time:=true"), probe_node("probe") as node:
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        clock = node.create_publisher(Clock, "/clock", 10)
+        joints = {name: node.create_publisher(JointState, name, SENSOR_QOS) for name in (topics.JOINT_STATES, topics.VALVE_COMMANDS)}
+        pressures = {name: node.create_publisher(FluidPressure, name, SENSOR_QOS)
+                     for name in (topics.SUPPLY_PRESSURE, topics.pressure_a("boom"), topics.pressure_b("boom"))}
+        assert spin_until(node, lambda: all(p.get_subscription_count() for p in [*joints.values(), *pressures.values()]), 30)
+        values = {topics.SUPPLY_PRESSURE: 1e7, topics.pressure_a("boom"): 5e6, topics.pressure_b("boom"): 2e6}
+        sent_until = 0
+        for k in range(10):
+            stamp = Time(seconds=100, nanoseconds=k * 1_000_000).to_msg()
+            clock.publish(Clock(clock=stamp))
+            header = Header(stamp=stamp)
+            joints[topics.JOINT_STATES].publish(JointState(header=header, name=["boom_joint"], position=[0.1], velocity=[0.0]))
+            joints[topics.VALVE_COMMANDS].publish(JointState(header=header, name=["boom"], position=[0.0]))
+            for name, value in values.items():
+                pressures[name].publish(FluidPressure(header=header, fluid_pressure=value))
+            spin_until(node, lambda: False, 0.7)
+            sent_until = len(diags)
+        during = [s.message for s in _fdi_statuses(diags[3:sent_until])]  # once the first samples arrived
+        assert during and "stale" not in during, during
+        assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message == "stale", 6.0)
+
+
 def _sample(assembler: ContractAligner, stamp: int, pressure_a: float = 5e6) -> None:
     assembler.put_joint_states(encode_joint_state(stamp, "", ["boom_joint"], [0.1], [0.0], []))
     assembler.put_commands(encode_joint_state(stamp, "", ["boom"], [0.0], [], []))

@@ -119,6 +119,11 @@ def _read_header(data: bytes) -> tuple[int, int]:
     return sec * 1_000_000_000 + nsec, end
 
 
+def header_stamp_ns(data: bytes) -> int:
+    """std_msgs/Header.stamp [ns] of a CDR message whose first field is the header; CdrError if it cannot be one."""
+    return _read_header(data)[0]
+
+
 def _align(offset: int, alignment: int) -> int:
     return offset + _pad(offset - 4, alignment)
 

@@ -10,10 +10,12 @@ sample time). Services: ``~/acknowledge``, ``~/reset`` (std_srvs/Trigger), ``~/s
 
 Robustness: a sample whose topics do not all arrive within ``sync_window`` is processed as a gap
 (the filter holds, no residual); stamps at or before the last processed one are dropped and
-counted; a topic silent for ``stale_timeout`` of wall time makes its actuators STALE (no alarm is
-raised from stale data). A time jump of the input (clock step, bag loop, sim-time reset) restarts
-the filters on the new time base; a single stray stamp is dropped. An actuator is ``ok`` only while
-it is really monitored: until a window of data is evaluated (start, reset, time jump) and while a
+counted; a topic silent for ``stale_timeout`` makes its actuators STALE (no alarm is raised from stale
+data): of wall time, or under ``use_sim_time`` of the data's own clock (the node's /clock time against the
+topic's last stamp, so a replay slower than real time is not stale) with a steady watchdog of
+STEADY_WATCHDOG_S of wall time, so a stopped /clock is a stale monitor, never a frozen "all clear". A time
+jump of the input (clock step, bag loop, sim-time reset) restarts the filters on the new time base; a single
+stray stamp is dropped. An actuator is ``ok`` only while it is really monitored: until a window of data is evaluated (start, reset, time jump) and while a
 reading is invalid (non-finite, implausible, frozen: ``hydro_ros/sensors/<actuator>`` names it) it
 is STALE ``not_monitored``; when samples arrive incomplete it is WARN ``overloaded``. All counters
 are in the diagnostic values.
@@ -52,7 +54,7 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from hydro_ros.bags.align import ContractAligner, SampleLayout
-from hydro_ros.bags.cdr import CdrError
+from hydro_ros.bags.cdr import CdrError, header_stamp_ns
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import load_machine_config
@@ -80,6 +82,7 @@ ALARM_LOG_STATUS = "hydro_ros/alarm_log"
 MAX_PENDING_NS = 5_000_000_000  # samples waiting for a missing topic longer than this are given up
 DRAIN_MAX = 200  # messages of one topic taken per callback at most, so one topic cannot starve the timers
 OVERLOAD_WINDOW_S = 2.0  # [s] of wall time over which the share of incomplete samples is measured
+STEADY_WATCHDOG_S = 2.0  # [s] of wall time without a message: stale under use_sim_time too (a stopped /clock freezes its time)
 OVERLOAD_SHARE = 0.05  # more incomplete samples than this: the input outruns the node ("overloaded")
 
 
@@ -94,7 +97,8 @@ PARAMETERS = {
     "diagnostics_period": Spec(1.0, "[s] period of /diagnostics", 0.05, 60.0),
     "residual_rate": Spec(50.0, "[Hz] rate of /fdi/residuals", 0.1, 1000.0),
     "sync_window": Spec(0.05, "[s] how long a sample waits for all its topics before it counts as incomplete", 0.001, 1.0),
-    "stale_timeout": Spec(0.5, "[s] of wall time a sensor topic may be silent before its actuators are STALE", 0.01, 60.0,
+    "stale_timeout": Spec(0.5, "[s] a sensor topic may be silent before its actuators are STALE (of the data's clock under "
+                          "use_sim_time, with a 2 s wall-clock watchdog)", 0.01, 60.0,
                           read_only=False),
     "time_jump_threshold": Spec(1.0, "[s] a stamp this far from the time base is a jump (held off, then followed)", 0.01, 3600.0,
                                 read_only=False),
@@ -141,6 +145,8 @@ class FdiNode(Node):
         index = self.layout.index
 
         self.last_arrival: dict[str, float] = {}
+        self.last_stamp: dict[str, int] = {}  # [ns] the header stamp of each topic's last message
+        self.sim_time = bool(self.get_parameter("use_sim_time").value)
         self.first_arrival: dict[str, float] = {}
         self.blocks = self.params["input"] == "sample_block"
         if self.blocks:
@@ -191,6 +197,7 @@ class FdiNode(Node):
         def consume(data: bytes) -> None:
             try:
                 handler(data)
+                self.last_stamp[topic] = header_stamp_ns(data)
             except CdrError as exc:
                 self.undecodable += 1
                 self.get_logger().error(f"{topic}: message dropped: {exc}", throttle_duration_sec=10.0)
@@ -277,7 +284,13 @@ class FdiNode(Node):
 
     def _stale_topics(self, index: int) -> list[str]:
         now = time.monotonic()
-        return [t for t in self._topics(index) if now - self.last_arrival.get(t, self.started) > self.stale_timeout]
+        if not self.sim_time:
+            return [t for t in self._topics(index) if now - self.last_arrival.get(t, self.started) > self.stale_timeout]
+        data_now = self.get_clock().now().nanoseconds
+        watchdog = max(self.stale_timeout, STEADY_WATCHDOG_S)
+        return [t for t in self._topics(index)
+                if now - self.last_arrival.get(t, self.started) > watchdog
+                or t not in self.last_stamp or (data_now - self.last_stamp[t]) * 1e-9 > self.stale_timeout]
 
     def _incomplete_share(self) -> float:
         samples = sum(n for _, n, _ in self._recent)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import signal
-import struct
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -22,6 +21,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
+from hydro_ros.bags.cdr import CdrError, header_stamp_ns
 from hydro_ros.bags.writer import BagWriter
 from hydro_ros.contract import topics
 from hydro_ros.contract.machine import Machine
@@ -43,18 +43,13 @@ def _offered(info: Any) -> Qos:
                duration(qos.liveliness_lease_duration), bool(qos.avoid_ros_namespace_conventions))
 
 
-def header_stamp_ns(data: bytes) -> int:
-    """std_msgs/Header.stamp of a CDR message whose first field is the header (after the 4-byte encapsulation)."""
-    sec, nanosec = struct.unpack_from("<iI", data, 4)
-    return sec * 1_000_000_000 + nanosec
-
-
 class Recorder(Node):
     def __init__(self, writer: BagWriter, wanted: dict[str, str]) -> None:
         super().__init__("recorder")
         self.writer = writer
         self.wanted = wanted
         self.counts: dict[str, int] = {}
+        self.dropped: dict[str, int] = {}  # per topic: messages without a readable header
         self._handles: dict[str, int] = {}
         self._subscribed: dict[str, Any] = {}
 
@@ -84,7 +79,13 @@ class Recorder(Node):
             self.subscribe_all()
 
     def _on_message(self, topic: str, data: bytes) -> None:
-        self.writer.write(self._handles[topic], header_stamp_ns(data), data)
+        try:
+            stamp = header_stamp_ns(data)
+        except CdrError as exc:  # not a message of the contract's: nothing to file it under
+            self.dropped[topic] = self.dropped.get(topic, 0) + 1
+            self.get_logger().error(f"{topic}: message not recorded: {exc}", throttle_duration_sec=10.0)
+            return
+        self.writer.write(self._handles[topic], stamp, data)
         self.counts[topic] += 1
 
 
