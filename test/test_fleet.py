@@ -50,7 +50,7 @@ def build_fleet(root: Path) -> Path:
         machine = load_machine_config(config)
         plant = mismatched_config(machine, seed=40 + index)
         # each machine commissioned on a fault-free recording of its own, as it left the factory
-        write_recording(plant, commissioning / name, 0.0, {}, seed=900 + index, seconds=99.0)
+        write_recording(plant, commissioning / name, 0.0, {}, seed=900 + index, seconds=150.0)
         block, _ = commission(machine, load_recordings([commissioning / name], machine))
         write_config(config, folder / "machine.yaml", block)
         for k in range(len(ARM_LEAK)):
