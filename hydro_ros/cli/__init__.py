@@ -15,6 +15,7 @@ import sys
 from typing import Callable, NoReturn, Sequence
 
 from hydro_ros.cli import bag, fdi, machine, operations, planning, sim, studies
+from hydro_ros.cli.common import OUTPUT_OPTIONS, check_output
 from hydro_ros.contract.errors import InputError
 
 FAMILIES = (sim, fdi, bag, studies, planning, machine, operations)
@@ -83,9 +84,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     if "--ros-args" in argv and command not in ROS_COMMANDS:
         parser.error(f"--ros-args: only {', '.join(' '.join(c) for c in ROS_COMMANDS)} start ROS nodes")
     func: Callable[[argparse.Namespace], int] = args.func
+    outputs = [(dest, getattr(args, dest)) for dest in OUTPUT_OPTIONS if getattr(args, dest, None)]
+    if command == ("db", "build"):
+        outputs.append(("db", args.db))
     try:
+        for dest, value in outputs:
+            check_output(str(value), f"--{dest}")
         return func(args)
     except InputError as exc:  # bad input is one line; anything else is a bug and keeps its traceback
+        print(f"hydro-ros {' '.join(command)}: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # the machine's refusal (a full disk, a permission): one line too
         print(f"hydro-ros {' '.join(command)}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -75,7 +75,12 @@ def cmd_bag_record(args: argparse.Namespace) -> int:
 
 
 def cmd_bag_replay(args: argparse.Namespace) -> int:
+    from hydro_ros.bags.reader import bag_info
     from hydro_ros.nodes.bag_player import replay
+
+    info = bag_info(args.bag)  # before ROS starts: a bag with nothing to play is refused in one line
+    if not info["messages"]:
+        raise InputError(f"bag {args.bag}: nothing to play ({info['errors'][0] if info['errors'] else 'no messages'})")
 
     return replay(args.bag, rate=args.rate, loop=args.loop, clock=args.clock, ros_args=args.ros_args)
 
@@ -84,6 +89,8 @@ def cmd_bag_info(args: argparse.Namespace) -> int:
     from hydro_ros.bags.reader import bag_info
 
     info = bag_info(args.bag)
+    if info["errors"] and not info["messages"]:
+        raise InputError(f"bag {args.bag}: nothing readable ({info['errors'][0]})")
     if args.stats:
         from hydro_ros.bags.reader import read_bag
 

@@ -7,6 +7,7 @@ import contextlib
 import json
 import math
 import shutil
+import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
@@ -73,6 +74,26 @@ def new_output(value: str, flag: str = "--out") -> Path:
     if out.exists():
         raise InputError(f"{flag} {out}: already exists, refusing to overwrite")
     return out
+
+
+OUTPUT_OPTIONS = ("out", "plot", "report", "summary")  # what a command writes: checked before its work starts
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def check_output(value: str, flag: str) -> None:
+    """Refuse, before any work, an output that cannot be written: under a file, where nothing can be created (tried in
+    the nearest folder that exists: a probe made and removed), a plot in a format matplotlib does not write."""
+    out = Path(value)
+    if flag == "--plot" and out.suffix.lower() not in PLOT_SUFFIXES:
+        raise InputError(f"{flag} {out}: a plot is written as {', '.join(PLOT_SUFFIXES)}, not {out.suffix or 'without a suffix'}")
+    existing = next(parent for parent in out.absolute().parents if parent.exists())
+    if not existing.is_dir():
+        raise InputError(f"{flag} {out}: {existing} is a file, not a folder")
+    try:  # where the command will write (a folder it makes, or its file), tried and removed again
+        with tempfile.TemporaryDirectory(dir=existing):
+            pass
+    except OSError as exc:
+        raise InputError(f"{flag} {out}: cannot be written in {existing} ({exc.strerror or exc})") from None
 
 
 def write_json(path: Path, data: Any, indent: int = 2) -> None:

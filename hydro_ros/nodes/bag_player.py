@@ -140,7 +140,11 @@ def replay(bag: str, *, rate: float = 1.0, loop: bool = False, clock: bool = Fal
     """Play ``bag`` to the end (forever with ``loop``); returns 0, or 1 if the bag was damaged. ``ros_args``: what followed
     --ros-args on the command line (a namespace, remaps, a log level)."""
     rclpy.init(args=["hydro-ros", *ros_args])
-    node = BagPlayer(bag, rate, loop, clock)
+    try:
+        node = BagPlayer(bag, rate, loop, clock)
+    except BaseException:  # a bag it cannot play: refused, and ROS shut down again
+        rclpy.shutdown()
+        raise
     try:
         while rclpy.ok() and not node.finished:
             rclpy.spin_once(node, timeout_sec=0.1)
