@@ -12,7 +12,7 @@ import can
 import pytest
 
 from hydro_ros.can.codec import MachineBus
-from hydro_ros.cli import build_parser
+from hydro_ros.cli import LEGACY, build_parser
 from hydro_ros.cli import main as cli
 from hydro_ros.contract.machine import load_machine_config
 from test.conftest import REPO
@@ -150,3 +150,16 @@ def test_every_bad_input_is_refused_in_one_line(path, name, kind, sound, tmp_pat
         assert err and "error" in err[-1] and (name.lstrip("-") in err[-1] or value in err[-1] or Path(value).name in err[-1]), \
             (what, argv, err[-3:])
         assert time.monotonic() - began < SECONDS
+
+
+@pytest.mark.parametrize("old", [old for old, _, _ in LEGACY], ids=" ".join)
+def test_the_previous_releases_spellings_refuse_bad_input_alike(old, tmp_path, capsys):
+    """The older command forms go through the same checks: a missing input is one line and exit 1 there too."""
+    argv = [*old, "--config", str(tmp_path / "missing.yaml"), "--bag", str(tmp_path / "missing"), "--db", str(tmp_path / "missing.db"),
+            "--path", "horizontal", "--cost", "cp", "--out", str(tmp_path / "out.json"), str(tmp_path / "missing")]
+    try:
+        code = cli(argv)
+    except SystemExit as exited:
+        code = exited.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and err and "error" in err[-1], (argv, code, err[-3:])
