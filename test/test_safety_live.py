@@ -78,7 +78,10 @@ def test_no_all_clear_after_a_gap_until_re_armed_and_a_blind_monitor_latches_tru
     settings = FdiSettings.from_machine(sam_config)
     window = int((settings.startup_s + settings.window_s) * sam_config.sample_rate_hz)
     between = np.count_nonzero((arrivals >= resumed) & (arrivals < first_false_after))
-    assert between >= 0.9 * window, f"all clear after {between} samples of new data"
+    # counted where they arrive at this probe: under load its executor takes the halt message ahead of joint states
+    # still queued (measured: 88 % of the window counted before a correct "all clear"); the bug this guards against
+    # said "all clear" on the first sample
+    assert between >= 0.75 * window, f"all clear after {between} samples of new data"
     # and true throughout the gap, heartbeat by heartbeat
     assert all(kind != "halt:false" for kind, t in events if arrivals[arrivals < resumed][-1] + 1.0 < t < resumed)
 
