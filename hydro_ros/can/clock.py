@@ -8,10 +8,11 @@ never early, only late), so the lower envelope of the arrival times is the clock
 
 - locking: for the first block after a start or re-lock the clock's phase steps back to any earlier arrival (the
   envelope is found) and the cycles are stamped at the nominal period from the first arrival (one step at the
-  lock, not a block of jitter; after a block that broke the lock, at their arrival times); then the period starts at the bus's nominal one and
-  is trimmed by a phase-locked loop on each block's smallest latency (an ECU's oscillator drifts by tens of ppm):
-  every ``block`` cycles that smallest latency is removed by slewing the clock over the next block (never a step:
-  a step would be a spike in a derived rate) and a quarter of it goes into the period (critically damped);
+  lock, not a block of jitter; after a block that broke the lock, at their arrival times); then the period starts at
+  the bus's nominal one and is trimmed by a phase-locked loop on each block's smallest latency (an ECU's oscillator drifts by tens of ppm):
+  every ``block`` cycles part of that smallest latency is slewed out over the next block (never a step:
+  a step would be a spike in a derived rate) and a share of it goes into the period (SLEW_GAIN,
+  TRIM_GAIN: the smallest rate error over jittered and bursty arrivals, test_can_clock.py);
 - the cycle-numbering rule: with a rolling counter a cycle is as many periods after the last one as its counter
   advanced (mod 16); without one, a cycle is the next one unless it arrives later than the next slot plus
   ``latency_limit``, then the slots it cannot belong to count as lost. A run of lost cycles that arrive inside the
@@ -20,8 +21,8 @@ never early, only late), so the lower envelope of the arrival times is the clock
 - after a silence of ``relock_after_s``, a step back in arrival time, or a block that arrived half a period or more
   *before* the clock (cycles counted lost that were only late), the clock re-locks.
 
-The latency above the envelope is the bus's jitter. While a block's largest latency exceeds the limit (numbering is
-then uncertain) the clock is not locked and :meth:`CycleClock.stamp` gives arrival
+The latency above the envelope is the bus's jitter. While a block's largest latency exceeds the limit on a bus without
+counters (numbering is then uncertain) the clock is not locked and :meth:`CycleClock.stamp` gives arrival
 times, so that a monitor that checks the regularity of its sample times holds rather than trusts them. Stamps only
 increase.
 """
@@ -37,6 +38,7 @@ COUNTER_MODULO = 16
 BLOCK_CYCLES = 200
 PERIOD_TRIM_MAX = 5e-3  # an oscillator is off by tens of ppm; a trim beyond 0.5 % is not a clock
 RELOCK_AFTER_S = 1.0
+SLEW_GAIN, TRIM_GAIN = 0.5, 0.1  # of a block's smallest latency: slewed out over the next block, and into the period
 
 
 @dataclass(frozen=True)
@@ -129,13 +131,16 @@ class CycleClock:
         self.health = replace(self.health, lost_cycles=self.lost, relocks=self.relocks, locked=False)
 
     def _close_block(self, arrival_ns: int, counter: int | None) -> None:
+        counted = counter is not None
         latencies = np.asarray(self._latencies)
         self._latencies = []
         envelope = float(latencies.min())
         if envelope <= -0.5 * self.period_ns:  # arrived before the clock: cycles counted lost were only late
             self._relock(arrival_ns, counter, fresh=False)
             return
-        whole = math.floor(envelope / self.period_ns + 0.5)
+        # lost cycles: with counters only whole turns of the counter can go unseen, without them any number
+        turn = COUNTER_MODULO if counted else 1
+        whole = turn * math.floor(envelope / (turn * self.period_ns) + 0.5)
         if whole:  # cycles lost inside the latency limit: the whole block arrived a period late or more
             self.lost += whole
             self.phase_ns += whole * self.period_ns
@@ -143,10 +148,12 @@ class CycleClock:
             latencies -= whole * self.period_ns
         if not self.acquiring:
             bound = PERIOD_TRIM_MAX * self.nominal_ns
-            self.trim_ns = min(max(self.trim_ns + 0.25 * envelope / self.block, -bound), bound)
-            self.slew_ns = envelope / self.block
+            self.trim_ns = min(max(self.trim_ns + TRIM_GAIN * envelope / self.block, -bound), bound)
+            self.slew_ns = SLEW_GAIN * envelope / self.block
         self.acquiring = False
         above = latencies - envelope
         p99 = float(np.percentile(above, 99))
+        # numbered by their counters, cycles that arrive in bursts (a sender that writes ten at a time) stay on their
+        # slots: only without counters does a latency beyond the limit make the numbering uncertain
         self.health = ClockHealth(p99 * 1e-9, float(above.max()) * 1e-9, self.trim_ns / self.nominal_ns * 1e6, self.lost,
-                                  self.relocks, float(above.max()) <= self.limit_ns)
+                                  self.relocks, counted or float(above.max()) <= self.limit_ns)

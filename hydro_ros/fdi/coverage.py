@@ -4,9 +4,12 @@ A commissioned model and threshold are known only where the recordings took them
 direction and the chamber pressures (the load) they held. Outside that region the residual carries what the
 identification could not see (a notch extrapolated past its widest opening, a load the threshold never met), and a
 two-joint arm commissioned from 2 x 120 s false-alarmed exactly there (issue 50). So commissioning writes the region
-(``fdi.coverage``: per actuator the 0.5-99.5 % range of the valve command and of each chamber's pressure over every
-recording), and the monitor holds detection for an actuator (never an alarm) while its 5 s window holds a sample
-outside the region widened by a margin; it monitors again a whole window after the last such sample (hysteresis).
+(``fdi.coverage``: per actuator the range of the valve command and of each chamber's pressure over every recording),
+and the monitor holds detection for an actuator (never an alarm) while its 5 s window holds a valve command beyond the
+openings seen, widened by a margin; it monitors again a whole window after the last such sample (hysteresis). The
+chamber pressures are recorded and said (what loads to record next) but never hold: a leak moves its chamber's
+pressure, and a hold on pressure hid the very leak it should name (a commissioned excavator held 51-75 % of a fresh
+run and never named a 1 L/min leak).
 """
 
 from __future__ import annotations
@@ -18,8 +21,9 @@ import numpy as np
 
 from hydro_ros.contract.errors import InputError
 
-QUANTITIES = ("valve_command", "pressure_a", "pressure_b")
-PERCENTILES = (0.5, 99.5)  # a few stray samples of a recording do not widen the region
+QUANTITIES = ("valve_command", "pressure_a", "pressure_b")  # recorded
+HELD_ON = ("valve_command",)  # held outside: the identified notches are not extrapolated
+PERCENTILES = (0.0, 100.0)  # the widest openings seen: a valve command is not noisy
 COMMAND_MARGIN = 0.05  # [-] of the valve command beyond what was seen
 PRESSURE_MARGIN = 0.1  # of the pressure span seen, ...
 PRESSURE_MARGIN_MIN = 0.5e6  # [Pa] ... at least this
@@ -70,11 +74,11 @@ class Coverage:
         return low - margin, high + margin
 
     def outside(self, actuator: str, values: Mapping[str, np.ndarray]) -> tuple[np.ndarray, str]:
-        """Which samples (``values``: quantity -> (n,)) lie outside, and why the last of them does ("" if none)."""
+        """Which samples (``values``: quantity -> (n,)) lie outside the openings seen, and why the last of them does ("" if none)."""
         mask = np.zeros(len(next(iter(values.values()))), dtype=bool)
         reason = ""
         last = -1
-        for quantity in QUANTITIES:
+        for quantity in HELD_ON:
             low, high = self.bounds(actuator, quantity)
             series = np.asarray(values[quantity], dtype=float)
             beyond = (series < low) | (series > high)
