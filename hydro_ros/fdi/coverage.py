@@ -21,12 +21,9 @@ import numpy as np
 
 from hydro_ros.contract.errors import InputError
 
-QUANTITIES = ("valve_command", "pressure_a", "pressure_b")  # recorded
-HELD_ON = ("valve_command",)  # held outside: the identified notches are not extrapolated
+QUANTITIES = ("valve_command", "pressure_a", "pressure_b")  # recorded; only the valve command holds
 PERCENTILES = (0.0, 100.0)  # the widest openings seen: a valve command is not noisy
 COMMAND_MARGIN = 0.05  # [-] of the valve command beyond what was seen
-PRESSURE_MARGIN = 0.1  # of the pressure span seen, ...
-PRESSURE_MARGIN_MIN = 0.5e6  # [Pa] ... at least this
 
 
 @dataclass(frozen=True)
@@ -67,31 +64,16 @@ class Coverage:
     def to_config(self) -> dict[str, dict[str, list[float]]]:
         return {a: {q: [float(v) for v in r] for q, r in entry.items()} for a, entry in self.ranges.items()}
 
-    def bounds(self, actuator: str, quantity: str) -> tuple[float, float]:
-        """The range a sample may take before it is outside: what was seen, widened by the margin."""
-        low, high = self.ranges[actuator][quantity]
-        margin = COMMAND_MARGIN if quantity == "valve_command" else max(PRESSURE_MARGIN * (high - low), PRESSURE_MARGIN_MIN)
-        return low - margin, high + margin
-
-    def outside(self, actuator: str, values: Mapping[str, np.ndarray]) -> tuple[np.ndarray, str]:
-        """Which samples (``values``: quantity -> (n,)) lie outside the openings seen, and why the last of them does ("" if none)."""
-        mask = np.zeros(len(next(iter(values.values()))), dtype=bool)
-        reason = ""
-        last = -1
-        for quantity in HELD_ON:
-            low, high = self.bounds(actuator, quantity)
-            series = np.asarray(values[quantity], dtype=float)
-            beyond = (series < low) | (series > high)
-            if beyond.any():
-                mask |= beyond
-                k = int(np.flatnonzero(beyond)[-1])
-                if k >= last:
-                    last = k
-                    seen = self.ranges[actuator][quantity]
-                    unit, scale = ("", 1.0) if quantity == "valve_command" else (" MPa", 1e-6)
-                    reason = (f"{quantity} {series[k] * scale:.2f}{unit} outside the commissioned "
-                              f"{seen[0] * scale:.2f}..{seen[1] * scale:.2f}{unit}")
-        return mask, reason
+    def outside(self, actuator: str, command: np.ndarray) -> tuple[np.ndarray, str]:
+        """Which samples of the valve ``command`` lie beyond the openings seen (widened by COMMAND_MARGIN), and why the
+        last of them does ("" if none): the identified notches are not extrapolated."""
+        low, high = self.ranges[actuator]["valve_command"]
+        series = np.asarray(command, dtype=float)
+        beyond = (series < low - COMMAND_MARGIN) | (series > high + COMMAND_MARGIN)
+        if not beyond.any():
+            return beyond, ""
+        last = series[np.flatnonzero(beyond)[-1]]
+        return beyond, f"valve_command {last:.2f} outside the commissioned {low:.2f}..{high:.2f}"
 
     def advice(self, actuator: str, supply_pressure: float) -> list[str]:
         """The motions to record so the monitor covers more of the machine's work (its valve's full stroke, its

@@ -212,10 +212,9 @@ class FdiMonitor:
         held = np.zeros((n, len(self.actuators)), dtype=bool)
         index = np.arange(n)
         for a, actuator in enumerate(self.actuators):
-            beyond, reason = self.settings.coverage.outside(
-                actuator, {"valve_command": raw[:, a, 2], "pressure_a": raw[:, a, 4], "pressure_b": raw[:, a, 5]})
+            beyond, reason = self.settings.coverage.outside(actuator, raw[:, a, 2])
             beyond &= valid[:, a]
-            if reason and beyond.any():
+            if beyond.any():
                 self._outside_reason[a] = reason
             last = np.maximum.accumulate(np.where(beyond, index, -1))
             since = np.where(last >= 0, index - last, self._since_outside[a] + index + 1)

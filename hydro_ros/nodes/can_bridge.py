@@ -462,8 +462,8 @@ class CanBridge(LifecycleNode):
         elif clock.acquiring:
             level, message = OK, "locking"
         else:
-            level, message = WARN, (f"not locked: arrival jitter (p99) {health.jitter_p99_s * 1e3:.1f} ms is above half the latency limit "
-                                    f"{clock.limit_ns * 1e-6:.0f} ms (can.latency_limit); samples carry arrival times")
+            level, message = WARN, (f"not locked: a cycle arrived {health.jitter_max_s * 1e3:.1f} ms late, beyond can.latency_limit "
+                                    f"{clock.limit_ns * 1e-6:.0f} ms on a bus without counters; samples carry arrival times")
         statuses.append(self._status("hydro_ros/can_bridge/clock", level, message,
                                      {**health.values(), "period_ms": f"{clock.period_ns * 1e-6:.6f}"}))
         array = DiagnosticArray(status=namespaced_statuses(self, statuses))

@@ -31,7 +31,7 @@ class SampleTiming:
         self.problem = ""
 
     def restart(self) -> None:
-        """A gap or a time jump: the next sample has no interval to the last one."""
+        """A time jump of the input: the next sample has no interval to the last one."""
         self._last = None
 
     def observe(self, stamps_ns: np.ndarray) -> str:
