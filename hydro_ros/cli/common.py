@@ -11,6 +11,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
+from hydro_ros.contract.check import DP_GRID_MIN
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.names import parse_injection
 
@@ -57,7 +58,7 @@ def add_actuator(parser: argparse.ArgumentParser, what: str) -> None:
 
 
 def add_grid(parser: argparse.ArgumentParser, default: str) -> None:
-    parser.add_argument("--grid", type=int, nargs=3, metavar=("N_C", "N_V", "N_U"), help=f"DP grid (default: {default})")
+    parser.add_argument("--grid", type=number(int, DP_GRID_MIN, 100_000), nargs=3, metavar=("N_C", "N_V", "N_U"), help=f"DP grid (default: {default})")
 
 
 def output_file(value: str, flag: str = "--out") -> Path:

@@ -21,6 +21,9 @@ import numpy as np
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.names import Injection
 
+DP_GRID_MIN = 3
+"""points per axis of the DP grid: a velocity and a control axis need their ends and zero"""
+
 NOTCHES = ("PA", "PB", "AT", "BT")
 ANNOTATIONS = ("PLACEHOLDER", "INFERRED")
 
@@ -300,8 +303,8 @@ def _crane(found: _Problems, config: dict[str, Any]) -> None:
     dp = config.get("dp")
     found.numbers(dp, "dp", CRANE_DP, required=tuple(CRANE_DP))
     grid = dp.get("grid") if isinstance(dp, dict) else None
-    if not (isinstance(grid, list) and len(grid) == 3 and all(isinstance(n, int) and n >= 2 for n in grid)):
-        found.add("dp.grid", f"{grid!r}: expected three whole numbers >= 2 (extension positions, velocities, controls)")
+    if not (isinstance(grid, list) and len(grid) == 3 and all(isinstance(n, int) and n >= DP_GRID_MIN for n in grid)):
+        found.add("dp.grid", f"{grid!r}: expected three whole numbers >= {DP_GRID_MIN} (extension positions, velocities, controls)")
     if not isinstance(config.get("paths"), dict) or not config["paths"]:
         found.add("paths", "must name at least one tip path")
 

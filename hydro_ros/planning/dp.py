@@ -41,6 +41,7 @@ import numpy as np
 from numba import njit, parallel_chunksize, prange
 from tqdm import tqdm
 
+from hydro_ros.contract.check import DP_GRID_MIN
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane
 from hydro_ros.models.crane_hydraulics import cylinder_table, driven_pressure, total_pump_flow
@@ -78,8 +79,8 @@ class DpGrid:
     @classmethod
     def for_path(cls, crane: Crane, samples: PathSamples, sizes: tuple[int, int, int]) -> DpGrid:
         n_c, n_v, n_u = (int(size) for size in sizes)
-        if min(n_c, n_v, n_u) < 3:
-            raise InputError(f"DP grid {sizes}: at least 3 points per axis")
+        if min(n_c, n_v, n_u) < DP_GRID_MIN:
+            raise InputError(f"DP grid {sizes}: at least {DP_GRID_MIN} points per axis")
         ext = crane.extension
         windows = extension_windows(crane, samples)
         return cls(
