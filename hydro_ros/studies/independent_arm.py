@@ -1,0 +1,530 @@
+"""A serial arm of valve-controlled cylinders written apart from the model under test: the plant on which the claims
+about real machines (commissioning, false alarms, leaks named) are tested for a machine with an ``arm:``.
+
+The monitor's model (models/sam.py) and the package's arm simulator (sim/arm_cylinders.py) share their valve,
+chamber and friction equations. This plant shares none of them. It is written from the physics again, with forms
+a machine maker's own simulation would pick where the papers leave a choice:
+
+* **links**: the planar serial chain's equations of motion from each mass's Jacobian, M(q) q'' = R(q) F - G(q) -
+  sum m J^T (J' q'), every mass a point with its own rotational inertia, the payload a point at the tip whose mass
+  steps when the operator picks or drops a load;
+* **valve**: each notch's flow coefficient is a measured table (six openings, linear between them), not a polynomial:
+  the data sheet's curve with each point and each notch off by what an identified valve of that type shows; the
+  orifice regularised smoothly (Q ~ dp / (dp^2 + delta^2)^(1/4)); laminar centre leakage near the spool's centre;
+* **lines**: a hose between the valve and each cylinder port with a laminar resistance (Hagen-Poiseuille), so the
+  transmitter at the port reads the valve's pressure less the line's drop; the hose's oil and wall add their own
+  compliance to the chamber's (the line's RC time, ~50 us, is far below a sample, so it settles at once);
+* **chambers**: each volume's own compliance (chamber oil; line oil and wall), softened toward vapour pressure;
+* **friction**: a Stribeck curve with a smooth stick (tanh), no bristle states (the monitor's family is LuGre);
+* **oil temperature**: warms through the run; the viscosity follows (Andrade, ~3 %/K), and with it the viscous
+  friction, the centre and leak flows (laminar) and the hoses' resistance: a slow drift of the terms a fit holds fixed;
+* **supply**: a pressure-compensated pump whose pressure droops with the flow drawn;
+* **integrator**: an adaptive Dormand-Prince 5(4) per sample interval, the operator's command held over the interval
+  as a sampled controller holds it;
+* **sensors**: transmitters with noise, a zero offset and a 12-bit quantisation; an encoder quantised to its
+  resolution, its rate the differenced angle through a second-order Butterworth low-pass at the config's cut-off;
+* **operator**: its own: each joint moves to random targets within 80 % of its range along a ramp of a drawn speed,
+  the lever proportional to the error with a drawn gain (so some moves run at full opening), joints at once.
+
+Its numbers start from the config's (a machine described by its data sheet), each drawn off by ``RigSpread`` for a
+``rig`` seed: a given machine is one rig seed; a given day's work is one run seed.
+
+Faults, in the vocabulary's names, per actuator: ``external_leakage_a``, ``external_leakage_b``, ``internal_leakage``
+(L/min at 10 MPa, laminar), from an onset time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from numba import njit
+from scipy.signal import butter, lfilter
+
+from hydro_ros.bags.writer import ContractBagWriter
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.machine import NOTCHES, Machine
+from hydro_ros.contract.samples import Samples
+
+FAULTS = ("external_leakage_a", "external_leakage_b", "internal_leakage")
+TABLE_OPENINGS = np.array([0.0, 0.1, 0.2, 0.4, 0.6, 0.8, 1.0])  # the flow table's spool openings [-]
+ORIFICE_SMOOTHING = 2.0e4  # [Pa] the orifice turns laminar below this drop
+CENTRE_BAND, CENTRE_BLEND = 0.012, 0.004  # [-] centre leakage acts for |x_s| below the band, faded over the blend
+VAPOUR_KNEE, VAPOUR_PRESSURE = 3.0e5, -9.0e4  # [Pa] a chamber's stiffness falls to zero at vapour pressure below the knee
+LEAK_DROP = 1.0e7  # [Pa] leaks are quoted in L/min at 10 MPa
+HOSE_DIAMETER, HOSE_LENGTH = 0.0127, 2.5  # [m] a 1/2" line from the valve to each port
+OIL_VISCOSITY = 0.035  # [Pa s] at the reference temperature (ISO VG 46 near 45 degC)
+VISCOSITY_PER_KELVIN = 0.03  # [1/K] Andrade: mu ~ exp(-k dT)
+WARMING_TIME = 900.0  # [s] the oil's approach to its working temperature
+STICK_VELOCITY = 1.0e-3  # [m/s] the tanh of the smooth stick
+SUPPLY_DROOP = 0.6e6  # [Pa] the compensator's droop at the valve's nominal flow per notch
+TRANSMITTER_LSB = 25.0e6 / 4096  # [Pa] 12 bits over the transmitter's span
+ZERO_OFFSET = 2.0e4  # [Pa] a transmitter's zero, drawn within +- this
+RTOL = 1e-5
+LINE_ITERATIONS = 4
+SAMPLE_SUBSTEP_MAX = 4  # the integrator's step is at most a quarter of the sample period
+OPERATOR_SPEED = (0.05, 0.35)  # [rad/s] the reference's ramp per move
+OPERATOR_GAIN = (3.0, 9.0)  # [1/rad] lever per joint error, per move
+OPERATOR_REST = (0.5, 4.0)  # [s] between moves
+OPERATOR_SPAN = 0.8  # targets within this share of each joint's range, about its middle
+
+
+@dataclass(frozen=True)
+class RigSpread:
+    """How far one built machine is from its data sheet (each a relative 1-sigma, or a +-range where named)."""
+
+    notch_gain: float = 0.06  # per notch
+    table_point: float = 0.03  # per point of a notch's flow table
+    oil_bulk_modulus: float = 0.15
+    hose_bulk_modulus: float = 0.2
+    centre_leakage: float = 0.2
+    spool_bandwidth: tuple[float, float] = (0.75, 1.0)  # x the data sheet's natural frequency
+    friction: tuple[float, float] = (0.7, 1.6)  # x the config's coulomb, static and viscous terms
+    oil_warmer: tuple[float, float] = (-6.0, 10.0)  # [K] a day's start against the reference temperature
+
+
+@dataclass(frozen=True)
+class ArmWork:
+    """One run of the rig: its duration, the operator's seed, payload steps at the tip and faults per actuator."""
+
+    duration_s: float
+    seed: int
+    payload_steps: tuple[tuple[float, float], ...] = ()  # (time [s], tip payload from then [kg])
+    faults: tuple[tuple[str, str, float, float], ...] = ()  # (actuator, fault, L/min at 10 MPa, onset [s])
+    warming_k: float = 15.0  # [K] the oil's rise toward its working temperature
+
+
+@dataclass
+class ArmRig:
+    """Every number of one built arm, SI; per-cylinder arrays in the machine's actuator order."""
+
+    machine: Machine
+    cylinder: np.ndarray  # (A, C) see _C_* below
+    flow_table: np.ndarray  # (A, 4, len(TABLE_OPENINGS)) [m^3/(s Pa^0.5)] per notch PA, PB, AT, BT
+    centre: np.ndarray  # (A, 4) [m^3/(s Pa)] centre leakage per notch
+    link: np.ndarray  # (N, 2) length, offset of the next joint
+    mass: np.ndarray  # (K, 5) link index, mass, along, across, inertia
+    origin: np.ndarray
+    payload: float
+    supply: float
+    tank: float
+    gravity: float
+    oil_start_k: float  # [K] the day's start against the reference temperature
+    targets: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (A, 2) joint range for the operator
+
+
+# per-cylinder numbers in ArmRig.cylinder
+(_C_AREA_A, _C_AREA_B, _C_STROKE, _C_V0A, _C_V0B, _C_L1, _C_L2, _C_L3, _C_OFFSET, _C_SIGN, _C_OMEGA, _C_ZETA,
+ _C_HOSE_VOLUME, _C_HOSE_MODULUS, _C_OIL_MODULUS, _C_COULOMB, _C_STATIC, _C_STRIBECK, _C_VISCOUS, _C_STOP_LOW,
+ _C_STOP_HIGH, _C_STOP_K, _C_STOP_D, _C_NOMINAL_FLOW) = range(24)
+_CYLINDER_NUMBERS = 24
+_STATES_PER_CYLINDER = 4  # p_A, p_B at the ports, spool, spool rate
+
+
+def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) -> ArmRig:
+    """The arm of ``machine`` as one built machine (``rig_seed``): the config's numbers drawn off by ``spread``."""
+    spread = spread or RigSpread()
+    arm = machine.arm
+    if arm is None:
+        raise InputError(f"independent arm: {machine.source} has no arm: section (this plant moves the links of an arm)")
+    joints = [link.joint for link in arm.links]
+    for link in arm.links:
+        if link.kind != "revolute":
+            raise InputError(f"independent arm: link {link.joint} is {link.kind}; this plant moves revolute links only")
+    rng = np.random.default_rng(rig_seed)
+    rows, tables, centres, ranges = [], [], [], []
+    for actuator in machine.actuators:
+        if actuator.joint not in joints:
+            raise InputError(f"independent arm: actuator {actuator.name} moves {actuator.joint}, which is not a link of the arm")
+        if actuator.mount.kind != "triangle" or actuator.valve.mobile:
+            raise InputError(f"independent arm: actuator {actuator.name} needs a triangle mount and a proportional valve")
+        c, m, v, f, fr = actuator.cylinder, actuator.mount, actuator.valve, actuator.fluid, actuator.friction
+        area_a = math.pi * c.piston_diameter ** 2 / 4.0
+        sim = machine.simulation
+        friction = rng.uniform(*spread.friction)
+        row = np.zeros(_CYLINDER_NUMBERS)
+        row[[_C_AREA_A, _C_AREA_B, _C_STROKE, _C_V0A, _C_V0B]] = area_a, area_a - math.pi * c.rod_diameter ** 2 / 4.0, c.stroke, \
+            c.dead_volume_a, c.dead_volume_b
+        row[[_C_L1, _C_L2, _C_L3, _C_OFFSET, _C_SIGN]] = m.l1, m.l2, m.l3, m.theta_offset, m.sign
+        row[_C_OMEGA] = v.natural_frequency * rng.uniform(*spread.spool_bandwidth)
+        row[_C_ZETA] = v.damping
+        row[_C_HOSE_VOLUME] = f.hose_volume
+        row[_C_HOSE_MODULUS] = f.hose_bulk_modulus * max(1.0 + spread.hose_bulk_modulus * rng.standard_normal(), 0.3)
+        row[_C_OIL_MODULUS] = f.oil_bulk_modulus * max(1.0 + spread.oil_bulk_modulus * rng.standard_normal(), 0.3)
+        row[[_C_COULOMB, _C_STATIC, _C_STRIBECK, _C_VISCOUS]] = friction * fr.coulomb, friction * fr.static, fr.stribeck_velocity, \
+            friction * fr.viscous
+        row[[_C_STOP_LOW, _C_STOP_HIGH, _C_STOP_K, _C_STOP_D]] = sim.end_stop_lower, \
+            c.stroke if sim.end_stop_upper is None else sim.end_stop_upper, sim.end_stop_stiffness, sim.end_stop_damping
+        row[_C_NOMINAL_FLOW] = v.nominal_flow
+        rows.append(row)
+        # the data sheet's curve (the config's polynomial) read at the table's openings, each notch and point off
+        table = np.empty((4, len(TABLE_OPENINGS)))
+        for k, notch in enumerate(NOTCHES):
+            # P-II's polynomials take the signed spool position: PA and BT open for x_s > 0, PB and AT for x_s < 0
+            side = 1.0 if notch in ("PA", "BT") else -1.0
+            curve = np.polyval(np.asarray(v.kv_poly[notch], dtype=float), side * np.maximum(TABLE_OPENINGS, TABLE_OPENINGS[1]))
+            table[k] = np.abs(curve) * (1.0 + spread.notch_gain * rng.standard_normal()) \
+                * (1.0 + spread.table_point * rng.standard_normal(len(TABLE_OPENINGS)))
+        tables.append(np.maximum(table, 0.0))
+        centres.append([v.centre_leakage[n] * max(1.0 + spread.centre_leakage * rng.standard_normal(), 0.2) for n in NOTCHES])
+        low, high = arm.links[joints.index(actuator.joint)].joint_range
+        middle, half = 0.5 * (low + high), 0.5 * OPERATOR_SPAN * (high - low)
+        ranges.append((middle - half, middle + half))
+    if len({a.joint for a in machine.actuators}) != len(joints):
+        raise InputError(f"independent arm: every link of {machine.source}'s arm needs its own actuator")
+    masses = [(index, m.mass, m.along, m.across, m.inertia) for index, link in enumerate(arm.links) for m in link.masses]
+    order = [joints.index(a.joint) for a in machine.actuators]
+    if order != sorted(order):
+        raise InputError(f"independent arm: {machine.source}'s actuators must be listed base to tip, as the arm's links")
+    return ArmRig(machine=machine, cylinder=np.array(rows), flow_table=np.array(tables), centre=np.array(centres),
+                  link=np.array([[link.length, link.offset] for link in arm.links]), mass=np.array(masses, dtype=float).reshape(-1, 5),
+                  origin=np.asarray(arm.origin, dtype=float), payload=arm.payload, supply=machine.supply_pressure,
+                  tank=machine.tank_pressure, gravity=machine.simulation.gravity, oil_start_k=rng.uniform(*spread.oil_warmer),
+                  targets=np.array(ranges))
+
+
+@njit(cache=True)
+def _orifice(dp):
+    return dp / (dp * dp + ORIFICE_SMOOTHING * ORIFICE_SMOOTHING) ** 0.25
+
+
+@njit(cache=True)
+def _table(row, opening):
+    """A notch's flow coefficient at ``opening`` in [0, 1], linear between the table's points."""
+    return np.interp(opening, TABLE_OPENINGS, row)
+
+
+@njit(cache=True)
+def _softening(pressure):
+    """A chamber's stiffness falls to zero at vapour pressure below the knee."""
+    return min(max((pressure - VAPOUR_PRESSURE) / (VAPOUR_KNEE - VAPOUR_PRESSURE), 0.0), 1.0)
+
+
+@njit(cache=True)
+def _piston(cyl, q):
+    """Piston position and dx/dq of a triangle mount."""
+    theta = cyl[_C_SIGN] * q + cyl[_C_OFFSET]
+    length = math.sqrt(cyl[_C_L1] ** 2 + cyl[_C_L2] ** 2 - 2.0 * cyl[_C_L1] * cyl[_C_L2] * math.cos(theta))
+    return length - cyl[_C_L3], cyl[_C_SIGN] * cyl[_C_L1] * cyl[_C_L2] * math.sin(theta) / length
+
+
+@njit(cache=True)
+def _mechanics(q, qd, link, mass, payload, gravity):
+    """M(q) and the generalised forces of gravity and of the velocity products, for the chain's point masses."""
+    n = len(q)
+    phi = np.cumsum(q)
+    phid = np.cumsum(qd)
+    pivot = np.zeros((n + 1, 2))
+    pivot_bias = np.zeros((n + 1, 2))  # the pivots' accelerations at q'' = 0
+    for j in range(n):
+        c, s = math.cos(phi[j]), math.sin(phi[j])
+        along, across = link[j, 0], link[j, 1]
+        pivot[j + 1, 0] = pivot[j, 0] + along * c - across * s
+        pivot[j + 1, 1] = pivot[j, 1] + along * s + across * c
+        pivot_bias[j + 1, 0] = pivot_bias[j, 0] - phid[j] ** 2 * (along * c - across * s)
+        pivot_bias[j + 1, 1] = pivot_bias[j, 1] - phid[j] ** 2 * (along * s + across * c)
+    inertia = np.zeros((n, n))
+    bias = np.zeros(n)
+    weight = np.zeros(n)
+    count = mass.shape[0] + 1
+    for k in range(count):
+        if k < mass.shape[0]:
+            j, m, along, across, rot = int(mass[k, 0]), mass[k, 1], mass[k, 2], mass[k, 3], mass[k, 4]
+        else:
+            j, m, along, across, rot = n - 1, payload, link[n - 1, 0], link[n - 1, 1], 0.0
+        c, s = math.cos(phi[j]), math.sin(phi[j])
+        x = pivot[j, 0] + along * c - across * s
+        y = pivot[j, 1] + along * s + across * c
+        ax = pivot_bias[j, 0] - phid[j] ** 2 * (along * c - across * s)
+        ay = pivot_bias[j, 1] - phid[j] ** 2 * (along * s + across * c)
+        jac = np.zeros((2, n))
+        for i in range(j + 1):  # turning joint i moves the point about pivot i
+            jac[0, i] = -(y - pivot[i, 1])
+            jac[1, i] = x - pivot[i, 0]
+        for a in range(n):
+            bias[a] += m * (jac[0, a] * ax + jac[1, a] * ay)
+            weight[a] += m * gravity * jac[1, a]
+            for b in range(n):
+                inertia[a, b] += m * (jac[0, a] * jac[0, b] + jac[1, a] * jac[1, b])
+                if a <= j and b <= j:
+                    inertia[a, b] += rot
+    return inertia, weight, bias
+
+
+@njit(cache=True)
+def _valve_flow(table, centre, spool, p_s, tank, side, p_valve, viscosity):
+    """Flow into one side's line (0: A, 1: B) at the valve-side pressure ``p_valve``."""
+    opening = min(abs(spool), 1.0)
+    flow = 0.0
+    if spool > 0.0:
+        flow = _table(table[0], opening) * opening * _orifice(p_s - p_valve) if side == 0 \
+            else -_table(table[3], opening) * opening * _orifice(p_valve - tank)
+    elif spool < 0.0:
+        flow = -_table(table[2], opening) * opening * _orifice(p_valve - tank) if side == 0 \
+            else _table(table[1], opening) * opening * _orifice(p_s - p_valve)
+    near = min(max((CENTRE_BAND + 0.5 * CENTRE_BLEND - abs(spool)) / CENTRE_BLEND, 0.0), 1.0) / viscosity
+    inlet, outlet = (centre[0], centre[2]) if side == 0 else (centre[1], centre[3])
+    return flow + near * (inlet * (p_s - p_valve) - outlet * (p_valve - tank))
+
+
+@njit(cache=True)
+def _line_flow(table, centre, spool, p_s, tank, side, p_port, resistance, viscosity):
+    """Flow through the valve and its line into a port: the valve-side pressure settles where the valve's flow equals the
+    line's (its RC time, ~50 us, is far below a sample); a fixed point, contracting by R dQ/dp < 0.3."""
+    p_valve = p_port
+    for _ in range(LINE_ITERATIONS):
+        p_valve = p_port + resistance * _valve_flow(table, centre, spool, p_s, tank, side, p_valve, viscosity)
+    return (p_valve - p_port) / resistance
+
+
+@njit(cache=True)
+def _rates(y, u, cyl, table, centre, link, mass, payload, gravity, supply, tank, viscosity, leaks, dy):
+    """d/dt of the state: per cylinder [p_A, p_B, spool, spool rate] (at the cylinder's ports), then joints, then rates.
+    Returns the supply pressure."""
+    a = cyl.shape[0]
+    base = _STATES_PER_CYLINDER * a
+    q = y[base:base + a]
+    qd = y[base + a:base + 2 * a]
+    inertia, weight, bias = _mechanics(q, qd, link, mass, payload, gravity)
+    torque = np.zeros(a)
+    # the pump's compensator droops with the flow the P notches draw at its set pressure
+    drawn = 0.0
+    for i in range(a):
+        spool = y[_STATES_PER_CYLINDER * i + 2]
+        opening = min(abs(spool), 1.0)
+        side = 0 if spool > 0.0 else 1
+        drawn += _table(table[i, side], opening) * opening * _orifice(supply - y[_STATES_PER_CYLINDER * i + side]) \
+            / cyl[i, _C_NOMINAL_FLOW]
+    p_s = supply - SUPPLY_DROOP * drawn
+    resistance = 128.0 * OIL_VISCOSITY * viscosity * HOSE_LENGTH / (math.pi * HOSE_DIAMETER ** 4)
+    for i in range(a):
+        c = cyl[i]
+        s0 = _STATES_PER_CYLINDER * i
+        pa, pb, spool, spool_rate = y[s0], y[s0 + 1], y[s0 + 2], y[s0 + 3]
+        x, arm = _piston(c, q[i])
+        v = arm * qd[i]
+        line_a = _line_flow(table[i], centre[i], spool, p_s, tank, 0, pa, resistance, viscosity)
+        line_b = _line_flow(table[i], centre[i], spool, p_s, tank, 1, pb, resistance, viscosity)
+        internal = leaks[i, 2] * (pa - pb) / viscosity
+        # each volume's own compliance: the chamber's oil, and the line's oil and wall
+        hose = c[_C_HOSE_VOLUME] * (1.0 / c[_C_OIL_MODULUS] + 1.0 / c[_C_HOSE_MODULUS])
+        capacity_a = (c[_C_V0A] + c[_C_AREA_A] * x) / c[_C_OIL_MODULUS] + hose
+        capacity_b = (c[_C_V0B] + c[_C_AREA_B] * (c[_C_STROKE] - x)) / c[_C_OIL_MODULUS] + hose
+        dy[s0] = _softening(pa) / capacity_a * (line_a - internal - leaks[i, 0] * (pa - tank) / viscosity - c[_C_AREA_A] * v)
+        dy[s0 + 1] = _softening(pb) / capacity_b * (line_b + internal - leaks[i, 1] * (pb - tank) / viscosity + c[_C_AREA_B] * v)
+        dy[s0 + 2] = spool_rate
+        dy[s0 + 3] = c[_C_OMEGA] ** 2 * (u[i] - spool) - 2.0 * c[_C_ZETA] * c[_C_OMEGA] * spool_rate
+        stribeck = c[_C_COULOMB] + (c[_C_STATIC] - c[_C_COULOMB]) * math.exp(-(v / c[_C_STRIBECK]) ** 2)
+        friction = stribeck * math.tanh(v / STICK_VELOCITY) + c[_C_VISCOUS] * viscosity * v
+        stop = 0.0
+        if x < c[_C_STOP_LOW]:
+            stop = max(c[_C_STOP_K] * (c[_C_STOP_LOW] - x) - c[_C_STOP_D] * v, 0.0)
+        elif x > c[_C_STOP_HIGH]:
+            stop = min(c[_C_STOP_K] * (c[_C_STOP_HIGH] - x) - c[_C_STOP_D] * v, 0.0)
+        torque[i] = arm * (pa * c[_C_AREA_A] - pb * c[_C_AREA_B] - friction + stop)
+    qdd = np.linalg.solve(inertia, torque - weight - bias)
+    for i in range(a):
+        dy[base + i] = qd[i]
+        dy[base + a + i] = qdd[i]
+    return p_s
+
+
+# Dormand-Prince 5(4)
+_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0])
+_A = np.array([
+    [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    [1 / 5, 0.0, 0.0, 0.0, 0.0, 0.0],
+    [3 / 40, 9 / 40, 0.0, 0.0, 0.0, 0.0],
+    [44 / 45, -56 / 15, 32 / 9, 0.0, 0.0, 0.0],
+    [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0.0, 0.0],
+    [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656, 0.0],
+    [35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84],
+])
+_E = np.array([71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40])
+
+
+@njit(cache=True)
+def _interval(y, span, h, u, cyl, table, centre, link, mass, payload, gravity, supply, tank, viscosity, leaks, scale):
+    """Advance ``y`` by ``span`` with the command ``u`` held; returns the last accepted step size."""
+    k = np.zeros((7, len(y)))
+    stage = np.empty(len(y))
+    t = 0.0
+    while t < span:
+        step = min(h, span - t)
+        _rates(y, u, cyl, table, centre, link, mass, payload, gravity, supply, tank, viscosity, leaks, k[0])
+        for s in range(1, 7):
+            stage[:] = y
+            for r in range(s):
+                if _A[s, r] != 0.0:
+                    stage += step * _A[s, r] * k[r]
+            _rates(stage, u, cyl, table, centre, link, mass, payload, gravity, supply, tank, viscosity, leaks, k[s])
+        error = 0.0
+        for j in range(len(y)):
+            e = 0.0
+            for s in range(7):
+                e += _E[s] * k[s, j]
+            e = step * e / (scale[j] + RTOL * max(abs(y[j]), abs(stage[j])))
+            error = max(error, abs(e))
+        if error <= 1.0:
+            t += step
+            y[:] = stage
+        h = step * min(5.0, max(0.2, 0.9 * error ** -0.2 if error > 0.0 else 5.0))
+    return h
+
+
+@njit(cache=True)
+def _run(y, period, targets, speeds, gains, payloads, leak_rows, onsets, viscosity, cyl, table, centre, link, mass, gravity,
+         supply, tank, scale):
+    """Every sample: the operator's command from the state at its start, held over the period; states at its end."""
+    n, a = targets.shape
+    base = _STATES_PER_CYLINDER * a
+    states = np.empty((n, len(y)))
+    commands = np.empty((n, a))
+    supplies = np.empty(n)
+    reference = y[base:base + a].copy()
+    u = np.zeros(a)
+    leaks = np.zeros((a, 3))
+    dy = np.empty(len(y))
+    h = period / SAMPLE_SUBSTEP_MAX
+    for k in range(n):
+        time = k * period
+        for i in range(a):
+            step = speeds[k, i] * period
+            reference[i] += min(max(targets[k, i] - reference[i], -step), step)
+            u[i] = min(max(gains[k, i] * (reference[i] - y[base + i]), -1.0), 1.0)
+            for f in range(3):
+                leaks[i, f] = leak_rows[i, f] if time >= onsets[i, f] else 0.0
+        commands[k] = u
+        h = _interval(y, period, min(h, period / SAMPLE_SUBSTEP_MAX), u, cyl, table, centre, link, mass, payloads[k], gravity,
+                      supply, tank, viscosity[k], leaks, scale)
+        states[k] = y
+        supplies[k] = _rates(y, u, cyl, table, centre, link, mass, payloads[k], gravity, supply, tank, viscosity[k], leaks, dy)
+    return states, commands, supplies
+
+
+def _operator(rig: ArmRig, work: ArmWork, n: int, rate: float, start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per sample and joint: the target, the ramp speed and the lever's gain of the move under way."""
+    rng = np.random.default_rng(work.seed)
+    a = len(start)
+    targets, speeds, gains = np.empty((n, a)), np.empty((n, a)), np.empty((n, a))
+    for i in range(a):
+        k, current = 0, start[i]
+        while k < n:
+            target = current if k == 0 else rng.uniform(*rig.targets[i])  # a rest before the first move
+            speed, gain = rng.uniform(*OPERATOR_SPEED), rng.uniform(*OPERATOR_GAIN)
+            length = max(int((abs(target - current) / speed + rng.uniform(*OPERATOR_REST)) * rate), 1)
+            targets[k:k + length, i], speeds[k:k + length, i], gains[k:k + length, i] = target, speed, gain
+            k, current = k + length, target
+    return targets, speeds, gains
+
+
+def _resting_state(rig: ArmRig, joints: np.ndarray, payload: float) -> np.ndarray:
+    """At rest at ``joints``: each chamber B at its centre-leakage balance, A holding the links' static load."""
+    a = len(joints)
+    y = np.zeros(_STATES_PER_CYLINDER * a + 2 * a)
+    _, weight, _ = _mechanics(joints, np.zeros(a), rig.link, rig.mass, payload, rig.gravity)
+    for i in range(a):
+        c, centre = rig.cylinder[i], rig.centre[i]
+        p_b = (centre[1] * rig.supply + centre[3] * rig.tank) / (centre[1] + centre[3])
+        _, arm = _piston(c, joints[i])
+        p_a = (weight[i] / arm + p_b * c[_C_AREA_B]) / c[_C_AREA_A]
+        y[_STATES_PER_CYLINDER * i:_STATES_PER_CYLINDER * i + 2] = p_a, p_b
+    y[_STATES_PER_CYLINDER * a:_STATES_PER_CYLINDER * a + a] = joints
+    return y
+
+
+def simulate(rig: ArmRig, work: ArmWork) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(times, states (n, S), commands (n, A), supply (n,)) of one run; the first sample one period after rest."""
+    machine = rig.machine
+    names = machine.actuator_names
+    rate = machine.sample_rate_hz
+    n = int(round(work.duration_s * rate))
+    if n < 1 or not math.isfinite(work.duration_s):
+        raise InputError(f"independent arm: duration {work.duration_s} s gives no sample")
+    times = np.arange(1, n + 1) / rate
+    payloads = np.full(n, rig.payload)
+    for at, value in sorted(work.payload_steps):
+        if not value >= 0.0:
+            raise InputError(f"independent arm: payload {value} kg at {at} s must be >= 0")
+        payloads[times >= at] = value
+    leak_rows, onsets = np.zeros((len(names), 3)), np.full((len(names), 3), np.inf)
+    for actuator, fault, value, onset in work.faults:
+        if actuator not in names or fault not in FAULTS:
+            raise InputError(f"independent arm: cannot inject {fault} on {actuator} (it has {', '.join(FAULTS)} on {', '.join(names)})")
+        if not (math.isfinite(value) and value >= 0.0):
+            raise InputError(f"independent arm: {fault} {value} L/min must be finite and >= 0")
+        leak_rows[names.index(actuator), FAULTS.index(fault)] = value / 60000.0 / LEAK_DROP
+        onsets[names.index(actuator), FAULTS.index(fault)] = onset
+    start = rig.targets.mean(axis=1)
+    y = _resting_state(rig, start, payloads[0])
+    targets, speeds, gains = _operator(rig, work, n, rate, start)
+    warmth = rig.oil_start_k + work.warming_k * (1.0 - np.exp(-times / WARMING_TIME))
+    viscosity = np.exp(-VISCOSITY_PER_KELVIN * warmth)
+    scale = np.concatenate([np.tile([1000.0, 1000.0, 1e-5, 1e-3], len(names)), np.full(len(names), 1e-7),
+                            np.full(len(names), 1e-6)])
+    states, commands, supplies = _run(y, 1.0 / rate, targets, speeds, gains, payloads, leak_rows, onsets, viscosity, rig.cylinder,
+                                      rig.flow_table, rig.centre, rig.link, rig.mass, rig.gravity, rig.supply, rig.tank, scale)
+    if not np.all(np.isfinite(states)):
+        raise InputError(f"independent arm: the integration diverged (seed {work.seed})")
+    return times, states, commands, supplies
+
+
+def measure(rig: ArmRig, times: np.ndarray, states: np.ndarray, commands: np.ndarray, supplies: np.ndarray,
+            seed: int) -> Samples:
+    """The rig's sensors, (n, A) columns in the machine's actuator order."""
+    machine = rig.machine
+    sensors = machine.sensors
+    rate = machine.sample_rate_hz
+    rng = np.random.default_rng([seed, 7])
+    a = len(machine.actuators)
+    base = _STATES_PER_CYLINDER * a
+    angle = np.round(states[:, base:base + a] / sensors.encoder_resolution) * sensors.encoder_resolution
+    difference = np.diff(angle, axis=0, prepend=angle[:1]) * rate
+    b, den = butter(2, sensors.velocity_filter_hz / (0.5 * rate))
+    velocity = lfilter(b, den, difference, axis=0)
+
+    def transmitter(pressure: np.ndarray) -> np.ndarray:
+        zero = rng.uniform(-ZERO_OFFSET, ZERO_OFFSET, pressure.shape[1:])
+        noisy = pressure + zero + rng.normal(0.0, sensors.pressure_noise_std, pressure.shape)
+        return np.clip(np.round(noisy / TRANSMITTER_LSB) * TRANSMITTER_LSB, *sensors.pressure_range)
+
+    chambers = states[:, :base].reshape(len(times), a, _STATES_PER_CYLINDER)
+    return Samples(times=times, joint_position=angle, joint_velocity=velocity, pressure_a=transmitter(chambers[:, :, 0]),
+                   pressure_b=transmitter(chambers[:, :, 1]), supply_pressure=transmitter(supplies[:, None])[:, 0],
+                   valve_command=commands)
+
+
+def recording(machine: Machine, rig_seed: int, work: ArmWork, spread: RigSpread | None = None) -> Samples:
+    """What the machine's sensors record of one run of the built arm ``rig_seed``."""
+    rig = build_rig(machine, rig_seed, spread)
+    times, states, commands, supplies = simulate(rig, work)
+    return measure(rig, times, states, commands, supplies, work.seed)
+
+
+def recording_bag(machine: Machine, path: Path, rig_seed: int, work: ArmWork, spread: RigSpread | None = None) -> Path:
+    """One run as a contract bag (every joint in one JointState, per-cylinder pressures), its truth in the metadata."""
+    samples = recording(machine, rig_seed, work, spread)
+    with ContractBagWriter(path, actuators={a.name: a.joint for a in machine.actuators},
+                           pressure_variance=machine.sensors.pressure_noise_std ** 2) as writer:
+        writer.set_truth({"plant": __name__, "machine": machine.name, "rig_seed": rig_seed, "seed": work.seed,
+                          "duration_s": work.duration_s, "payload_steps": [list(p) for p in work.payload_steps],
+                          "faults": [list(f) for f in work.faults]})
+        writer.write_machine_block(samples)
+    return path
+
+
+def work_day(machine: Machine, seeds: Sequence[int], duration_s: float, extra_payload: float = 150.0) -> list[ArmWork]:
+    """Runs of fault-free work, every other one picking up ``extra_payload`` kg at a drawn time and setting it down later."""
+    base = machine.arm.payload if machine.arm is not None else 0.0
+    runs = []
+    for seed in seeds:
+        rng = np.random.default_rng([seed, 11])
+        steps: tuple[tuple[float, float], ...] = ()
+        if seed % 2:
+            pick = rng.uniform(0.2, 0.5) * duration_s
+            steps = ((pick, base + extra_payload), (pick + rng.uniform(0.2, 0.4) * duration_s, base))
+        runs.append(ArmWork(duration_s, seed, payload_steps=steps))
+    return runs
