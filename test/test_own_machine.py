@@ -2,8 +2,9 @@
 a safe threshold derived, its own J1939-style bus (29-bit ids, bar and degrees, Motorola signals, no counter, no CRC, no
 joint rate) read through `can convert` and can_bridge, commissioned, and a leak in its second cylinder named there.
 
-The recordings come from a plant that is not the config: every notch, bulk modulus and friction drawn off the
-described value (fdi_evaluation.mismatched_config), with sensor noise, as a real machine differs from its data sheet.
+The recordings come from a plant written apart from the monitor's model (studies/independent_arm: its own chain
+dynamics, tabulated notches each drawn off the data sheet, lines, friction law, warming oil, operator and sensors),
+as a real machine differs from its data sheet and from any model of it.
 """
 
 from __future__ import annotations
@@ -26,9 +27,7 @@ from sensor_msgs.msg import FluidPressure, JointState
 
 from hydro_ros.can.codec import MachineBus, sample_values
 from hydro_ros.contract.machine import Machine, load_machine_config
-from hydro_ros.contract.names import Injection
-from hydro_ros.sim.scenario import MachineRun
-from hydro_ros.studies.fdi_evaluation import mismatched_config
+from hydro_ros.studies import independent_arm
 from test.conftest import REPO
 from test.ros_graph import node_process, probe_node, spin_until, spinning, wait_for
 
@@ -78,19 +77,22 @@ def hydro_ros(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "hydro_ros.cli", *args], capture_output=True, text=True, timeout=600)
 
 
-def machine_cycles(bus: MachineBus, plant, seconds: float, injections: dict, seed: int):
-    """(time, frames) per sensor cycle of the plant, as the machine's ECUs send them."""
-    joints = {a.name: a.joint for a in plant.actuators}
-    for _, samples in MachineRun(plant, injections, seed).blocks(seconds):
-        for k in range(len(samples.times)):
-            yield float(samples.times[k]), bus.encode_cycle(sample_values(samples, k, joints), 0)
+RIG = 3  # the built machine: not the data sheet
 
 
-def write_log(bus: MachineBus, plant, path: Path, seconds: float, injections: dict, seed: int) -> None:
-    """The plant's sensors as the machine's frames in a candump log, in time order, as a recording would hold them."""
+def machine_cycles(bus: MachineBus, machine: Machine, work: independent_arm.ArmWork):
+    """(time, frames) per sensor cycle of the built machine at ``work``, as its ECUs send them."""
+    joints = {a.name: a.joint for a in machine.actuators}
+    samples = independent_arm.recording(machine, RIG, work)
+    for k in range(len(samples.times)):
+        yield float(samples.times[k]), bus.encode_cycle(sample_values(samples, k, joints), 0)
+
+
+def write_log(bus: MachineBus, machine: Machine, path: Path, work: independent_arm.ArmWork) -> None:
+    """The built machine's sensors as its frames in a candump log, in time order, as a recording would hold them."""
     writer = can.Logger(str(path))
     try:
-        for t, frames in machine_cycles(bus, plant, seconds, injections, seed):
+        for t, frames in machine_cycles(bus, machine, work):
             for i, (frame_id, data) in enumerate(frames):
                 writer.on_message_received(can.Message(timestamp=1.7e9 + t + i * 1e-5, arbitration_id=frame_id, data=data,
                                                        is_extended_id=True))
@@ -171,8 +173,8 @@ def test_a_described_machine_is_checked_and_a_bad_one_refused_in_one_line_per_pr
 
 @pytest.fixture(scope="module")
 def commissioned(excavator, tmp_path_factory) -> tuple[Path, Path, Machine]:
-    """The maker's way: a safe threshold derived, then commissioned from converted recordings of the machine (a plant
-    that is not the config: every notch, bulk modulus and friction drawn off it); (commissioned config, leak log, the plant)."""
+    """The maker's way: a safe threshold derived, then commissioned from converted recordings of the built machine
+    (independent_arm's rig RIG of the description); (commissioned config, leak log, the description the rig is built from)."""
     folder = tmp_path_factory.mktemp("commissioned")
     derived = excavator.with_name("excavator_safe.yaml")
     threshold = hydro_ros("machine", "threshold", str(excavator), "--variants", "3", "--duration", "60", "--out", str(derived))
@@ -182,11 +184,11 @@ def commissioned(excavator, tmp_path_factory) -> tuple[Path, Path, Machine]:
 
     bus = MachineBus(machine)
     assert bus.expected == frozenset(J1939) and not bus.by_counter
-    plant = mismatched_config(machine, seed=3)  # the real machine: not the data sheet
     healthy_logs, leak_log = [folder / "healthy1.log", folder / "healthy2.log"], folder / "leak.log"
-    for seed, log in zip((21, 24), healthy_logs):  # the documented minimum: two recordings of two minutes
-        write_log(bus, plant, log, 120.0, {}, seed=seed)
-    write_log(bus, plant, leak_log, 60.0, {"dipper": [Injection("external_leakage_b", 1.0, LEAK_ONSET_S)]}, seed=22)
+    # the documented minimum: two recordings of two minutes, a payload picked up and set down in one
+    for work, log in zip(independent_arm.work_day(machine, (21, 24), 120.0), healthy_logs):
+        write_log(bus, machine, log, work)
+    write_log(bus, machine, leak_log, independent_arm.ArmWork(60.0, 22, faults=(("dipper", "external_leakage_b", 1.0, LEAK_ONSET_S),)))
     for log in (*healthy_logs, leak_log):
         converted = hydro_ros("bag", "convert", str(log), "--config", str(derived), "--dbc", str(excavator.with_suffix(".dbc")),
                               "--out", str(log.with_suffix("")))
@@ -198,7 +200,7 @@ def commissioned(excavator, tmp_path_factory) -> tuple[Path, Path, Machine]:
     done = hydro_ros("commission", *(f"--bag={log.with_suffix('')}" for log in healthy_logs), "--config", str(derived), "--out", str(config),
                      "--quiet")
     assert done.returncode == 0, done.stderr
-    return config, leak_log, plant
+    return config, leak_log, machine
 
 
 @pytest.mark.slow
@@ -239,11 +241,12 @@ def test_a_jittered_bus_live_leaves_a_healthy_machine_quiet_and_names_the_leak(c
     cylinder and chamber after its onset, the other cylinder quiet."""
     from diagnostic_msgs.msg import DiagnosticArray
 
-    config, _, plant = commissioned
+    config, _, described = commissioned
     machine = load_machine_config(config)
     bus = MachineBus(machine)
     onset = 30.0
-    injections = {"lift": [Injection("payload_mass", 100.0, 12.0)], "dipper": [Injection("external_leakage_b", 1.0, onset)]}
+    work = independent_arm.ArmWork(45.0, 23, payload_steps=((12.0, described.arm.payload + 100.0),),
+                                   faults=(("dipper", "external_leakage_b", 1.0, onset),))
     group = f"239.76.{ros_domain % 250}.{os.getpid() % 250}"
     statuses: list = []
     clock: list = []
@@ -258,7 +261,7 @@ def test_a_jittered_bus_live_leaves_a_healthy_machine_quiet_and_names_the_leak(c
             elif status.name.endswith("can_bridge/clock"):
                 clock.append(status)
 
-    cycles = list(machine_cycles(bus, plant, 45.0, injections, seed=23))  # simulated first: the sender's only delays are ours
+    cycles = list(machine_cycles(bus, described, work))  # simulated first: the sender's only delays are ours
     with node_process("hydro_ros.nodes.can_bridge", "-p", f"config:={config}", "-p", "interface:=udp_multicast", "-p", f"channel:={group}"), \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={config}"), probe_node("probe") as node, \
             can.Bus(interface="udp_multicast", channel=group) as wire:

@@ -77,7 +77,11 @@ THRESHOLD_MARGIN = 2.0  # c0 = margin x the worst held-out excess: an hour holds
 # out, and the largest of 720 Gaussian 5 s means is ~1.6x the largest of 24; times the evaluation's 1.25
 NOISE_FLOOR_SIGMA = 3.0  # c0 >= this x the spread of the armed 5 s mean residual: a held-out part that never crossed zero
 # gave c0 = 0 (a two-joint arm from 2 x 120 s, then 3 false alarms in 4 fault-free runs; issue 50)
-LEAK_LIMIT = 0.15  # [L/min at 10 MPa] a fitted leak above this refuses the recording (fault-free fits stay below ~0.05)
+# [L/min at 10 MPa] a fitted leak above this refuses the recording: P-II's largest smallest-detectable external leak.
+# Fault-free fits stay below ~0.05 on plants of the model's own equations, but reach 0.24 on arms written apart
+# (studies/independent_arm: hose lines, tabulated notches), whose form errors the leak terms absorb; at 0.15 those
+# healthy machines were refused and told to repair a leak they did not have
+LEAK_LIMIT = 0.4
 COMMISSIONED_FLOW_FRACTION = 0.02  # k of the commissioned thresholds: what identification leaves of each notch's coefficient
 # (gains recovered within 2 %, test_commissioning); a notch error puts k x the chamber's valve flow into its residual whatever
 # the load pressure, which the opening bins cannot see (300 kg on the mobile SAM crossed a threshold without it)
