@@ -43,6 +43,7 @@ class BlockResult:
     operating_point: np.ndarray | None = None  # (n, A, 5) parity: 5 s means of the opening, |Q_A|, |Q_B| and the roots' noise bias in A, B [L/min]
     closed_mean: np.ndarray | None = None  # (n, A, 2) mean residual over the last closed-valve samples (NaN: not judged)
     closed_code: np.ndarray | None = None  # (n, A) its crossing code, NO_CLOSED_CODE: not known
+    held_outside: np.ndarray | None = None  # (n, A) detection held: the window left the commissioned region (fdi.coverage)
 
 
 @dataclass
@@ -188,6 +189,7 @@ class FdiMonitor:
         code[~armed] = 0
         if hold:
             code[:] = 0
+        outside = None
         if self.settings.coverage is not None:
             outside = self._outside_window(raw, valid)
             code[outside] = 0
@@ -204,7 +206,7 @@ class FdiMonitor:
         self.last_mean_pressure = mean_pressure[-1]
         self.last_closed_mean = closed_mean[-1]
         return BlockResult(block.times, residual, mean_residual, threshold, code, valid, alarms, mean_command, operating_point, closed_mean,
-                           closed_code)
+                           closed_code, outside)
 
     def _outside_window(self, raw: np.ndarray, valid: np.ndarray) -> np.ndarray:
         """(n, A): whether the window ending at each sample holds a valid sample outside the commissioned region."""

@@ -209,15 +209,19 @@ def threshold_excess(monitor: FdiMonitor, samples: Samples) -> float:
 
 def residual_excesses(monitor: FdiMonitor, samples: Samples) -> tuple[float, float]:
     """(the largest armed 5 s mean residual above the quadratic term of eq. (25), the standard deviation of the armed 5 s
-    mean residuals) [MPa] on fault-free samples; NaN where the monitor never armed on them."""
+    mean residuals) [MPa] on fault-free samples; NaN where the monitor never armed on them. Windows the monitor holds
+    (outside its commissioned region, ``fdi.coverage``) are not judged: it would raise nothing there."""
     settings = monitor.settings
     arms = monitor.startup + monitor.window  # where the monitor itself arms
     maxima, means = [], []
     for start, block in monitor_blocks(monitor, samples):
         armed = slice(max(arms - start, 0), None)
         mean_pressure_sq = (block.threshold[armed] - settings.threshold_constant) / settings.threshold_quadratic
-        excess = np.abs(block.mean_residual[armed]) - settings.threshold_quadratic * mean_pressure_sq
-        means.append(block.mean_residual[armed][np.isfinite(block.mean_residual[armed])])
+        mean_residual = block.mean_residual[armed].copy()
+        if block.held_outside is not None:
+            mean_residual[block.held_outside[armed]] = np.nan
+        excess = np.abs(mean_residual) - settings.threshold_quadratic * mean_pressure_sq
+        means.append(mean_residual[np.isfinite(mean_residual)])
         excess = excess[np.isfinite(excess)]
         if excess.size:
             maxima.append(float(excess.max()))
@@ -375,13 +379,15 @@ def load_recordings(bags: Sequence[str | Path], machine: Machine) -> list[FaultF
 
 def left_out_models(machine: Machine, recordings: Sequence[FaultFreeRecording],
                     fitted_rows: Sequence[Sequence[FlowRegression]]) -> list[Machine | None]:
-    """Per recording, the machine identified from the other recordings' identified parts (leave one recording out); None
-    where there is no other recording or the others cannot identify every actuator."""
+    """Per recording, the machine identified from the other recordings' identified parts (leave one recording out), with
+    the others' coverage (what it would hold on, as the commissioned monitor holds outside all of them); None where there
+    is no other recording or the others cannot identify every actuator."""
     if len(recordings) < 2:
         return [None] * len(recordings)
     models: list[Machine | None] = []
     for k in range(len(recordings)):
-        overrides: dict[str, Any] = {"actuators": {}}
+        others = [r.samples for j, r in enumerate(recordings) if j != k]
+        overrides: dict[str, Any] = {"actuators": {}, "fdi": {"coverage": Coverage.seen(machine.actuator_names, others).to_config()}}
         try:
             for index, actuator in enumerate(machine.actuator_names):
                 rows = FlowRegression.concatenate([r for j, r in enumerate(fitted_rows[index]) if j != k])
