@@ -251,7 +251,8 @@ def _arm_commissioning(arm: dict) -> str:
                for level in pooled if pooled[level]["refused"]]
     return (f"a two-joint arm written apart from the model (`{arm['plant']}`), {max(pooled[level]['rigs'] for level in pooled)} "
             "built rigs, commissioned from "
-            + "; ".join(f"{level}: {pooled[level]['false_alarms']} false alarms in {pooled[level]['fault_free_hours']:.1f} h "
+            + "; ".join(f"{level}: {pooled[level]['false_alarms']} false alarm{'' if pooled[level]['false_alarms'] == 1 else 's'} "
+                        f"in {pooled[level]['fault_free_hours']:.1f} h "
                         f"(<= {pooled[level]['per_hour_upper']:g}/h at {arm['confidence']:.0%}), held outside the commissioned "
                         f"commands {100 * pooled[level]['held_share_mean']:.1f} % on average, {100 * pooled[level]['held_share_max']:.1f} % "
                         "at worst" for level in levels)

@@ -227,7 +227,10 @@ def config_problems(config: dict[str, Any]) -> list[str]:
             found.add("can.map", "must be a mapping (hydro_ros.can.codec names its keys)")
         elif isinstance(can.get("map"), dict):
             found.unknown(can["map"], "can.map", {"supply_pressure", "ls_pressure", "actuators", "counters", "checksums"})
-            for name, entry in (can["map"].get("actuators") or {}).items():
+            mapped = can["map"].get("actuators")
+            if mapped is not None and not isinstance(mapped, dict):
+                found.add("can.map.actuators", "must be a mapping of actuator names")
+            for name, entry in (mapped if isinstance(mapped, dict) else {}).items():
                 if name not in actuators:
                     found.add(f"can.map.actuators.{name}", f"no such actuator (actuators: {', '.join(map(str, actuators))})")
                 elif isinstance(entry, dict):
@@ -291,7 +294,10 @@ def _crane(found: _Problems, config: dict[str, Any]) -> None:
             _choice(found, cylinder, f"{path}.cylinder", "spool", "non_differential")
             if index == len(joints) - 1 and cylinder.get("mapping", "linear") != "linear":
                 found.add(f"{path}.cylinder.mapping", "the extension (last joint) needs a linear mapping")
-    for index, mass in enumerate(config.get("masses") or []):
+    masses = config.get("masses")
+    if masses is not None and not isinstance(masses, list):
+        found.add("masses", f"{masses!r}: expected a list of masses (name, mass, joint, along)")
+    for index, mass in enumerate(masses if isinstance(masses, list) else []):
         found.numbers(mass, list_entry("masses", index, mass), CRANE_MASS, required=tuple(CRANE_MASS))
         if isinstance(mass, dict):
             _choice(found, mass, list_entry("masses", index, mass), "link")
@@ -353,7 +359,7 @@ def _arm(found: _Problems, node: Any, actuators: dict, simulation: dict) -> None
             found.add(f"{path}.range", "missing [rad] or [m]: where the joint may go")
         else:
             found.pair(link, path, "range")
-            limit = RANGE_LIMIT[kind] if kind in RANGE_LIMIT else None
+            limit = RANGE_LIMIT.get(kind) if isinstance(kind, str) else None
             ends = [_number(v) for v in link["range"]] if isinstance(link["range"], list) else []
             if limit and len(ends) == 2 and None not in ends and any(abs(v) > limit.high for v in ends):  # type: ignore[arg-type]
                 found.add(f"{path}.range", f"{link['range']!r} {limit.unit}: must lie within +-{limit.high:g} ({limit.hint})")
@@ -381,7 +387,7 @@ def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuato
     if len(low_high) != 2 or None in low_high or not isinstance(mount, dict) or not isinstance(cylinder, dict):
         return
     stroke, offset = _number(cylinder.get("stroke")), _number(mount.get("theta_offset"))
-    if stroke is None or offset is None:
+    if stroke is None or offset is None or not math.isfinite(stroke + offset):
         return
     pistons = []
     low_high = list(np.linspace(low_high[0], low_high[1], 21)) if all(math.isfinite(v) for v in low_high) else []  # type: ignore[arg-type]
@@ -393,7 +399,7 @@ def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuato
             pistons.append(ratio * (q + offset))
         else:
             l1, l2, l3, sign = (_number(mount.get(k, 1.0 if k == "sign" else None)) for k in ("l1", "l2", "l3", "sign"))
-            if None in (l1, l2, l3, sign):
+            if None in (l1, l2, l3, sign) or not all(math.isfinite(v) for v in (l1, l2, l3, sign)):  # type: ignore[arg-type]
                 return
             theta = sign * q + offset
             pistons.append(math.sqrt(max(l1 * l1 + l2 * l2 - 2.0 * l1 * l2 * math.cos(theta), 0.0)) - l3)
@@ -419,6 +425,10 @@ def _actuator(found: _Problems, path: str, node: Any, crane: bool, arm: bool, en
     elif not isinstance(node["joint"], str):
         found.add(f"{path}.joint", f"{node['joint']!r}: must be a name" + (f" (quote a number: '{node['joint']}')"
                                                                           if isinstance(node["joint"], (int, float)) else ""))
+    slot = node.get("can_slot")
+    if slot is not None and not (isinstance(slot, (int, float)) and not isinstance(slot, bool) and math.isfinite(slot)
+                                 and slot == int(slot) and 0 <= slot <= 255):
+        found.add(f"{path}.can_slot", f"{slot!r}: expected a whole number 0-255 (the n of its CYLn_ and VALVEn_ messages)")
     cylinder = found.numbers(node.get("cylinder"), f"{path}.cylinder", CYLINDER, required=tuple(CYLINDER))
     if isinstance(node.get("cylinder"), dict):
         found.unknown(node["cylinder"], f"{path}.cylinder", set(CYLINDER))

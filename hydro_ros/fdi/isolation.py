@@ -112,14 +112,18 @@ UKF_TABLE: tuple[PatternRow, ...] = (
 def signature_rows(entries: list[dict]) -> tuple[PatternRow, ...]:
     """Rows from config entries {fault, code: "0110", pa_gt_pb, large, command_positive, closed: ["0000", "0010"]} (null
     or absent = X)."""
+    if not isinstance(entries, list):
+        raise InputError(f"fdi.parity_signatures: {entries!r}: expected a list of entries")
     rows = []
     for entry in entries:
+        if not isinstance(entry, dict):
+            raise InputError(f"fdi.parity_signatures: bad entry {entry!r}: expected a mapping (fault, code, ...)")
         try:
             closed = entry.get("closed")
             rows.append(PatternRow(Fault(entry["fault"]), _code_bits(entry["code"]), entry.get("pa_gt_pb"),
                                    entry.get("large"), entry.get("command_positive"),
                                    None if closed is None else frozenset(_code_bits(c) for c in closed)))
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise InputError(f"fdi.parity_signatures: bad entry {entry!r} ({exc})") from None
     return tuple(rows)
 

@@ -264,6 +264,6 @@ GENERATORS: dict[str, type[ResidualGenerator]] = {generator.method: generator fo
 def generator_for(method: str, models: list[SamModel], settings: FdiSettings, window: int) -> ResidualGenerator:
     try:
         kind = GENERATORS[method]
-    except KeyError:
+    except (KeyError, TypeError):
         raise InputError(f"fdi method {method!r}: expected {' or '.join(GENERATORS)}") from None
     return kind(models, settings, window)
