@@ -10,9 +10,12 @@ import pytest
 import yaml
 from cantools.autosar.end_to_end import compute_profile2_crc
 from crccheck.crc import Crc8SaeJ1850
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from hydro_ros.can.codec import BusMapError, FrameError, MachineBus
 from hydro_ros.cli import main as cli
+from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from test.conftest import REPO
 
@@ -182,3 +185,46 @@ def test_a_checksum_the_map_cannot_use_is_refused_naming_it(tmp_path):
                             ({"signal": "NOPE"}, "no signal PUMP.NOPE (named by can.map.checksums.PUMP)")):
         problems = _problems(_machine(tmp_path, messages, {**MAP, "checksums": {"PUMP": entry}}))
         assert any(expected in p for p in problems), (entry, problems)
+
+
+UNITS = ("bar", "kPa", "MPa", "Pa", "psi", "deg", "rad", "deg/s", "rad/s", "%", "mm", "m", "", "V", "degC")
+QUANTITIES = ("joint_position", "joint_velocity", "valve_command", "pressure_a", "pressure_b")
+
+
+@settings(max_examples=80, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(signals=st.lists(st.tuples(st.sampled_from([(m, i) for m, (_, s) in MESSAGES.items() for i in range(len(s))]),
+                                  st.sampled_from(UNITS), st.sampled_from((0.01, 0.1, 1.0, 10.0, 1e-6, 1e6, -0.01, 0.0)),
+                                  st.sampled_from((0, 8, 16, 24, 48, 56, 60))), max_size=3),
+       entries=st.lists(st.tuples(st.sampled_from(QUANTITIES + ("supply_pressure", "valve_request", "nonsense")),
+                                  st.sampled_from(("BOOM_ANGLE.ANGLE", "BOOM_HYD.HEAD", "BOOM_HYD.ROD", "PUMP.P_SUPPLY", "PUMP",
+                                                   "NOPE.X", "", None, 3, ["BOOM_HYD.HEAD"], {"a": 1}))), max_size=3))
+def test_a_randomly_damaged_map_and_dbc_give_a_bus_or_one_line_per_problem(tmp_path_factory, signals, entries):
+    """Signals of the DBC given other units, scales and start bits, map entries pointed elsewhere or at nonsense: either
+    a bus that encodes and decodes a cycle to within one scale step, or problems of one line each; never a traceback."""
+    messages = {name: (frame_id, list(lines)) for name, (frame_id, lines) in MESSAGES.items()}
+    for (message, index), unit, scale, start in signals:
+        name = messages[message][1][index].split(" : ")[0]
+        signed = "-" if "@1-" in messages[message][1][index] else "+"
+        messages[message][1][index] = f'{name} : {start}|16@1{signed} ({scale:g},0) [-1000|1000] "{unit}"'
+    can_map = {"supply_pressure": MAP["supply_pressure"], "actuators": {"boom": dict(MAP["actuators"]["boom"])}}
+    for quantity, target in entries:
+        (can_map if quantity == "supply_pressure" else can_map["actuators"]["boom"])[quantity] = target
+    config = _machine(tmp_path_factory.mktemp("map"), messages, can_map)
+    try:
+        bus = MachineBus(load_machine_config(config))
+    except BusMapError as exc:
+        assert exc.problems and all(p and "\n" not in p for p in exc.problems), exc.problems
+        return
+    except InputError as exc:  # the config itself refused (a map entry that is not a name)
+        assert str(exc) and "\n" not in str(exc)
+        return
+    sample = {"joint_position": {"boom_joint": 0.3}, "joint_velocity": {"boom_joint": -0.1}, "valve_command": {"boom": 0.25},
+              "pressure_a": {"boom": 8.0e6}, "pressure_b": {"boom": 3.0e6}, "supply_pressure": 16.0e6}
+    try:
+        frames = bus.encode_cycle(sample, 0)
+    except (ValueError, OverflowError) as exc:  # a value beyond its signal's range: cantools refuses to encode it
+        assert "\n" not in str(exc)
+        return
+    for frame_id, data in frames:
+        name, _, values = bus.decode(frame_id, data)
+        assert name in bus.expected and values
