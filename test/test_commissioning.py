@@ -190,6 +190,7 @@ def test_commission_cli_writes_a_config_the_monitor_loads_and_refuses_what_it_ca
     report = json.loads((tmp_path / "report" / "commissioning.json").read_text())
     assert report["block"]["recordings"] == [str(tmp_path / f"run{seed}") for seed in (1, 2, 3)]
     assert (tmp_path / "report" / "commissioning.png").stat().st_size > 10_000
+    assert (tmp_path / "report" / "coverage.png").stat().st_size > 10_000
 
     other = tmp_path / "other.yaml"
     other.write_text(f"extends: {config}\nactuators:\n  boom:\n    joint: stick_joint\n")

@@ -54,7 +54,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     com.add_argument("--bag", action="append", required=True, help="a fault-free recording of normal operation (repeat for more)")
     add_config(com, "the machine config the commissioned one extends, e.g. config/sam.yaml")
     add_out(com, "the commissioned machine config to write (extends --config)")
-    com.add_argument("--report", help="directory for commissioning.json and commissioning.png")
+    com.add_argument("--report", help="directory for commissioning.json, commissioning.png and coverage.png (where the "
+                     "recordings worked, and what to record next)")
     com.add_argument("--force", action="store_true", help="accept a commissioned threshold above the config's own (refused "
                                                           "otherwise: it would hide faults the config's threshold shows)")
     add_quiet(com)
@@ -168,7 +169,7 @@ def cmd_commission(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.studies.commissioning import commission, load_recordings, write_config
-    from hydro_ros.studies.plots import plot_commissioning
+    from hydro_ros.studies.plots import plot_commissioning, plot_coverage
 
     config, out = Path(args.config), Path(args.out)
     if out.resolve() == config.resolve():
@@ -185,6 +186,7 @@ def cmd_commission(args: argparse.Namespace) -> int:
         report_dir.mkdir(parents=True, exist_ok=True)
         (report_dir / "commissioning.json").write_text(json.dumps(plain_data(report), indent=2) + "\n")
         plot_commissioning(report, machine, report_dir / "commissioning.png")
+        plot_coverage(recordings, block["model"]["fdi"]["coverage"], block["record_next"], machine, report_dir / "coverage.png")
     for actuator, fit in block["fit"].items():
         gains = ", ".join(f"{n} {g:.3f}" for n, g in fit["notch_gain"].items())
         kept = f" ({', '.join(fit['shape_kept'])} seen only narrow: a gain on the nominal polynomial)" if fit["shape_kept"] else ""

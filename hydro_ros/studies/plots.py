@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -275,6 +276,40 @@ def plot_commissioning(report: dict, machine: Machine, out: str | Path) -> Path:
                    [threshold["before"] or 0.0, threshold["reached"], threshold["value"]], color=["0.6", "tab:orange", "tab:blue"])
         ax.set_ylabel(unit)
         ax.set_title(f"threshold ({report['held_out_s']:.0f} s held out)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def plot_coverage(recordings: list, coverage: dict, record_next: dict, machine: Machine, out: str | Path) -> Path:
+    """Where commissioning saw each actuator work: the recordings' valve command against each chamber's pressure (time
+    density), the commanded openings the monitor trusts (``fdi.coverage`` widened by its margin; beyond them it holds),
+    and what to record next."""
+    from hydro_ros.fdi.coverage import COMMAND_MARGIN
+
+    out = Path(out)
+    fig, axes = plt.subplots(len(machine.actuators), 2, figsize=(12, 3.6 * len(machine.actuators)), squeeze=False)
+    for index, (row, actuator) in enumerate(zip(axes, machine.actuator_names)):
+        command = np.concatenate([np.asarray(r.samples.valve_command, dtype=float).reshape(len(r.samples), -1)[:, index]
+                                  for r in recordings])
+        low, high = coverage[actuator]["valve_command"]
+        for ax, chamber in zip(row, ("a", "b")):
+            pressure = np.concatenate([np.asarray(getattr(r.samples, f"pressure_{chamber}"), dtype=float)
+                                       .reshape(len(r.samples), -1)[:, index] for r in recordings]) * 1e-6
+            finite = np.isfinite(command) & np.isfinite(pressure)
+            ax.hexbin(command[finite], pressure[finite], gridsize=40, bins="log", cmap="Blues", extent=(-1.0, 1.0, 0.0,
+                      machine.supply_pressure * 1.1e-6))
+            ax.axvspan(-1.05, low - COMMAND_MARGIN, color="tab:red", alpha=0.15)
+            ax.axvspan(high + COMMAND_MARGIN, 1.05, color="tab:red", alpha=0.15, label="held: openings not seen")
+            ax.set_xlim(-1.05, 1.05)
+            ax.set_xlabel("valve command [-]")
+            ax.set_ylabel(f"p_{chamber.upper()} [MPa]")
+            ax.set_title(f"{actuator}: where the recordings worked", fontsize=9)
+            ax.legend(fontsize=7, loc="upper left")
+        advice = record_next.get(actuator) or ["nothing: the valve's stroke and the load range were seen"]
+        row[1].text(0.02, 0.02, textwrap.fill("record next: " + "; ".join(advice), 70), transform=row[1].transAxes, fontsize=7,
+                    va="bottom")
     fig.tight_layout()
     fig.savefig(out, dpi=100)
     plt.close(fig)
