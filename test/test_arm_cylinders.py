@@ -140,7 +140,8 @@ def test_commissioning_on_the_cranes_own_work_lowers_its_thresholds_and_names_ha
     plant = mismatched_config(machine, 905)
     block, report = commission(machine, commissioning_recordings(plant, config, trajectories, 1))
     for ident in report["identification"]:
-        assert max(ident["leaks_l_min"].values()) < LEAK_LIMIT, ident["actuator"]
+        # the model's own equations leave no leak to fit: far below what refuses a recording on a machine unlike it
+        assert max(ident["leaks_l_min"].values()) < 0.15 < LEAK_LIMIT, ident["actuator"]
         for notch, gain in ident["notch_gain"].items():
             drawn, nominal = (np.asarray(m.actuator(ident["actuator"]).valve.kv_poly[notch]) for m in (plant, machine))
             truth = drawn[np.argmax(np.abs(nominal))] / nominal[np.argmax(np.abs(nominal))]  # the plant's notch is the nominal scaled

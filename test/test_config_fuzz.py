@@ -1,6 +1,6 @@
 """Machine configs with random damage: every shipped config with keys removed and values replaced by the wrong type, NaN,
-inf, a negative or an absurd number. Each is either a machine the monitor can be built for, or one line naming the key;
-never a traceback, never a machine whose monitor then fails on it."""
+inf, a negative or an absurd number. Each is either a machine the monitor can be built for, or one line naming what
+is wrong; never a traceback, never an accepted machine whose monitor cannot be built."""
 
 from __future__ import annotations
 

@@ -352,8 +352,10 @@ class MachineBus:
         message = self.by_name[name]
         values = {}
         for signal in message.signals:
-            low = signal.minimum if signal.minimum is not None else -math.inf
-            high = signal.maximum if signal.maximum is not None else math.inf
+            # saturate at what the signal declares and its bits can carry (a DBC may declare more than its bits hold)
+            low, high = _raw_range(signal)
+            low = max(low, signal.minimum) if signal.minimum is not None else low
+            high = min(high, signal.maximum) if signal.maximum is not None else high
             values[signal.name] = _clip(physical.get(signal.name, 0.0), low, high)
         if name in self.counters:
             values[self.counters[name]] = counter % COUNTER_MODULO

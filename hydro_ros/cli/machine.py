@@ -176,14 +176,15 @@ def cmd_machine_threshold(args: argparse.Namespace) -> int:
         excesses = [threshold_excess(FdiMonitor(machine), independent_arm.recording(machine, seed, work))
                     for seed, work in zip(seeds, independent_arm.work_day(machine, seeds, args.duration))]
         c0 = args.margin * evaluated_maximum(excesses, f"{args.duration:g} s of simulated data")
-        basis = (f"{args.variants} builds of this machine by a plant written apart from the model (studies/independent_arm: "
-                 "its own links, notch curves, lines, friction law, oil and sensors)")
+        print(f"{machine.name}: threshold_constant {c0:.4f} MPa: {args.margin:g} x the largest fault-free 5 s mean residual above "
+              f"the quadratic term on {args.variants} builds of this machine of {args.duration:g} s each by a plant written apart "
+              "from the model (studies/independent_arm: its own links, notch curves, lines, friction law, oil and sensors)")
     else:
         c0 = calibrate_threshold_constant(machine, seeds, args.duration, margin=args.margin)
-        basis = (f"{args.variants} variants of the model's own equations ({MISMATCH_SPREAD}): safe only for a machine like the "
-                 f"model, as no plant written apart can build this one ({apart}); commission it before trusting its silence")
-    print(f"{machine.name}: threshold_constant {c0:.4f} MPa: {args.margin:g} x the largest fault-free 5 s mean residual above the "
-          f"quadratic term on {basis}, {args.duration:g} s each")
+        print(f"{machine.name}: threshold_constant {c0:.4f} MPa: {args.margin:g} x the largest fault-free 5 s mean residual above "
+              f"the quadratic term on {args.variants} variants of {args.duration:g} s each of the model's own equations "
+              f"({MISMATCH_SPREAD}): safe only for a machine like the model, as no plant written apart can build this one "
+              f"({apart}); commission it before trusting its silence")
     if args.out:
         out = Path(args.out)
         if out.resolve() == Path(args.config).resolve():

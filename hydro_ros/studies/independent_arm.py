@@ -16,21 +16,24 @@ a machine maker's own simulation would pick where the papers leave a choice:
   compliance to the chamber's (the line's RC time, ~50 us, is far below a sample, so it settles at once);
 * **chambers**: each volume's own compliance (chamber oil; line oil and wall), softened toward vapour pressure;
 * **friction**: a Stribeck curve with a smooth stick (tanh), no bristle states (the monitor's family is LuGre);
-* **oil temperature**: warms through the run; the viscosity follows (Andrade, ~3 %/K), and with it the viscous
-  friction, the centre and leak flows (laminar) and the hoses' resistance: a slow drift of the terms a fit holds fixed;
+* **oil temperature**: each day starts at its own (drawn per run, within ``RigSpread.oil_warmer``) and warms through
+  the run; the viscosity follows (Andrade, ~3 %/K), and with it the viscous friction, the centre and leak flows
+  (laminar) and the hoses' resistance: the terms a fit holds fixed drift from one day to the next and within one;
 * **supply**: a pressure-compensated pump whose pressure droops with the flow drawn;
 * **integrator**: an adaptive Dormand-Prince 5(4) per sample interval, the operator's command held over the interval
   as a sampled controller holds it;
-* **sensors**: transmitters with noise, a zero offset and a 12-bit quantisation; an encoder quantised to its
+* **sensors**: transmitters with noise, a zero offset of their own (drawn per rig) and a 12-bit quantisation; an
+  encoder quantised to its
   resolution, its rate the differenced angle through a second-order Butterworth low-pass at the config's cut-off;
 * **operator**: its own: each joint moves to random targets within 80 % of its range along a ramp of a drawn speed,
   the lever proportional to the error with a drawn gain (so some moves run at full opening), joints at once.
 
 Its numbers start from the config's (a machine described by its data sheet), each drawn off by ``RigSpread`` for a
-``rig`` seed: a given machine is one rig seed; a given day's work is one run seed.
+``rig`` seed: a given machine is one rig seed; a given day's work on it is one run seed (the operator's moves, the
+oil's start and the noise draw from both, so two machines never work the same day).
 
 Faults, in the vocabulary's names, per actuator: ``external_leakage_a``, ``external_leakage_b``, ``internal_leakage``
-(L/min at 10 MPa, laminar), from an onset time.
+(L/min at 10 MPa and the day's starting viscosity, laminar), from an onset time.
 """
 
 from __future__ import annotations
@@ -65,7 +68,8 @@ TRANSMITTER_LSB = 25.0e6 / 4096  # [Pa] 12 bits over the transmitter's span
 ZERO_OFFSET = 2.0e4  # [Pa] a transmitter's zero, drawn within +- this
 RTOL = 1e-5
 LINE_ITERATIONS = 4
-SAMPLE_SUBSTEP_MAX = 4  # the integrator's step is at most a quarter of the sample period
+SAMPLE_SUBSTEP_MAX = 4  # the first step into a sample (its command just changed) is at most a quarter of its period
+SMALLEST_STEP = 1.0e-9  # [s] a step this small means the integration has failed
 OPERATOR_SPEED = (0.05, 0.35)  # [rad/s] the reference's ramp per move
 OPERATOR_GAIN = (3.0, 9.0)  # [1/rad] lever per joint error, per move
 OPERATOR_REST = (0.5, 4.0)  # [s] between moves
@@ -95,6 +99,7 @@ class ArmWork:
     payload_steps: tuple[tuple[float, float], ...] = ()  # (time [s], tip payload from then [kg])
     faults: tuple[tuple[str, str, float, float], ...] = ()  # (actuator, fault, L/min at 10 MPa, onset [s])
     warming_k: float = 15.0  # [K] the oil's rise toward its working temperature
+    oil_start_k: float | None = None  # [K] the day's start against the reference (None: drawn for the day)
 
 
 @dataclass
@@ -112,8 +117,11 @@ class ArmRig:
     supply: float
     tank: float
     gravity: float
-    oil_start_k: float  # [K] the day's start against the reference temperature
+    oil_range: tuple[float, float]  # [K] where a day's start lies against the reference temperature
+    zero_offsets: np.ndarray  # (2 A + 1,) [Pa] the transmitters' zeros: every chamber A, every chamber B, the supply
+    seed: int
     targets: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (A, 2) joint range for the operator
+    directions: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (A,) +1 where extending raises the joint
 
 
 # per-cylinder numbers in ArmRig.cylinder
@@ -182,8 +190,12 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) 
     return ArmRig(machine=machine, cylinder=np.array(rows), flow_table=np.array(tables), centre=np.array(centres),
                   link=np.array([[link.length, link.offset] for link in arm.links]), mass=np.array(masses, dtype=float).reshape(-1, 5),
                   origin=np.asarray(arm.origin, dtype=float), payload=arm.payload, supply=machine.supply_pressure,
-                  tank=machine.tank_pressure, gravity=machine.simulation.gravity, oil_start_k=rng.uniform(*spread.oil_warmer),
-                  targets=np.array(ranges))
+                  tank=machine.tank_pressure, gravity=machine.simulation.gravity, oil_range=spread.oil_warmer,
+                  zero_offsets=rng.uniform(-ZERO_OFFSET, ZERO_OFFSET, 2 * len(rows) + 1), seed=rig_seed,
+                  targets=np.array(ranges),
+                  # the operator pushes the lever the way that moves the joint toward its target (a tilt whose
+                  # cylinder closes the triangle as the joint opens is driven the other way)
+                  directions=np.array([math.copysign(1.0, _piston(row, 0.5 * (low + high))[1]) for row, (low, high) in zip(rows, ranges)]))
 
 
 @njit(cache=True)
@@ -313,8 +325,11 @@ def _rates(y, u, cyl, table, centre, link, mass, payload, gravity, supply, tank,
         hose = c[_C_HOSE_VOLUME] * (1.0 / c[_C_OIL_MODULUS] + 1.0 / c[_C_HOSE_MODULUS])
         capacity_a = (c[_C_V0A] + c[_C_AREA_A] * x) / c[_C_OIL_MODULUS] + hose
         capacity_b = (c[_C_V0B] + c[_C_AREA_B] * (c[_C_STROKE] - x)) / c[_C_OIL_MODULUS] + hose
-        dy[s0] = _softening(pa) / capacity_a * (line_a - internal - leaks[i, 0] * (pa - tank) / viscosity - c[_C_AREA_A] * v)
-        dy[s0 + 1] = _softening(pb) / capacity_b * (line_b + internal - leaks[i, 1] * (pb - tank) / viscosity + c[_C_AREA_B] * v)
+        net_a = line_a - internal - leaks[i, 0] * (pa - tank) / viscosity - c[_C_AREA_A] * v
+        net_b = line_b + internal - leaks[i, 1] * (pb - tank) / viscosity + c[_C_AREA_B] * v
+        # the softening slows a chamber's fall toward vapour pressure, never its refilling
+        dy[s0] = (_softening(pa) if net_a < 0.0 else 1.0) / capacity_a * net_a
+        dy[s0 + 1] = (_softening(pb) if net_b < 0.0 else 1.0) / capacity_b * net_b
         dy[s0 + 2] = spool_rate
         dy[s0 + 3] = c[_C_OMEGA] ** 2 * (u[i] - spool) - 2.0 * c[_C_ZETA] * c[_C_OMEGA] * spool_rate
         stribeck = c[_C_COULOMB] + (c[_C_STATIC] - c[_C_COULOMB]) * math.exp(-(v / c[_C_STRIBECK]) ** 2)
@@ -366,18 +381,22 @@ def _interval(y, span, h, u, cyl, table, centre, link, mass, payload, gravity, s
             e = 0.0
             for s in range(7):
                 e += _E[s] * k[s, j]
-            e = step * e / (scale[j] + RTOL * max(abs(y[j]), abs(stage[j])))
-            error = max(error, abs(e))
+            e = abs(step * e / (scale[j] + RTOL * max(abs(y[j]), abs(stage[j]))))
+            error = max(error, e) if e == e else math.inf  # a NaN rejects the step
         if error <= 1.0:
             t += step
             y[:] = stage
-        h = step * min(5.0, max(0.2, 0.9 * error ** -0.2 if error > 0.0 else 5.0))
+            h = step * min(5.0, max(0.2, 0.9 * error ** -0.2 if error > 0.0 else 5.0))
+        else:  # too large, or not a number: a fifth of the step at most
+            h = step * (max(0.1, 0.9 * error ** -0.2) if error < math.inf else 0.2)
+            if h < SMALLEST_STEP:
+                raise ValueError("the step size fell below SMALLEST_STEP")
     return h
 
 
 @njit(cache=True)
-def _run(y, period, targets, speeds, gains, payloads, leak_rows, onsets, viscosity, cyl, table, centre, link, mass, gravity,
-         supply, tank, scale):
+def _run(y, period, targets, speeds, gains, directions, payloads, leak_rows, onsets, viscosity, cyl, table, centre, link, mass,
+         gravity, supply, tank, scale):
     """Every sample: the operator's command from the state at its start, held over the period; states at its end."""
     n, a = targets.shape
     base = _STATES_PER_CYLINDER * a
@@ -394,7 +413,7 @@ def _run(y, period, targets, speeds, gains, payloads, leak_rows, onsets, viscosi
         for i in range(a):
             step = speeds[k, i] * period
             reference[i] += min(max(targets[k, i] - reference[i], -step), step)
-            u[i] = min(max(gains[k, i] * (reference[i] - y[base + i]), -1.0), 1.0)
+            u[i] = min(max(directions[i] * gains[k, i] * (reference[i] - y[base + i]), -1.0), 1.0)
             for f in range(3):
                 leaks[i, f] = leak_rows[i, f] if time >= onsets[i, f] else 0.0
         commands[k] = u
@@ -407,7 +426,7 @@ def _run(y, period, targets, speeds, gains, payloads, leak_rows, onsets, viscosi
 
 def _operator(rig: ArmRig, work: ArmWork, n: int, rate: float, start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per sample and joint: the target, the ramp speed and the lever's gain of the move under way."""
-    rng = np.random.default_rng(work.seed)
+    rng = np.random.default_rng([work.seed, rig.seed])
     a = len(start)
     targets, speeds, gains = np.empty((n, a)), np.empty((n, a)), np.empty((n, a))
     for i in range(a):
@@ -461,12 +480,18 @@ def simulate(rig: ArmRig, work: ArmWork) -> tuple[np.ndarray, np.ndarray, np.nda
     start = rig.targets.mean(axis=1)
     y = _resting_state(rig, start, payloads[0])
     targets, speeds, gains = _operator(rig, work, n, rate, start)
-    warmth = rig.oil_start_k + work.warming_k * (1.0 - np.exp(-times / WARMING_TIME))
+    day = np.random.default_rng([work.seed, rig.seed, 13]).uniform(*rig.oil_range) if work.oil_start_k is None else work.oil_start_k
+    warmth = day + work.warming_k * (1.0 - np.exp(-times / WARMING_TIME))
     viscosity = np.exp(-VISCOSITY_PER_KELVIN * warmth)
+    leak_rows *= viscosity[0]  # a leak's size holds at the day's starting viscosity
     scale = np.concatenate([np.tile([1000.0, 1000.0, 1e-5, 1e-3], len(names)), np.full(len(names), 1e-7),
                             np.full(len(names), 1e-6)])
-    states, commands, supplies = _run(y, 1.0 / rate, targets, speeds, gains, payloads, leak_rows, onsets, viscosity, rig.cylinder,
-                                      rig.flow_table, rig.centre, rig.link, rig.mass, rig.gravity, rig.supply, rig.tank, scale)
+    try:
+        states, commands, supplies = _run(y, 1.0 / rate, targets, speeds, gains, rig.directions, payloads, leak_rows, onsets, viscosity,
+                                          rig.cylinder, rig.flow_table, rig.centre, rig.link, rig.mass, rig.gravity, rig.supply, rig.tank,
+                                          scale)
+    except ValueError as failed:
+        raise InputError(f"independent arm: the integration failed (seed {work.seed}: {failed})") from None
     if not np.all(np.isfinite(states)):
         raise InputError(f"independent arm: the integration diverged (seed {work.seed})")
     return times, states, commands, supplies
@@ -478,7 +503,7 @@ def measure(rig: ArmRig, times: np.ndarray, states: np.ndarray, commands: np.nda
     machine = rig.machine
     sensors = machine.sensors
     rate = machine.sample_rate_hz
-    rng = np.random.default_rng([seed, 7])
+    rng = np.random.default_rng([seed, rig.seed, 7])
     a = len(machine.actuators)
     base = _STATES_PER_CYLINDER * a
     angle = np.round(states[:, base:base + a] / sensors.encoder_resolution) * sensors.encoder_resolution
@@ -486,15 +511,15 @@ def measure(rig: ArmRig, times: np.ndarray, states: np.ndarray, commands: np.nda
     b, den = butter(2, sensors.velocity_filter_hz / (0.5 * rate))
     velocity = lfilter(b, den, difference, axis=0)
 
-    def transmitter(pressure: np.ndarray) -> np.ndarray:
-        zero = rng.uniform(-ZERO_OFFSET, ZERO_OFFSET, pressure.shape[1:])
+    def transmitter(pressure: np.ndarray, zero: np.ndarray) -> np.ndarray:
         noisy = pressure + zero + rng.normal(0.0, sensors.pressure_noise_std, pressure.shape)
         return np.clip(np.round(noisy / TRANSMITTER_LSB) * TRANSMITTER_LSB, *sensors.pressure_range)
 
     chambers = states[:, :base].reshape(len(times), a, _STATES_PER_CYLINDER)
-    return Samples(times=times, joint_position=angle, joint_velocity=velocity, pressure_a=transmitter(chambers[:, :, 0]),
-                   pressure_b=transmitter(chambers[:, :, 1]), supply_pressure=transmitter(supplies[:, None])[:, 0],
-                   valve_command=commands)
+    zeros = rig.zero_offsets
+    return Samples(times=times, joint_position=angle, joint_velocity=velocity, pressure_a=transmitter(chambers[:, :, 0], zeros[:a]),
+                   pressure_b=transmitter(chambers[:, :, 1], zeros[a:2 * a]),
+                   supply_pressure=transmitter(supplies[:, None], zeros[2 * a:])[:, 0], valve_command=commands)
 
 
 def recording(machine: Machine, rig_seed: int, work: ArmWork, spread: RigSpread | None = None) -> Samples:
