@@ -89,10 +89,10 @@ def summarise(machine: Machine, runs: list[dict], levels: list[str]) -> dict:
                         continue
                     found = r["levels"][level]["alarms"]
                     clean = all(a["actuator"] == actuator and a["time_s"] > ONSET_S for a in found)
-                    names = [a for a in found if a["fault"] == fault]
+                    names = [a for a in found if a["fault"] != "unisolated"]
                     if clean and found:
                         detected.append(r["faults"][0][2])
-                    if clean and names:
+                    if clean and names and all(a["fault"] == fault for a in names):  # the right name, and no other first
                         named.append((r["faults"][0][2], round(names[0]["time_s"] - ONSET_S, 2)))
                 size, delay = min(named) if named else (None, None)
                 smallest[f"{actuator}/{fault}"] = {"size_l_min": size, "delay_s": delay,
@@ -140,6 +140,8 @@ def main() -> int:
             "false_alarms": alarms, "per_hour_upper": round(upper_rate(alarms, hours), 2) if hours else None,
             "held_share_max": max((max(d["held_share"].values()) for d in done), default=None),
             "held_share_mean": round(float(np.mean([v for d in done for v in d["held_share"].values()])), 4) if done else None,
+            "held_share_by_actuator": {a: round(float(np.mean([d["held_share"][a] for d in done])), 4)
+                                       for a in machine.actuator_names} if done else {},
             "smallest_named_l_min": {key: [d["smallest_named_l_min"][key]["size_l_min"] for d in done]
                                      for key in (done[0]["smallest_named_l_min"] if done else {})},
             "smallest_detected_l_min": {key: [d["smallest_named_l_min"][key]["detected_l_min"] for d in done]
