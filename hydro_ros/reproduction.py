@@ -256,7 +256,7 @@ def _arm_commissioning(arm: dict) -> str:
                         f"(<= {pooled[level]['per_hour_upper']:g}/h at {arm['confidence']:.0%}), held outside the commissioned "
                         "commands " + ", ".join(f"{a} {100 * v:.1f} %" for a, v in pooled[level]["held_share_by_actuator"].items())
                         + f" of the time ({100 * pooled[level]['held_share_max']:.1f} % on the worst rig)" for level in levels)
-            + (f"; commissioning refused (threshold above the shipped one) from {', '.join(refused)}" if refused else "")
+            + (f"; commissioning refused from {', '.join(refused)} (each reason in the file)" if refused else "")
             + f". From {documented}, named on every rig [L/min at 10 MPa]: {smallest(documented, 'smallest_named_l_min')}; "
             f"detected: {smallest(documented, 'smallest_detected_l_min')}")
 

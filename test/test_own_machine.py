@@ -132,6 +132,13 @@ def excavator(tmp_path_factory) -> Path:
     return config
 
 
+def test_a_threshold_from_the_models_own_equations_says_it_is_safe_only_for_a_machine_like_the_model(tmp_path):
+    """A single boom no plant written apart can build: the threshold comes from the model's own variants, and says so."""
+    derived = hydro_ros("machine", "threshold", str(REPO / "config" / "sam.yaml"), "--variants", "1", "--duration", "20")
+    assert derived.returncode == 0, derived.stderr
+    assert "safe only for a machine like the model" in derived.stdout and "has no arm" in derived.stdout, derived.stdout
+
+
 def test_a_described_machine_is_checked_and_a_bad_one_refused_in_one_line_per_problem(excavator, tmp_path):
     checked = hydro_ros("machine", "check", str(excavator))
     assert checked.returncode == 0, checked.stdout + checked.stderr
@@ -179,6 +186,7 @@ def commissioned(excavator, tmp_path_factory) -> tuple[Path, Path, Machine]:
     derived = excavator.with_name("excavator_safe.yaml")
     threshold = hydro_ros("machine", "threshold", str(excavator), "--variants", "3", "--duration", "60", "--out", str(derived))
     assert threshold.returncode == 0, threshold.stderr
+    assert "written apart from the model" in threshold.stdout  # an arm: built with the effects the model lacks
     machine = load_machine_config(derived)
     assert machine.fdi["threshold_constant"] > 0.012  # this machine's own, not P-II's
 

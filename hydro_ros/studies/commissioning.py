@@ -78,7 +78,7 @@ THRESHOLD_MARGIN = 2.0  # c0 = margin x the worst held-out excess: an hour holds
 NOISE_FLOOR_SIGMA = 3.0  # c0 >= this x the spread of the armed 5 s mean residual: a held-out part that never crossed zero
 # gave c0 = 0 (a two-joint arm from 2 x 120 s, then 3 false alarms in 4 fault-free runs; issue 50)
 # [L/min at 10 MPa] a fitted leak above this refuses the recording: P-II's largest smallest-detectable external leak.
-# Fault-free fits stay below ~0.05 on plants of the model's own equations, but reach 0.24 on arms written apart
+# Fault-free fits stay below ~0.05 on plants of the model's own equations, but reach a few tenths on arms written apart
 # (studies/independent_arm: hose lines, tabulated notches), whose form errors the leak terms absorb; at 0.15 those
 # healthy machines were refused and told to repair a leak they did not have
 LEAK_LIMIT = 0.4
