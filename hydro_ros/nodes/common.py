@@ -172,6 +172,10 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        if not _stop_requested:
+            raise
+        # the signal's KeyboardInterrupt raised inside a binding's argument conversion arrives as another error
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second signal does not cut the node's last words short
         signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -181,7 +185,12 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None
             rclpy.shutdown()
 
 
+_stop_requested = False
+
+
 def _interrupt(signum: int, frame: Any) -> None:
+    global _stop_requested
+    _stop_requested = True
     raise KeyboardInterrupt
 
 
