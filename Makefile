@@ -66,6 +66,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/savings_map.py --out bench/results/savings_map.json
 	$(PY) bench/gsa_convergence.py --out bench/results/gsa_convergence.json
 	$(PY) bench/safety_soak.py --duration 1800 --out bench/results/safety_soak.json
+	$(PY) bench/halt_latency.py --trials 40 --out bench/results/halt_latency.json
 	$(PY) bench/mutants.py --out bench/results/mutants.json
 
 docs: setup

@@ -195,6 +195,16 @@ def _soak(s: dict) -> tuple[str, str, str]:
             "documented bounds: " + ", ".join(f"{kind} {bound:.2f} s" for kind, bound in s["bounds_s"].items()))
 
 
+def _halt_latency(h: dict) -> tuple[str, str, str]:
+    lat = h["latency_s"]
+    return (f"trajectory_executor to neutral ({lat['halt']['trials']} halts, {lat['joint_states_stale']['trials']} joint-state losses, "
+            "quiet machine)",
+            f"halt: median {lat['halt']['median'] * 1e3:.1f} ms, max **{lat['halt']['max'] * 1e3:.1f} ms** "
+            f"({lat['halt']['within_promise']}/{lat['halt']['trials']} within {h['promise_s']:g} s); joint states lost: "
+            f"max {lat['joint_states_stale']['max'] * 1e3:.1f} ms beyond joint_state_timeout",
+            f"documented: neutral within {h['promise_s']:g} s of a halt; control period {h['control_period_s'] * 1e3:.0f} ms")
+
+
 def _mutants(m: dict) -> tuple[str, str, str]:
     return (f"listed mutation run ({m['total']} mutants of the plant's injections and the isolation table)",
             f"**{m['killed']} of {m['total']} killed**" + (f"; survived: {', '.join(m['survivors'])}" if m["survivors"] else ""),
@@ -207,7 +217,7 @@ ROWS: list[tuple[str, str, Callable[[dict], tuple[str, str, str]]]] = [  # (file
     ("results", "can_bridge_live", _can_live), ("dp", "solver", _dp), ("trajectories", "throughput", _db),
     ("trajectories", "full_catalog", _catalog), ("trajectories", "latency", _server), ("hmi", "phases", _hmi),
     ("crane_cpu", "sample_blocks", _crane_cpu), ("fleet", "runs", _fleet), ("commissioning_memory", "runs", _memory),
-    ("safety_soak", "violations", _soak), ("mutants", "mutants", _mutants)]
+    ("safety_soak", "violations", _soak), ("halt_latency", "latency_s", _halt_latency), ("mutants", "mutants", _mutants)]
 
 
 def benchmarks_markdown() -> str:

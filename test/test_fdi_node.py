@@ -56,7 +56,7 @@ def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
     diags: list[DiagnosticArray] = []
     halts: list[bool] = []
     residuals: list[JointState] = []
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=1.0"), \
+    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=1.0") as plant, \
             node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}"), probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
         node.create_subscription(Bool, "/fdi/halt", lambda m: halts.append(m.data), LATCHED_QOS)
@@ -103,6 +103,14 @@ def test_live_leak_is_alarmed_with_its_name_and_acknowledged(ros_domain):
         kinds = [_values(s)["kind"] for m in diags[reset_at:] for s in m.status if s.name == HALT_STATUS]
         assert kinds and set(kinds) == {"fault"}, kinds
         assert halts[-1] is True
+        # the machine's sensors gone while the spool is held stuck: blind, and still a stop for the fault, not a pause
+        plant.terminate()
+        plant.wait(10)
+        blind_at = len(diags)
+        assert spin_until(node, lambda: "inputs stale" in _values(_fdi_statuses(diags[blind_at:])[-1]).get("not_vouched_because", "")
+                          if _fdi_statuses(diags[blind_at:]) else False, 20), [s.values for s in _fdi_statuses(diags)[-1:]]
+        kinds = [_values(s)["kind"] for m in diags[blind_at:] for s in m.status if s.name == HALT_STATUS]
+        assert set(kinds) == {"fault"} and halts[-1] is True, kinds
 
 
 def test_live_parity_method_on_the_mobile_valve_machine(ros_domain):
@@ -359,3 +367,30 @@ def test_alarm_log_round_trip_a_killed_monitor_restores_its_latched_alarm(ros_do
 
             assert spin_until(node, tile_shows_it, 30)
             assert any(e["fault"] == "external_leakage_a" for e in page("/api/alarm_log?limit=50")["events"])
+
+
+def test_a_restarted_monitor_restoring_a_severe_fault_halts_from_its_first_word(ros_domain, tmp_path):
+    """A stuck spool latched before a restart (the alarm log): the restarted fdi_node's first /fdi/halt is true and its
+    first halt status says why: a stop for the fault, not a pause for the inputs it has not seen yet."""
+    from hydro_ros.fdi.alarm_log import AlarmLog
+    from hydro_ros.nodes.common import HALT_QOS
+    from hydro_ros.safety.supervisor import ERROR
+
+    log = tmp_path / "alarms.sqlite"
+    written = AlarmLog(log, "sam")
+    assert written.record("raised", "boom", "spool_stuck_closed", ERROR)
+    written.close()
+    halts: list[bool] = []
+    diags: list[DiagnosticArray] = []
+    with probe_node("probe") as node:
+        node.create_subscription(Bool, "/fdi/halt", lambda m: halts.append(m.data), HALT_QOS)
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 50)
+        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"alarm_log:={log}"):
+            assert spin_until(node, lambda: halts and any(s.name == HALT_STATUS for m in diags for s in m.status), 30)
+            first = next(s for m in diags for s in m.status if s.name == HALT_STATUS)
+            assert halts[0] is True
+            assert _values(first)["kind"] == "fault" and "spool_stuck_closed" in first.message, (first.message, _values(first))
+            spin_until(node, lambda: False, 1.0)
+            assert all(halts) and _halt_kind(diags) == "fault"
+            boom = _fdi_statuses(diags)[-1]
+            assert boom.message == "spool_stuck_closed" and boom.level == bytes([ERROR])

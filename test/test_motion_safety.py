@@ -172,6 +172,67 @@ def test_the_executor_takes_orders_only_from_its_sources_and_never_steps_a_valve
             spoof.destroy_node()
 
 
+def test_joint_states_going_stale_mid_move_stop_the_crane_neutral_until_they_return(ros_domain):
+    """The probe is the crane's sensor bridge (its joint states), the monitor and the trajectory source. Mid-move its
+    joint states stop: the executor stops for "joint state stale" on ~/status, every command it stamps after the probe
+    heard that is neutral (by event order, not a latency: that is measured in bench/halt_latency.py), and when the joint
+    states return nothing moves until a new trajectory is sent."""
+
+    from hydro_ros.models.crane import load_crane
+
+    timeout = 0.2
+    crane, _ = load_crane(K70M)
+    names = list(crane.names)
+    pose = np.array([0.5 * (c.q_min + c.q_max) for c in crane.cylinders])
+    with node_process("hydro_ros.nodes.trajectory_executor", "-r", "__ns:=/crane", "-p", f"config:={K70M}",
+                      "-p", "joint_state_source:=/client", "-p", "trajectory_source:=/client", "-p", "monitor:=/client",
+                      "-p", f"joint_state_timeout:={timeout}"), probe_node("client") as node:
+        commands: list[tuple[float, np.ndarray]] = []
+        status: list[dict] = []
+        sent: list[float] = []  # system-clock times of the joint states published
+        node.create_subscription(JointState, "/crane" + topics.VALVE_COMMANDS, lambda m: commands.append(
+            (m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, np.array(m.position))), 2000)
+        heard: list[float] = []  # system-clock times the probe received each status
+        node.create_subscription(String, f"{EXECUTOR}/status", lambda m: (status.append(json.loads(m.data)), heard.append(time.time())),
+                                 LATCHED_QOS)
+        trajectories = node.create_publisher(JointTrajectory, f"{EXECUTOR}/joint_trajectory", 10)
+        halt = node.create_publisher(Bool, "/crane" + topics.FDI_HALT, HALT_QOS)
+        joints = node.create_publisher(JointState, "/crane" + topics.JOINT_STATES, SENSOR_QOS)
+        feeding = {"on": True}
+
+        def publish_joints() -> None:
+            if feeding["on"]:
+                joints.publish(JointState(name=names, position=pose.tolist()))
+                sent.append(time.time())
+
+        node.create_timer(0.01, publish_joints)
+        node.create_timer(HEARTBEAT_PERIOD_S, lambda: halt.publish(Bool(data=False)))
+
+        def executing() -> bool:
+            trajectories.publish(_move(pose, names, 0.3, 6.0))
+            spin_until(node, lambda: False, 0.3)
+            return any(s["state"] == "executing" for s in status)
+
+        assert spin_until(node, lambda: trajectories.get_subscription_count() > 0 and status, 30), status
+        assert any(executing() for _ in range(20)), status[-3:]
+        assert spin_until(node, lambda: commands and np.abs(commands[-1][1]).max() > 0.1, 5)
+        feeding["on"] = False
+        assert spin_until(node, lambda: any(s["state"] == "stopped" for s in status), 10), status[-3:]
+        spin_until(node, lambda: False, 1.0)
+        index = next(i for i, s in enumerate(status) if s["state"] == "stopped")
+        assert "joint state stale" in status[index]["reason"], status[index]
+        after = [c for t, c in commands if t > heard[index]]
+        assert after and not any(c.any() for c in after), [c for c in after if c.any()][:3]
+        moving = [t for t, c in commands if c.any()]
+        assert moving and sent[-1] < moving[-1] + 1.0  # it was moving when its joint states stopped
+        # the joint states return: the dropped trajectory stays dropped
+        feeding["on"] = True
+        back = len(commands)
+        spin_until(node, lambda: False, 1.0)
+        assert len(commands) > back and not any(c.any() for _, c in commands[back:])
+        assert status[-1]["state"] != "executing"
+
+
 def test_the_follow_joint_trajectory_action_is_offered_only_where_control_msgs_is_and_says_why_not():
     """control_msgs has no wheel here: the guard names it and the topic path; where it is installed the type is the
     action's (a ROS machine; the action itself is not exercised here)."""

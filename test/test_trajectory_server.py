@@ -294,13 +294,16 @@ def test_the_executor_refuses_bad_trajectories_and_stops_neutral_on_halt_and_on_
         # halt: neutral at once, and nothing new until it clears
         assert send(_move_from(seen["joints"][-1][1], names, 0.3, 6.0))["state"] == "executing"
         assert spin_until(node, lambda: np.abs(seen["commands"][-1][1]).max() > 0.5, 5)
+        halted = len(seen["commands"])
         halt.publish(Bool(data=True))
         assert spin_until(node, lambda: seen["status"][-1]["state"] == "stopped", 5)
-        stopped = time.monotonic()
         assert seen["status"][-1]["reason"] == "halt requested on /fdi/halt"
         spin_until(node, lambda: False, 0.6)
-        after = [command for t, command in seen["commands"] if t > stopped + 0.3]
-        assert after and all(not command.any() for command in after)  # neutral, and still sent
+        # by event order: once a neutral command follows the halt, every later one is neutral, and they are still sent
+        # (the time it takes is measured in bench/halt_latency.py)
+        after = [command for _, command in seen["commands"][halted:]]
+        first = next(k for k, command in enumerate(after) if not command.any())
+        assert len(after) - first > 10 and all(not command.any() for command in after[first:])
         refused = send(_move_from(seen["joints"][-1][1], names, 0.3, 6.0))
         assert refused["state"] == "refused" and "halt" in refused["reason"]
         halt.publish(Bool(data=False))
