@@ -60,7 +60,8 @@ def _above(energy: float, reference: float) -> float:
 
 def _threshold(commissioning: dict) -> str:
     t = commissioning["threshold"]
-    return (f"`{commissioning['config']}` ships c0 = {t['shipped']:g} MPa, safe on a machine it has never seen; `hydro-ros "
+    return (f"`{commissioning['config']}` ships c0 = {t['shipped']:g} MPa, safe on the model's own equations with their numbers "
+            "drawn off (a machine built apart needs `hydro-ros machine threshold`'s); `hydro-ros "
             f"commission` fits c0 to the identified machine (median {t['median']:.4f} MPa on {commissioning['plants']} plants)")
 
 

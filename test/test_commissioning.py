@@ -1,4 +1,7 @@
-"""Commissioning: the monitor's model identified from fault-free recordings of a plant that differs from it."""
+"""Commissioning: the monitor's model identified from fault-free recordings of a SAM built apart from the model
+(studies/independent_arm: config/sam.yaml's load as one link, tabulated notches, hose lines, Stribeck friction, oil
+warming through each day, its own operator and sensors); the mobile-valve machine, which that plant cannot build, on
+the model's own equations with its numbers drawn off."""
 
 from __future__ import annotations
 
@@ -8,7 +11,6 @@ import sys
 
 import numpy as np
 import pytest
-import yaml
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, load_machine_config
@@ -21,6 +23,7 @@ from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.identification import flow_regression
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, simulate
+from hydro_ros.studies import independent_arm
 from hydro_ros.studies.commissioning import (
     PARITY_FLOOR,
     PARITY_FLOOR_L_MIN,
@@ -34,18 +37,29 @@ from hydro_ros.studies.commissioning import (
 from hydro_ros.studies.fdi_evaluation import calibrate_threshold_constant, mismatched_config
 from test.conftest import REPO
 
-# each notch off in its own direction, both moduli off, the centre leakage, friction and noise drawn too
+RIG = 2  # the SAM as built: config/sam.yaml's data sheet, each notch's table, moduli, friction and centre leakage drawn off
+LEVER = 0.8  # the recordings' operator never pushes the lever further than this
+PAYLOAD = ((30.0, 300.0), (80.0, 0.0))  # 300 kg at the boom's tip, picked up at 30 s and set down at 80 s
+# the mobile-valve machine, which the plant written apart cannot build: the model's equations with each notch, both
+# moduli, the centre leakage, friction and noise drawn off
 NOTCH_FACTORS = {"PA": 1.045, "PB": 0.96, "AT": 1.035, "BT": 0.955}
 PAYLOAD_STEPS = [Injection("payload_mass", 300.0, 30.0), Injection("payload_mass", -300.0, 80.0)]
 
 
-def _plant(sam_config):
+def _built(machine, seed: int, duration: float, faults=(), payload=(), lever: float = LEVER) -> Samples:
+    """A day's work on the SAM built apart from the model (studies/independent_arm, rig RIG); faults on the boom as
+    (name, size, onset)."""
+    work = independent_arm.ArmWork(duration, seed, payload_steps=tuple(payload), lever_limit=lever,
+                                   faults=tuple(("boom", name, size, onset) for name, size, onset in faults))
+    return independent_arm.recording(machine, RIG, work)
+
+
+def _model_plant(sam_config):
     drawn = mismatched_config(sam_config, seed=5)
-    valve, fluid = drawn.first.valve, drawn.first.fluid
     return drawn.with_overrides({"actuators": {"boom": {
         "valve": {"kv_poly": {n: [c * NOTCH_FACTORS[n] for c in sam_config.first.valve.kv_poly[n]] for n in NOTCHES}},
         "fluid": {"oil_bulk_modulus": 0.78 * sam_config.first.fluid.oil_bulk_modulus,
-                  "hose_bulk_modulus": 1.2 * sam_config.first.fluid.hose_bulk_modulus}}}}), valve, fluid
+                  "hose_bulk_modulus": 1.2 * sam_config.first.fluid.hose_bulk_modulus}}}})
 
 
 def _samples(machine, seed: int, duration: float, injections=()) -> Samples:
@@ -54,77 +68,82 @@ def _samples(machine, seed: int, duration: float, injections=()) -> Samples:
 
 @pytest.fixture(scope="module")
 def commissioned(sam_config):
-    plant, _, _ = _plant(sam_config)
-    recordings = [FaultFreeRecording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2, 3)]
+    """Three days of 2 minutes on the SAM built apart, 300 kg picked up and set down in one."""
+    recordings = [FaultFreeRecording(f"day{seed}", _built(sam_config, seed, 120.0, payload=PAYLOAD if seed == 2 else ()))
+                  for seed in (1, 2, 3)]
     block, report = commission(sam_config, recordings)
-    return plant, block, report
+    return sam_config.with_overrides(block["model"]), block, report, recordings
 
 
-def test_commissioning_recovers_each_notch_the_bulk_modulus_and_the_centre_leakage(sam_config, commissioned):
-    plant, block, report = commissioned
+def test_commissioning_recovers_each_notch_the_compliance_and_the_centre_leakage(sam_config, commissioned):
+    """Against the built machine's own numbers: its notches are tables (each point drawn off), its chambers' compliance
+    has the lines' oil and wall added (a form the model does not have) and its centre leakage is blended in."""
+    _, block, report, _ = commissioned
     (ident,) = report["identification"]
-    for notch, factor in NOTCH_FACTORS.items():
-        assert ident["notch_gain"][notch] == pytest.approx(factor, rel=0.02), notch
-    true_model = SamModel(plant)
-    hose_volume = sam_config.first.fluid.hose_volume
-
-    def compliance(oil: float, hose: float, volume: float) -> float:
-        return 1.0 / oil + hose_volume / (volume * hose)
-
-    for volume in (3e-4, 1.5e-3, 3e-3):  # retracted, mid-stroke, extended chamber volumes
-        true = compliance(plant.first.fluid.oil_bulk_modulus, plant.first.fluid.hose_bulk_modulus, volume)
-        assert compliance(ident["oil_bulk_modulus"], ident["hose_bulk_modulus"], volume) == pytest.approx(true, rel=0.1), volume
+    rig = independent_arm.build_rig(sam_config, RIG)
     for k, notch in enumerate(NOTCHES):
-        assert ident["centre_leakage"][notch] == pytest.approx(true_model.centre_leakage[k], rel=0.1), notch
-    assert ident["rms_error_l_min"]["commissioned"] < 0.5 * ident["rms_error_l_min"]["nominal"]
-    # the threshold is sharper than the paper's, cross-validated across the three recordings, above the residual's noise
+        side = 1.0 if notch in ("PA", "BT") else -1.0
+        drawn = rig.flow_table[0, k, 1:] / np.abs(np.polyval(sam_config.first.valve.kv_poly[notch], side * independent_arm.TABLE_OPENINGS[1:]))
+        assert drawn.min() - 0.03 < ident["notch_gain"][notch] < drawn.max() + 0.03, (notch, drawn)
+    cylinder, hose_volume = rig.cylinder[0], sam_config.first.fluid.hose_volume
+    for volume in (3e-4, 1.5e-3, 3e-3):  # retracted, mid-stroke, extended chamber volumes
+        built = (volume + hose_volume) / cylinder[independent_arm._C_OIL_MODULUS] + hose_volume / cylinder[independent_arm._C_HOSE_MODULUS]
+        fitted = volume / ident["oil_bulk_modulus"] + hose_volume / ident["hose_bulk_modulus"]
+        assert fitted == pytest.approx(built, rel=0.05), volume
+    for k, notch in enumerate(NOTCHES):  # an equivalent of the blended centre flow: near, not equal
+        assert ident["centre_leakage"][notch] == pytest.approx(rig.centre[0, k], rel=0.3), notch
+    assert ident["rms_error_l_min"]["commissioned"] < 0.2 * ident["rms_error_l_min"]["nominal"]
+    # sharper than the shipped threshold, cross-validated across the three recordings, above the residual's noise
     c0 = block["model"]["fdi"]["threshold_constant"]
     threshold = report["threshold"]
-    assert 0.0 < threshold["floor"] <= c0 < 0.012 and threshold["cross_validated"] == 3
-    assert threshold["reached_left_out"] > threshold["reached"]  # judged by the others' model: further than by its own
+    assert 0.0 < threshold["floor"] <= c0 < 0.5 * sam_config.fdi["threshold_constant"] and threshold["cross_validated"] == 3
 
 
 @pytest.mark.slow
-def test_the_commissioned_monitor_never_alarms_on_its_own_training_recordings(sam_config, commissioned):
-    plant, block, _ = commissioned
-    machine = sam_config.with_overrides(block["model"])
-    for seed in (1, 2, 3):  # the recordings it was commissioned from, whole
-        run = run_monitor(FdiMonitor(machine), _samples(plant, seed, 120.0))
-        assert run.alarms == [], (seed, [a.to_json() for a in run.alarms])
+def test_the_commissioned_monitor_never_alarms_on_its_own_training_recordings(commissioned):
+    machine, _, _, recordings = commissioned
+    for recording in recordings:  # the recordings it was commissioned from, whole
+        run = run_monitor(FdiMonitor(machine), recording.samples)
+        assert run.alarms == [], (recording.name, [a.to_json() for a in run.alarms])
 
 
 @pytest.mark.slow
 def test_outside_what_commissioning_saw_the_monitor_holds_and_never_alarms(sam_config, commissioned):
-    plant, block, report = commissioned
-    machine = sam_config.with_overrides(block["model"])
+    machine, block, _, _ = commissioned
     seen = block["model"]["fdi"]["coverage"]["boom"]
-    assert seen["valve_command"][1] <= 0.8 and seen["pressure_a"][0] < seen["pressure_a"][1]  # the operator's lever stops at 0.8
+    assert seen["valve_command"][1] <= LEVER and seen["pressure_a"][0] < seen["pressure_a"][1]
     # the same kind of work as the recordings: monitored nearly all the time
     usual = FdiMonitor(machine)
-    assert run_monitor(usual, _samples(plant, 31, 120.0)).alarms == []
+    assert run_monitor(usual, _built(sam_config, 31, 120.0)).alarms == []
     assert usual.outside_held_samples[0] < 0.10 * usual.evaluated_samples
     # moves at full opening and 500 kg more than the recordings ever held: held there, never an alarm
     harder = FdiMonitor(machine)
-    wider = plant.with_overrides({"excitation": {"max_command": 1.0, "move_speed": [0.2, 0.5]}})
-    run = run_monitor(harder, _samples(wider, 32, 120.0, [Injection("payload_mass", 500.0, 20.0)]))
+    run = run_monitor(harder, _built(sam_config, 32, 120.0, payload=((20.0, 500.0),), lever=1.0))
     assert run.alarms == [], [a.to_json() for a in run.alarms]
     assert harder.outside_held_samples[0] > 0.2 * harder.evaluated_samples and harder.outside(0)
-    assert any("faster" in motion or "heavier" in motion for motion in block["record_next"]["boom"])
+    assert any("faster" in motion for motion in block["record_next"]["boom"])
 
 
 @pytest.mark.slow
-def test_after_commissioning_a_small_leak_is_isolated_and_payload_steps_raise_no_alarm(sam_config, commissioned):
-    plant, block, _ = commissioned
-    machine = sam_config.with_overrides(block["model"])
+def test_after_commissioning_payload_steps_raise_no_alarm_and_each_fault_is_named(sam_config, commissioned):
+    """Other days' work with a payload picked and set down: silent. Then each fault this plant makes, from 20 s: detected,
+    nothing before, and named, except the stuck spool: on this day it stays `unisolated` (a warning, no halt) for the
+    40 s after onset; on days 22 and 23 it was named after 16 and 19 s (23 named `spool_too_small_opening` first).
+    The external leaks are at the smallest size named here (B 0.4 L/min is not, A 0.4 neither)."""
+    machine, _, _, _ = commissioned
     for seed in (11, 12):
-        run = run_monitor(FdiMonitor(machine), _samples(plant, seed, 120.0, PAYLOAD_STEPS))
+        run = run_monitor(FdiMonitor(machine), _built(sam_config, seed, 120.0, payload=PAYLOAD))
         assert run.alarms == [], (seed, [a.to_json() for a in run.alarms])
-    # the shipped config stays silent through the same payload steps on its own plant
+    # the shipped config stays silent through the same payload steps on its own equations (the monitor never needs the load)
     run = run_monitor(FdiMonitor(sam_config), _samples(sam_config, 11, 120.0, PAYLOAD_STEPS))
     assert run.alarms == [], [a.to_json() for a in run.alarms]
-    run = run_monitor(FdiMonitor(machine), _samples(plant, 21, 60.0, [Injection("external_leakage_b", 0.4, 20.0)]))
-    named = [a for a in run.alarms if a.fault is not None and a.fault.value != "unisolated"]
-    assert run.alarms and run.alarms[0].time_s > 20.0 and named and named[0].fault.value == "external_leakage_b"
+    for fault, size in (("external_leakage_a", 0.5), ("external_leakage_b", 1.0), ("internal_leakage", 2.0),
+                        ("spool_too_small_opening", 0.4), ("spool_too_large_opening", 0.4), ("spool_stuck_closed", 1.0)):
+        run = run_monitor(FdiMonitor(machine), _built(sam_config, 21, 60.0, faults=((fault, size, 20.0),)))
+        named = [a.fault.value for a in run.alarms if a.fault is not None and a.fault.value != "unisolated"]
+        assert run.alarms and run.alarms[0].time_s > 20.0, (fault, [a.to_json() for a in run.alarms])
+        if fault != "spool_stuck_closed":
+            assert named and named[0] == fault, (fault, [a.to_json() for a in run.alarms])
 
 
 @pytest.mark.slow
@@ -133,7 +152,7 @@ def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_an
     per operating point from the recordings, sharper on the whole than fdi-fit's from simulated plants, and
     still quiet through payload steps the recordings did not hold."""
     mobile = load_machine_config(REPO / "config" / "sam_mobile.yaml")
-    plant, _, _ = _plant(mobile)
+    plant = _model_plant(mobile)
     block, report = commission(mobile, [FaultFreeRecording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2, 3)])
     (ident,) = report["identification"]
     for notch, factor in NOTCH_FACTORS.items():
@@ -157,11 +176,11 @@ def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_an
 
 
 def test_commissioning_refuses_a_leaking_machine_and_a_recording_without_retracting_moves(sam_config):
-    plant, _, _ = _plant(sam_config)
-    leaking = [FaultFreeRecording(f"leak{seed}", _samples(plant, seed, 90.0, [Injection("external_leakage_a", 0.5)])) for seed in (1, 2)]
+    leaking = [FaultFreeRecording(f"leak{seed}", _built(sam_config, seed, 90.0, faults=(("external_leakage_a", 0.5, 0.0),)))
+               for seed in (1, 2)]
     with pytest.raises(InputError, match=r"loses oil: external_leakage_a of 0\.[45]\d L/min"):
         commission(sam_config, leaking)
-    samples = _samples(plant, 1, 90.0)
+    samples = _built(sam_config, 1, 90.0)
     samples.valve_command = np.maximum(samples.valve_command, 0.0)
     with pytest.raises(InputError, match=r"notch (PB|AT) was open 0\.0 s.*record retracting moves"):
         identify(SamModel(sam_config), flow_regression(SamModel(sam_config), samples), "extending only")
@@ -169,15 +188,9 @@ def test_commissioning_refuses_a_leaking_machine_and_a_recording_without_retract
 
 @pytest.mark.slow
 def test_commission_cli_writes_a_config_the_monitor_loads_and_refuses_what_it_cannot_fit(sam_config, tmp_path):
-    plant, _, _ = _plant(sam_config)
-    plant_config = tmp_path / "plant.yaml"
-    plant_config.write_text(yaml.safe_dump(plant.to_yaml_mapping()))
     bags = []
     for seed in (1, 2, 3):
-        bag = tmp_path / f"run{seed}"
-        done = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "sim", "--config", str(plant_config), "--duration", "120",
-                               "--seed", str(seed), "--out", str(bag), "--quiet"], capture_output=True, text=True, timeout=300)
-        assert done.returncode == 0, done.stderr
+        bag = independent_arm.recording_bag(sam_config, tmp_path / f"run{seed}", RIG, independent_arm.ArmWork(120.0, seed, lever_limit=LEVER))
         bags += ["--bag", str(bag)]
     out = tmp_path / "machine.yaml"
     config = REPO / "config" / "sam.yaml"
@@ -185,7 +198,7 @@ def test_commission_cli_writes_a_config_the_monitor_loads_and_refuses_what_it_ca
                            "--report", str(tmp_path / "report"), "--quiet"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     machine = load_machine_config(out)
-    assert FdiMonitor(machine).settings.threshold_constant < 0.012
+    assert FdiMonitor(machine).settings.threshold_constant < 0.5 * sam_config.fdi["threshold_constant"]
     assert machine.first.valve.kv_poly["PA"] != sam_config.first.valve.kv_poly["PA"]
     report = json.loads((tmp_path / "report" / "commissioning.json").read_text())
     assert report["block"]["recordings"] == [str(tmp_path / f"run{seed}") for seed in (1, 2, 3)]
@@ -201,48 +214,46 @@ def test_commission_cli_writes_a_config_the_monitor_loads_and_refuses_what_it_ca
         assert not (tmp_path / "refused.yaml").exists(), name
 
 
-def test_live_commissioned_monitor_names_a_leak_the_shipped_threshold_cannot_see(sam_config, commissioned, ros_domain, tmp_path):
-    """plant_sim runs the mismatched plant, fdi_node the config commissioned on it; a 0.5 L/min B leak
-    (undetected at the shipped c0: docs/monitoring.md, evaluation) is injected through plant_sim's parameter."""
+def test_live_commissioned_monitor_names_a_leak_of_the_machine_built_apart(sam_config, commissioned, ros_domain, tmp_path):
+    """A day of the SAM built apart with a 1 L/min chamber-B leak from 25 s, played live by bag_player at its own pace;
+    fdi_node runs the config commissioned on that machine: all clear before the onset, the leak named after it."""
     from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.parameter import Parameter
-    from rclpy.parameter_client import AsyncParameterClient
 
     from hydro_ros.studies.commissioning import write_config
     from test.ros_graph import node_process, probe_node, spin_until
 
-    plant, block, _ = commissioned
-    plant_config, machine_config = tmp_path / "plant.yaml", tmp_path / "machine.yaml"
-    plant_config.write_text(yaml.safe_dump(plant.to_yaml_mapping()))
+    _, block, _, _ = commissioned
+    onset = 25.0
+    bag = independent_arm.recording_bag(sam_config, tmp_path / "leak", RIG, independent_arm.ArmWork(
+        70.0, 41, lever_limit=LEVER, faults=(("boom", "external_leakage_b", 1.0, onset),)))
+    machine_config = tmp_path / "machine.yaml"
     write_config(REPO / "config" / "sam.yaml", machine_config, block)
     diags: list[DiagnosticArray] = []
 
     def statuses() -> list:
         return [s for m in diags for s in m.status if s.name == "hydro_ros/fdi/boom"]
 
-    with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={plant_config}", "-p", "seed:=3", "-p", "real_time_factor:=1.0"), \
-            node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={machine_config}"), probe_node("probe") as node:
+    with probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-        assert spin_until(node, lambda: any(s.message == "ok" for s in statuses()), 60), [s.message for s in statuses()]
-        spin_until(node, lambda: False, 8.0)
-        assert all(s.message in ("ok", "stale", "not_monitored", "overloaded") for s in statuses()), [s.message for s in statuses()]
-        client = AsyncParameterClient(node, "plant_sim")
-        assert client.wait_for_services(10.0)
-        future = client.set_parameters([Parameter("fault.external_leakage_b", value=0.5)])
-        assert spin_until(node, future.done, 10)
-        assert spin_until(node, lambda: statuses()[-1].message == "external_leakage_b", 60), [s.message for s in statuses()[-5:]]
-        assert statuses()[-1].level == bytes([1])
+        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={machine_config}"), \
+                node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={bag}", "-p", "publish_clock:=false", "-p", "rate:=1.0"):
+            assert spin_until(node, lambda: any(s.message == "ok" for s in statuses()), 60), [s.message for s in statuses()]
+            first_ok = len(statuses())
+            assert spin_until(node, lambda: statuses()[-1].message == "external_leakage_b", 90), [s.message for s in statuses()[-5:]]
+            assert statuses()[-1].level == bytes([1])
+            before = [s.message for s in statuses()[first_ok:]]
+            # nothing else named on the way: ok, then the leak detected (unisolated), then its name
+            assert set(before) <= {"ok", "not_monitored", "unisolated", "external_leakage_b", "overloaded"}, before
 
 
 @pytest.mark.slow
 def test_a_leak_that_begins_in_the_held_out_part_is_refused_never_learnt(sam_config):
     """The leak starts inside the last third, which only sets the threshold: refused by the held-out leak check, and a
     threshold above the config's safe one is refused unless forced."""
-    plant, _, _ = _plant(sam_config)
-    leaking = [FaultFreeRecording("leak_at_200", _samples(plant, 1, 300.0, [Injection("internal_leakage", 1.0, 200.0)]))]
+    leaking = [FaultFreeRecording("leak_at_200", _built(sam_config, 1, 300.0, faults=(("internal_leakage", 1.0, 200.0),)))]
     with pytest.raises(InputError, match="held-out part .*internal_leakage"):
         commission(sam_config, leaking)
-    fault_free = [FaultFreeRecording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2)]
+    fault_free = [FaultFreeRecording(f"day{seed}", _built(sam_config, seed, 120.0)) for seed in (1, 2)]
     strict = sam_config.with_overrides({"fdi": {"threshold_constant": 0.001}})  # a config whose own c0 is sharper than the data's
     with pytest.raises(InputError, match="c0 .* above the config's 0.0010 MPa.*--force"):
         commission(strict, fault_free)
@@ -282,8 +293,7 @@ def test_a_threshold_is_not_taken_from_data_the_monitor_never_evaluated(sam_conf
 def test_a_leaky_recording_among_good_ones_is_refused_naming_it_and_its_chamber(sam_config):
     """Two fault-free recordings and one with a 1 L/min chamber-B leak from its start: the joint fit spreads the leak thin
     (it passed); the check of each recording on its own names the leaky one and the leak."""
-    plant, _, _ = _plant(sam_config)
-    recordings = [FaultFreeRecording(f"run{seed}", _samples(plant, seed, 120.0)) for seed in (1, 2)]
-    recordings.append(FaultFreeRecording("leaky", _samples(plant, 3, 120.0, [Injection("external_leakage_b", 1.0)])))
+    recordings = [FaultFreeRecording(f"day{seed}", _built(sam_config, seed, 120.0)) for seed in (1, 2)]
+    recordings.append(FaultFreeRecording("leaky", _built(sam_config, 3, 120.0, faults=(("external_leakage_b", 1.0, 0.0),))))
     with pytest.raises(InputError, match=r"^leaky: actuator boom loses oil in this recording: external_leakage_b of"):
         commission(sam_config, recordings)

@@ -10,11 +10,12 @@ from hydro_ros.contract.names import Fault, Injection
 from hydro_ros.fdi.filterpy_twin import filterpy_twin
 from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, JUDGED_A, JUDGED_B, Isolator, signature_rows
 from hydro_ros.fdi.monitor import FdiMonitor
-from hydro_ros.fdi.offline import analyse_bag, blocks_from_bag
+from hydro_ros.fdi.offline import analyse_bag, blocks_from_bag, run_monitor
 from hydro_ros.fdi.residuals import MovingAverage
 from hydro_ros.fdi.ukf import UkfBank, UkfSettings, unscented_weights
 from hydro_ros.sim.scenario import Scenario, run_blocks
-from hydro_ros.studies.fdi_evaluation import Case, mismatched_config, run_case
+from hydro_ros.studies import independent_arm
+from hydro_ros.studies.fdi_evaluation import mismatched_config, safe_threshold_constant
 from test.conftest import REPO
 
 PAPER_C0 = 0.012  # [MPa] P-II's threshold constant, tuned on its rig's identified model
@@ -169,13 +170,9 @@ def test_shipped_bags_are_isolated_after_onset_and_silent_before(sam_config, bag
     assert result["level"] == ("error" if fault.startswith("spool") else "warn")
 
 
-@pytest.fixture(scope="module")
-def calibrated(sam_config):
-    # c0 found by `hydro-ros fdi eval` on training seeds 100-109 of mismatched plants (docs/monitoring.md)
-    return sam_config.with_overrides({"fdi": {"threshold_constant": 0.063}})
-
-
 def test_mismatched_plant_really_differs_from_the_monitors_model(sam_config):
+    """The model's own equations with its numbers drawn off (bench/fdi_eval's plants; the claims about real machines
+    run on the plant written apart, test_commissioning.py)."""
     plant = mismatched_config(sam_config, seed=4)
     nominal, changed = sam_config.actuator("boom"), plant.actuator("boom")
     ratios = [changed.valve.kv_poly[n][3] / nominal.valve.kv_poly[n][3] for n in ("PA", "PB", "AT", "BT")]
@@ -183,35 +180,27 @@ def test_mismatched_plant_really_differs_from_the_monitors_model(sam_config):
     assert changed.fluid.oil_bulk_modulus != nominal.fluid.oil_bulk_modulus
 
 
-@pytest.mark.parametrize(
-    ("fault", "value"),
-    [(None, 0.0), ("external_leakage_a", 2.0), ("external_leakage_b", 2.0), ("spool_too_small_opening", 0.4),
-     ("spool_too_large_opening", 0.4), ("spool_stuck_closed", 1.0)],
-)
-def test_fresh_mismatched_simulations_are_isolated(calibrated, fault, value):
-    outcome = run_case(calibrated, Case(fault, value, seed=3, duration_s=50.0))
-    assert not outcome.early_alarm
-    if fault is None:
-        assert outcome.crossing_episodes == 0 and outcome.isolated is None
-    else:
-        assert outcome.detected and outcome.isolated == fault, outcome
+def test_paper_thresholds_false_alarm_on_a_machine_built_apart(sam_config):
+    """Why a machine needs its own threshold: P-II's 0.012 MPa fits its rig's identified model, not a SAM built apart
+    from it (studies/independent_arm)."""
+    monitor = FdiMonitor(sam_config.with_overrides({"fdi": {"threshold_constant": PAPER_C0}}))
+    run = run_monitor(monitor, independent_arm.recording(sam_config, 300, independent_arm.ArmWork(40.0, 1)))
+    assert monitor.armed and run.alarms
 
 
-def test_paper_thresholds_false_alarm_on_a_mismatched_plant(sam_config):
-    """Why fdi-eval calibrates c0: P-II's 0.012 MPa fits its rig's model accuracy, not 5 % flow errors."""
-    outcome = run_case(sam_config.with_overrides({"fdi": {"threshold_constant": PAPER_C0}}), Case(None, 0.0, seed=1, duration_s=40.0))
-    assert outcome.crossing_episodes > 0
-
-
-@pytest.mark.parametrize("seed", [300, 301])
-def test_the_shipped_config_stays_quiet_on_a_machine_it_has_never_seen(sam_config, seed):
-    """Safe before commissioning: mismatched plants (not those c0 was chosen on) with 300 kg picked up and set down."""
-    plant = mismatched_config(sam_config, seed)
-    steps = [Injection("payload_mass", 300.0, 15.0), Injection("payload_mass", -300.0, 45.0)]
-    blocks = [m.as_columns() for _, _, m in run_blocks(plant, Scenario(70.0, steps, seed=seed))]
-    monitor = FdiMonitor(sam_config)
-    alarms = [a for block in blocks for a in monitor.process(block).alarms]
-    assert monitor.armed and alarms == [], [a.to_json() for a in alarms]
+@pytest.mark.slow
+def test_a_threshold_derived_before_commissioning_keeps_other_builds_quiet(sam_config):
+    """`hydro-ros machine threshold` on the SAM: derived on 4 builds by the plant written apart; two other builds (other
+    days, 300 kg picked up and set down) raise no alarm. The shipped 0.075, chosen on the model's own equations with its
+    numbers drawn off, is below it: it is the threshold of the rig the model was identified on (config/sam.yaml)."""
+    c0, apart = safe_threshold_constant(sam_config, range(1000, 1004), 60.0)
+    assert apart == "" and c0 > sam_config.fdi["threshold_constant"]
+    machine = sam_config.with_overrides({"fdi": {"threshold_constant": c0}})
+    for rig in (300, 301):
+        monitor = FdiMonitor(machine)
+        work = independent_arm.ArmWork(70.0, rig, payload_steps=((15.0, 300.0), (45.0, 0.0)))
+        run = run_monitor(monitor, independent_arm.recording(sam_config, rig, work))
+        assert monitor.armed and run.alarms == [], (rig, [a.to_json() for a in run.alarms])
 
 
 def test_an_internal_leak_from_b_to_a_is_isolated_by_table_3_row_4(sam_config):

@@ -83,13 +83,44 @@ def test_the_arm_at_rest_holds_and_its_leak_lowers_its_chamber(boom_arm):
     assert leaking[at_rest, 4 + 1][-1] < states[at_rest, 4 + 1][-1] - 1.0e5  # arm's p_B, 0.1 MPa lower within 0.5 s
 
 
-def test_the_plant_refuses_what_it_cannot_build(boom_arm, sam_config):
-    with pytest.raises(InputError, match="has no arm"):
-        plant.build_rig(sam_config, RIG)
+def test_the_plant_refuses_what_it_cannot_build(boom_arm):
+    crane = load_machine_config(REPO / "config" / "k70m.yaml")
+    with pytest.raises(InputError, match="has no arm: section and not one actuator with its load"):
+        plant.build_rig(crane, RIG)
+    with pytest.raises(InputError, match="spool_too_small_opening 1.5 must be finite, >= 0 and <= 1"):
+        plant.simulate(plant.build_rig(boom_arm, RIG), plant.ArmWork(1.0, 1, faults=(("arm", "spool_too_small_opening", 1.5, 0.0),)))
+    with pytest.raises(InputError, match="lever_limit 0.0"):
+        plant.simulate(plant.build_rig(boom_arm, RIG), plant.ArmWork(1.0, 1, lever_limit=0.0))
     with pytest.raises(InputError, match="cannot inject spool_offset on arm"):
         plant.simulate(plant.build_rig(boom_arm, RIG), plant.ArmWork(1.0, 1, faults=(("arm", "spool_offset", 0.1, 0.0),)))
     with pytest.raises(InputError, match="must be finite"):
         plant.simulate(plant.build_rig(boom_arm, RIG), plant.ArmWork(1.0, 1, faults=(("arm", "external_leakage_a", float("nan"), 0.0),)))
+
+
+def test_the_sams_load_is_one_link_and_its_spool_faults_act_the_way_they_are_named(sam_config):
+    """config/sam.yaml (a load, no arm:) is built as the one link its load describes: at rest the cylinder carries
+    that link's weight. The same day's work with the spool's drive weakened moves the boom slower, strengthened faster,
+    and a spool stuck closed holds it still while the operator keeps pushing (a flipped fault would fail each)."""
+    rig = plant.build_rig(sam_config, RIG)
+    load = sam_config.first.load
+    times, states, _, _ = plant.simulate(rig, plant.ArmWork(1.0, 1))
+    q = states[-1, 4]
+    _, arm = plant._piston(rig.cylinder[0], q)
+    force = states[-1, 0] * rig.cylinder[0, plant._C_AREA_A] - states[-1, 1] * rig.cylinder[0, plant._C_AREA_B]
+    weight = rig.gravity * np.cos(q) * (load.boom_mass * load.boom_cog_distance + (load.left_mass - load.right_mass) * load.load_distance)
+    assert abs(arm * force - weight) <= arm * rig.cylinder[0, plant._C_STATIC]
+
+    def travel_per_lever(fault: str, value: float) -> tuple[float, float]:
+        """(the boom's travel per unit of lever pushed, the lever pushed on average)."""
+        _, states, commands, _ = plant.simulate(rig, plant.ArmWork(20.0, 4, faults=(("boom", fault, value, 0.0),) if fault else ()))
+        return float(np.sum(np.abs(np.diff(states[:, 4]))) / np.sum(np.abs(commands))), float(np.abs(commands).mean())
+
+    healthy, pushed = travel_per_lever("", 0.0)
+    weak, _ = travel_per_lever("spool_too_small_opening", 0.5)
+    strong, _ = travel_per_lever("spool_too_large_opening", 0.5)
+    stuck, pushing = travel_per_lever("spool_stuck_closed", 1.0)
+    assert weak < 0.8 * healthy and strong > 1.2 * healthy, (weak, healthy, strong)
+    assert stuck < 0.02 * healthy and pushing > pushed  # the operator pushes harder at a boom that does not move
 
 
 @pytest.fixture(scope="module")

@@ -155,32 +155,20 @@ def reach_warnings(machine) -> list[str]:
 
 
 def cmd_machine_threshold(args: argparse.Namespace) -> int:
-    from hydro_ros.fdi.monitor import FdiMonitor
     from hydro_ros.fdi.settings import FdiSettings
-    from hydro_ros.studies import independent_arm
-    from hydro_ros.studies.commissioning import evaluated_maximum, threshold_excess
-    from hydro_ros.studies.fdi_evaluation import MISMATCH_SPREAD, calibrate_threshold_constant
+    from hydro_ros.studies.fdi_evaluation import MISMATCH_SPREAD, safe_threshold_constant
 
     machine = load_machine_config(args.config)
     if FdiSettings.from_machine(machine).method != "ukf":
         raise InputError(f"{args.config}: the parity method's thresholds are fitted by `hydro-ros fdi fit`, not derived here")
     if args.variants < 1 or args.duration <= 0:
         raise InputError(f"--variants {args.variants} --duration {args.duration}: need at least one variant and a positive duration")
-    seeds = range(1000, 1000 + args.variants)
-    try:  # a machine the plant written apart can build: variants with the effects the model lacks
-        independent_arm.build_rig(machine, seeds[0])
-        apart = ""
-    except InputError as why:
-        apart = str(why)
+    c0, apart = safe_threshold_constant(machine, range(1000, 1000 + args.variants), args.duration, args.margin)
     if not apart:
-        excesses = [threshold_excess(FdiMonitor(machine), independent_arm.recording(machine, seed, work))
-                    for seed, work in zip(seeds, independent_arm.work_day(machine, seeds, args.duration))]
-        c0 = args.margin * evaluated_maximum(excesses, f"{args.duration:g} s of simulated data")
         print(f"{machine.name}: threshold_constant {c0:.4f} MPa: {args.margin:g} x the largest fault-free 5 s mean residual above "
               f"the quadratic term on {args.variants} builds of this machine of {args.duration:g} s each by a plant written apart "
               "from the model (studies/independent_arm: its own links, notch curves, lines, friction law, oil and sensors)")
     else:
-        c0 = calibrate_threshold_constant(machine, seeds, args.duration, margin=args.margin)
         print(f"{machine.name}: threshold_constant {c0:.4f} MPa: {args.margin:g} x the largest fault-free 5 s mean residual above "
               f"the quadratic term on {args.variants} variants of {args.duration:g} s each of the model's own equations "
               f"({MISMATCH_SPREAD}): safe only for a machine like the model, as no plant written apart can build this one "

@@ -18,6 +18,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, NO_CLOSED_CODE, closed_parts, code_string
@@ -25,6 +26,7 @@ from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds, closed_statistics, passes_nothing
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.sim.scenario import MachineRun, simulate_machine
+from hydro_ros.studies import independent_arm
 from hydro_ros.studies.commissioning import evaluated_maximum, threshold_excess
 
 # Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order
@@ -136,6 +138,21 @@ def calibrate_threshold_constant(machine: Machine, seeds: Iterable[int], duratio
     worst = evaluated_maximum([threshold_excess(FdiMonitor(machine), simulate_machine(mismatched_config(machine, seed), duration_s, seed=seed))
                                for seed in seeds], f"{duration_s:g} s of simulated data")
     return margin * worst
+
+
+def safe_threshold_constant(machine: Machine, seeds: Sequence[int], duration_s: float = 120.0,
+                            margin: float = 1.25) -> tuple[float, str]:
+    """c0 before commissioning: ``margin`` x the largest fault-free excess on builds of the machine by the plant written
+    apart from the model (studies/independent_arm: each seed one build and one day of its work), or, for a machine that
+    plant cannot build, on variants of the model's own equations (:func:`calibrate_threshold_constant`). Returns (c0, why
+    the plant apart could not build it: "" when it did)."""
+    try:
+        independent_arm.build_rig(machine, seeds[0])
+    except InputError as why:
+        return calibrate_threshold_constant(machine, seeds, duration_s, margin), str(why)
+    excesses = [threshold_excess(FdiMonitor(machine), independent_arm.recording(machine, seed, work))
+                for seed, work in zip(seeds, independent_arm.work_day(machine, seeds, duration_s))]
+    return margin * evaluated_maximum(excesses, f"{duration_s:g} s of simulated data"), ""
 
 
 def run_case(machine: Machine, case: Case) -> Outcome:

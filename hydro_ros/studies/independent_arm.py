@@ -32,8 +32,14 @@ Its numbers start from the config's (a machine described by its data sheet), eac
 ``rig`` seed: a given machine is one rig seed; a given day's work on it is one run seed (the operator's moves, the
 oil's start and the noise draw from both, so two machines never work the same day).
 
-Faults, in the vocabulary's names, per actuator: ``external_leakage_a``, ``external_leakage_b``, ``internal_leakage``
-(L/min at 10 MPa and the day's starting viscosity, laminar), from an onset time.
+Faults, in the vocabulary's names, per actuator, from an onset time: ``external_leakage_a``, ``external_leakage_b``,
+``internal_leakage`` (L/min at 10 MPa and the day's starting viscosity, laminar); ``spool_too_small_opening`` and
+``spool_too_large_opening`` (the solenoid's drive of the spool weakened or strengthened by that fraction: the spool
+moves less or more for the same command), ``spool_stuck_closed`` (1: the spool held at its centre).
+
+A machine without an ``arm:`` whose one actuator carries its ``load`` (the SAM) is the one-link arm that load
+describes (P-I eqs. 20-21: the boom's mass at its centre of gravity with its inertia about it, m_L and m_R at +-L),
+moved within the joint range its mount and end stops allow.
 """
 
 from __future__ import annotations
@@ -52,7 +58,10 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.samples import Samples
 
-FAULTS = ("external_leakage_a", "external_leakage_b", "internal_leakage")
+FAULTS = ("external_leakage_a", "external_leakage_b", "internal_leakage", "spool_too_small_opening", "spool_too_large_opening",
+          "spool_stuck_closed")
+LEAKS = FAULTS[:3]  # sized in L/min at 10 MPa; the spool faults by a fraction
+_FAULT_COUNT = len(FAULTS)
 TABLE_OPENINGS = np.array([0.0, 0.1, 0.2, 0.4, 0.6, 0.8, 1.0])  # the flow table's spool openings [-]
 ORIFICE_SMOOTHING = 2.0e4  # [Pa] the orifice turns laminar below this drop
 CENTRE_BAND, CENTRE_BLEND = 0.012, 0.004  # [-] centre leakage acts for |x_s| below the band, faded over the blend
@@ -97,7 +106,8 @@ class ArmWork:
     duration_s: float
     seed: int
     payload_steps: tuple[tuple[float, float], ...] = ()  # (time [s], tip payload from then [kg])
-    faults: tuple[tuple[str, str, float, float], ...] = ()  # (actuator, fault, L/min at 10 MPa, onset [s])
+    faults: tuple[tuple[str, str, float, float], ...] = ()  # (actuator, fault, size (L/min at 10 MPa for a leak), onset [s])
+    lever_limit: float = 1.0  # [-] the operator never pushes a lever further than this
     warming_k: float = 15.0  # [K] the oil's rise toward its working temperature
     oil_start_k: float | None = None  # [K] the day's start against the reference (None: drawn for the day)
 
@@ -136,12 +146,25 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) 
     """The arm of ``machine`` as one built machine (``rig_seed``): the config's numbers drawn off by ``spread``."""
     spread = spread or RigSpread()
     arm = machine.arm
-    if arm is None:
-        raise InputError(f"independent arm: {machine.source} has no arm: section (this plant moves the links of an arm)")
-    joints = [link.joint for link in arm.links]
-    for link in arm.links:
-        if link.kind != "revolute":
-            raise InputError(f"independent arm: link {link.joint} is {link.kind}; this plant moves revolute links only")
+    if arm is not None:
+        joints = [link.joint for link in arm.links]
+        for link in arm.links:
+            if link.kind != "revolute":
+                raise InputError(f"independent arm: link {link.joint} is {link.kind}; this plant moves revolute links only")
+        links = np.array([[link.length, link.offset] for link in arm.links])
+        masses = [(index, m.mass, m.along, m.across, m.inertia) for index, link in enumerate(arm.links) for m in link.masses]
+        origin, payload = np.asarray(arm.origin, dtype=float), arm.payload
+        joint_ranges = {link.joint: link.joint_range for link in arm.links}
+    elif len(machine.actuators) == 1 and machine.first.load is not None:
+        load = machine.first.load
+        joints = [machine.first.joint]
+        links = np.array([[load.load_distance, 0.0]])
+        masses = [(0, load.boom_mass, load.boom_cog_distance, 0.0, load.boom_mass * load.boom_length ** 2 / 12.0),
+                  (0, load.left_mass, load.load_distance, 0.0, 0.0), (0, load.right_mass, -load.load_distance, 0.0, 0.0)]
+        origin, payload, joint_ranges = np.zeros(2), 0.0, {}
+    else:
+        raise InputError(f"independent arm: {machine.source} has no arm: section and not one actuator with its load "
+                         "(this plant moves the links of an arm)")
     rng = np.random.default_rng(rig_seed)
     rows, tables, centres, ranges = [], [], [], []
     for actuator in machine.actuators:
@@ -178,24 +201,33 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) 
                 * (1.0 + spread.table_point * rng.standard_normal(len(TABLE_OPENINGS)))
         tables.append(np.maximum(table, 0.0))
         centres.append([v.centre_leakage[n] * max(1.0 + spread.centre_leakage * rng.standard_normal(), 0.2) for n in NOTCHES])
-        low, high = arm.links[joints.index(actuator.joint)].joint_range
+        low, high = joint_ranges.get(actuator.joint) or _reachable(row, machine.sensors.joint_range)
         middle, half = 0.5 * (low + high), 0.5 * OPERATOR_SPAN * (high - low)
         ranges.append((middle - half, middle + half))
     if len({a.joint for a in machine.actuators}) != len(joints):
         raise InputError(f"independent arm: every link of {machine.source}'s arm needs its own actuator")
-    masses = [(index, m.mass, m.along, m.across, m.inertia) for index, link in enumerate(arm.links) for m in link.masses]
     order = [joints.index(a.joint) for a in machine.actuators]
     if order != sorted(order):
         raise InputError(f"independent arm: {machine.source}'s actuators must be listed base to tip, as the arm's links")
     return ArmRig(machine=machine, cylinder=np.array(rows), flow_table=np.array(tables), centre=np.array(centres),
-                  link=np.array([[link.length, link.offset] for link in arm.links]), mass=np.array(masses, dtype=float).reshape(-1, 5),
-                  origin=np.asarray(arm.origin, dtype=float), payload=arm.payload, supply=machine.supply_pressure,
+                  link=links, mass=np.array(masses, dtype=float).reshape(-1, 5), origin=origin, payload=payload, supply=machine.supply_pressure,
                   tank=machine.tank_pressure, gravity=machine.simulation.gravity, oil_range=spread.oil_warmer,
                   zero_offsets=rng.uniform(-ZERO_OFFSET, ZERO_OFFSET, 2 * len(rows) + 1), seed=rig_seed,
                   targets=np.array(ranges),
                   # the operator pushes the lever the way that moves the joint toward its target (a tilt whose
                   # cylinder closes the triangle as the joint opens is driven the other way)
                   directions=np.array([math.copysign(1.0, _piston(row, 0.5 * (low + high))[1]) for row, (low, high) in zip(rows, ranges)]))
+
+
+def _reachable(row: np.ndarray, plausible: tuple[float, float]) -> tuple[float, float]:
+    """The joint range whose piston stays a tenth of its travel inside the end stops (a machine without an arm: section)."""
+    q = np.linspace(*plausible, 2001)
+    x = np.array([_piston(row, angle)[0] for angle in q])
+    margin = 0.1 * (row[_C_STOP_HIGH] - row[_C_STOP_LOW])
+    inside = q[(x > row[_C_STOP_LOW] + margin) & (x < row[_C_STOP_HIGH] - margin)]
+    if len(inside) < 2:
+        raise InputError(f"independent arm: no joint angle within {plausible} keeps the piston inside its end stops")
+    return float(inside.min()), float(inside.max())
 
 
 @njit(cache=True)
@@ -367,9 +399,9 @@ def _interval(y, span, h, u, cyl, table, centre, link, mass, payload, gravity, s
     k = np.zeros((7, len(y)))
     stage = np.empty(len(y))
     t = 0.0
+    _rates(y, u, cyl, table, centre, link, mass, payload, gravity, supply, tank, viscosity, leaks, k[0])
     while t < span:
         step = min(h, span - t)
-        _rates(y, u, cyl, table, centre, link, mass, payload, gravity, supply, tank, viscosity, leaks, k[0])
         for s in range(1, 7):
             stage[:] = y
             for r in range(s):
@@ -386,6 +418,7 @@ def _interval(y, span, h, u, cyl, table, centre, link, mass, payload, gravity, s
         if error <= 1.0:
             t += step
             y[:] = stage
+            k[0] = k[6]  # the last stage is the new state's rate (first same as last)
             h = step * min(5.0, max(0.2, 0.9 * error ** -0.2 if error > 0.0 else 5.0))
         else:  # too large, or not a number: a fifth of the step at most
             h = step * (max(0.1, 0.9 * error ** -0.2) if error < math.inf else 0.2)
@@ -395,7 +428,7 @@ def _interval(y, span, h, u, cyl, table, centre, link, mass, payload, gravity, s
 
 
 @njit(cache=True)
-def _run(y, period, targets, speeds, gains, directions, payloads, leak_rows, onsets, viscosity, cyl, table, centre, link, mass,
+def _run(y, period, targets, speeds, gains, lever, directions, payloads, fault_rows, onsets, viscosity, cyl, table, centre, link, mass,
          gravity, supply, tank, scale):
     """Every sample: the operator's command from the state at its start, held over the period; states at its end."""
     n, a = targets.shape
@@ -405,6 +438,7 @@ def _run(y, period, targets, speeds, gains, directions, payloads, leak_rows, ons
     supplies = np.empty(n)
     reference = y[base:base + a].copy()
     u = np.zeros(a)
+    drive = np.zeros(a)  # what reaches the spool's solenoids
     leaks = np.zeros((a, 3))
     dy = np.empty(len(y))
     h = period / SAMPLE_SUBSTEP_MAX
@@ -413,14 +447,21 @@ def _run(y, period, targets, speeds, gains, directions, payloads, leak_rows, ons
         for i in range(a):
             step = speeds[k, i] * period
             reference[i] += min(max(targets[k, i] - reference[i], -step), step)
-            u[i] = min(max(directions[i] * gains[k, i] * (reference[i] - y[base + i]), -1.0), 1.0)
-            for f in range(3):
-                leaks[i, f] = leak_rows[i, f] if time >= onsets[i, f] else 0.0
+            u[i] = min(max(directions[i] * gains[k, i] * (reference[i] - y[base + i]), -lever), lever)
+            on = np.zeros(_FAULT_COUNT)
+            for f in range(_FAULT_COUNT):
+                on[f] = fault_rows[i, f] if time >= onsets[i, f] else 0.0
+            leaks[i] = on[:3]
+            # a weak or strong solenoid moves the spool less or more for the same command; a stuck one not at all
+            drive[i] = u[i] * (1.0 - on[3] + on[4])
+            if on[5] > 0.5:
+                s0 = _STATES_PER_CYLINDER * i
+                y[s0 + 2] = y[s0 + 3] = drive[i] = 0.0
         commands[k] = u
-        h = _interval(y, period, min(h, period / SAMPLE_SUBSTEP_MAX), u, cyl, table, centre, link, mass, payloads[k], gravity,
+        h = _interval(y, period, min(h, period / SAMPLE_SUBSTEP_MAX), drive, cyl, table, centre, link, mass, payloads[k], gravity,
                       supply, tank, viscosity[k], leaks, scale)
         states[k] = y
-        supplies[k] = _rates(y, u, cyl, table, centre, link, mass, payloads[k], gravity, supply, tank, viscosity[k], leaks, dy)
+        supplies[k] = _rates(y, drive, cyl, table, centre, link, mass, payloads[k], gravity, supply, tank, viscosity[k], leaks, dy)
     return states, commands, supplies
 
 
@@ -469,25 +510,29 @@ def simulate(rig: ArmRig, work: ArmWork) -> tuple[np.ndarray, np.ndarray, np.nda
         if not value >= 0.0:
             raise InputError(f"independent arm: payload {value} kg at {at} s must be >= 0")
         payloads[times >= at] = value
-    leak_rows, onsets = np.zeros((len(names), 3)), np.full((len(names), 3), np.inf)
+    fault_rows, onsets = np.zeros((len(names), len(FAULTS))), np.full((len(names), len(FAULTS)), np.inf)
     for actuator, fault, value, onset in work.faults:
         if actuator not in names or fault not in FAULTS:
             raise InputError(f"independent arm: cannot inject {fault} on {actuator} (it has {', '.join(FAULTS)} on {', '.join(names)})")
-        if not (math.isfinite(value) and value >= 0.0):
-            raise InputError(f"independent arm: {fault} {value} L/min must be finite and >= 0")
-        leak_rows[names.index(actuator), FAULTS.index(fault)] = value / 60000.0 / LEAK_DROP
-        onsets[names.index(actuator), FAULTS.index(fault)] = onset
+        column = FAULTS.index(fault)
+        largest = 1.0 if fault in ("spool_too_small_opening", "spool_stuck_closed") else math.inf
+        if not (math.isfinite(value) and 0.0 <= value <= largest):
+            raise InputError(f"independent arm: {fault} {value} must be finite, >= 0" + (f" and <= {largest:g}" if largest < math.inf else ""))
+        fault_rows[names.index(actuator), column] = value / 60000.0 / LEAK_DROP if column < 3 else value
+        onsets[names.index(actuator), column] = onset
+    if not 0.0 < work.lever_limit <= 1.0:
+        raise InputError(f"independent arm: lever_limit {work.lever_limit} must be in (0, 1]")
     start = rig.targets.mean(axis=1)
     y = _resting_state(rig, start, payloads[0])
     targets, speeds, gains = _operator(rig, work, n, rate, start)
     day = np.random.default_rng([work.seed, rig.seed, 13]).uniform(*rig.oil_range) if work.oil_start_k is None else work.oil_start_k
     warmth = day + work.warming_k * (1.0 - np.exp(-times / WARMING_TIME))
     viscosity = np.exp(-VISCOSITY_PER_KELVIN * warmth)
-    leak_rows *= viscosity[0]  # a leak's size holds at the day's starting viscosity
+    fault_rows[:, :3] *= viscosity[0]  # a leak's size holds at the day's starting viscosity
     scale = np.concatenate([np.tile([1000.0, 1000.0, 1e-5, 1e-3], len(names)), np.full(len(names), 1e-7),
                             np.full(len(names), 1e-6)])
     try:
-        states, commands, supplies = _run(y, 1.0 / rate, targets, speeds, gains, rig.directions, payloads, leak_rows, onsets, viscosity,
+        states, commands, supplies = _run(y, 1.0 / rate, targets, speeds, gains, work.lever_limit, rig.directions, payloads, fault_rows, onsets, viscosity,
                                           rig.cylinder, rig.flow_table, rig.centre, rig.link, rig.mass, rig.gravity, rig.supply, rig.tank,
                                           scale)
     except ValueError as failed:
