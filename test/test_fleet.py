@@ -1,24 +1,23 @@
-"""A small fleet of boom-and-arm machines, each differing from its config (its own mismatch) and working with payload
-steps and sensor noise, a month of recordings each: one machine's arm leaks more in every later recording. The fleet
-analysis flags that cylinder with a rising trend and an estimate near the truth, flags nothing else, reports a damaged
-recording without stopping, analyses nothing new on a rerun, and gives the same results on a Dask LocalCluster."""
+"""A small fleet of boom-and-arm machines, each a build of config/boom_arm.yaml by the plant written apart from the
+model (studies/independent_arm: each machine its own rig) working with payload steps, a month of recordings each: one
+machine's arm leaks more in every later recording. The fleet analysis flags that cylinder with a rising trend and an
+estimate near the truth, flags nothing else, reports a damaged recording without stopping, analyses nothing new on a
+rerun, and gives the same results on a Dask LocalCluster."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
 from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.contract.machine import load_machine_config
-from hydro_ros.contract.names import Injection
 from hydro_ros.sim.scenario import MachineRun
+from hydro_ros.studies import independent_arm
 from hydro_ros.studies.commissioning import commission, load_recordings, write_config
-from hydro_ros.studies.fdi_evaluation import mismatched_config
 from hydro_ros.studies.fleet import analyse
 from test.conftest import REPO, built_once
 
@@ -29,13 +28,6 @@ EPOCH_S = 1.75e9  # recordings stamped in wall time, as a recorder does
 ARM_LEAK = (0.1, 0.3, 0.5, 0.7)  # [L/min at 10 MPa] machine m2's arm, one recording every ten days
 
 
-def write_recording(plant, path: Path, start_s: float, injections: dict, seed: int, seconds: float = 45.0) -> None:
-    with ContractBagWriter(path, actuators={a.name: a.joint for a in plant.actuators}, pressure_variance=plant.sensors.pressure_noise_std ** 2,
-                           mobile=plant.mobile) as writer:
-        for _, block in MachineRun(plant, injections, seed).blocks(seconds):
-            writer.write_machine_block(replace(block, times=block.times + start_s))
-
-
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory) -> Path:
     return built_once(tmp_path_factory, "fleet", build_fleet)
@@ -43,21 +35,21 @@ def fleet(tmp_path_factory) -> Path:
 
 def build_fleet(root: Path) -> Path:
     config = REPO / "config" / "boom_arm.yaml"
+    machine = load_machine_config(config)
     commissioning = root / "commissioning"
     for index, name in enumerate(("m1", "m2", "m3")):
         folder = root / "fleet" / name
         (folder / "2026-11").mkdir(parents=True)
-        machine = load_machine_config(config)
-        plant = mismatched_config(machine, seed=40 + index)
-        # each machine commissioned on a fault-free recording of its own, as it left the factory
-        write_recording(plant, commissioning / name, 0.0, {}, seed=900 + index, seconds=150.0)
-        block, _ = commission(machine, load_recordings([commissioning / name], machine))
+        rig = 40 + index
+        # each machine commissioned on the documented minimum of its own fault-free work, as it left the factory
+        bags = [independent_arm.recording_bag(machine, commissioning / name / f"day{w.seed}", rig, w)
+                for w in independent_arm.work_day(machine, (900 + 2 * index, 901 + 2 * index), 120.0)]
+        block, _ = commission(machine, load_recordings(bags, machine))
         write_config(config, folder / "machine.yaml", block)
         for k in range(len(ARM_LEAK)):
-            injections = {"boom": [Injection("payload_mass", 150.0, 22.0)]}  # a payload gripped half-way
-            if name == "m2":
-                injections["arm"] = [Injection("external_leakage_b", ARM_LEAK[k], 0.0)]
-            write_recording(plant, folder / "2026-11" / f"run{k}", EPOCH_S + k * 10 * DAY_S, injections, seed=100 * index + k)
+            faults = (("arm", "external_leakage_b", ARM_LEAK[k], 0.0),) if name == "m2" else ()
+            work = independent_arm.ArmWork(45.0, 100 * index + k, payload_steps=((22.0, machine.arm.payload + 150.0),), faults=faults)
+            independent_arm.recording_bag(machine, folder / "2026-11" / f"run{k}", rig, work, start_s=EPOCH_S + k * 10 * DAY_S)
     damaged = root / "fleet" / "m3" / "2026-11" / "broken.mcap"
     damaged.write_bytes(b"\x89MCAP0\r\n" + bytes(range(256)) * 40)
     return root / "fleet"

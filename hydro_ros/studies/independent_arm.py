@@ -574,9 +574,12 @@ def recording(machine: Machine, rig_seed: int, work: ArmWork, spread: RigSpread 
     return measure(rig, times, states, commands, supplies, work.seed)
 
 
-def recording_bag(machine: Machine, path: Path, rig_seed: int, work: ArmWork, spread: RigSpread | None = None) -> Path:
-    """One run as a contract bag (every joint in one JointState, per-cylinder pressures), its truth in the metadata."""
+def recording_bag(machine: Machine, path: Path, rig_seed: int, work: ArmWork, spread: RigSpread | None = None,
+                  start_s: float = 0.0) -> Path:
+    """One run as a contract bag (every joint in one JointState, per-cylinder pressures), its truth in the metadata;
+    stamped from ``start_s`` (a recorder's wall time)."""
     samples = recording(machine, rig_seed, work, spread)
+    samples.times = samples.times + start_s
     with ContractBagWriter(path, actuators={a.name: a.joint for a in machine.actuators},
                            pressure_variance=machine.sensors.pressure_noise_std ** 2) as writer:
         writer.set_truth({"plant": __name__, "machine": machine.name, "rig_seed": rig_seed, "seed": work.seed,
