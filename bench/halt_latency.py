@@ -18,14 +18,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.processes import node_process  # noqa: E402
 

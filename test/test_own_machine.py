@@ -133,10 +133,16 @@ def excavator(tmp_path_factory) -> Path:
 
 
 def test_a_threshold_from_the_models_own_equations_says_it_is_safe_only_for_a_machine_like_the_model(tmp_path):
-    """A single boom no plant written apart can build: the threshold comes from the model's own variants, and says so."""
-    derived = hydro_ros("machine", "threshold", str(REPO / "config" / "sam.yaml"), "--variants", "1", "--duration", "20")
+    """Two separate booms, each with its own load: no plant written apart builds them, so the threshold comes from the
+    model's own variants, and says so."""
+    twin = yaml.safe_load((REPO / "config" / "sam.yaml").read_text())
+    twin["machine"] = "twin_booms"
+    twin["actuators"]["second"] = {**twin["actuators"]["boom"], "joint": "second_joint"}
+    config = tmp_path / "twin_booms.yaml"
+    config.write_text(yaml.safe_dump(twin, sort_keys=False))
+    derived = hydro_ros("machine", "threshold", str(config), "--variants", "1", "--duration", "20")
     assert derived.returncode == 0, derived.stderr
-    assert "safe only for a machine like the model" in derived.stdout and "has no arm" in derived.stdout, derived.stdout
+    assert "safe only for a machine like the model" in derived.stdout and "not one actuator with its load" in derived.stdout, derived.stdout
 
 
 def test_a_described_machine_is_checked_and_a_bad_one_refused_in_one_line_per_problem(excavator, tmp_path):
