@@ -3,13 +3,17 @@ by name where going on could mislead; never a traceback."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.writer import Writer
 from sensor_msgs.msg import JointState
@@ -191,3 +195,65 @@ def test_a_damaged_schema_record_in_the_first_chunk_costs_nothing_the_summary_re
     done = subprocess.run([*CLI, "fdi", "run", "--bag", str(target), "--config", str(SAM_CONFIG), "--out", str(tmp_path / "fdi.json"),
                            "--quiet"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+FUZZ_EXAMPLES = os.environ.get("FUZZ_EXAMPLES")  # more, and freshly drawn, when set (e.g. 2000); else 60 of a fixed draw
+_SERIES = ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command")
+
+
+@pytest.fixture(scope="module")
+def intact(short_bag):
+    from hydro_ros.bags.reader import read_bag
+
+    return read_bag(short_bag)
+
+
+@settings(max_examples=int(FUZZ_EXAMPLES or 60), deadline=None, derandomize=not FUZZ_EXAMPLES,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_a_randomly_damaged_bag_loses_what_was_damaged_and_says_so_never_invents_a_sample(short_bag, intact, tmp_path, data):
+    """Random damage to the bag's MCAP file (cut short, bytes flipped, a run zeroed, a piece repeated): read_bag returns
+    only samples the intact bag holds, each with the intact bag's values, and lists an error whenever it lost any; or it
+    refuses the file in one line. Never another exception (FUZZ_EXAMPLES draws more)."""
+    import tempfile
+
+    from hydro_ros.bags.reader import read_bag
+    from hydro_ros.contract.errors import InputError
+
+    whole = intact
+    mcap = next(short_bag.glob("*.mcap"))
+    original = bytearray(mcap.read_bytes())
+    size = len(original)
+    kind = data.draw(st.sampled_from(("cut", "flip", "zero", "repeat")), label="damage")
+    at = data.draw(st.integers(8, size - 1), label="offset")
+    if kind == "cut":
+        damaged = original[:at]
+    elif kind == "flip":
+        damaged = original.copy()
+        for offset in data.draw(st.lists(st.integers(0, size - 1), min_size=1, max_size=8), label="flipped"):
+            damaged[offset] ^= data.draw(st.integers(1, 255), label="mask")
+    elif kind == "zero":
+        length = data.draw(st.integers(1, 4096), label="length")
+        damaged = original[:at] + bytes(min(length, size - at)) + original[at + length:]
+    else:
+        length = data.draw(st.integers(1, 4096), label="length")
+        damaged = original[:at] + original[at:at + length] + original[at:]
+    bag = Path(tempfile.mkdtemp(dir=tmp_path)) / "damaged"
+    shutil.copytree(short_bag, bag)
+    next(bag.glob("*.mcap")).write_bytes(bytes(damaged))
+    try:
+        read = read_bag(bag)
+    except InputError as refused:
+        assert "\n" not in str(refused).strip() and str(refused), refused
+        return
+    index = {stamp: k for k, stamp in enumerate(whole.stamps_ns)}
+    assert all(stamp in index for stamp in read.stamps_ns), "a sample the intact bag does not hold"
+    rows = np.array([index[stamp] for stamp in read.stamps_ns], dtype=int)
+    for name in _SERIES:
+        for actuator, series in getattr(read, name).items():
+            theirs = getattr(whole, name)[actuator][rows]
+            known = np.isfinite(series)
+            assert np.array_equal(series[known], theirs[known]), (name, actuator, "a value the intact bag does not hold")
+    if len(read.stamps_ns) < len(whole.stamps_ns) or any(np.isnan(s).sum() > np.isnan(getattr(whole, n)[a]).sum()
+                                                         for n in _SERIES for a, s in getattr(read, n).items()):
+        assert read.errors, "samples lost without a word"

@@ -23,7 +23,7 @@ except ImportError:
     from backports import zstd  # before 3.14: a dependency of rosbags
 
 MAGIC = b"\x89MCAP0\r\n"
-OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_FOOTER = 0x03, 0x04, 0x05, 0x06, 0x02
+OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_FOOTER, OP_STATISTICS = 0x03, 0x04, 0x05, 0x06, 0x02, 0x0B
 RECORD_OPS = frozenset(range(0x01, 0x10))  # header ... data end: the record types of the MCAP spec
 
 
@@ -235,6 +235,8 @@ def _chunk_records(content: bytes) -> bytes | None:
         _, _, size, crc = struct.unpack_from("<QQQI", content, 0)
         compression, offset = _string(content, 28)
         (records_len,) = struct.unpack_from("<Q", content, offset)
+        if offset + 8 + records_len != len(content):  # a chunk's records fill its record: a zeroed header reads as empty
+            return None
         records = _decompress(compression, content[offset + 8 : offset + 8 + records_len], size)
     except Exception:  # noqa: BLE001 - struct, UnicodeDecodeError, zstd or lz4 errors all mean a damaged chunk
         return None
@@ -252,9 +254,12 @@ class McapScanner:
     schemas: dict[int, str] = field(default_factory=dict)
     messages: int = 0
     skipped: list[str] = field(default_factory=list)  # damaged stretches read past, each said once
+    counted: int | None = None  # the messages the file's summary (its statistics record) says it holds
 
     def _records(self, buf: np.ndarray, raw: bytes) -> Iterator[MessageBatch]:
-        ops, starts, ends, channel_ids, _ = scan_records(buf)
+        ops, starts, ends, channel_ids, consumed = scan_records(buf)
+        if consumed != len(buf):
+            self.skipped.append(f"a damaged record in a chunk: its last {len(buf) - consumed} bytes skipped")
         for k in np.flatnonzero(ops != OP_MESSAGE):
             self._metadata(int(ops[k]), raw[starts[k] : ends[k]], in_chunk=True)
         messages = ops == OP_MESSAGE
@@ -327,6 +332,8 @@ class McapScanner:
                     self._metadata(op, content)
                 except (struct.error, UnicodeDecodeError):
                     return
+            elif op == OP_STATISTICS and len(content) >= 8:
+                (self.counted,) = struct.unpack_from("<Q", content, 0)
             position += 9 + length
 
     def batches(self) -> Iterator[MessageBatch]:

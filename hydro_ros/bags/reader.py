@@ -329,6 +329,9 @@ def read_bag(path: str | Path) -> BagData:
         if scanner is not None:
             total += scanner.messages
             errors += [f"{file}: {damage}" for damage in scanner.skipped]
+            if scanner.counted is not None and scanner.messages < scanner.counted:
+                errors.append(f"{file}: {scanner.counted - scanner.messages} of the {scanner.counted} messages its summary counts "
+                              "could not be read")
         if bad[0]:
             errors.append(f"{file}: {bad[0]} undecodable messages")
     joint: dict[str, dict[str, _Series]] = {}
