@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from hydro_ros.cli import main
 from hydro_ros.contract.config import default_config_path
@@ -234,3 +237,29 @@ def test_the_savings_map_finds_the_telescope_paying_on_a_horizontal_line_and_not
     rows = {row["path"]: row for row in savings(crane, config, line_paths([3.5], [0.5], [1.5], [3.0]))}
     assert rows["horizontal_x3_y1.5"]["saving_cp"] > 0.1 and rows["horizontal_x3_y1.5"]["saving_ls"] > 0.1
     assert abs(rows["vertical_x3.5_y0.5"]["saving_cp"]) < 0.02
+
+
+@pytest.mark.slow
+@settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES") or 20), deadline=None, derandomize=not os.environ.get("FUZZ_EXAMPLES"),
+          suppress_health_check=[HealthCheck.too_slow])
+@given(factors=st.lists(st.tuples(st.floats(0.3, 2.0), st.floats(0.3, 2.0)), min_size=4, max_size=4),
+       path_id=st.sampled_from(["horizontal", "vertical", "half_cycle"]))
+def test_random_cylinder_limits_are_kept_by_the_dp_or_its_start_is_refused(factors, path_id) -> None:
+    """Each cylinder's velocity and acceleration limits drawn between 0.3x and 2x the K70M's: the DP's trajectory from
+    the smallest feasible start keeps every limit at the exact states and the tip on the path, or the start is refused
+    with its reason in one line (FUZZ_EXAMPLES draws more)."""
+    _, config = load_crane(default_config_path("k70m"))
+    joints = [dict(joint, cylinder=dict(joint["cylinder"], velocity_max=joint["cylinder"]["velocity_max"] * v,
+                                        acceleration_max=joint["cylinder"]["acceleration_max"] * a))
+              for joint, (v, a) in zip(config.mapping["joints"], factors)]
+    crane = Crane(config.with_overrides({"joints": joints}))
+    samples = path_from_config(config, path_id).sample(config.dp.sample_time)
+    grid = DpGrid.for_path(crane, samples, (40, 21, 31))
+    try:
+        start = start_position(crane, samples, grid)
+        trajectory = solve(crane, samples, Cost.CP, grid).forward(start)
+    except InfeasibleStart as refused:
+        assert str(refused) and "\n" not in str(refused).strip()
+        return
+    result = evaluate(crane, samples, trajectory)
+    assert all(result["limits"].values()) and result["tip_error_max_m"] < 1e-9, (factors, result["limits"], result["limit_margins"])
