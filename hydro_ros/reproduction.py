@@ -259,9 +259,10 @@ def _arm_commissioning(arm: dict) -> str:
             "rigs; "
             + "; ".join(f"{label(level)}: {pooled[level]['false_alarms']} false alarm{'' if pooled[level]['false_alarms'] == 1 else 's'} "
                         f"in {pooled[level]['fault_free_hours']:.1f} h "
-                        f"(<= {pooled[level]['per_hour_upper']:g}/h at {arm['confidence']:.0%}), held outside the commissioned "
-                        "commands " + ", ".join(f"{a} {100 * v:.1f} %" for a, v in pooled[level]["held_share_by_actuator"].items())
-                        + f" of the time ({100 * pooled[level]['held_share_max']:.1f} % on the worst rig)" for level in levels)
+                        f"(<= {pooled[level]['per_hour_upper']:g}/h at {arm['confidence']:.0%})"
+                        + ("" if level == "shipped" else ", held outside the commissioned commands "
+                           + ", ".join(f"{a} {100 * v:.1f} %" for a, v in pooled[level]["held_share_by_actuator"].items())
+                           + f" of the time ({100 * pooled[level]['held_share_max']:.1f} % on the worst rig)") for level in levels)
             + (f"; commissioning refused from {', '.join(refused)} (each reason in the file)" if refused else "")
             + f". From {documented}, named on every rig [L/min at 10 MPa]: {smallest(documented, 'smallest_named_l_min')}; "
             f"detected: {smallest(documented, 'smallest_detected_l_min')}")

@@ -128,7 +128,8 @@ def test_outside_what_commissioning_saw_the_monitor_holds_and_never_alarms(sam_c
 def test_after_commissioning_payload_steps_raise_no_alarm_and_each_fault_is_named(sam_config, commissioned):
     """Other days' work with a payload picked and set down: silent. Then each fault this plant makes, from 20 s: detected,
     nothing before, and named, except the stuck spool: on this day it stays `unisolated` (a warning, no halt) for the
-    40 s after onset; on days 22 and 23 it was named after 16 and 19 s (23 named `spool_too_small_opening` first).
+    40 s after onset; of two other days tried while writing this test, one named it after 16 s, the other after 19 s
+    with `spool_too_small_opening` first.
     The external leaks are at the smallest size named here (B 0.4 L/min is not, A 0.4 neither)."""
     machine, _, _, _ = commissioned
     for seed in (11, 12):
@@ -142,8 +143,9 @@ def test_after_commissioning_payload_steps_raise_no_alarm_and_each_fault_is_name
         run = run_monitor(FdiMonitor(machine), _built(sam_config, 21, 60.0, faults=((fault, size, 20.0),)))
         named = [a.fault.value for a in run.alarms if a.fault is not None and a.fault.value != "unisolated"]
         assert run.alarms and run.alarms[0].time_s > 20.0, (fault, [a.to_json() for a in run.alarms])
+        assert all(name == fault for name in named), (fault, [a.to_json() for a in run.alarms])  # never a wrong name
         if fault != "spool_stuck_closed":
-            assert named and named[0] == fault, (fault, [a.to_json() for a in run.alarms])
+            assert named, (fault, [a.to_json() for a in run.alarms])
 
 
 @pytest.mark.slow
@@ -218,6 +220,7 @@ def test_live_commissioned_monitor_names_a_leak_of_the_machine_built_apart(sam_c
     """A day of the SAM built apart with a 1 L/min chamber-B leak from 25 s, played live by bag_player at its own pace;
     fdi_node runs the config commissioned on that machine: all clear before the onset, the leak named after it."""
     from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
 
     from hydro_ros.studies.commissioning import write_config
     from test.ros_graph import node_process, probe_node, spin_until
@@ -228,22 +231,26 @@ def test_live_commissioned_monitor_names_a_leak_of_the_machine_built_apart(sam_c
         70.0, 41, lever_limit=LEVER, faults=(("boom", "external_leakage_b", 1.0, onset),)))
     machine_config = tmp_path / "machine.yaml"
     write_config(REPO / "config" / "sam.yaml", machine_config, block)
-    diags: list[DiagnosticArray] = []
+    seen: list[tuple[float, str, bytes]] = []  # (the sample time the monitor had reached, its boom status, its level)
+    reached = [0.0]  # the stamp of the monitor's latest residuals: the bag's sample time
 
-    def statuses() -> list:
-        return [s for m in diags for s in m.status if s.name == "hydro_ros/fdi/boom"]
+    def on_residuals(msg: JointState) -> None:
+        reached[0] = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        seen.extend((reached[0], s.message, s.level) for s in msg.status if s.name == "hydro_ros/fdi/boom")
 
     with probe_node("probe") as node:
-        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
+        node.create_subscription(JointState, "/fdi/residuals", on_residuals, 10)
         with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={machine_config}"), \
                 node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={bag}", "-p", "publish_clock:=false", "-p", "rate:=1.0"):
-            assert spin_until(node, lambda: any(s.message == "ok" for s in statuses()), 60), [s.message for s in statuses()]
-            first_ok = len(statuses())
-            assert spin_until(node, lambda: statuses()[-1].message == "external_leakage_b", 90), [s.message for s in statuses()[-5:]]
-            assert statuses()[-1].level == bytes([1])
-            before = [s.message for s in statuses()[first_ok:]]
-            # nothing else named on the way: ok, then the leak detected (unisolated), then its name
-            assert set(before) <= {"ok", "not_monitored", "unisolated", "external_leakage_b", "overloaded"}, before
+            assert spin_until(node, lambda: seen and seen[-1][1] == "external_leakage_b", 120), seen[-5:]
+    assert seen[-1][2] == bytes([1])  # WARN: a leak is minor
+    before = [message for at, message, _ in seen if at < onset]
+    assert "ok" in before and set(before) <= {"ok", "not_monitored", "stale", "overloaded"}, before  # all clear before the onset
+    after = [message for at, message, _ in seen if at >= onset]
+    assert set(after) <= {"ok", "not_monitored", "unisolated", "external_leakage_b", "overloaded"}, after  # no other name
 
 
 @pytest.mark.slow

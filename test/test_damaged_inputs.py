@@ -197,7 +197,7 @@ def test_a_damaged_schema_record_in_the_first_chunk_costs_nothing_the_summary_re
     assert done.returncode == 0, done.stderr
 
 
-FUZZ_EXAMPLES = os.environ.get("FUZZ_EXAMPLES")  # more, and freshly drawn, when set (e.g. 2000); else 60 of a fixed draw
+FUZZ_EXAMPLES = os.environ.get("FUZZ_EXAMPLES")  # more, and freshly drawn, when set (e.g. 2500); else 60 of a fixed draw
 _SERIES = ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command")
 
 

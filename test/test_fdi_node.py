@@ -369,9 +369,11 @@ def test_alarm_log_round_trip_a_killed_monitor_restores_its_latched_alarm(ros_do
             assert any(e["fault"] == "external_leakage_a" for e in page("/api/alarm_log?limit=50")["events"])
 
 
-def test_a_restarted_monitor_restoring_a_severe_fault_halts_from_its_first_word(ros_domain, tmp_path):
-    """A stuck spool latched before a restart (the alarm log): the restarted fdi_node's first /fdi/halt is true and its
-    first halt status says why: a stop for the fault, not a pause for the inputs it has not seen yet."""
+def test_a_restarted_monitor_restoring_a_severe_fault_halts_from_the_start(ros_domain, tmp_path):
+    """A stuck spool latched before a restart (the alarm log), no machine running: every /fdi/halt the probe hears from
+    the restarted fdi_node is true and every halt status says why: a stop for the fault, not a pause for the inputs it
+    has not seen yet. (The probe may join after the node's first few words, /fdi/halt keeping only its latest: that
+    the supervisor says "fault" from its construction is I3 on random sequences, test_safety_core.py.)"""
     from hydro_ros.fdi.alarm_log import AlarmLog
     from hydro_ros.nodes.common import HALT_QOS
     from hydro_ros.safety.supervisor import ERROR

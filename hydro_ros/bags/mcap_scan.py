@@ -235,8 +235,8 @@ def _chunk_records(content: bytes) -> bytes | None:
         _, _, size, crc = struct.unpack_from("<QQQI", content, 0)
         compression, offset = _string(content, 28)
         (records_len,) = struct.unpack_from("<Q", content, offset)
-        if offset + 8 + records_len != len(content):  # a chunk's records fill its record: a zeroed header reads as empty
-            return None
+        if offset + 8 + records_len > len(content) or (records_len == 0 and len(content) > offset + 8):
+            return None  # records beyond the chunk, or none in a chunk with bytes left (a zeroed header reads as empty)
         records = _decompress(compression, content[offset + 8 : offset + 8 + records_len], size)
     except Exception:  # noqa: BLE001 - struct, UnicodeDecodeError, zstd or lz4 errors all mean a damaged chunk
         return None
@@ -316,10 +316,13 @@ class McapScanner:
         if len(head) < 29 or head[0] != OP_FOOTER:
             return
         (summary_start,) = struct.unpack_from("<Q", head, 9)
+        (summary_crc,) = struct.unpack_from("<I", head, 25)
         if not len(MAGIC) < summary_start < footer:
             return
         self.stream.seek(summary_start)
         summary = self.stream.read(footer - summary_start)
+        # the footer's CRC covers the summary and the footer up to itself; a summary that fails it says nothing
+        intact = summary_crc == 0 or zlib.crc32(head[:25], zlib.crc32(summary)) == summary_crc
         position = 0
         while position + 9 <= len(summary):
             op = summary[position]
@@ -332,7 +335,7 @@ class McapScanner:
                     self._metadata(op, content)
                 except (struct.error, UnicodeDecodeError):
                     return
-            elif op == OP_STATISTICS and len(content) >= 8:
+            elif op == OP_STATISTICS and len(content) >= 8 and intact:
                 (self.counted,) = struct.unpack_from("<Q", content, 0)
             position += 9 + length
 

@@ -26,7 +26,6 @@ from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds, closed_statistics, passes_nothing
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.sim.scenario import MachineRun, simulate_machine
-from hydro_ros.studies import independent_arm
 from hydro_ros.studies.commissioning import evaluated_maximum, threshold_excess
 
 # Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order
@@ -146,6 +145,8 @@ def safe_threshold_constant(machine: Machine, seeds: Sequence[int], duration_s: 
     apart from the model (studies/independent_arm: each seed one build and one day of its work), or, for a machine that
     plant cannot build, on variants of the model's own equations (:func:`calibrate_threshold_constant`). Returns (c0, why
     the plant apart could not build it: "" when it did)."""
+    from hydro_ros.studies import independent_arm  # scipy.signal and the bag writer: only for this (CLI start-up)
+
     try:
         independent_arm.build_rig(machine, seeds[0])
     except InputError as why:

@@ -35,7 +35,8 @@ oil's start and the noise draw from both, so two machines never work the same da
 Faults, in the vocabulary's names, per actuator, from an onset time: ``external_leakage_a``, ``external_leakage_b``,
 ``internal_leakage`` (L/min at 10 MPa and the day's starting viscosity, laminar); ``spool_too_small_opening`` and
 ``spool_too_large_opening`` (the solenoid's drive of the spool weakened or strengthened by that fraction: the spool
-moves less or more for the same command), ``spool_stuck_closed`` (1: the spool held at its centre).
+moves less or more for the same command; the notches open fully at most, so a strengthened drive changes nothing once
+the command reaches 1 / (1 + size)), ``spool_stuck_closed`` (1: the spool held at its centre).
 
 A machine without an ``arm:`` whose one actuator carries its ``load`` (the SAM) is the one-link arm that load
 describes (P-I eqs. 20-21: the boom's mass at its centre of gravity with its inertia about it, m_L and m_R at +-L),
@@ -440,6 +441,7 @@ def _run(y, period, targets, speeds, gains, lever, directions, payloads, fault_r
     u = np.zeros(a)
     drive = np.zeros(a)  # what reaches the spool's solenoids
     leaks = np.zeros((a, 3))
+    on = np.zeros(_FAULT_COUNT)
     dy = np.empty(len(y))
     h = period / SAMPLE_SUBSTEP_MAX
     for k in range(n):
@@ -448,7 +450,6 @@ def _run(y, period, targets, speeds, gains, lever, directions, payloads, fault_r
             step = speeds[k, i] * period
             reference[i] += min(max(targets[k, i] - reference[i], -step), step)
             u[i] = min(max(directions[i] * gains[k, i] * (reference[i] - y[base + i]), -lever), lever)
-            on = np.zeros(_FAULT_COUNT)
             for f in range(_FAULT_COUNT):
                 on[f] = fault_rows[i, f] if time >= onsets[i, f] else 0.0
             leaks[i] = on[:3]
@@ -515,7 +516,9 @@ def simulate(rig: ArmRig, work: ArmWork) -> tuple[np.ndarray, np.ndarray, np.nda
         if actuator not in names or fault not in FAULTS:
             raise InputError(f"independent arm: cannot inject {fault} on {actuator} (it has {', '.join(FAULTS)} on {', '.join(names)})")
         column = FAULTS.index(fault)
-        largest = 1.0 if fault in ("spool_too_small_opening", "spool_stuck_closed") else math.inf
+        if fault == "spool_stuck_closed" and value not in (0.0, 1.0):
+            raise InputError(f"independent arm: spool_stuck_closed {value} must be 1 (stuck) or 0 (free)")
+        largest = 1.0 if fault == "spool_too_small_opening" else math.inf
         if not (math.isfinite(value) and 0.0 <= value <= largest):
             raise InputError(f"independent arm: {fault} {value} must be finite, >= 0" + (f" and <= {largest:g}" if largest < math.inf else ""))
         fault_rows[names.index(actuator), column] = value / 60000.0 / LEAK_DROP if column < 3 else value
