@@ -25,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from hydro_ros.benchresults import write_result  # noqa: E402
-from hydro_ros.processes import node_process  # noqa: E402
+from hydro_ros.processes import node_process, spin_until  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIG = REPO / "config" / "k70m.yaml"
@@ -82,12 +82,7 @@ def run(trials: int) -> dict:
     node.create_timer(HEARTBEAT_PERIOD_S, lambda: halt.publish(Bool(data=False)))
 
     def spin(seconds: float, until=lambda: False) -> bool:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            rclpy.spin_once(node, timeout_sec=0.005)
-            if until():
-                return True
-        return False
+        return spin_until(node, until, seconds)
 
     def moving() -> bool:
         """A new trajectory taken and a valve open; False when none was taken in 10 s."""
