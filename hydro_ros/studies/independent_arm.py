@@ -48,13 +48,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 from numba import njit
 from scipy.signal import butter, lfilter
 
 from hydro_ros.bags.writer import ContractBagWriter
+from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.samples import Samples
@@ -84,6 +85,10 @@ OPERATOR_SPEED = (0.05, 0.35)  # [rad/s] the reference's ramp per move
 OPERATOR_GAIN = (3.0, 9.0)  # [1/rad] lever per joint error, per move
 OPERATOR_REST = (0.5, 4.0)  # [s] between moves
 OPERATOR_SPAN = 0.8  # targets within this share of each joint's range, about its middle
+PILOT_LAG = 0.03  # [s] a mobile valve's pilot stage: its pressure follows the command as a first-order lag
+COMPENSATOR_RISE = 0.15  # [-] a compensator's spring holds this much more drop at full opening than at none
+OVERLAP_SPREAD = 0.1  # [-] a built main spool's overlap, relative 1-sigma against the data sheet's
+CYCLE_HOLD = (2.0, 6.0)  # [s] a path's work cycle rests this long at either end (the grapple closing or opening)
 
 
 @dataclass(frozen=True)
@@ -111,6 +116,7 @@ class ArmWork:
     lever_limit: float = 1.0  # [-] the operator never pushes a lever further than this
     warming_k: float = 15.0  # [K] the oil's rise toward its working temperature
     oil_start_k: float | None = None  # [K] the day's start against the reference (None: drawn for the day)
+    path: Any = None  # a joint trajectory (joint_names, time, positions) worked forwards and back in place of the moves
 
 
 @dataclass
@@ -122,6 +128,7 @@ class ArmRig:
     flow_table: np.ndarray  # (A, 4, len(TABLE_OPENINGS)) [m^3/(s Pa^0.5)] per notch PA, PB, AT, BT
     centre: np.ndarray  # (A, 4) [m^3/(s Pa)] centre leakage per notch
     link: np.ndarray  # (N, 2) length, offset of the next joint
+    prismatic: np.ndarray  # (N,) True where the link slides on its joint instead of turning
     mass: np.ndarray  # (K, 5) link index, mass, along, across, inertia
     origin: np.ndarray
     payload: float
@@ -138,21 +145,30 @@ class ArmRig:
 # per-cylinder numbers in ArmRig.cylinder
 (_C_AREA_A, _C_AREA_B, _C_STROKE, _C_V0A, _C_V0B, _C_L1, _C_L2, _C_L3, _C_OFFSET, _C_SIGN, _C_OMEGA, _C_ZETA,
  _C_HOSE_VOLUME, _C_HOSE_MODULUS, _C_OIL_MODULUS, _C_COULOMB, _C_STATIC, _C_STRIBECK, _C_VISCOUS, _C_STOP_LOW,
- _C_STOP_HIGH, _C_STOP_K, _C_STOP_D, _C_NOMINAL_FLOW) = range(24)
-_CYLINDER_NUMBERS = 24
+ _C_STOP_HIGH, _C_STOP_K, _C_STOP_D, _C_NOMINAL_FLOW, _C_LINEAR, _C_RATIO, _C_MOBILE, _C_OVERLAP, _C_COMPENSATOR,
+ _C_PILOT_GAIN) = range(30)
+_CYLINDER_NUMBERS = 30
 _STATES_PER_CYLINDER = 4  # p_A, p_B at the ports, spool, spool rate
 
 
-def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) -> ArmRig:
-    """The arm of ``machine`` as one built machine (``rig_seed``): the config's numbers drawn off by ``spread``."""
+def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None, crane: CraneConfig | None = None) -> ArmRig:
+    """The arm of ``machine`` as one built machine (``rig_seed``): the config's numbers drawn off by ``spread``. A crane
+    (``kind: crane``) is built from its crane config's links, masses and telescope friction (``crane``); its base
+    rotation is held still."""
     spread = spread or RigSpread()
-    arm = machine.arm
+    arm, joint_coulomb = machine.arm, {}
+    if machine.crane:
+        if crane is None:
+            raise InputError(f"independent arm: {machine.source} is a crane: pass its crane config (its links and masses)")
+        from hydro_ros.models.crane import crane_arm  # the crane's description as a chain: geometry, no equation of motion
+
+        arm = crane_arm(crane)
+        # the telescope's pads (P-VI eqs. A3-A4's level), here a Stribeck curve on the cylinder like the others
+        joint_coulomb = {arm.links[-1].joint: crane.extension_friction.coulomb}
     if arm is not None:
         joints = [link.joint for link in arm.links]
-        for link in arm.links:
-            if link.kind != "revolute":
-                raise InputError(f"independent arm: link {link.joint} is {link.kind}; this plant moves revolute links only")
         links = np.array([[link.length, link.offset] for link in arm.links])
+        prismatic = np.array([link.kind == "prismatic" for link in arm.links])
         masses = [(index, m.mass, m.along, m.across, m.inertia) for index, link in enumerate(arm.links) for m in link.masses]
         origin, payload = np.asarray(arm.origin, dtype=float), arm.payload
         joint_ranges = {link.joint: link.joint_range for link in arm.links}
@@ -163,6 +179,7 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) 
         masses = [(0, load.boom_mass, load.boom_cog_distance, 0.0, load.boom_mass * load.boom_length ** 2 / 12.0),
                   (0, load.left_mass, load.load_distance, 0.0, 0.0), (0, load.right_mass, -load.load_distance, 0.0, 0.0)]
         origin, payload, joint_ranges = np.zeros(2), 0.0, {}
+        prismatic = np.zeros(1, dtype=bool)
     else:
         raise InputError(f"independent arm: {machine.source} has no arm: section and not one actuator with its load "
                          "(this plant moves the links of an arm)")
@@ -171,12 +188,12 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) 
     for actuator in machine.actuators:
         if actuator.joint not in joints:
             raise InputError(f"independent arm: actuator {actuator.name} moves {actuator.joint}, which is not a link of the arm")
-        if actuator.mount.kind != "triangle" or actuator.valve.mobile:
-            raise InputError(f"independent arm: actuator {actuator.name} needs a triangle mount and a proportional valve")
         c, m, v, f, fr = actuator.cylinder, actuator.mount, actuator.valve, actuator.fluid, actuator.friction
         area_a = math.pi * c.piston_diameter ** 2 / 4.0
         sim = machine.simulation
         friction = rng.uniform(*spread.friction)
+        # a joint's own friction (the telescope's) reaches the cylinder through the mount's ratio
+        pads = joint_coulomb.get(actuator.joint, 0.0) * (1.0 / m.ratio if m.kind == "linear" else 0.0)
         row = np.zeros(_CYLINDER_NUMBERS)
         row[[_C_AREA_A, _C_AREA_B, _C_STROKE, _C_V0A, _C_V0B]] = area_a, area_a - math.pi * c.rod_diameter ** 2 / 4.0, c.stroke, \
             c.dead_volume_a, c.dead_volume_b
@@ -186,8 +203,14 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) 
         row[_C_HOSE_VOLUME] = f.hose_volume
         row[_C_HOSE_MODULUS] = f.hose_bulk_modulus * max(1.0 + spread.hose_bulk_modulus * rng.standard_normal(), 0.3)
         row[_C_OIL_MODULUS] = f.oil_bulk_modulus * max(1.0 + spread.oil_bulk_modulus * rng.standard_normal(), 0.3)
-        row[[_C_COULOMB, _C_STATIC, _C_STRIBECK, _C_VISCOUS]] = friction * fr.coulomb, friction * fr.static, fr.stribeck_velocity, \
-            friction * fr.viscous
+        row[[_C_COULOMB, _C_STATIC, _C_STRIBECK, _C_VISCOUS]] = friction * (fr.coulomb + pads), friction * (fr.static + 1.2 * pads), \
+            fr.stribeck_velocity, friction * fr.viscous
+        row[[_C_LINEAR, _C_RATIO]] = m.kind == "linear", m.ratio
+        if v.mobile:
+            row[[_C_MOBILE, _C_OVERLAP, _C_COMPENSATOR, _C_PILOT_GAIN]] = 1.0, \
+                v.deadzone * max(1.0 + OVERLAP_SPREAD * rng.standard_normal(), 0.5), \
+                v.compensator_pressure_drop * max(1.0 + spread.notch_gain * rng.standard_normal(), 0.5), \
+                1.0 + 0.5 * spread.notch_gain * rng.standard_normal()
         row[[_C_STOP_LOW, _C_STOP_HIGH, _C_STOP_K, _C_STOP_D]] = sim.end_stop_lower, \
             c.stroke if sim.end_stop_upper is None else sim.end_stop_upper, sim.end_stop_stiffness, sim.end_stop_damping
         row[_C_NOMINAL_FLOW] = v.nominal_flow
@@ -211,7 +234,8 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) 
     if order != sorted(order):
         raise InputError(f"independent arm: {machine.source}'s actuators must be listed base to tip, as the arm's links")
     return ArmRig(machine=machine, cylinder=np.array(rows), flow_table=np.array(tables), centre=np.array(centres),
-                  link=links, mass=np.array(masses, dtype=float).reshape(-1, 5), origin=origin, payload=payload, supply=machine.supply_pressure,
+                  link=links, prismatic=prismatic, mass=np.array(masses, dtype=float).reshape(-1, 5), origin=origin, payload=payload,
+                  supply=machine.supply_pressure,
                   tank=machine.tank_pressure, gravity=machine.simulation.gravity, oil_range=spread.oil_warmer,
                   zero_offsets=rng.uniform(-ZERO_OFFSET, ZERO_OFFSET, 2 * len(rows) + 1), seed=rig_seed,
                   targets=np.array(ranges),
@@ -250,27 +274,40 @@ def _softening(pressure):
 
 @njit(cache=True)
 def _piston(cyl, q):
-    """Piston position and dx/dq of a triangle mount."""
+    """Piston position and dx/dq: a triangle mount, or a linear one (a telescope's cylinder)."""
+    if cyl[_C_LINEAR] > 0.5:
+        return cyl[_C_RATIO] * (q + cyl[_C_OFFSET]), cyl[_C_RATIO]
     theta = cyl[_C_SIGN] * q + cyl[_C_OFFSET]
     length = math.sqrt(cyl[_C_L1] ** 2 + cyl[_C_L2] ** 2 - 2.0 * cyl[_C_L1] * cyl[_C_L2] * math.cos(theta))
     return length - cyl[_C_L3], cyl[_C_SIGN] * cyl[_C_L1] * cyl[_C_L2] * math.sin(theta) / length
 
 
 @njit(cache=True)
-def _mechanics(q, qd, link, mass, payload, gravity):
-    """M(q) and the generalised forces of gravity and of the velocity products, for the chain's point masses."""
+def _mechanics(q, qd, link, prismatic, mass, payload, gravity):
+    """M(q) and the generalised forces of gravity and of the velocity products, for the chain's point masses. A revolute
+    joint turns everything beyond it about its pivot; a prismatic one slides its own link (and what rides on it) along
+    the link's line."""
     n = len(q)
-    phi = np.cumsum(q)
-    phid = np.cumsum(qd)
     pivot = np.zeros((n + 1, 2))
-    pivot_bias = np.zeros((n + 1, 2))  # the pivots' accelerations at q'' = 0
+    pivot_rate = np.zeros((n + 1, 2))
+    line = np.zeros((n, 2))  # each link's direction
+    turn = np.zeros(n)  # each link's angular rate
+    slide = np.zeros(n)
+    slide_rate = np.zeros(n)
+    phi, phid = 0.0, 0.0
     for j in range(n):
-        c, s = math.cos(phi[j]), math.sin(phi[j])
-        along, across = link[j, 0], link[j, 1]
+        if prismatic[j]:
+            slide[j], slide_rate[j] = q[j], qd[j]
+        else:
+            phi += q[j]
+            phid += qd[j]
+        c, s = math.cos(phi), math.sin(phi)
+        line[j, 0], line[j, 1], turn[j] = c, s, phid
+        along, across = link[j, 0] + slide[j], link[j, 1]
         pivot[j + 1, 0] = pivot[j, 0] + along * c - across * s
         pivot[j + 1, 1] = pivot[j, 1] + along * s + across * c
-        pivot_bias[j + 1, 0] = pivot_bias[j, 0] - phid[j] ** 2 * (along * c - across * s)
-        pivot_bias[j + 1, 1] = pivot_bias[j, 1] - phid[j] ** 2 * (along * s + across * c)
+        pivot_rate[j + 1, 0] = pivot_rate[j, 0] + slide_rate[j] * c - phid * (along * s + across * c)
+        pivot_rate[j + 1, 1] = pivot_rate[j, 1] + slide_rate[j] * s + phid * (along * c - across * s)
     inertia = np.zeros((n, n))
     bias = np.zeros(n)
     weight = np.zeros(n)
@@ -280,69 +317,100 @@ def _mechanics(q, qd, link, mass, payload, gravity):
             j, m, along, across, rot = int(mass[k, 0]), mass[k, 1], mass[k, 2], mass[k, 3], mass[k, 4]
         else:
             j, m, along, across, rot = n - 1, payload, link[n - 1, 0], link[n - 1, 1], 0.0
-        c, s = math.cos(phi[j]), math.sin(phi[j])
+        c, s = line[j, 0], line[j, 1]
+        along += slide[j]
         x = pivot[j, 0] + along * c - across * s
         y = pivot[j, 1] + along * s + across * c
-        ax = pivot_bias[j, 0] - phid[j] ** 2 * (along * c - across * s)
-        ay = pivot_bias[j, 1] - phid[j] ** 2 * (along * s + across * c)
+        xd = pivot_rate[j, 0] + slide_rate[j] * c - turn[j] * (along * s + across * c)
+        yd = pivot_rate[j, 1] + slide_rate[j] * s + turn[j] * (along * c - across * s)
         jac = np.zeros((2, n))
-        for i in range(j + 1):  # turning joint i moves the point about pivot i
-            jac[0, i] = -(y - pivot[i, 1])
-            jac[1, i] = x - pivot[i, 0]
+        jac_rate = np.zeros((2, n))
+        for i in range(j + 1):
+            if prismatic[i]:  # sliding link i moves the point along that link's line
+                jac[0, i], jac[1, i] = line[i, 0], line[i, 1]
+                jac_rate[0, i], jac_rate[1, i] = -turn[i] * line[i, 1], turn[i] * line[i, 0]
+            else:  # turning joint i moves the point about pivot i
+                jac[0, i], jac[1, i] = -(y - pivot[i, 1]), x - pivot[i, 0]
+                jac_rate[0, i], jac_rate[1, i] = -(yd - pivot_rate[i, 1]), xd - pivot_rate[i, 0]
+        ax = 0.0
+        ay = 0.0
+        for i in range(n):
+            ax += jac_rate[0, i] * qd[i]
+            ay += jac_rate[1, i] * qd[i]
         for a in range(n):
             bias[a] += m * (jac[0, a] * ax + jac[1, a] * ay)
             weight[a] += m * gravity * jac[1, a]
             for b in range(n):
                 inertia[a, b] += m * (jac[0, a] * jac[0, b] + jac[1, a] * jac[1, b])
-                if a <= j and b <= j:
+                if a <= j and b <= j and not prismatic[a] and not prismatic[b]:
                     inertia[a, b] += rot
     return inertia, weight, bias
 
 
 @njit(cache=True)
-def _valve_flow(table, centre, spool, p_s, tank, side, p_valve, viscosity):
+def _opening(c, spool):
+    """The notches' opening: the spool's travel; a mobile valve's beyond its overlap, rescaled to its full travel."""
+    travel = abs(spool)
+    if c[_C_MOBILE] > 0.5:
+        travel = max(travel - c[_C_OVERLAP], 0.0) / (1.0 - c[_C_OVERLAP])
+    return min(travel, 1.0)
+
+
+@njit(cache=True)
+def _inlet_drop(c, opening, p_s, p_valve):
+    """The drop across a P notch: the supply less the valve-side pressure, or what a mobile valve's compensator holds
+    (its spring's drop rising with the opening; a load above what the supply can hold closes its check)."""
+    if c[_C_MOBILE] > 0.5:
+        return max(min(c[_C_COMPENSATOR] * (1.0 + COMPENSATOR_RISE * opening), p_s - p_valve), 0.0)
+    return p_s - p_valve
+
+
+@njit(cache=True)
+def _valve_flow(c, table, centre, spool, p_s, tank, side, p_valve, viscosity):
     """Flow into one side's line (0: A, 1: B) at the valve-side pressure ``p_valve``."""
-    opening = min(abs(spool), 1.0)
+    opening = _opening(c, spool)
     flow = 0.0
     if spool > 0.0:
-        flow = _table(table[0], opening) * opening * _orifice(p_s - p_valve) if side == 0 \
+        flow = _table(table[0], opening) * opening * _orifice(_inlet_drop(c, opening, p_s, p_valve)) if side == 0 \
             else -_table(table[3], opening) * opening * _orifice(p_valve - tank)
     elif spool < 0.0:
         flow = -_table(table[2], opening) * opening * _orifice(p_valve - tank) if side == 0 \
-            else _table(table[1], opening) * opening * _orifice(p_s - p_valve)
-    near = min(max((CENTRE_BAND + 0.5 * CENTRE_BLEND - abs(spool)) / CENTRE_BLEND, 0.0), 1.0) / viscosity
+            else _table(table[1], opening) * opening * _orifice(_inlet_drop(c, opening, p_s, p_valve))
+    near = min(max((CENTRE_BAND + 0.5 * CENTRE_BLEND - (opening if c[_C_MOBILE] > 0.5 else abs(spool))) / CENTRE_BLEND, 0.0), 1.0) \
+        / viscosity
     inlet, outlet = (centre[0], centre[2]) if side == 0 else (centre[1], centre[3])
     return flow + near * (inlet * (p_s - p_valve) - outlet * (p_valve - tank))
 
 
 @njit(cache=True)
-def _line_flow(table, centre, spool, p_s, tank, side, p_port, resistance, viscosity):
+def _line_flow(c, table, centre, spool, p_s, tank, side, p_port, resistance, viscosity):
     """Flow through the valve and its line into a port: the valve-side pressure settles where the valve's flow equals the
     line's (its RC time, ~50 us, is far below a sample); a fixed point, contracting by R dQ/dp < 0.3."""
     p_valve = p_port
     for _ in range(LINE_ITERATIONS):
-        p_valve = p_port + resistance * _valve_flow(table, centre, spool, p_s, tank, side, p_valve, viscosity)
+        p_valve = p_port + resistance * _valve_flow(c, table, centre, spool, p_s, tank, side, p_valve, viscosity)
     return (p_valve - p_port) / resistance
 
 
 @njit(cache=True)
-def _rates(y, u, cyl, table, centre, link, mass, payload, gravity, supply, tank, viscosity, leaks, dy):
+def _rates(y, u, cyl, table, centre, link, prismatic, mass, payload, gravity, supply, tank, viscosity, leaks, dy, feed):
     """d/dt of the state: per cylinder [p_A, p_B, spool, spool rate] (at the cylinder's ports), then joints, then rates.
-    Returns the supply pressure."""
+    Returns the supply pressure; ``feed`` gets each valve's pressure upstream of its P notches (a mobile valve's
+    compensator pressure, else the supply)."""
     a = cyl.shape[0]
     base = _STATES_PER_CYLINDER * a
     q = y[base:base + a]
     qd = y[base + a:base + 2 * a]
-    inertia, weight, bias = _mechanics(q, qd, link, mass, payload, gravity)
+    inertia, weight, bias = _mechanics(q, qd, link, prismatic, mass, payload, gravity)
     torque = np.zeros(a)
     # the pump's compensator droops with the flow the P notches draw at its set pressure
     drawn = 0.0
     for i in range(a):
         spool = y[_STATES_PER_CYLINDER * i + 2]
-        opening = min(abs(spool), 1.0)
+        opening = _opening(cyl[i], spool)
         side = 0 if spool > 0.0 else 1
-        drawn += _table(table[i, side], opening) * opening * _orifice(supply - y[_STATES_PER_CYLINDER * i + side]) \
-            / cyl[i, _C_NOMINAL_FLOW]
+        drawn += _table(table[i, side], opening) * opening \
+            * _orifice(_inlet_drop(cyl[i], opening, supply, y[_STATES_PER_CYLINDER * i + side])) / cyl[i, _C_NOMINAL_FLOW]
     p_s = supply - SUPPLY_DROOP * drawn
     resistance = 128.0 * OIL_VISCOSITY * viscosity * HOSE_LENGTH / (math.pi * HOSE_DIAMETER ** 4)
     for i in range(a):
@@ -351,8 +419,13 @@ def _rates(y, u, cyl, table, centre, link, mass, payload, gravity, supply, tank,
         pa, pb, spool, spool_rate = y[s0], y[s0 + 1], y[s0 + 2], y[s0 + 3]
         x, arm = _piston(c, q[i])
         v = arm * qd[i]
-        line_a = _line_flow(table[i], centre[i], spool, p_s, tank, 0, pa, resistance, viscosity)
-        line_b = _line_flow(table[i], centre[i], spool, p_s, tank, 1, pb, resistance, viscosity)
+        line_a = _line_flow(c, table[i], centre[i], spool, p_s, tank, 0, pa, resistance, viscosity)
+        line_b = _line_flow(c, table[i], centre[i], spool, p_s, tank, 1, pb, resistance, viscosity)
+        feed[i] = p_s
+        if c[_C_MOBILE] > 0.5:  # the compensator holds its drop above the metered side's load (at centre: the higher)
+            load = pa + resistance * line_a if spool > 0.0 else pb + resistance * line_b if spool < 0.0 \
+                else max(pa + resistance * line_a, pb + resistance * line_b)
+            feed[i] = min(load + _inlet_drop(c, _opening(c, spool), math.inf, load), p_s)
         internal = leaks[i, 2] * (pa - pb) / viscosity
         # each volume's own compliance: the chamber's oil, and the line's oil and wall
         hose = c[_C_HOSE_VOLUME] * (1.0 / c[_C_OIL_MODULUS] + 1.0 / c[_C_HOSE_MODULUS])
@@ -395,12 +468,13 @@ _E = np.array([71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 52
 
 
 @njit(cache=True)
-def _interval(y, span, h, u, cyl, table, centre, link, mass, payload, gravity, supply, tank, viscosity, leaks, scale):
+def _interval(y, span, h, u, cyl, table, centre, link, prismatic, mass, payload, gravity, supply, tank, viscosity, leaks, scale):
     """Advance ``y`` by ``span`` with the command ``u`` held; returns the last accepted step size."""
     k = np.zeros((7, len(y)))
     stage = np.empty(len(y))
+    feed = np.empty(cyl.shape[0])
     t = 0.0
-    _rates(y, u, cyl, table, centre, link, mass, payload, gravity, supply, tank, viscosity, leaks, k[0])
+    _rates(y, u, cyl, table, centre, link, prismatic, mass, payload, gravity, supply, tank, viscosity, leaks, k[0], feed)
     while t < span:
         step = min(h, span - t)
         for s in range(1, 7):
@@ -408,7 +482,7 @@ def _interval(y, span, h, u, cyl, table, centre, link, mass, payload, gravity, s
             for r in range(s):
                 if _A[s, r] != 0.0:
                     stage += step * _A[s, r] * k[r]
-            _rates(stage, u, cyl, table, centre, link, mass, payload, gravity, supply, tank, viscosity, leaks, k[s])
+            _rates(stage, u, cyl, table, centre, link, prismatic, mass, payload, gravity, supply, tank, viscosity, leaks, k[s], feed)
         error = 0.0
         for j in range(len(y)):
             e = 0.0
@@ -429,41 +503,53 @@ def _interval(y, span, h, u, cyl, table, centre, link, mass, payload, gravity, s
 
 
 @njit(cache=True)
-def _run(y, period, targets, speeds, gains, lever, directions, payloads, fault_rows, onsets, viscosity, cyl, table, centre, link, mass,
-         gravity, supply, tank, scale):
-    """Every sample: the operator's command from the state at its start, held over the period; states at its end."""
+def _run(y, period, targets, speeds, gains, feedforward, lever, directions, overlaps, payloads, fault_rows, onsets, viscosity, cyl, table,
+         centre, link, prismatic, mass, gravity, supply, tank, scale):
+    """Every sample: the operator's command from the state at its start, held over the period; states at its end. A
+    mobile valve's spool follows its pilot pressure, which follows the command through the pilot stage's lag."""
     n, a = targets.shape
     base = _STATES_PER_CYLINDER * a
     states = np.empty((n, len(y)))
     commands = np.empty((n, a))
     supplies = np.empty(n)
+    feeds = np.empty((n, a))
+    pilots = np.empty((n, a))
     reference = y[base:base + a].copy()
     u = np.zeros(a)
-    drive = np.zeros(a)  # what reaches the spool's solenoids
+    pilot = np.zeros(a)  # a mobile valve's pilot pressure difference, a fraction of its maximum
+    drive = np.zeros(a)  # what reaches the spool
     leaks = np.zeros((a, 3))
     on = np.zeros(_FAULT_COUNT)
     dy = np.empty(len(y))
+    lag = 1.0 - math.exp(-period / PILOT_LAG)
     h = period / SAMPLE_SUBSTEP_MAX
     for k in range(n):
         time = k * period
         for i in range(a):
             step = speeds[k, i] * period
             reference[i] += min(max(targets[k, i] - reference[i], -step), step)
-            u[i] = min(max(directions[i] * gains[k, i] * (reference[i] - y[base + i]), -lever), lever)
+            wanted = directions[i] * gains[k, i] * (reference[i] - y[base + i]) + feedforward[k, i]
+            # past a mobile valve's overlap at once: the operator's lever (or a controller's dead-zone jump)
+            u[i] = min(max(wanted + math.copysign(overlaps[i], wanted) * min(abs(wanted) / 0.02, 1.0), -lever), lever)
             for f in range(_FAULT_COUNT):
                 on[f] = fault_rows[i, f] if time >= onsets[i, f] else 0.0
             leaks[i] = on[:3]
             # a weak or strong solenoid moves the spool less or more for the same command; a stuck one not at all
             drive[i] = u[i] * (1.0 - on[3] + on[4])
+            if cyl[i, _C_MOBILE] > 0.5:
+                pilot[i] += lag * (drive[i] - pilot[i])
+                drive[i] = pilot[i] * cyl[i, _C_PILOT_GAIN]
             if on[5] > 0.5:
                 s0 = _STATES_PER_CYLINDER * i
                 y[s0 + 2] = y[s0 + 3] = drive[i] = 0.0
         commands[k] = u
-        h = _interval(y, period, min(h, period / SAMPLE_SUBSTEP_MAX), drive, cyl, table, centre, link, mass, payloads[k], gravity,
-                      supply, tank, viscosity[k], leaks, scale)
+        pilots[k] = pilot
+        h = _interval(y, period, min(h, period / SAMPLE_SUBSTEP_MAX), drive, cyl, table, centre, link, prismatic, mass, payloads[k],
+                      gravity, supply, tank, viscosity[k], leaks, scale)
         states[k] = y
-        supplies[k] = _rates(y, drive, cyl, table, centre, link, mass, payloads[k], gravity, supply, tank, viscosity[k], leaks, dy)
-    return states, commands, supplies
+        supplies[k] = _rates(y, drive, cyl, table, centre, link, prismatic, mass, payloads[k], gravity, supply, tank, viscosity[k], leaks,
+                             dy, feeds[k])
+    return states, commands, supplies, feeds, pilots
 
 
 def _operator(rig: ArmRig, work: ArmWork, n: int, rate: float, start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -482,11 +568,44 @@ def _operator(rig: ArmRig, work: ArmWork, n: int, rate: float, start: np.ndarray
     return targets, speeds, gains
 
 
+def _path_operator(rig: ArmRig, work: ArmWork, n: int, rate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per sample and joint: the path's position (worked forwards, held, backwards, held, again; each hold drawn), its
+    lever gain and the lever its speed needs on the data sheet's valve (the operator's, or a controller's, feed-forward)."""
+    path = work.path
+    names = list(path.joint_names)
+    joints = [a.joint for a in rig.machine.actuators]
+    missing = [j for j in joints if j not in names]
+    if missing:
+        raise InputError(f"independent arm: the path has no {', '.join(missing)} (it moves {', '.join(names)})")
+    rng = np.random.default_rng([work.seed, rig.seed, 17])
+    time, positions = np.asarray(path.time, dtype=float), np.asarray(path.positions, dtype=float)[:, [names.index(j) for j in joints]]
+    t = np.arange(0.0, time[-1] + 0.5 / rate, 1.0 / rate)
+    forwards = np.stack([np.interp(t, time, column) for column in positions.T], axis=1)
+    cycle = []
+    while sum(len(part) for part in cycle) < n:
+        for part in (forwards, forwards[::-1]):
+            cycle += [part, np.repeat(part[-1:], int(rng.uniform(*CYCLE_HOLD) * rate), axis=0)]
+    targets = np.concatenate(cycle)[:n]
+    velocity = np.gradient(targets, 1.0 / rate, axis=0)
+    feedforward = np.empty_like(targets)
+    for i, actuator in enumerate(rig.machine.actuators):
+        row = rig.cylinder[i]
+        arms = np.array([_piston(row, q)[1] for q in targets[::max(n // 2000, 1), i]])
+        arm = np.interp(np.arange(n), np.arange(0, n, max(n // 2000, 1))[:len(arms)], arms)
+        piston = velocity[:, i] * arm
+        v = actuator.valve
+        full = {notch: abs(float(np.polyval(v.kv_poly[notch], 1.0 if notch in ("PA", "BT") else -1.0)))
+                * math.sqrt(v.compensator_pressure_drop if v.mobile else 0.5 * (rig.supply - rig.tank)) for notch in ("PA", "PB")}
+        feedforward[:, i] = np.where(piston > 0.0, piston * row[_C_AREA_A] / full["PA"], piston * row[_C_AREA_B] / full["PB"])
+    gains = np.repeat(rng.uniform(*OPERATOR_GAIN, (1, len(joints))), n, axis=0)
+    return targets, gains, feedforward, targets[0]
+
+
 def _resting_state(rig: ArmRig, joints: np.ndarray, payload: float) -> np.ndarray:
     """At rest at ``joints``: each chamber B at its centre-leakage balance, A holding the links' static load."""
     a = len(joints)
     y = np.zeros(_STATES_PER_CYLINDER * a + 2 * a)
-    _, weight, _ = _mechanics(joints, np.zeros(a), rig.link, rig.mass, payload, rig.gravity)
+    _, weight, _ = _mechanics(joints, np.zeros(a), rig.link, rig.prismatic, rig.mass, payload, rig.gravity)
     for i in range(a):
         c, centre = rig.cylinder[i], rig.centre[i]
         p_b = (centre[1] * rig.supply + centre[3] * rig.tank) / (centre[1] + centre[3])
@@ -497,8 +616,18 @@ def _resting_state(rig: ArmRig, joints: np.ndarray, payload: float) -> np.ndarra
     return y
 
 
-def simulate(rig: ArmRig, work: ArmWork) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(times, states (n, S), commands (n, A), supply (n,)) of one run; the first sample one period after rest."""
+class RigRun(NamedTuple):
+    """One run of a rig, per sample: the first one period after rest."""
+
+    times: np.ndarray
+    states: np.ndarray  # (n, S)
+    commands: np.ndarray  # (n, A)
+    supplies: np.ndarray  # (n,)
+    feeds: np.ndarray  # (n, A) each valve's pressure upstream of its P notches
+    pilots: np.ndarray  # (n, A) a mobile valve's pilot pressure difference, a fraction of its maximum
+
+
+def simulate(rig: ArmRig, work: ArmWork) -> RigRun:
     machine = rig.machine
     names = machine.actuator_names
     rate = machine.sample_rate_hz
@@ -525,9 +654,15 @@ def simulate(rig: ArmRig, work: ArmWork) -> tuple[np.ndarray, np.ndarray, np.nda
         onsets[names.index(actuator), column] = onset
     if not 0.0 < work.lever_limit <= 1.0:
         raise InputError(f"independent arm: lever_limit {work.lever_limit} must be in (0, 1]")
-    start = rig.targets.mean(axis=1)
+    if work.path is None:
+        start = rig.targets.mean(axis=1)
+        targets, speeds, gains = _operator(rig, work, n, rate, start)
+        feedforward = np.zeros_like(targets)
+    else:
+        targets, gains, feedforward, start = _path_operator(rig, work, n, rate)
+        speeds = np.full_like(targets, np.inf)
     y = _resting_state(rig, start, payloads[0])
-    targets, speeds, gains = _operator(rig, work, n, rate, start)
+    overlaps = np.array([a.valve.deadzone for a in machine.actuators])
     day = np.random.default_rng([work.seed, rig.seed, 13]).uniform(*rig.oil_range) if work.oil_start_k is None else work.oil_start_k
     warmth = day + work.warming_k * (1.0 - np.exp(-times / WARMING_TIME))
     viscosity = np.exp(-VISCOSITY_PER_KELVIN * warmth)
@@ -535,19 +670,20 @@ def simulate(rig: ArmRig, work: ArmWork) -> tuple[np.ndarray, np.ndarray, np.nda
     scale = np.concatenate([np.tile([1000.0, 1000.0, 1e-5, 1e-3], len(names)), np.full(len(names), 1e-7),
                             np.full(len(names), 1e-6)])
     try:
-        states, commands, supplies = _run(y, 1.0 / rate, targets, speeds, gains, work.lever_limit, rig.directions, payloads, fault_rows, onsets, viscosity,
-                                          rig.cylinder, rig.flow_table, rig.centre, rig.link, rig.mass, rig.gravity, rig.supply, rig.tank,
-                                          scale)
+        run = RigRun(times, *_run(y, 1.0 / rate, targets, speeds, gains, feedforward, work.lever_limit, rig.directions, overlaps, payloads,
+                                  fault_rows, onsets, viscosity, rig.cylinder, rig.flow_table, rig.centre, rig.link, rig.prismatic, rig.mass,
+                                  rig.gravity, rig.supply, rig.tank, scale))
     except ValueError as failed:
         raise InputError(f"independent arm: the integration failed (seed {work.seed}: {failed})") from None
-    if not np.all(np.isfinite(states)):
+    if not np.all(np.isfinite(run.states)):
         raise InputError(f"independent arm: the integration diverged (seed {work.seed})")
-    return times, states, commands, supplies
+    return run
 
 
-def measure(rig: ArmRig, times: np.ndarray, states: np.ndarray, commands: np.ndarray, supplies: np.ndarray,
-            seed: int) -> Samples:
-    """The rig's sensors, (n, A) columns in the machine's actuator order."""
+def measure(rig: ArmRig, run: RigRun, seed: int) -> Samples:
+    """The rig's sensors, (n, A) columns in the machine's actuator order (a mobile valve's pilot and compensator
+    pressures on transmitters of their own)."""
+    times, states, commands, supplies = run.times, run.states, run.commands, run.supplies
     machine = rig.machine
     sensors = machine.sensors
     rate = machine.sample_rate_hz
@@ -565,23 +701,33 @@ def measure(rig: ArmRig, times: np.ndarray, states: np.ndarray, commands: np.nda
 
     chambers = states[:, :base].reshape(len(times), a, _STATES_PER_CYLINDER)
     zeros = rig.zero_offsets
+    mobile = {}
+    if machine.mobile:
+        pilot_max = np.array([act.valve.pilot_pressure_max for act in machine.actuators])
+        pilot_noise = sensors.pilot_pressure_noise_std
+
+        def pilot_transmitter(pressure: np.ndarray) -> np.ndarray:
+            return np.clip(pressure + rng.normal(0.0, pilot_noise, pressure.shape), 0.0, None)
+
+        mobile = {"pilot_pressure_1": pilot_transmitter(pilot_max * np.clip(run.pilots, 0.0, None)),
+                  "pilot_pressure_2": pilot_transmitter(pilot_max * np.clip(-run.pilots, 0.0, None)),
+                  "compensator_pressure": transmitter(run.feeds, zeros[2 * a:])}
     return Samples(times=times, joint_position=angle, joint_velocity=velocity, pressure_a=transmitter(chambers[:, :, 0], zeros[:a]),
                    pressure_b=transmitter(chambers[:, :, 1], zeros[a:2 * a]),
-                   supply_pressure=transmitter(supplies[:, None], zeros[2 * a:])[:, 0], valve_command=commands)
+                   supply_pressure=transmitter(supplies[:, None], zeros[2 * a:])[:, 0], valve_command=commands, **mobile)
 
 
-def recording(machine: Machine, rig_seed: int, work: ArmWork, spread: RigSpread | None = None) -> Samples:
-    """What the machine's sensors record of one run of the built arm ``rig_seed``."""
-    rig = build_rig(machine, rig_seed, spread)
-    times, states, commands, supplies = simulate(rig, work)
-    return measure(rig, times, states, commands, supplies, work.seed)
+def recording(machine: Machine, rig_seed: int, work: ArmWork, spread: RigSpread | None = None, crane: CraneConfig | None = None) -> Samples:
+    """What the machine's sensors record of one run of the built arm ``rig_seed`` (a crane's from its ``crane`` config)."""
+    rig = build_rig(machine, rig_seed, spread, crane)
+    return measure(rig, simulate(rig, work), work.seed)
 
 
 def recording_bag(machine: Machine, path: Path, rig_seed: int, work: ArmWork, spread: RigSpread | None = None,
-                  start_s: float = 0.0) -> Path:
+                  start_s: float = 0.0, crane: CraneConfig | None = None) -> Path:
     """One run as a contract bag (every joint in one JointState, per-cylinder pressures), its truth in the metadata;
     stamped from ``start_s`` (a recorder's wall time)."""
-    samples = recording(machine, rig_seed, work, spread)
+    samples = recording(machine, rig_seed, work, spread, crane)
     samples.times = samples.times + start_s
     with ContractBagWriter(path, actuators={a.name: a.joint for a in machine.actuators},
                            pressure_variance=machine.sensors.pressure_noise_std ** 2) as writer:
