@@ -41,6 +41,15 @@ the command reaches 1 / (1 + size)), ``spool_stuck_closed`` (1: the spool held a
 A machine without an ``arm:`` whose one actuator carries its ``load`` (the SAM) is the one-link arm that load
 describes (P-I eqs. 20-21: the boom's mass at its centre of gravity with its inertia about it, m_L and m_R at +-L),
 moved within the joint range its mount and end stops allow.
+
+A crane (``kind: crane``) is the chain its crane config describes (its links and masses; the telescope a prismatic
+link sliding on the tilt link, its cylinder on a linear mount, its pads' Coulomb force as a Stribeck curve on it);
+the base rotation is held still. Its mobile valves: the main spool's overlap drawn per rig, the opening beyond it
+rescaled to full travel; a pressure compensator whose spring holds ``COMPENSATOR_RISE`` more drop at full opening and
+whose check closes when the load is above what the supply can hold; the pilot stage a first-order lag
+(``PILOT_LAG``) whose pressures are measured with the compensator's. ``ArmWork.path`` (a planned joint trajectory)
+is worked forwards and back with drawn holds, the lever the path's speed needs on the data sheet's valve plus the
+operator's correction, past the overlap at once.
 """
 
 from __future__ import annotations
