@@ -18,11 +18,11 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from tqdm import tqdm  # noqa: E402
+import matplotlib.pyplot as plt
+from tqdm import tqdm
 
-from hydro_ros.bags.reader import bag_info  # noqa: E402
-from hydro_ros.benchresults import commit, write_result  # noqa: E402
+from hydro_ros.bags.reader import bag_info
+from hydro_ros.benchresults import commit, write_result
 
 REPO = Path(__file__).resolve().parent.parent
 DURATIONS_S = (300, 1200, 7200)

@@ -19,16 +19,16 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
-from hydro_ros.bags.writer import ContractBagWriter  # noqa: E402
-from hydro_ros.benchresults import write_result  # noqa: E402
-from hydro_ros.contract.config import default_config_path  # noqa: E402
-from hydro_ros.contract.machine import load_machine_config  # noqa: E402
-from hydro_ros.contract.names import Injection  # noqa: E402
-from hydro_ros.sim.scenario import MachineRun  # noqa: E402
-from hydro_ros.studies.fdi_evaluation import mismatched_config  # noqa: E402
-from hydro_ros.studies.fleet import analyse  # noqa: E402
+from hydro_ros.bags.writer import ContractBagWriter
+from hydro_ros.benchresults import write_result
+from hydro_ros.contract.config import default_config_path
+from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.contract.names import Injection
+from hydro_ros.sim.scenario import MachineRun
+from hydro_ros.studies.fdi_evaluation import mismatched_config
+from hydro_ros.studies.fleet import analyse
 
 RECORDING_S = 300.0
 RECORDINGS = 4

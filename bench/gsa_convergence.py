@@ -20,14 +20,14 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from tqdm import tqdm  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from tqdm import tqdm
 
-from hydro_ros.benchresults import write_result  # noqa: E402
-from hydro_ros.contract.config import default_config_path  # noqa: E402
-from hydro_ros.contract.machine import load_machine_config  # noqa: E402
-from hydro_ros.studies.gsa import (  # noqa: E402
+from hydro_ros.benchresults import write_result
+from hydro_ros.contract.config import default_config_path
+from hydro_ros.contract.machine import load_machine_config
+from hydro_ros.studies.gsa import (
     CAUSES,
     OUTPUTS,
     P_I_P_A_TOTAL_4S,

@@ -9,11 +9,11 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from hydro_ros.benchresults import write_result  # noqa: E402
-from hydro_ros.studies.mems import markdown, tables  # noqa: E402
+from hydro_ros.benchresults import write_result
+from hydro_ros.studies.mems import markdown, tables
 
 
 def main() -> None:

@@ -10,13 +10,13 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from tqdm import tqdm  # noqa: E402
+import matplotlib.pyplot as plt
+from tqdm import tqdm
 
-from hydro_ros.benchresults import write_result  # noqa: E402
-from hydro_ros.contract.config import default_config_path  # noqa: E402
-from hydro_ros.models.crane import load_crane  # noqa: E402
-from hydro_ros.studies.savings_map import line_paths, savings  # noqa: E402
+from hydro_ros.benchresults import write_result
+from hydro_ros.contract.config import default_config_path
+from hydro_ros.models.crane import load_crane
+from hydro_ros.studies.savings_map import line_paths, savings
 
 VERTICAL_X = (3.5, 4.5, 5.5, 6.5, 7.5)
 VERTICAL_Y0 = (-1.5, -0.5, 0.5)

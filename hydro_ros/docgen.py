@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from hydro_ros.benchresults import benchmarks_markdown
 from hydro_ros.contract.config import config_dir

@@ -7,10 +7,11 @@ shows as "not in bench/results"; a figure no result file holds says so in its ro
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from itertools import takewhile
 from statistics import mean
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -348,7 +349,7 @@ CLAIMS: list[Claim] = [
           tests=("test_sam_model.py::test_step_extension_reaches_analytic_steady_pressures",)),
     Claim(f"≤ {P_I_NATURAL_FREQUENCY_HZ:g} Hz maximum hydraulic natural frequency (P-I Fig. 4)", "**partly**", _natural_frequency,
           tests=("test_sam_model.py::test_natural_frequency_within_seed_maximum_over_the_upper_stroke",)),
-    Claim("UKF configuration α = 0.001, β = 2, κ = 0: Wm0 ≈ −1e6, Wi = 1.25e5 (P-II eq. 21)", "reproduced (test)",
+    Claim("UKF configuration α = 0.001, β = 2, κ = 0: Wm0 ≈ −1e6, Wi = 1.25e5 (P-II eq. 21)", "reproduced (test)",  # noqa: RUF001 (the paper's symbols)
           "the same weights", tests=("test_fdi.py::test_unscented_weights_are_those_of_p2_eq21",)),
     Claim("adaptive threshold ±(0.012 + 4e-4 µ_p²) MPa per chamber (P-II eq. 25); P-III 0.015 / 0.023",
           "implemented as configuration", _threshold, files=("commissioning",)),

@@ -49,7 +49,7 @@ def test_one_k70m_config_gives_the_planner_and_the_monitor_the_same_cylinders(cr
         assert np.allclose(model.joint_from_piston(cylinder.stroke(q)), q, atol=1e-6), cylinder.name
         assert model.base[[AREA_A, AREA_B]] == pytest.approx([cylinder.area_a, cylinder.area_b], rel=1e-4), cylinder.name
     shifted = machine.with_overrides({"actuators": {"tilt": {"mount": {"l3": 0.91}}}})
-    with pytest.raises(InputError, match="tilt's mount differs from joint tilt's cylinder mapping by 9.9 mm"):
+    with pytest.raises(InputError, match=r"tilt's mount differs from joint tilt's cylinder mapping by 9.9 mm"):
         crane_cylinders(shifted, config, ArmRun(1.0))
     with pytest.raises(InputError, match="lift:payload_mass: an arm's payload hangs at its tip"):
         crane_cylinders(machine, config, ArmRun(1.0, faults={"lift": [Injection("payload_mass", 300.0)]}))

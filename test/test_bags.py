@@ -152,12 +152,12 @@ def test_garbage_and_missing_bags_fail_clearly(tmp_path):
     with pytest.raises(BagError, match="no such file"):
         read_bag(tmp_path / "nope")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(BagError, match="no .mcap file"):
+    with pytest.raises(BagError, match=r"no .mcap file"):
         read_bag(tmp_path / "empty")
     junk = tmp_path / "junk"
     junk.mkdir()
     (junk / "junk.mcap").write_bytes(b"this is not an mcap file at all" * 10)
-    with pytest.raises(BagError, match="junk.mcap"):
+    with pytest.raises(BagError, match=r"junk.mcap"):
         read_bag(junk)
 
 

@@ -88,7 +88,7 @@ def test_counter_gaps_and_incomplete_cycles_are_counted(bus):
        data=st.binary(min_size=0, max_size=8))
 def test_random_frames_never_crash_and_never_pass_unchecked(bus, frame_id, data):
     try:
-        name, counter, values = bus.decode(frame_id, data)
+        _name, counter, values = bus.decode(frame_id, data)
     except FrameError as exc:
         assert exc.kind in ("unknown_id", "wrong_dlc", "bad_checksum", "undecodable")
         return
@@ -149,7 +149,7 @@ def test_unreadable_logs_fail_clearly(sam_config, tmp_path):
         convert_log(bad, sam_config, tmp_path / "bag")
     garbage = tmp_path / "garbage.log"
     garbage.write_text("this is not candump\n")
-    with pytest.raises(ValueError, match="garbage.log"):
+    with pytest.raises(ValueError, match=r"garbage.log"):
         convert_log(garbage, sam_config, tmp_path / "bag")
 
 

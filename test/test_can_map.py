@@ -196,7 +196,7 @@ QUANTITIES = ("joint_position", "joint_velocity", "valve_command", "pressure_a",
 @given(signals=st.lists(st.tuples(st.sampled_from([(m, i) for m, (_, s) in MESSAGES.items() for i in range(len(s))]),
                                   st.sampled_from(UNITS), st.sampled_from((0.01, 0.1, 1.0, 10.0, 1e-6, 1e6, -0.01, 0.0)),
                                   st.sampled_from((0, 8, 16, 24, 48, 56, 60))), max_size=3),
-       entries=st.lists(st.tuples(st.sampled_from(QUANTITIES + ("supply_pressure", "valve_request", "nonsense")),
+       entries=st.lists(st.tuples(st.sampled_from((*QUANTITIES, "supply_pressure", "valve_request", "nonsense")),
                                   st.sampled_from(("BOOM_ANGLE.ANGLE", "BOOM_HYD.HEAD", "BOOM_HYD.ROD", "PUMP.P_SUPPLY", "PUMP",
                                                    "NOPE.X", "", None, 3, ["BOOM_HYD.HEAD"], {"a": 1}))), max_size=3))
 def test_a_randomly_damaged_map_and_dbc_give_a_bus_or_one_line_per_problem(tmp_path_factory, signals, entries):

@@ -30,7 +30,7 @@ def _commands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
         yield path, parser
         return
     for name, sub in subs[0].choices.items():
-        yield from _commands(sub, path + (name,))
+        yield from _commands(sub, (*path, name))
 
 
 COMMANDS = [(path, parser) for path, parser in _commands(build_parser()) if path not in NOT_FUZZED]
@@ -102,7 +102,7 @@ def _fill(parser: argparse.ArgumentParser, path: tuple[str, ...], sound: dict[st
 def _cases():
     for path, parser in COMMANDS:
         for action in parser._actions:
-            if isinstance(action, argparse._HelpAction) or not action.option_strings and action.dest in ("command",):
+            if isinstance(action, argparse._HelpAction) or (not action.option_strings and action.dest in ("command",)):
                 continue
             name = action.option_strings[0] if action.option_strings else action.dest
             if name in INPUT_FILES or (name == "--db" and path in (("db", "list"), ("alarms", "export"))):

@@ -258,13 +258,13 @@ def test_a_leak_that_begins_in_the_held_out_part_is_refused_never_learnt(sam_con
     """The leak starts inside the last third, which only sets the threshold: refused by the held-out leak check, and a
     threshold above the config's safe one is refused unless forced."""
     leaking = [FaultFreeRecording("leak_at_200", _built(sam_config, 1, 300.0, faults=(("internal_leakage", 1.0, 200.0),)))]
-    with pytest.raises(InputError, match="held-out part .*internal_leakage"):
+    with pytest.raises(InputError, match=r"held-out part .*internal_leakage"):
         commission(sam_config, leaking)
     fault_free = [FaultFreeRecording(f"day{seed}", _built(sam_config, seed, 120.0)) for seed in (1, 2)]
     strict = sam_config.with_overrides({"fdi": {"threshold_constant": 0.001}})  # a config whose own c0 is sharper than the data's
-    with pytest.raises(InputError, match="c0 .* above the config's 0.0010 MPa.*--force"):
+    with pytest.raises(InputError, match=r"c0 .* above the config's 0.0010 MPa.*--force"):
         commission(strict, fault_free)
-    block, report = commission(strict, fault_free, force=True)
+    block, _report = commission(strict, fault_free, force=True)
     assert block["threshold"]["forced"] and block["model"]["fdi"]["threshold_constant"] > 0.001
 
 

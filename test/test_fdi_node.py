@@ -167,10 +167,10 @@ def test_bag_replay_with_sim_time_isolates_the_recorded_fault(ros_domain):
     bag = REPO / "bags" / "external_leakage_b"
     with probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-        with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", "use_sim_time:=true"):
-            with node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={bag}", "-p", "publish_clock:=true", "-p", "start_delay:=3.0",
-                              "-p", "rate:=1.0"):
-                assert spin_until(node, lambda: any(s.message == "external_leakage_b" for s in _fdi_statuses(diags)), 60)
+        with (node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", "use_sim_time:=true"),
+              node_process("hydro_ros.nodes.bag_player", "-p", f"bag:={bag}", "-p", "publish_clock:=true", "-p", "start_delay:=3.0",
+                           "-p", "rate:=1.0")):
+            assert spin_until(node, lambda: any(s.message == "external_leakage_b" for s in _fdi_statuses(diags)), 60)
         first = next(s for s in _fdi_statuses(diags) if s.message == "external_leakage_b")
         values = {v.key: v.value for v in first.values}
         assert 10.0 < float(values["first_detection_stamp_s"]) < 16.0  # onset at 10 s of the bag
@@ -324,17 +324,17 @@ def test_alarm_log_round_trip_a_killed_monitor_restores_its_latched_alarm(ros_do
     diags: list[DiagnosticArray] = []
     with probe_node("probe") as node:
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
-        with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=1.0"):
-            with node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"alarm_log:={log}") as monitor:
-                assert spin_until(node, lambda: any(s.message == "ok" for s in _fdi_statuses(diags)), 45)
-                client = AsyncParameterClient(node, "plant_sim")
-                assert client.wait_for_services(10.0)
-                future = client.set_parameters([Parameter("fault.external_leakage_a", value=3.0)])
-                assert spin_until(node, future.done, 10)
-                assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message == "external_leakage_a", 50)
-                monitor.kill()  # no shutdown path runs
-                monitor.wait(10)
-                spin_until(node, lambda: False, 0.5)  # take what the dead monitor sent before it died off the queue
+        with (node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "seed:=3", "-p", "real_time_factor:=1.0"),
+              node_process("hydro_ros.nodes.fdi_node", "-p", f"config:={SAM_CONFIG}", "-p", f"alarm_log:={log}") as monitor):
+            assert spin_until(node, lambda: any(s.message == "ok" for s in _fdi_statuses(diags)), 45)
+            client = AsyncParameterClient(node, "plant_sim")
+            assert client.wait_for_services(10.0)
+            future = client.set_parameters([Parameter("fault.external_leakage_a", value=3.0)])
+            assert spin_until(node, future.done, 10)
+            assert spin_until(node, lambda: _fdi_statuses(diags)[-1].message == "external_leakage_a", 50)
+            monitor.kill()  # no shutdown path runs
+            monitor.wait(10)
+            spin_until(node, lambda: False, 0.5)  # take what the dead monitor sent before it died off the queue
 
         out = tmp_path / "alarms.json"
         exported = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "alarms", "export", "--db", str(log), "--out", str(out)],

@@ -37,7 +37,7 @@ async def _watch(port: int, wanted: tuple[str, ...], seconds: float) -> tuple[di
                                                                   for t, v in received.items()):
             try:
                 message = await asyncio.wait_for(ws.receive(), 1.0)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 continue
             if message.type == aiohttp.WSMsgType.TEXT:
                 data = json.loads(message.data)

@@ -3,6 +3,7 @@ tools behave as bench/gsa_convergence.py relies on."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import subprocess
 import sys
@@ -127,7 +128,7 @@ def test_intervals_narrow_as_n_grows_on_the_solved_steady_state(sam_config):
     assert sorted(results) == sizes and all(results[n]["runs"] == n * (len(PARAMETERS) + 2) for n in sizes)
     for output in OUTPUTS:
         widest = ranking_convergence(results, output, STEADY)["widest_interval"]
-        assert all(widest[str(small)] > widest[str(large)] for small, large in zip(sizes, sizes[1:])), (output, widest)
+        assert all(widest[str(small)] > widest[str(large)] for small, large in itertools.pairwise(sizes)), (output, widest)
 
 
 def test_ranking_convergence_names_where_the_order_settles():

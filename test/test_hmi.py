@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import math
 import time
@@ -82,7 +83,7 @@ def test_residuals_are_decimated_windowed_and_sent_once():
     view, cursor = state.snapshot()
     rows = view["residuals"]["rows"]
     stamps = [row[0] for row in rows]
-    assert min(b - a for a, b in zip(stamps, stamps[1:])) >= 0.1 - 1e-9
+    assert min(b - a for a, b in itertools.pairwise(stamps)) >= 0.1 - 1e-9
     assert stamps[-1] - stamps[0] <= 60.0 and len(rows) in range(500, 602)
     assert rows[-1][3] is None  # NaN travels as a gap, JSON has no NaN
     json.dumps(view, allow_nan=False)

@@ -62,7 +62,7 @@ def test_every_third_party_import_is_declared_or_an_optional_extra():
 
 
 def test_nodes_and_cli_import_without_the_optional_extras():
-    blocked = sorted(OPTIONAL) + ["dask", "zstandard"]
+    blocked = [*sorted(OPTIONAL), "dask", "zstandard"]
     script = f"""
 import importlib, importlib.abc, pkgutil, sys
 class Block(importlib.abc.MetaPathFinder):

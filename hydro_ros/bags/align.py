@@ -10,7 +10,7 @@ of a machine's actuators and turns rows into :class:`~hydro_ros.contract.samples
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -9,7 +9,7 @@ in test_bags.py.
 from __future__ import annotations
 
 import struct
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

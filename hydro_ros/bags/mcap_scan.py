@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import struct
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import BinaryIO, Iterator
+from typing import BinaryIO
 
 import numpy as np
 from numba import njit
@@ -238,7 +239,7 @@ def _chunk_records(content: bytes) -> bytes | None:
         if offset + 8 + records_len > len(content) or (records_len == 0 and len(content) > offset + 8):
             return None  # records beyond the chunk, or none in a chunk with bytes left (a zeroed header reads as empty)
         records = _decompress(compression, content[offset + 8 : offset + 8 + records_len], size)
-    except Exception:  # noqa: BLE001 - struct, UnicodeDecodeError, zstd or lz4 errors all mean a damaged chunk
+    except Exception:  # struct, UnicodeDecodeError, zstd or lz4 errors all mean a damaged chunk
         return None
     if len(records) != size or (crc and zlib.crc32(records) != crc):
         return None

@@ -219,7 +219,7 @@ class _Series:
         self.stamps.append(np.asarray(stamps, dtype=np.int64))
         self.values.append(np.asarray(values, dtype=float))
 
-    def extend(self, other: "_Series") -> None:
+    def extend(self, other: _Series) -> None:
         self.stamps += other.stamps
         self.values += other.values
 
@@ -323,7 +323,7 @@ def read_bag(path: str | Path) -> BagData:
                         joint_channels[key][1].add(batch, bad)
                     elif channel.topic == topics.SAMPLE_BLOCK:
                         _add_blocks(batch, blocks, bad)
-        except Exception as exc:  # noqa: BLE001 - any damage (McapDamage, zstd, struct) ends this file, not the caller
+        except Exception as exc:  # any damage (McapDamage, zstd, struct) ends this file, not the caller
             done = scanner.messages if scanner is not None else 0
             errors.append(f"{file}: damaged after {done} messages ({exc})")
         if scanner is not None:

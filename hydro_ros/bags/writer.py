@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import yaml
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
@@ -89,7 +90,7 @@ class BagWriter:
         self._qos_yaml: dict[str, Any] = {}  # rosbags' own serialisation of each topic's QoS, from the parts' metadata
         self._part: _Part | None = None
 
-    def __enter__(self) -> "BagWriter":
+    def __enter__(self) -> BagWriter:
         self.path.mkdir(parents=True)
         self._open_part()
         return self
@@ -217,12 +218,10 @@ def sample_payloads(block: Samples, k: int, stamp: int, actuator: str, joint: st
     if not block.mobile:
         return payloads
     # the load-sensing line sees the pressure the compensator works against
-    return payloads + (
-        encode_fluid_pressure(stamp, actuator, float(block.pilot_pressure_1[k]), 0.0),
-        encode_fluid_pressure(stamp, actuator, float(block.pilot_pressure_2[k]), 0.0),
-        encode_fluid_pressure(stamp, actuator, float(block.compensator_pressure[k]), variance),
-        encode_fluid_pressure(stamp, "ls", float(block.ls_pressure[k]), variance),
-    )
+    return (*payloads, encode_fluid_pressure(stamp, actuator, float(block.pilot_pressure_1[k]), 0.0),
+            encode_fluid_pressure(stamp, actuator, float(block.pilot_pressure_2[k]), 0.0),
+            encode_fluid_pressure(stamp, actuator, float(block.compensator_pressure[k]), variance),
+            encode_fluid_pressure(stamp, "ls", float(block.ls_pressure[k]), variance))
 
 
 def sample_topics(actuator: str, *, mobile: bool = False) -> tuple[str, ...]:

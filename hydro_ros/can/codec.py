@@ -22,9 +22,10 @@ counter and a checksum in byte 7.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import cantools
 import numpy as np
@@ -406,7 +407,7 @@ class MachineBus:
             checksum = None
         try:
             values = message.decode(bytes(data), decode_choices=False)
-        except Exception as exc:  # noqa: BLE001 - cantools raises several types on bad payloads
+        except Exception as exc:  # cantools raises several types on bad payloads
             raise FrameError("undecodable", f"{message.name}: {exc}") from None
         if checksum is not None and int(values[checksum.signal]) != self._checksum_of(message.name, frame_id, data):
             raise FrameError("bad_checksum", f"{message.name}: checksum mismatch")

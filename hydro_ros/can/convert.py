@@ -10,9 +10,10 @@ Bad frames are counted by kind and reported, never written.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import can
 import numpy as np

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Callable, NoReturn, Sequence
+from collections.abc import Callable, Sequence
+from typing import NoReturn
 
 from hydro_ros.cli import bag, fdi, machine, operations, planning, sim, studies
 from hydro_ros.cli.common import OUTPUT_OPTIONS, check_output

@@ -8,8 +8,9 @@ import json
 import math
 import shutil
 import tempfile
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any
 
 from hydro_ros.contract.check import DP_GRID_MIN
 from hydro_ros.contract.errors import InputError
@@ -40,11 +41,11 @@ COUNT = number(int, 1, 1_000_000)
 PORT = number(int, 0, 65535)
 
 
-def add_config(parser: argparse.ArgumentParser, help: str = "machine config, e.g. config/sam.yaml") -> None:  # noqa: A002
+def add_config(parser: argparse.ArgumentParser, help: str = "machine config, e.g. config/sam.yaml") -> None:
     parser.add_argument("--config", required=True, help=help)
 
 
-def add_out(parser: argparse.ArgumentParser, help: str, *, required: bool = True) -> None:  # noqa: A002
+def add_out(parser: argparse.ArgumentParser, help: str, *, required: bool = True) -> None:
     """``--out``: where a command writes its file or folder (``--json`` is only ever a print format)."""
     parser.add_argument("--out", required=required, default=None, help=help)
 
@@ -119,7 +120,7 @@ def injections(texts: Sequence[str], kind: str, timed: bool) -> list:
     return out
 
 
-def one_actuator(machine, name: str | None, study: str):  # noqa: ANN001, ANN201 - a Machine, kept lazy
+def one_actuator(machine, name: str | None, study: str):  # a Machine, kept lazy
     """The machine restricted to the actuator a one-cylinder study looks at: named with --actuator where there are several."""
     if name is None:
         if len(machine.actuators) > 1:

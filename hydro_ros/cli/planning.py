@@ -69,7 +69,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     listing.set_defaults(func=cmd_db_list)
 
 
-def dp_problem(args: argparse.Namespace):  # noqa: ANN202 - planning types imported lazily
+def dp_problem(args: argparse.Namespace):  # planning types imported lazily
     from hydro_ros.models.crane import load_crane
     from hydro_ros.planning.problem import Problem
 
@@ -169,7 +169,7 @@ def cmd_db_build(args: argparse.Namespace) -> int:
         stored = db.committed()
         bar.update(sum(1 for unit in units if stored.get(unit.key) == unit.inputs_hash))
 
-        def done(unit) -> None:  # noqa: ANN001
+        def done(unit) -> None:
             bar.set_postfix_str(f"{unit.path_id}/{unit.method}")
             bar.update(1)
 

@@ -100,7 +100,7 @@ def _config_text(path: Path) -> str:
 def _read_merged(path: Path, extended_by: tuple[Path, ...] = ()) -> dict[str, Any]:
     text = _config_text(path)
     try:
-        raw = unshared(yaml.load(text, Loader=_UniqueKeyLoader))  # noqa: S506 - a SafeLoader
+        raw = unshared(yaml.load(text, Loader=_UniqueKeyLoader))  # a SafeLoader
     except yaml.YAMLError as exc:
         first_line = str(exc).splitlines()[0]
         raise ConfigError(f"config {path}: not valid YAML ({first_line})") from None

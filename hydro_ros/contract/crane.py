@@ -10,9 +10,10 @@ its key; every rule the sections break is refused first, all at once (``check.cr
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from hydro_ros.contract.check import crane_problems, list_entry
 from hydro_ros.contract.config import ConfigError, with_overrides
@@ -138,11 +139,11 @@ class CraneConfig:
             raise ConfigError(f"path {path_id!r}: not in config {self.name} (known: {', '.join(sorted(self.paths)) or 'none'})")
         return self.paths[path_id]
 
-    def with_overrides(self, overrides: Mapping[str, Any]) -> "CraneConfig":
+    def with_overrides(self, overrides: Mapping[str, Any]) -> CraneConfig:
         """This crane with a nested patch in the file's terms merged in (a list, such as ``masses``, is replaced)."""
         return parse_crane(with_overrides(dict(self.mapping), dict(overrides)), self.source)
 
-    def with_paths(self, paths: Mapping[str, Mapping[str, Any]]) -> "CraneConfig":
+    def with_paths(self, paths: Mapping[str, Mapping[str, Any]]) -> CraneConfig:
         """This crane planning along ``paths`` instead of its own (a study's lines across the workspace)."""
         return replace(self, paths=dict(paths), mapping={**self.mapping, "paths": dict(paths)})
 

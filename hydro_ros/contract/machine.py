@@ -11,9 +11,10 @@ merged file the machine was parsed from, which tools write back.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from hydro_ros.contract.check import config_problems, list_entry
 from hydro_ros.contract.config import ConfigError, read_config, unshared, with_overrides
@@ -66,7 +67,7 @@ class Section:
             return default
         return str(self.node[name])
 
-    def section(self, name: str, *, optional: bool = False) -> "Section":
+    def section(self, name: str, *, optional: bool = False) -> Section:
         if name not in self.node and optional:
             return Section(self.source, self._name(name), {})
         if name not in self.node:
@@ -383,7 +384,7 @@ class Machine:
         """Whether the valves are pressure-compensated mobile valves (pilot and compensator pressures measured)."""
         return any(a.valve.mobile for a in self.actuators)
 
-    def only(self, actuator: str, load: Load) -> "Machine":
+    def only(self, actuator: str, load: Load) -> Machine:
         """This machine with only ``actuator``, carrying ``load`` (a study of one cylinder on a machine of several: its own
         load, or its share of the arm, ``models.serial_arm.machine_load``)."""
         self.actuator(actuator)
@@ -396,7 +397,7 @@ class Machine:
             can_map["actuators"] = {name: entry for name, entry in can_map["actuators"].items() if name == actuator}
         return parse_machine(mapping, self.source)
 
-    def with_overrides(self, overrides: Mapping[str, Any]) -> "Machine":
+    def with_overrides(self, overrides: Mapping[str, Any]) -> Machine:
         """This machine with a nested patch in the config file's terms merged in (model mismatch, calibration, effects)."""
         return parse_machine(with_overrides(dict(self.mapping), overrides), self.source)
 

@@ -31,7 +31,7 @@ class Samples:
     def __len__(self) -> int:
         return len(self.times)
 
-    def as_columns(self) -> "Samples":
+    def as_columns(self) -> Samples:
         """One actuator's (n,) arrays as (n, 1) columns, the monitor's layout."""
         column = {f.name: getattr(self, f.name) for f in fields(self)}
         for name in PER_ACTUATOR:
@@ -39,7 +39,7 @@ class Samples:
                 column[name] = np.asarray(column[name]).reshape(len(self.times), -1)
         return Samples(**column)
 
-    def slice(self, part: slice) -> "Samples":
+    def slice(self, part: slice) -> Samples:
         return Samples(**{f.name: None if getattr(self, f.name) is None else np.asarray(getattr(self, f.name))[part]
                           for f in fields(self)})
 

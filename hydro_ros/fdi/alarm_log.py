@@ -18,6 +18,7 @@ The alarms still latched (raised or changed, and not reset since) come back afte
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import sqlite3
 import time
@@ -108,10 +109,8 @@ class AlarmLog:
 
     def _close_db(self) -> None:
         if self._db is not None:
-            try:
+            with contextlib.suppress(sqlite3.Error):
                 self._db.close()
-            except sqlite3.Error:
-                pass
         self._db = None
         self._identity = None
 

@@ -14,8 +14,9 @@ run and never named a 1 L/min leak).
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -36,7 +37,7 @@ class Coverage:
     ranges: Mapping[str, Mapping[str, tuple[float, float]]]
 
     @classmethod
-    def seen(cls, actuators: Sequence[str], recordings: Sequence[Any]) -> "Coverage":
+    def seen(cls, actuators: Sequence[str], recordings: Sequence[Any]) -> Coverage:
         """The region of Samples ``recordings`` ((n, A) columns in ``actuators`` order), valid samples only."""
         ranges: dict[str, dict[str, tuple[float, float]]] = {}
         for index, actuator in enumerate(actuators):
@@ -51,7 +52,7 @@ class Coverage:
         return cls(ranges)
 
     @classmethod
-    def from_config(cls, section: Any) -> "Coverage | None":
+    def from_config(cls, section: Any) -> Coverage | None:
         if section is None:
             return None
         try:
@@ -82,7 +83,7 @@ class Coverage:
         """The motions to record so the monitor covers more of the machine's work (its valve's full stroke, its
         chambers up to the supply)."""
         entry = self.ranges[actuator]
-        (c_low, c_high), (a_low, a_high), (b_low, b_high) = (entry[q] for q in QUANTITIES)
+        (c_low, c_high), (_a_low, a_high), (_b_low, b_high) = (entry[q] for q in QUANTITIES)
         out = []
         if c_high < 0.9:
             out.append(f"extending faster (valve openings above {c_high:.2f} were not seen)")

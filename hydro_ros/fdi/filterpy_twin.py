@@ -6,7 +6,7 @@ from P^- before the update gives P-II's linear update (eqs. 14-15), the form Ukf
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

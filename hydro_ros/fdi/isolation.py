@@ -74,9 +74,7 @@ class PatternRow:
             return False
         if self.large is not None and self.large != large:
             return False
-        if self.command_positive is not None and direction != 0 and self.command_positive != (direction > 0):
-            return False
-        return True
+        return not (self.command_positive is not None and direction != 0 and self.command_positive != (direction > 0))
 
     def contains(self, code: int, closed_code: int | None) -> bool:
         """Whether the row's patterns contain every crossing seen: a partial pattern on its way to this row's."""

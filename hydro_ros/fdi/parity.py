@@ -264,7 +264,7 @@ class ParityThresholds:
     closed: dict[str, Any] | None = None  # {mean, std [L/min], factor: c} per chamber (A, B) of the closed-valve means
 
     @classmethod
-    def from_config(cls, section: dict[str, Any] | None) -> "ParityThresholds | None":
+    def from_config(cls, section: dict[str, Any] | None) -> ParityThresholds | None:
         if not section:
             return None
         try:
@@ -291,7 +291,7 @@ class ParityThresholds:
 
     @classmethod
     def from_statistics(cls, residual: np.ndarray, operating_point: np.ndarray, edges: tuple[float, ...], factor: float,
-                        flow_fraction: float = 0.0, bins: str = "opening", minimum: int = 100) -> "ParityThresholds":
+                        flow_fraction: float = 0.0, bins: str = "opening", minimum: int = 100) -> ParityThresholds:
         """Mean and spread of fault-free 5 s mean residuals (n, 2) per bin of the (n, 5) operating points.
 
         A bin with fewer than ``minimum`` samples (an operating point the data never reached) borrows

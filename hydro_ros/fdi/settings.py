@@ -50,7 +50,7 @@ class FdiSettings:
     coverage: Coverage | None = None  # what commissioning saw: outside it detection holds (hydro_ros.fdi.coverage)
 
     @classmethod
-    def from_machine(cls, machine: Machine) -> "FdiSettings":
+    def from_machine(cls, machine: Machine) -> FdiSettings:
         """The machine's ``fdi:`` section typed; a bad key or value is refused with its name."""
         section = dict(machine.fdi)
         ukf = UkfSettings.from_config(section.pop("ukf", None))

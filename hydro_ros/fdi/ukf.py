@@ -232,7 +232,7 @@ class UkfSettings:
     laminar_band: float | None = None  # [Pa] orifice linearisation of the filter's model; None = the machine's
 
     @classmethod
-    def from_config(cls, section: dict[str, Any] | None) -> "UkfSettings":
+    def from_config(cls, section: dict[str, Any] | None) -> UkfSettings:
         section = dict(section or {})
         known = {name: section.pop(name) for name in list(section) if name in cls.__dataclass_fields__}
         if section:

@@ -31,10 +31,11 @@ import logging
 import math
 import re
 import time
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Awaitable, Callable, Protocol
+from typing import Any, Protocol
 
 from aiohttp import ClientSession, WSMsgType, web
 
@@ -221,7 +222,7 @@ async def _alarm_log(request: web.Request) -> web.Response:
         limit = int(request.query.get("limit", "20"))
     except ValueError:
         raise _error(web.HTTPBadRequest, "offset and limit: expected integers") from None
-    if not (0 <= offset and 1 <= limit <= ALARM_PAGE_MAX):
+    if not (offset >= 0 and 1 <= limit <= ALARM_PAGE_MAX):
         raise _error(web.HTTPBadRequest, f"offset >= 0 and 1 <= limit <= {ALARM_PAGE_MAX}")
     try:
         events, total = await asyncio.to_thread(read_events, path, offset=offset, limit=limit)

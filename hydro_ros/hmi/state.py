@@ -15,8 +15,9 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.topics import FDI_HALT_STATUS, FDI_STATUS_PREFIX

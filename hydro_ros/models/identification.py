@@ -24,8 +24,8 @@ within their tolerance (``group_calibration``), so an effect is left for the eff
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 from scipy.ndimage import binary_erosion
@@ -91,7 +91,7 @@ class FlowRegression:
     seconds: float
 
     @classmethod
-    def concatenate(cls, parts: Sequence["FlowRegression"]) -> "FlowRegression":
+    def concatenate(cls, parts: Sequence[FlowRegression]) -> FlowRegression:
         if not parts:
             return cls(np.empty((0, len(COLUMNS))), np.empty(0), dict.fromkeys(NOTCHES, 0.0), dict.fromkeys(NOTCHES, 0.0), 0.0)
         return cls(np.vstack([p.regressors for p in parts]), np.concatenate([p.flows for p in parts]),

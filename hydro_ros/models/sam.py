@@ -21,8 +21,8 @@ halving the step changes pressures by < 1 kPa and position by < 1 um over a 10 s
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 from numba import njit, prange
@@ -535,10 +535,7 @@ class SamModel:
         x = self.piston_from_joint(joint)
         if p_b is None:
             cl = self.centre_leakage
-            if cl[1] + cl[3] > 0.0:
-                p_b = (cl[1] * p[SUPPLY] + cl[3] * p[TANK]) / (cl[1] + cl[3])
-            else:
-                p_b = 0.1 * p[SUPPLY]
+            p_b = (cl[1] * p[SUPPLY] + cl[3] * p[TANK]) / (cl[1] + cl[3]) if cl[1] + cl[3] > 0.0 else 0.1 * p[SUPPLY]
         p_a = (self.load_force(x) + p_b * p[AREA_B]) / p[AREA_A]
         return np.array([p_a, p_b, 0.0, 0.0, x, 0.0, 0.0])
 
@@ -584,10 +581,7 @@ def simulate_segments(
 def injection_levels(injection: Injection, times: np.ndarray) -> np.ndarray:
     """Vectorised :meth:`Injection.level` over sample times."""
     times = np.asarray(times, dtype=float)
-    if injection.ramp_s > 0.0:
-        fraction = np.clip((times - injection.onset_s) / injection.ramp_s, 0.0, 1.0)
-    else:
-        fraction = (times >= injection.onset_s).astype(float)
+    fraction = np.clip((times - injection.onset_s) / injection.ramp_s, 0.0, 1.0) if injection.ramp_s > 0.0 else (times >= injection.onset_s).astype(float)
     return injection.value * fraction
 
 

@@ -21,8 +21,9 @@ from a namespace with ``cos`` and ``sin`` (NumPy's by default).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from types import SimpleNamespace
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +45,7 @@ class SerialArm:
         self.payload = arm.payload
 
     @classmethod
-    def of(cls, machine: Machine) -> "SerialArm":
+    def of(cls, machine: Machine) -> SerialArm:
         """The arm of a machine config's ``arm:`` under its simulation's gravity."""
         if machine.arm is None:
             raise ValueError(f"config {machine.source}: no arm: section")

@@ -9,8 +9,8 @@ then exits non-zero.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Iterator, Sequence
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError

@@ -6,7 +6,8 @@ import importlib
 import math
 import signal
 import sys
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import rclpy
 from rclpy.duration import Duration

@@ -264,7 +264,7 @@ class HmiNode(Node):
         future.add_done_callback(lambda f: loop.call_soon_threadsafe(_settle, answered, f))
         try:
             response = await asyncio.wait_for(answered, self.action_timeout)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             self.acknowledge_client.remove_pending_request(future)
             return False, f"service {service} did not answer within {self.action_timeout:g} s"
         return bool(response.success), str(response.message)

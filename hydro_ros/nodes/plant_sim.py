@@ -346,7 +346,7 @@ class PlantSim(Node):
         plant.follow(path)
         self.get_logger().info(f"working a {path.time[-1]:.1f} s trajectory of {len(path.time)} points as a cycle")
 
-    def _planar_path(self, msg: JointTrajectory) -> "_Path":
+    def _planar_path(self, msg: JointTrajectory) -> _Path:
         """The received trajectory's columns of the crane's planar joints; InputError with the reason it cannot be worked."""
         plant = self.source.plant
         names = plant.arm.joint_names

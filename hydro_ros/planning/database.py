@@ -15,9 +15,10 @@ import io
 import json
 import sqlite3
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -148,13 +149,13 @@ class TrajectoryDatabase:
             if result != "ok":
                 raise DatabaseError(f"database {self.path}: integrity check failed ({result})")
 
-    def transaction(self) -> "_Transaction":
+    def transaction(self) -> _Transaction:
         return _Transaction(self.connection)
 
     def close(self) -> None:
         self.connection.close()
 
-    def __enter__(self) -> "TrajectoryDatabase":
+    def __enter__(self) -> TrajectoryDatabase:
         return self
 
     def __exit__(self, *exc: object) -> None:

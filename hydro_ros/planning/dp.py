@@ -290,7 +290,7 @@ def _cost_to_go_at(cost_next: np.ndarray, ic: int, wc: float, y: float) -> float
 @njit(cache=True)
 def _add_samples_around(samples: np.ndarray, count: int, position: float, first: int, last: int) -> int:
     """Append the control samples next to fractional sample index ``position`` (a breakpoint), within [first, last]."""
-    if not (position == position) or position < first - 2.0 or position > last + 2.0:  # NaN or far outside
+    if position != position or position < first - 2.0 or position > last + 2.0:  # NaN or far outside
         return count
     for m in range(int(math.floor(position - 1e-9)), int(math.floor(position + 1e-9)) + 2):
         if first <= m <= last:

@@ -25,8 +25,9 @@ SAM's (``SensorModel`` per cylinder). Measurements and states come in the machin
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, fields, replace
-from typing import Callable, Iterator, Protocol, Sequence
+from typing import Protocol
 
 import numpy as np
 from numba import njit

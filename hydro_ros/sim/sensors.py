@@ -12,7 +12,7 @@ The sample rate is the config's.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

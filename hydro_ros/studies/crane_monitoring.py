@@ -24,8 +24,9 @@ cylinder: detection, isolation to the cylinder and the fault, delay, and false a
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 

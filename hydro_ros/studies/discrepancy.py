@@ -39,10 +39,12 @@ from __future__ import annotations
 
 import base64
 import html
+import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import yaml
@@ -119,7 +121,7 @@ class Recording:
     supply: np.ndarray
     earlier_commands: np.ndarray = field(default_factory=lambda: np.empty(0))
 
-    def part(self, part: slice) -> "Recording":
+    def part(self, part: slice) -> Recording:
         first = range(len(self.times))[part].start
         earlier = np.concatenate([self.earlier_commands, self.command[:first]])[-DELAY_BUFFER:]
         return Recording(*(getattr(self, f.name)[part] for f in fields(self) if f.name != "earlier_commands"), earlier)
@@ -137,14 +139,14 @@ class Recording:
         bounds = np.concatenate([[0], starts, [len(self.times)]])
         return FlowRegression.concatenate([
             stretch_rows(model, self.joint[a:b], self.pressure_a[a:b], self.pressure_b[a:b], self.command[a:b], self.supply[a:b])
-            for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= SEGMENT_MIN_S * model.sample_rate])
+            for a, b in itertools.pairwise(bounds) if b - a >= SEGMENT_MIN_S * model.sample_rate])
 
     @classmethod
-    def from_bag(cls, data: BagData, machine: Machine) -> "Recording":
+    def from_bag(cls, data: BagData, machine: Machine) -> Recording:
         actuator = machine.first
         samples = data.samples(SampleLayout([actuator.name], [actuator.joint]))
-        signals = tuple(getattr(samples, quantity)[:, 0] for quantity in
-                        ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command")) + (samples.supply_pressure,)
+        signals = (*(getattr(samples, quantity)[:, 0] for quantity in ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command")),
+               samples.supply_pressure)
         good = np.all(np.isfinite(np.stack(signals)), axis=0)
         if good.sum() < 0.9 * len(good):
             raise InputError(f"bag {data.path}: {np.count_nonzero(~good)} of {len(good)} samples incomplete")

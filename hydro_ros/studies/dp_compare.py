@@ -6,7 +6,8 @@ side and reports energies relative to the best (P-V Tables 2-3 style).
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from hydro_ros.planning.problem import CONTRACT_METHODS, Plan, Problem, method_record, run_method
 

@@ -10,11 +10,12 @@ and long fault-free runs give the false-alarm rate (threshold-crossing episodes 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -381,7 +382,7 @@ def _crossing_episodes(residual: np.ndarray, operating_point: np.ndarray, thresh
 
 
 def fit_parity_thresholds(machine: Machine, train: Iterable[int], held_out: Iterable[int], duration_s: float = 120.0,
-                          target_per_hour: float = 1.0) -> tuple["ParityThresholds", dict[str, Any]]:
+                          target_per_hour: float = 1.0) -> tuple[ParityThresholds, dict[str, Any]]:
     """Bin fault-free 5 s mean residuals by mean opening; pick c for the false-alarm target on held-out plants. One set of
     thresholds serves every actuator, so every actuator's windows enter (held-out hours are actuator hours)."""
     train_runs = [_parity_records(machine, Case(None, 0.0, seed, duration_s=duration_s, actuator=actuator))

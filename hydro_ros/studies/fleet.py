@@ -24,11 +24,12 @@ import io
 import json
 import math
 import sqlite3
+from collections.abc import Callable
 from concurrent.futures import Future, as_completed
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -273,7 +274,7 @@ def _write_csv(report: dict[str, Any], path: Path) -> None:
 
 
 def _date(unix_s: float | None) -> str:
-    return "" if unix_s is None else datetime.datetime.fromtimestamp(unix_s, datetime.timezone.utc).strftime("%Y-%m-%d")
+    return "" if unix_s is None else datetime.datetime.fromtimestamp(unix_s, datetime.UTC).strftime("%Y-%m-%d")
 
 
 def fleet_page(report: dict[str, Any]) -> str:
@@ -303,13 +304,13 @@ def fleet_page(report: dict[str, Any]) -> str:
             entry = machine["actuators"][actuator]
             fig, ax = plt.subplots(figsize=(7, 3))
             for leak in entry["flagged"]:
-                t = [datetime.datetime.fromtimestamp(r["start_unix_s"], datetime.timezone.utc) for r in entry["recordings"]]
+                t = [datetime.datetime.fromtimestamp(r["start_unix_s"], datetime.UTC) for r in entry["recordings"]]
                 v = [r["leak_l_min"][leak] for r in entry["recordings"]]
                 e = [r["leak_sigma_l_min"][leak] for r in entry["recordings"]]
                 ax.errorbar(t, v, yerr=e, marker="o", capsize=3, label=f"{leak} leak")
                 projected = entry["trend"][leak]["projected_unix_s"]
                 if projected:
-                    ax.plot([t[-1], datetime.datetime.fromtimestamp(projected, datetime.timezone.utc)], [v[-1], limit], "--", color="grey")
+                    ax.plot([t[-1], datetime.datetime.fromtimestamp(projected, datetime.UTC)], [v[-1], limit], "--", color="grey")
             ax.axhline(limit, color="red", lw=1, label="service limit")
             ax.set_ylabel("L/min at 10 MPa")
             ax.legend(fontsize=8)

@@ -11,8 +11,9 @@ II and the delays: an external leak in chamber B from 26 s (P-III: 0.38 L/min on
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

@@ -10,11 +10,11 @@ import matplotlib
 import numpy as np
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
-from hydro_ros.bags.reader import BagData  # noqa: E402
-from hydro_ros.contract.machine import Machine  # noqa: E402
-from hydro_ros.models.sam import BOOM_LENGTH, LOAD_DISTANCE, SamModel  # noqa: E402
+from hydro_ros.bags.reader import BagData
+from hydro_ros.contract.machine import Machine
+from hydro_ros.models.sam import BOOM_LENGTH, LOAD_DISTANCE, SamModel
 
 if TYPE_CHECKING:
     from hydro_ros.fdi.offline import FdiRun
@@ -53,7 +53,7 @@ def plot_bag(data: BagData, out: str | Path) -> Path:
     return out
 
 
-def plot_fdi(run: "FdiRun", out: str | Path) -> Path:
+def plot_fdi(run: FdiRun, out: str | Path) -> Path:
     """Per actuator: 5 s mean residuals of both chambers against their adaptive thresholds."""
     out = Path(out)
     actuators = run.monitor.actuators
@@ -71,7 +71,7 @@ def plot_fdi(run: "FdiRun", out: str | Path) -> Path:
                     ax.axvline(alarm.time_s, color="orange", lw=0.8)
                     if c == 0:
                         ax.annotate(alarm.fault.value, (alarm.time_s, ax.get_ylim()[1]), fontsize=7, va="top", color="darkorange")
-            for name, onset in onsets:
+            for _name, onset in onsets:
                 ax.axvline(onset, color="red", ls=":", lw=0.8)
             ax.grid(alpha=0.3)
             ax.legend(loc="lower left", fontsize=7)

@@ -10,7 +10,8 @@ feasible telescope along it) is reported as such.
 
 from __future__ import annotations
 
-from typing import Any, Callable, Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
