@@ -336,11 +336,7 @@ class TrajectoryExecutor(LifecycleNode):
 
     def _checked(self, joint_names: list[str], times: np.ndarray, points: np.ndarray, point_velocities: np.ndarray) -> JointTrajectoryData:
         assert self.crane is not None
-        if not self.active:
-            raise InputError("trajectory: refused, the executor is not active")
-        why_not = self._why_not_move()
-        if why_not:
-            raise InputError(f"trajectory: refused, {why_not}")
+        # the message's own defects first: they are the sender's to mend whatever the machine is doing
         twice = sorted({name for name in joint_names if joint_names.count(name) > 1})
         if twice:
             raise InputError(f"trajectory: joint(s) {', '.join(twice)} named twice")
@@ -353,6 +349,11 @@ class TrajectoryExecutor(LifecycleNode):
             raise InputError("trajectory: non-finite position, velocity or time")
         if len(times) > 1 and np.any(np.diff(times) <= 0.0):
             raise InputError("trajectory: time_from_start not increasing")
+        if not self.active:
+            raise InputError("trajectory: refused, the executor is not active")
+        why_not = self._why_not_move()
+        if why_not:
+            raise InputError(f"trajectory: refused, {why_not}")
         data = JointTrajectoryData(self.names, times, positions, velocities, np.zeros_like(positions), np.zeros(len(times)))
         for i, cylinder in enumerate(self.crane.cylinders):
             span = (cylinder.q_max - cylinder.q_min) * LIMIT_TOLERANCE
