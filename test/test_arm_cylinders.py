@@ -146,6 +146,8 @@ def test_commissioning_on_the_cranes_own_work_lowers_its_thresholds_and_names_ha
             drawn, nominal = (np.asarray(m.actuator(ident["actuator"]).valve.kv_poly[notch]) for m in (plant, machine))
             truth = drawn[np.argmax(np.abs(nominal))] / nominal[np.argmax(np.abs(nominal))]  # the plant's notch is the nominal scaled
             assert gain == pytest.approx(truth, abs=0.03), (ident["actuator"], notch)
+    for name in machine.actuator_names:  # each main spool's overlap identified where the plant has it
+        assert block["model"]["actuators"][name]["valve"]["deadzone"] == pytest.approx(plant.actuator(name).valve.deadzone, abs=0.006), name
     commissioned = machine.with_overrides(block["model"])
     at_rest = np.array([[0.0, 0.5, 0.5, 0.0, 0.0]])
     shipped_rest, commissioned_rest = (FdiSettings.from_machine(m).parity_thresholds(at_rest) for m in (machine, commissioned))

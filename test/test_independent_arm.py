@@ -129,6 +129,20 @@ def test_the_crane_follows_its_path_on_compensated_valves(k70m):
         assert np.corrcoef(samples.pilot_pressure_1[lever, i] - samples.pilot_pressure_2[lever, i], run.commands[lever, i])[0, 1] > 0.9
 
 
+@pytest.mark.slow
+def test_each_main_spools_overlap_is_identified_on_the_crane_built_apart(k70m):
+    """A built crane's main spools overlap 0.14-0.18 where its data sheet says 0.15; commissioning finds each within
+    0.006 from 90 s of the operator's work (a fit holding the sheet's value read the difference as a leak)."""
+    from hydro_ros.studies.commissioning import fitted_overlap
+
+    machine, crane = k70m
+    samples = plant.recording(machine, 2, plant.ArmWork(90.0, 1, payload_steps=((30.0, 300.0), (60.0, 0.0)), lever_limit=0.5), crane=crane)
+    built = plant.build_rig(machine, 2, crane=crane).cylinder[:, plant._C_OVERLAP]
+    assert np.ptp(built) > 0.02  # the rig's spools differ from each other and from the sheet
+    for index, name in enumerate(machine.actuator_names):
+        assert fitted_overlap(machine, name, index, [samples]) == pytest.approx(built[index], abs=0.006), name
+
+
 def test_the_plant_refuses_what_it_cannot_build(boom_arm, k70m):
     with pytest.raises(InputError, match="is a crane: pass its crane config"):
         plant.build_rig(k70m[0], RIG)

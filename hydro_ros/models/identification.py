@@ -216,11 +216,17 @@ def rms_flow_error(regression: FlowRegression, coefficients: np.ndarray) -> floa
 
 
 def least_squares(regression: FlowRegression, columns: list[int]) -> tuple[np.ndarray, float]:
-    """Coefficients of the chosen columns (others zero) and the RMS equation error [L/min]."""
+    """Coefficients of the chosen columns (others zero) and the RMS equation error [L/min]. The centre leakages are
+    held >= 0: on a valve whose centre barely leaks (a mobile valve's overlapped spool) the fit's noise about zero
+    would otherwise make a healthy machine's fit non-physical."""
     design = regression.regressors[:, columns]
     scale = np.abs(design).max(axis=0)
     scale[scale == 0.0] = 1.0
+    centre = np.isin(columns, np.arange(len(COLUMNS))[CENTRE])
     solution, *_ = np.linalg.lstsq(design / scale, regression.flows, rcond=None)
+    if np.any(solution[centre] < 0.0):
+        low = np.where(centre, 0.0, -np.inf)
+        solution = lsq_linear(design / scale, regression.flows, bounds=(low, np.full(len(columns), np.inf)), method="bvls").x
     coefficients = np.zeros(len(COLUMNS))
     coefficients[columns] = solution / scale
     return coefficients, rms_flow_error(regression, coefficients)
