@@ -25,6 +25,23 @@ def test_the_readme_is_short_and_its_links_lead_somewhere():
             assert (page.parent / target).exists(), f"{page.relative_to(REPO)} links to {target}, which does not exist"
 
 
+def test_the_architecture_page_names_every_module_and_only_modules_that_exist():
+    """docs/architecture.md's layout table against the tree: each folder's row names every module in it, and a module
+    a row names (``x.py``) is in that folder, or a path from the package or the repository."""
+    rows = [re.match(r"^\| [^|]+ \| (`hydro_ros/[^|]+) \| (.*) \|$", line) for line in (REPO / "docs" / "architecture.md").read_text().splitlines()]
+    rows = [row for row in rows if row]
+    assert len(rows) >= 10
+    for row in rows:
+        tokens = set(re.findall(r"`([A-Za-z_][\w/]*(?:\.py)?)`", row.group(2)))
+        for folder in (REPO / f for f in re.findall(r"`(hydro_ros/[^`]*/)`", row.group(1))):
+            modules = {p.relative_to(folder).as_posix() for p in folder.rglob("*.py") if p.name not in ("__init__.py", "__main__.py")}
+            unnamed = sorted(m for m in modules if m not in tokens and m[:-3] not in tokens)
+            assert not unnamed, f"docs/architecture.md: {folder.name}'s row does not name {', '.join(unnamed)}"
+            absent = sorted(t for t in tokens if t.endswith(".py") and t not in modules and not (REPO / "hydro_ros" / t).exists()
+                            and not (REPO / t).exists() and not (REPO / "test" / t).exists())
+            assert not absent, f"docs/architecture.md: {folder.name}'s row names {', '.join(absent)}, which is not in the tree"
+
+
 def test_nothing_cites_files_the_repository_does_not_ship():
     for path in [REPO / "README.md", *(REPO / "docs").rglob("*.md"), *(REPO / "hydro_ros").rglob("*.py")]:
         text = path.read_text()
