@@ -376,5 +376,5 @@ def test_an_incomplete_cycle_is_dropped_whole_and_counted(ros_domain, sam_config
         if bridge is not None:
             bridge.destroy_node()
         rclpy.shutdown()
-    assert len(published) == 8 and bridge.assembler.incomplete == 2
+    assert len(published) == 8 and bridge.stream.incomplete == 2
     assert all(values["supply_pressure"] == pytest.approx(1e7, rel=1e-3) and values["pressure_a"]["boom"] > 0 for values in published)

@@ -20,7 +20,8 @@ import numpy as np
 
 from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.writer import ContractBagWriter
-from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_row, cycle_values
+from hydro_ros.can.codec import MachineBus, cycle_row
+from hydro_ros.can.stream import FrameStream
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
 
@@ -99,17 +100,15 @@ def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Ca
     bus = MachineBus(machine, dbc)
     slots = bus.slots
     mobile = machine.mobile
-    assembler = CycleAssembler(bus.expected, bus.clock(), by_counter=bus.by_counter)
-    counters = CounterCheck()
+    stream = FrameStream(bus)
     report = ConversionReport()
     rows: list[dict[str, Any]] = []
     stamps: list[int] = []
 
     def keep(cycles: list) -> None:
-        for cycle in cycles:
-            if cycle.complete(bus.expected):
-                rows.append(cycle_values(bus, cycle))
-                stamps.append(cycle.stamp_ns)
+        for stamp, values in stream.complete(cycles):
+            rows.append(values)
+            stamps.append(stamp)
 
     try:
         reader = can.LogReader(str(log))
@@ -120,20 +119,15 @@ def convert_log(log: str | Path, machine: Machine, out: str | Path, progress: Ca
             if message.is_error_frame:
                 report.error_frames += 1
                 continue
-            try:
-                name, counter, values = bus.decode(message.arbitration_id, bytes(message.data))
-            except FrameError as exc:
-                report.rejected[exc.kind] += 1
-                continue
-            counters(name, counter)
-            keep(assembler.add(name, counter, values, int(round(message.timestamp * 1e9))))
+            keep(stream.add(message.arbitration_id, bytes(message.data), message.timestamp)[1])
     except (ValueError, OSError, EOFError) as exc:
         if report.frames == 0:
             raise InputError(f"log {log}: unreadable ({exc})") from None
         report.rejected["log_damaged_after"] = report.frames
-    keep(assembler.flush())
-    report.incomplete_cycles = assembler.incomplete
-    report.counter_gaps = dict(counters.gaps)
+    keep(stream.flush())
+    report.rejected.update(stream.rejected)
+    report.incomplete_cycles = stream.incomplete
+    report.counter_gaps = dict(stream.counters.gaps)
     if not rows:
         raise InputError(f"log {log}: no complete sensor cycle of machine {machine.name!r} ({dict(report.rejected)})")
     order = _kept_in_time_order(np.asarray(stamps), rows, slots, machine, report)

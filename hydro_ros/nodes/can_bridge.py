@@ -47,7 +47,8 @@ from sensor_msgs.msg import FluidPressure, JointState, PointCloud2
 
 from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.cdr import encode_fluid_pressure, encode_joint_state, encode_sample_block
-from hydro_ros.can.codec import CounterCheck, CycleAssembler, FrameError, MachineBus, cycle_row, cycle_values
+from hydro_ros.can.codec import MachineBus, cycle_row
+from hydro_ros.can.stream import FrameStream
 from hydro_ros.contract import topics
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
@@ -267,10 +268,7 @@ class CanBridge(LifecycleNode):
         if self.forward:
             self._entities.append(self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._forward, SENSOR_QOS))
 
-        self.assembler = CycleAssembler(self.codec.expected, self.codec.clock(), by_counter=self.codec.by_counter)
-        self.counters = CounterCheck()
-        self.rejected: collections.Counter = collections.Counter()
-        self.frames_per_message: collections.Counter = collections.Counter()
+        self.stream = FrameStream(self.codec)
         self.last_seen: dict[str, float] = {}
         self._window_start = time.monotonic()
         self._window_counts: collections.Counter = collections.Counter()
@@ -343,25 +341,18 @@ class CanBridge(LifecycleNode):
         block: list[tuple[int, list[float]]] = []
         for _ in range(len(frames)):
             message = frames.popleft()
-            try:
-                name, counter, values = self.codec.decode(message.arbitration_id, bytes(message.data))
-            except FrameError as exc:
-                self.rejected[exc.kind] += 1
+            name, cycles = self.stream.add(message.arbitration_id, bytes(message.data), message.timestamp)
+            if name is None:
                 continue
-            self.frames_per_message[name] += 1
             self._window_counts[name] += 1
             self.last_seen[name] = now
-            self.counters(name, counter)
-            for cycle in self.assembler.add(name, counter, values, int(round(message.timestamp * 1e9))):
-                # configured but inactive: the bus is read and checked, nothing is published; a cycle still missing a frame
-                # is dropped whole (counted in incomplete_cycles): the monitor sees a gap, never a part-sample
-                if not self.active or not cycle.complete(self.codec.expected):
-                    continue
-                values = cycle_values(self.codec, cycle)
+            if not self.active:  # configured but inactive: the bus is read and checked, nothing is published
+                continue
+            for stamp, values in self.stream.complete(cycles):
                 if self.pubs:
-                    self._publish(values, cycle.stamp_ns)
+                    self._publish(values, stamp)
                 if self.pub_block is not None:
-                    block.append((cycle.stamp_ns, cycle_row(values, self.layout.columns)))
+                    block.append((stamp, cycle_row(values, self.layout.columns)))
                 self.published_cycles += 1
         if block:
             stamps = np.array([stamp for stamp, _ in block], dtype=np.int64)
@@ -431,7 +422,7 @@ class CanBridge(LifecycleNode):
         for name in sorted(self.codec.expected):
             cycle_s = max(self.codec.cycle_ms[name], 1) / 1000.0
             silent = now - self.last_seen.get(name, self.started)
-            gaps = self.counters.gaps.get(name, 0)
+            gaps = self.stream.counters.gaps.get(name, 0)
             expected_rate = 1.0 / cycle_s
             if silent > self.stale_cycles * cycle_s:
                 level, message = STALE, f"no frame for {silent:.2f} s"
@@ -439,23 +430,23 @@ class CanBridge(LifecycleNode):
                 level, message = WARN, f"{self._rates[name]:.0f} frames/s, DBC cycle {expected_rate:.0f}/s"
             else:
                 level, message = OK, "ok"
-            values = {"rate_hz": f"{self._rates[name]:.1f}", "expected_hz": f"{expected_rate:.1f}", "frames": str(self.frames_per_message[name]),
+            values = {"rate_hz": f"{self._rates[name]:.1f}", "expected_hz": f"{expected_rate:.1f}", "frames": str(self.stream.frames_per_message[name]),
                       "counter_gaps": str(gaps)}
             statuses.append(self._status(f"hydro_ros/can_bridge/{name}", level, message, values))
         reader = self.reader
         bus_level = OK if reader.connected else ERROR
         bus_values = {"connected": str(reader.connected), "frames_received": str(reader.received),
                       "error_frames": str(reader.error_frames), "reconnects": str(reader.reconnects),
-                      "last_error": reader.last_error, "incomplete_cycles": str(self.assembler.incomplete),
+                      "last_error": reader.last_error, "incomplete_cycles": str(self.stream.incomplete),
                       "published_cycles": str(self.published_cycles), "queue": str(len(reader.frames)),
                       "refused_commands": str(self.refused_commands), "deadman_neutrals": str(self.deadman_neutrals),
-                      **{f"rejected_{kind}": str(n) for kind, n in sorted(self.rejected.items())}}
+                      **{f"rejected_{kind}": str(n) for kind, n in sorted(self.stream.rejected.items())}}
         problems = [] if reader.connected else [f"bus {self.bus_name} down ({reader.last_error or 'connecting'})"]
-        if sum(self.rejected.values()):
-            problems.append(f"{sum(self.rejected.values())} bad frames")
+        if sum(self.stream.rejected.values()):
+            problems.append(f"{sum(self.stream.rejected.values())} bad frames")
             bus_level = max(bus_level, WARN)
         statuses.append(self._status("hydro_ros/can_bridge/bus", bus_level, "; ".join(problems) or "ok", bus_values))
-        clock = self.assembler.clock
+        clock = self.stream.clock
         health = clock.health
         if health.locked:
             level, message = OK, "ok"
