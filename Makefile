@@ -28,6 +28,7 @@ $(CHROMIUM):
 
 lint: setup
 	$(VENV)/bin/ruff check hydro_ros test launch bench scripts
+	$(VENV)/bin/mypy
 
 # every tier, what CI runs. The live-graph tests one after another (nodes in real time, never two sets at once); beside
 # them the library and browser tests on two workers at nice 5, so the nodes' real-time work comes first and the library

@@ -122,7 +122,7 @@ class _Problems:
     def add(self, path: str, message: str) -> None:
         self.found.append(f"{path}: {message}")
 
-    def unknown(self, node: dict, path: str, known: set[str]) -> None:
+    def unknown(self, node: dict[str, Any], path: str, known: set[str]) -> None:
         for key in node:
             if str(key) not in known:
                 near = difflib.get_close_matches(str(key), sorted(known), n=1, cutoff=0.6)
@@ -149,7 +149,7 @@ class _Problems:
             values[key] = value
         return values
 
-    def pair(self, node: dict, path: str, key: str) -> None:
+    def pair(self, node: dict[str, Any], path: str, key: str) -> None:
         if key not in node:
             return
         value = node[key]
@@ -187,7 +187,7 @@ def config_problems(config: dict[str, Any]) -> list[str]:
     if not isinstance(actuators, dict) or not actuators:
         found.add("actuators", "must name at least one actuator")
         actuators = {}
-    simulation = config.get("simulation") if isinstance(config.get("simulation"), dict) else {}
+    simulation: dict[str, Any] = config["simulation"] if isinstance(config.get("simulation"), dict) else {}
     arm = "arm" in config
     for name, actuator in actuators.items():
         _actuator(found, f"actuators.{name}", actuator, crane, arm, _number(simulation.get("end_stop_upper")))
@@ -255,7 +255,7 @@ def crane_problems(config: dict[str, Any]) -> list[str]:
     return found.found
 
 
-def _choice(found: _Problems, node: dict, path: str, key: str, default: str | None = None) -> None:
+def _choice(found: _Problems, node: dict[str, Any], path: str, key: str, default: str | None = None) -> None:
     value = node.get(key, default)
     if value not in CRANE_CHOICES[key]:
         found.add(_join(path, key), f"{value!r}: expected {' or '.join(CRANE_CHOICES[key])}" if value is not None else "missing")
@@ -315,7 +315,7 @@ def _crane(found: _Problems, config: dict[str, Any]) -> None:
         found.add("paths", "must name at least one tip path")
 
 
-def _arm(found: _Problems, node: Any, actuators: dict, simulation: dict) -> None:
+def _arm(found: _Problems, node: Any, actuators: dict[str, Any], simulation: dict[str, Any]) -> None:
     """The links base to tip, each on an actuator's joint, its range inside the cylinder's stroke."""
     if not isinstance(node, dict):
         found.add("arm", "must be a mapping (origin, payload, links)")
@@ -350,7 +350,7 @@ def _arm(found: _Problems, node: Any, actuators: dict, simulation: dict) -> None
             found.add(f"{path}.joint", f"{joint!r}: has an earlier link already; each joint moves one link")
         joints.append(joint)
         if joint not in by_joint:
-            found.add(f"{path}.joint", f"{joint!r}: no actuator drives it (actuators' joints: {', '.join(by_joint)})")
+            found.add(f"{path}.joint", f"{joint!r}: no actuator drives it (actuators' joints: {', '.join(map(str, by_joint))})")
         elif kind == "prismatic" and isinstance(by_joint[joint][1].get("mount"), dict) and \
                 by_joint[joint][1]["mount"].get("kind", "triangle") != "linear":
             found.add(f"{path}.kind", f"prismatic, but actuator {by_joint[joint][0]}'s mount is a triangle: a cylinder sliding a "
@@ -360,8 +360,8 @@ def _arm(found: _Problems, node: Any, actuators: dict, simulation: dict) -> None
         else:
             found.pair(link, path, "range")
             limit = RANGE_LIMIT.get(kind) if isinstance(kind, str) else None
-            ends = [_number(v) for v in link["range"]] if isinstance(link["range"], list) else []
-            if limit and len(ends) == 2 and None not in ends and any(abs(v) > limit.high for v in ends):  # type: ignore[arg-type]
+            ends = [v for v in (_number(v) for v in link["range"]) if v is not None] if isinstance(link["range"], list) else []
+            if limit and limit.high is not None and len(ends) == len(link["range"]) == 2 and any(abs(v) > limit.high for v in ends):
                 found.add(f"{path}.range", f"{link['range']!r} {limit.unit}: must lie within +-{limit.high:g} ({limit.hint})")
         masses = link.get("masses") or []
         if not isinstance(masses, list):
@@ -380,18 +380,19 @@ def _arm(found: _Problems, node: Any, actuators: dict, simulation: dict) -> None
             found.add(f"actuators.{name}.joint", f"{joint!r}: not a joint of arm.links")
 
 
-def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuator: dict, simulation: dict) -> None:
+def _range_in_stroke(found: _Problems, path: str, link: dict[str, Any], name: str, actuator: dict[str, Any], simulation: dict[str, Any]) -> None:
     """The piston stays between its end stops over the joint's range (P-I eq. 3; a linear mount: x = ratio (q + offset))."""
-    low_high = [_number(v) for v in link.get("range") or []] if isinstance(link.get("range"), list) else []
+    ends = [_number(v) for v in link.get("range") or []] if isinstance(link.get("range"), list) else []
+    low_high = [v for v in ends if v is not None]
     mount, cylinder = actuator.get("mount"), actuator.get("cylinder")
-    if len(low_high) != 2 or None in low_high or not isinstance(mount, dict) or not isinstance(cylinder, dict):
+    if len(ends) != 2 or len(low_high) != 2 or not isinstance(mount, dict) or not isinstance(cylinder, dict):
         return
     stroke, offset = _number(cylinder.get("stroke")), _number(mount.get("theta_offset"))
     if stroke is None or offset is None or not math.isfinite(stroke + offset):
         return
     pistons = []
-    low_high = list(np.linspace(low_high[0], low_high[1], 21)) if all(math.isfinite(v) for v in low_high) else []  # type: ignore[arg-type]
-    for q in low_high:
+    grid = [float(q) for q in np.linspace(low_high[0], low_high[1], 21)] if all(math.isfinite(v) for v in low_high) else []
+    for q in grid:
         if mount.get("kind", "triangle") == "linear":
             ratio = _number(mount.get("ratio"))
             if ratio is None:
@@ -399,7 +400,7 @@ def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuato
             pistons.append(ratio * (q + offset))
         else:
             l1, l2, l3, sign = (_number(mount.get(k, 1.0 if k == "sign" else None)) for k in ("l1", "l2", "l3", "sign"))
-            if None in (l1, l2, l3, sign) or not all(math.isfinite(v) for v in (l1, l2, l3, sign)):  # type: ignore[arg-type]
+            if l1 is None or l2 is None or l3 is None or sign is None or not all(math.isfinite(v) for v in (l1, l2, l3, sign)):
                 return
             theta = sign * q + offset
             pistons.append(math.sqrt(max(l1 * l1 + l2 * l2 - 2.0 * l1 * l2 * math.cos(theta), 0.0)) - l3)
@@ -407,8 +408,8 @@ def _range_in_stroke(found: _Problems, path: str, link: dict, name: str, actuato
     upper = min(stroke, _number(simulation.get("end_stop_upper", stroke)) or stroke)
     if not pistons:
         return
-    below = [(lower - x, q, x) for q, x in zip(low_high, pistons)]
-    above = [(x - upper, q, x) for q, x in zip(low_high, pistons)]
+    below = [(lower - x, q, x) for q, x in zip(grid, pistons)]
+    above = [(x - upper, q, x) for q, x in zip(grid, pistons)]
     outside = [(q, x) for side in (below, above) for excess, q, x in [max(side)] if excess > RANGE_SLACK]  # the worst each way
     for q, x in outside:
         found.add(f"{path}.range", f"{q:g} puts actuator {name}'s piston at {x:g} m, outside its end stops {lower:g} to {upper:g} m "
@@ -497,7 +498,8 @@ def _valve(found: _Problems, path: str, node: Any) -> None:
 def annotated_values(path: str | Path) -> list[str]:
     """``key.path: comment`` for every value whose comment in the file says PLACEHOLDER or INFERRED (this file only,
     not the one it extends)."""
-    out, stack = [], []  # stack: (indent, key)
+    out: list[str] = []
+    stack: list[tuple[int, str]] = []  # (indent, key)
     for line in Path(path).read_text().splitlines():
         match = re.match(r"^(\s*)(- )?([A-Za-z_][\w.]*|'[^']*'|\"[^\"]*\")\s*:(.*)$", line)
         if not match or line.lstrip().startswith("#"):

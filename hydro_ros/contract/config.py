@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import collections.abc
 import copy
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +47,7 @@ def _coerce_numbers(node: Any) -> Any:
 def read_config(path: str | Path, *, required: tuple[str, ...], nonempty: str) -> dict[str, Any]:
     """Read any machine config (extends / fitted merged, numbers coerced) and check its required keys."""
     path = Path(path)
-    config = _coerce_numbers(_read_merged(path))
+    config: dict[str, Any] = _coerce_numbers(_read_merged(path))
     missing = [key for key in required if key not in config]
     if missing:
         raise ConfigError(f"config {path}: missing key(s) {', '.join(missing)}")
@@ -100,7 +101,7 @@ def _config_text(path: Path) -> str:
 def _read_merged(path: Path, extended_by: tuple[Path, ...] = ()) -> dict[str, Any]:
     text = _config_text(path)
     try:
-        raw = unshared(yaml.load(text, Loader=_UniqueKeyLoader))  # a SafeLoader
+        raw: dict[str, Any] = unshared(yaml.load(text, Loader=_UniqueKeyLoader))  # a SafeLoader
     except yaml.YAMLError as exc:
         first_line = str(exc).splitlines()[0]
         raise ConfigError(f"config {path}: not valid YAML ({first_line})") from None
@@ -168,11 +169,11 @@ def write_extending(base: Path, out: Path, header: str, patch: dict[str, Any]) -
     partial.replace(out)
 
 
-def with_overrides(config: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+def with_overrides(config: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
     """Copy of ``config`` with nested ``overrides`` merged in (model mismatch, calibration, commissioning)."""
-    merged = unshared(config)
+    merged: dict[str, Any] = unshared(config)
 
-    def merge(target: dict[str, Any], patch: dict[str, Any]) -> None:
+    def merge(target: dict[str, Any], patch: Mapping[str, Any]) -> None:
         for key, value in patch.items():
             if isinstance(value, dict) and isinstance(target.get(key), dict):
                 merge(target[key], value)

@@ -53,7 +53,7 @@ class Section:
     def numbers(self, name: str, count: int | None = None) -> tuple[float, ...]:
         value = self.node.get(name)
         try:
-            out = tuple(float(v) for v in value)
+            out = tuple(float(v) for v in value)  # type: ignore[union-attr]  # None is refused as not a list, below
         except (TypeError, ValueError):
             raise ConfigError(f"config {self.source}: {self._name(name)} = {value!r} is not a list of numbers") from None
         if count is not None and len(out) != count:
@@ -403,7 +403,8 @@ class Machine:
 
     def to_yaml_mapping(self) -> dict[str, Any]:
         """A deep, writable copy of the merged config (what ``yaml.safe_dump`` writes back)."""
-        return unshared(dict(self.mapping))
+        copied: dict[str, Any] = unshared(dict(self.mapping))
+        return copied
 
 
 def refuse_problems(problems: list[str], source: Path) -> None:
@@ -490,7 +491,7 @@ def _effect_forms(section: Section) -> dict[str, str]:
     for name in section.node:
         if str(name) not in EFFECT_FORMS:
             raise ConfigError(f"config {section.source}: {section._name(name)}: no effect with forms (those with: {', '.join(EFFECT_FORMS)})")
-        forms[str(name)] = _choice(section, name, tuple(EFFECT_FORMS[str(name)]), first_form(str(name)))
+        forms[str(name)] = _choice(section, name, tuple(EFFECT_FORMS[str(name)]), first_form(str(name)) or "")
     return forms
 
 
@@ -569,7 +570,8 @@ def _mount(section: Section) -> Mount:
     sign = section.number("sign", 1.0)
     if sign not in (1.0, -1.0):
         raise ConfigError(f"config {section.source}: {section._name('sign')} = {sign:g}: expected 1 or -1")
-    return Mount(*(section.number(k) for k in ("l1", "l2", "l3", "theta_offset")), kind, sign)
+    l1, l2, l3, theta_offset = (section.number(k) for k in ("l1", "l2", "l3", "theta_offset"))
+    return Mount(l1, l2, l3, theta_offset, kind, sign)
 
 
 def _mems(section: Section) -> Mems:

@@ -40,8 +40,8 @@ class Samples:
         return Samples(**column)
 
     def slice(self, part: slice) -> Samples:
-        return Samples(**{f.name: None if getattr(self, f.name) is None else np.asarray(getattr(self, f.name))[part]
-                          for f in fields(self)})
+        return Samples(**{f.name: None if getattr(self, f.name) is None else np.asarray(getattr(self, f.name))[part]  # type: ignore[arg-type]
+                          for f in fields(self)})  # the optional mobile columns stay None
 
 
 PER_ACTUATOR = ("joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command",
