@@ -134,3 +134,23 @@ def test_a_usage_error_and_a_refused_input_exit_alike(tmp_path, capsys):
     assert usage.value.code == 1 and "unrecognized arguments: --bogus" in capsys.readouterr().err
     assert cli(["bag", "info", str(tmp_path / "missing")]) == 1
     assert "error:" in capsys.readouterr().err
+
+
+def test_dp_plans_a_straight_line_given_on_the_command_line_as_the_config_path_it_equals(tmp_path):
+    """`dp solve --line` plans the K70M's horizontal path's own line (3.0, 0.5) -> (6.2, 0.5) m in 10 s as the config's
+    path does, to the joule; a line out of reach, a point for a line and a config path's id are refused in one line."""
+    energies = []
+    for path, line in (("horizontal", ()), ("across", ("--line", "3.0,0.5:6.2,0.5", "--duration", "10"))):
+        out = tmp_path / f"{path}.json"
+        done = run("dp", "solve", "--config", str(K70M), "--path", path, *line, "--cost", "cp", "--grid", "60", "21", "31",
+                   "--out", str(out), "--quiet")
+        assert done.returncode == 0, done.stderr
+        result = json.loads(out.read_text())
+        energies.append((result["cp_energy_J"], result["ls_energy_J"]))
+    assert energies[0] == pytest.approx(energies[1], rel=1e-9)
+    for args, needle in ((("--path", "far", "--line", "30,0:31,0", "--duration", "5"), "no extension reaches it"),
+                         (("--path", "dot", "--line", "4,0.5:4,0.5", "--duration", "5"), "the line has no length"),
+                         (("--path", "horizontal", "--line", "3,0.5:6,0.5", "--duration", "5"), "the config's own path"),
+                         (("--path", "nodur", "--line", "3,0.5:6,0.5"), "--line and --duration go together")):
+        done = run("dp", "solve", "--config", str(K70M), *args, "--cost", "cp", "--grid", "60", "21", "31", "--out", str(tmp_path / "x.json"))
+        assert done.returncode == 1 and needle in done.stderr.strip().splitlines()[-1], (args, done.stderr)

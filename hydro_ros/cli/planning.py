@@ -5,11 +5,29 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 
-from hydro_ros.cli.common import COUNT, SEED, add_grid, add_out, add_quiet, new_output, number, output_file, write_json
+from hydro_ros.cli.common import COUNT, SECONDS, SEED, add_grid, add_out, add_quiet, new_output, number, output_file, write_json
+from hydro_ros.contract.errors import InputError
 
 CRANE_CONFIG = "crane config: config/k70m.yaml or config/crane3dof.yaml"
+
+
+def tip_line(text: str) -> tuple[tuple[float, float], tuple[float, float]]:
+    """An argparse type: ``X0,Y0:X1,Y1``, the tip's start and end [m], finite and apart."""
+    try:
+        ends = tuple(tuple(float(v) for v in end.split(",")) for end in text.split(":"))
+    except ValueError:
+        ends = ()
+    if len(ends) != 2 or any(len(end) != 2 or not all(math.isfinite(v) for v in end) for end in ends):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected X0,Y0:X1,Y1 (the tip's start and end, finite metres)")
+    if ends[0] == ends[1]:
+        raise argparse.ArgumentTypeError(f"{text!r}: the line has no length")
+    return ends[0], ends[1]  # type: ignore[return-value]
+
+
+tip_line.__name__ = "line"  # argparse names the expected type in its messages
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,7 +39,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     ):
         cmd = verbs.add_parser(name, help=helptext)
         cmd.add_argument("--config", required=True, help=CRANE_CONFIG)
-        cmd.add_argument("--path", required=True, help="path id of the config (k70m: horizontal, vertical, half_cycle; crane3dof: triangle)")
+        cmd.add_argument("--path", required=True, help="path id of the config (k70m: horizontal, vertical, half_cycle; crane3dof: triangle), "
+                         "or the id of the --line")
+        cmd.add_argument("--line", type=tip_line, default=None, metavar="X0,Y0:X1,Y1",
+                         help="plan a straight tip line in the plane instead of a config path: start and end [m], rest to rest "
+                         "along a quintic over --duration")
+        cmd.add_argument("--duration", type=SECONDS, default=None, metavar="S", help="[s] the --line's duration")
         if name == "solve":
             cmd.add_argument("--cost", required=True, choices=["cp", "ls", "actuator", "extension", "velocity"], help="DP stage cost")
         else:
@@ -74,7 +97,16 @@ def dp_problem(args: argparse.Namespace):  # planning types imported lazily
     from hydro_ros.planning.problem import Problem
 
     out = output_file(args.out)
+    if (args.line is None) != (args.duration is None):
+        raise InputError("--line and --duration go together: a straight tip line and its duration [s]")
     crane, config = load_crane(args.config)
+    if args.line is not None:
+        if args.path in config.paths:
+            raise InputError(f"--path {args.path}: the config's own path; give the --line an id of its own")
+        (x0, y0), (x1, y1) = args.line
+        config = config.with_paths({args.path: {
+            "description": f"straight line ({x0:g}, {y0:g}) to ({x1:g}, {y1:g}) m, quintic rest-to-rest, {args.duration:g} s",
+            "start": [x0, y0, 0.0], "segments": [{"type": "quintic", "to": [x1, y1, 0.0], "duration": args.duration}]}})
     return Problem.build(crane, config, args.path, grid=tuple(args.grid) if args.grid else None, start=args.start), out
 
 
