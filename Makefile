@@ -49,7 +49,9 @@ test-fast: lint
 demo: setup
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-42} $(VENV)/bin/hydro-ros demo --out out/demo --linger $(HMI_LINGER)
 
+# every result file stamped with the commit it ran on: refused on a tree with uncommitted code unless ALLOW_DIRTY=1
 bench: setup $(CHROMIUM)
+	@[ "$(ALLOW_DIRTY)" = 1 ] || $(PY) -m hydro_ros.benchresults
 	$(PY) bench/run.py --out bench/results/results.json
 	$(PY) bench/discrepancy_suite.py
 	$(PY) bench/dp.py --out bench/results/dp.json

@@ -237,3 +237,16 @@ def benchmarks_markdown() -> str:
         commit = f" ({commit_of(results[path.stem])})" if path.suffix == ".json" else ""
         lines.append(f"- [`{path.name}`](../bench/results/{path.name}){commit}")
     return "\n".join(lines)
+
+
+def require_clean_tree() -> None:
+    """Refuse (SystemExit, one line) a tree whose code differs from its commit: its results would name a commit that is
+    not what ran. ``make bench ALLOW_DIRTY=1`` runs anyway, and the results say ``+changes``."""
+    ran_on = commit()
+    if ran_on.endswith("+changes"):
+        raise SystemExit(f"make bench: the tree has uncommitted changes outside bench/results (commit {ran_on}): commit them first, "
+                         "or run make bench ALLOW_DIRTY=1 (the results will say +changes)")
+
+
+if __name__ == "__main__":
+    require_clean_tree()

@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import re
 
+import pytest
+
 from hydro_ros.docgen import PAGES, rendered
 from test.conftest import REPO
 
@@ -46,6 +48,17 @@ def test_nothing_cites_files_the_repository_does_not_ship():
     for path in [REPO / "README.md", *(REPO / "docs").rglob("*.md"), *(REPO / "hydro_ros").rglob("*.py")]:
         text = path.read_text()
         assert "shared/spec" not in text and "shared/seeds" not in text, path.relative_to(REPO)
+
+
+def test_make_bench_refuses_a_tree_whose_code_differs_from_its_commit(monkeypatch):
+    from hydro_ros import benchresults
+
+    monkeypatch.setattr(benchresults, "commit", lambda: "abc1234+changes")
+    with pytest.raises(SystemExit, match=r"uncommitted changes outside bench/results .*ALLOW_DIRTY=1"):
+        benchresults.require_clean_tree()
+    monkeypatch.setattr(benchresults, "commit", lambda: "abc1234")
+    benchresults.require_clean_tree()
+    assert "$(PY) -m hydro_ros.benchresults" in (REPO / "Makefile").read_text().split("\nbench:")[1].split("\n\n")[0]
 
 
 def test_a_benchmark_result_carries_its_commit_and_the_page_says_what_a_run_did_not_write(tmp_path, monkeypatch):
