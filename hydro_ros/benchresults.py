@@ -18,13 +18,13 @@ MISSING = "not in bench/results"
 
 
 def commit() -> str:
-    """The checked-out commit, ``+changes`` when the code differs from it (results written since do not count): what a
-    result ran on."""
+    """The checked-out commit, ``+changes`` when the tree differs from it, a new file not yet committed included (results
+    written since do not count): what a result ran on."""
     def git(*args: str) -> str:
         return subprocess.run(["git", *args], cwd=RESULTS.parent.parent, capture_output=True, text=True).stdout.strip()
 
     head = git("rev-parse", "--short", "HEAD")
-    changed = git("status", "--porcelain", "--untracked-files=no", "--", ".", f":(exclude){RESULTS.relative_to(RESULTS.parent.parent)}")
+    changed = git("status", "--porcelain", "--untracked-files=normal", "--", ".", f":(exclude){RESULTS.relative_to(RESULTS.parent.parent)}")
     return (head + ("+changes" if changed else "")) if head else "unknown"
 
 

@@ -135,15 +135,19 @@ def test_each_main_spools_overlap_is_identified_on_the_crane_built_apart(k70m, r
     """A built crane's main spools overlap 0.14-0.18 where its data sheet says 0.15; commissioning finds each within
     0.015 from 90 s of the operator's work (a fit holding the sheet's value read a difference of 0.015-0.027 as a leak).
     Measured: within 0.004 on rig 2; on rig 3 the lift 0.012 and the tilt 0.008 off, where the data's own optimum lies
-    (the model's other form errors bias it), the lift further from its build than the sheet's 0.15."""
+    (the model's other form errors bias it), the lift further from its build than the sheet's 0.15. Where a build is
+    more than 0.015 from the sheet (rig 2's lift and tilt), the identified overlap halves the sheet's error at least."""
     from hydro_ros.studies.commissioning import fitted_overlap
 
     machine, crane = k70m
     samples = plant.recording(machine, rig, plant.ArmWork(90.0, 1, payload_steps=((30.0, 300.0), (60.0, 0.0)), lever_limit=0.5), crane=crane)
     built = plant.build_rig(machine, rig, crane=crane).cylinder[:, plant._C_OVERLAP]
-    assert np.ptp(built) > 0.015  # the rig's spools differ from each other and from the sheet
+    sheet = machine.first.valve.deadzone
     for index, name in enumerate(machine.actuator_names):
-        assert fitted_overlap(machine, name, index, [samples]) == pytest.approx(built[index], abs=0.015), name
+        found = fitted_overlap(machine, name, index, [samples])
+        assert found == pytest.approx(built[index], abs=0.015), name
+        if abs(built[index] - sheet) > 0.015:  # rig 2's lift and tilt: the sheet's value would fail here
+            assert abs(found - built[index]) < 0.5 * abs(sheet - built[index]), name
 
 
 def test_the_plant_refuses_what_it_cannot_build(boom_arm, k70m):
@@ -153,6 +157,9 @@ def test_the_plant_refuses_what_it_cannot_build(boom_arm, k70m):
     with pytest.raises(InputError, match="the path has no"):
         plant.simulate(plant.build_rig(sam_mobile, RIG), plant.ArmWork(1.0, 1, path=type("Path", (), {
             "joint_names": ["lift"], "time": np.array([0.0, 1.0]), "positions": np.zeros((2, 1))})()))
+    with pytest.raises(InputError, match="the path's times must increase"):
+        plant.simulate(plant.build_rig(sam_mobile, RIG), plant.ArmWork(1.0, 1, path=type("Path", (), {
+            "joint_names": [sam_mobile.first.joint], "time": np.array([0.0, 1.0, 0.5]), "positions": np.zeros((3, 1))})()))
     with pytest.raises(InputError, match=r"spool_too_small_opening 1.5 must be finite, >= 0 and <= 1"):
         plant.simulate(plant.build_rig(boom_arm, RIG), plant.ArmWork(1.0, 1, faults=(("arm", "spool_too_small_opening", 1.5, 0.0),)))
     with pytest.raises(InputError, match=r"lever_limit 0.0"):

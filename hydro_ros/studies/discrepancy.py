@@ -413,7 +413,8 @@ def fit_effects(machine: Machine, calibration: dict[str, float], rec: Recording,
         name, form = row["name"], row["form"]
         low, high = EFFECT_RANGES[name]
         span = 0.1 * (high - low)
-        result = minimize_scalar(lambda value: gap(error_with(name, form, value)), bounds=(max(low, row["value"] - span), min(high, row["value"] + span)),
+        result = minimize_scalar(lambda value, name=name, form=form: gap(error_with(name, form, value)),
+                                 bounds=(max(low, row["value"] - span), min(high, row["value"] + span)),
                                  method="bounded", options={"maxiter": 8, "xatol": 1e-3 * (high - low)})
         error = error_with(name, form, float(result.x))
         bic = _bic(error, len(named) + 1, rate)

@@ -147,6 +147,7 @@ class ArmRig:
     gravity: float
     oil_range: tuple[float, float]  # [K] where a day's start lies against the reference temperature
     zero_offsets: np.ndarray  # (2 A + 1,) [Pa] the transmitters' zeros: every chamber A, every chamber B, the supply
+    # (and, with mobile valves, every compensator, then the load-sensing line)
     seed: int
     targets: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (A, 2) joint range for the operator
     directions: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (A,) +1 where extending raises the joint
@@ -247,7 +248,8 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None, 
                   link=links, prismatic=prismatic, mass=np.array(masses, dtype=float).reshape(-1, 5), origin=origin, payload=payload,
                   supply=machine.supply_pressure,
                   tank=machine.tank_pressure, gravity=machine.simulation.gravity, oil_range=spread.oil_warmer,
-                  zero_offsets=rng.uniform(-ZERO_OFFSET, ZERO_OFFSET, 2 * len(rows) + 1), seed=rig_seed,
+                  zero_offsets=rng.uniform(-ZERO_OFFSET, ZERO_OFFSET, (3 if machine.mobile else 2) * len(rows) + 1 + machine.mobile),
+                  seed=rig_seed,
                   targets=np.array(ranges),
                   # the operator pushes the lever the way that moves the joint toward its target (a tilt whose
                   # cylinder closes the triangle as the joint opens is driven the other way)
@@ -588,6 +590,8 @@ def _path_operator(rig: ArmRig, work: ArmWork, n: int, rate: float) -> tuple[np.
     if missing:
         raise InputError(f"independent arm: the path has no {', '.join(missing)} (it moves {', '.join(names)})")
     rng = np.random.default_rng([work.seed, rig.seed, 17])
+    if len(path.time) < 2 or not np.all(np.diff(np.asarray(path.time, dtype=float)) > 0.0):
+        raise InputError("independent arm: the path's times must increase")
     time, positions = np.asarray(path.time, dtype=float), np.asarray(path.positions, dtype=float)[:, [names.index(j) for j in joints]]
     t = np.arange(0.0, time[-1] + 0.5 / rate, 1.0 / rate)
     forwards = np.stack([np.interp(t, time, column) for column in positions.T], axis=1)
@@ -719,12 +723,16 @@ def measure(rig: ArmRig, run: RigRun, seed: int) -> Samples:
         def pilot_transmitter(pressure: np.ndarray) -> np.ndarray:
             return np.clip(pressure + rng.normal(0.0, pilot_noise, pressure.shape), 0.0, None)
 
+        # the load-sensing line carries the highest load the compensators hold their drops above
+        drops = np.array([act.valve.compensator_pressure_drop for act in machine.actuators])
+        load_sensing = np.clip((run.feeds - drops).max(axis=1), 0.0, None)
         mobile = {"pilot_pressure_1": pilot_transmitter(pilot_max * np.clip(run.pilots, 0.0, None)),
                   "pilot_pressure_2": pilot_transmitter(pilot_max * np.clip(-run.pilots, 0.0, None)),
-                  "compensator_pressure": transmitter(run.feeds, zeros[2 * a:])}
+                  "compensator_pressure": transmitter(run.feeds, zeros[2 * a + 1:3 * a + 1]),
+                  "ls_pressure": transmitter(load_sensing[:, None], zeros[3 * a + 1:])[:, 0]}
     return Samples(times=times, joint_position=angle, joint_velocity=velocity, pressure_a=transmitter(chambers[:, :, 0], zeros[:a]),
                    pressure_b=transmitter(chambers[:, :, 1], zeros[a:2 * a]),
-                   supply_pressure=transmitter(supplies[:, None], zeros[2 * a:])[:, 0], valve_command=commands, **mobile)
+                   supply_pressure=transmitter(supplies[:, None], zeros[2 * a:2 * a + 1])[:, 0], valve_command=commands, **mobile)
 
 
 def recording(machine: Machine, rig_seed: int, work: ArmWork, spread: RigSpread | None = None, crane: CraneConfig | None = None) -> Samples:
@@ -740,7 +748,7 @@ def recording_bag(machine: Machine, path: Path, rig_seed: int, work: ArmWork, sp
     samples = recording(machine, rig_seed, work, spread, crane)
     samples.times = samples.times + start_s
     with ContractBagWriter(path, actuators={a.name: a.joint for a in machine.actuators},
-                           pressure_variance=machine.sensors.pressure_noise_std ** 2) as writer:
+                           pressure_variance=machine.sensors.pressure_noise_std ** 2, mobile=machine.mobile) as writer:
         writer.set_truth({"plant": __name__, "machine": machine.name, "rig_seed": rig_seed, "seed": work.seed,
                           "duration_s": work.duration_s, "payload_steps": [list(p) for p in work.payload_steps],
                           "faults": [list(f) for f in work.faults]})
