@@ -369,11 +369,17 @@ def _opening(c, spool):
 
 
 @njit(cache=True)
+def _held_drop(c, opening):
+    """What a mobile valve's compensator holds across its P notch: its spring's drop, rising with the opening."""
+    return c[_C_COMPENSATOR] * (1.0 + COMPENSATOR_RISE * opening)
+
+
+@njit(cache=True)
 def _inlet_drop(c, opening, p_s, p_valve):
     """The drop across a P notch: the supply less the valve-side pressure, or what a mobile valve's compensator holds
-    (its spring's drop rising with the opening; a load above what the supply can hold closes its check)."""
+    (a load above what the supply can hold closes its check)."""
     if c[_C_MOBILE] > 0.5:
-        return max(min(c[_C_COMPENSATOR] * (1.0 + COMPENSATOR_RISE * opening), p_s - p_valve), 0.0)
+        return max(min(_held_drop(c, opening), p_s - p_valve), 0.0)
     return p_s - p_valve
 
 
@@ -437,7 +443,7 @@ def _rates(y, u, cyl, table, centre, link, prismatic, mass, payload, gravity, su
         if c[_C_MOBILE] > 0.5:  # the compensator holds its drop above the metered side's load (at centre: the higher)
             load = pa + resistance * line_a if spool > 0.0 else pb + resistance * line_b if spool < 0.0 \
                 else max(pa + resistance * line_a, pb + resistance * line_b)
-            feed[i] = min(load + _inlet_drop(c, _opening(c, spool), math.inf, load), p_s)
+            feed[i] = min(load + _held_drop(c, _opening(c, spool)), p_s)
         internal = leaks[i, 2] * (pa - pb) / viscosity
         # each volume's own compliance: the chamber's oil, and the line's oil and wall
         hose = c[_C_HOSE_VOLUME] * (1.0 / c[_C_OIL_MODULUS] + 1.0 / c[_C_HOSE_MODULUS])
@@ -589,10 +595,10 @@ def _path_operator(rig: ArmRig, work: ArmWork, n: int, rate: float) -> tuple[np.
     missing = [j for j in joints if j not in names]
     if missing:
         raise InputError(f"independent arm: the path has no {', '.join(missing)} (it moves {', '.join(names)})")
-    rng = np.random.default_rng([work.seed, rig.seed, 17])
-    if len(path.time) < 2 or not np.all(np.diff(np.asarray(path.time, dtype=float)) > 0.0):
-        raise InputError("independent arm: the path's times must increase")
     time, positions = np.asarray(path.time, dtype=float), np.asarray(path.positions, dtype=float)[:, [names.index(j) for j in joints]]
+    if len(time) < 2 or not np.all(np.diff(time) > 0.0):
+        raise InputError("independent arm: the path's times must increase")
+    rng = np.random.default_rng([work.seed, rig.seed, 17])
     t = np.arange(0.0, time[-1] + 0.5 / rate, 1.0 / rate)
     forwards = np.stack([np.interp(t, time, column) for column in positions.T], axis=1)
     cycle = []
@@ -604,12 +610,10 @@ def _path_operator(rig: ArmRig, work: ArmWork, n: int, rate: float) -> tuple[np.
     feedforward = np.empty_like(targets)
     for i, actuator in enumerate(rig.machine.actuators):
         row = rig.cylinder[i]
-        arms = np.array([_piston(row, q)[1] for q in targets[::max(n // 2000, 1), i]])
-        arm = np.interp(np.arange(n), np.arange(0, n, max(n // 2000, 1))[:len(arms)], arms)
-        piston = velocity[:, i] * arm
+        piston = velocity[:, i] * np.array([_piston(row, q)[1] for q in targets[:, i]])
         v = actuator.valve
-        full = {notch: abs(float(np.polyval(v.kv_poly[notch], 1.0 if notch in ("PA", "BT") else -1.0)))
-                * math.sqrt(v.compensator_pressure_drop if v.mobile else 0.5 * (rig.supply - rig.tank)) for notch in ("PA", "PB")}
+        full = {notch: abs(float(np.polyval(v.kv_poly[notch], side)))
+                * math.sqrt(v.compensator_pressure_drop if v.mobile else 0.5 * (rig.supply - rig.tank)) for notch, side in (("PA", 1.0), ("PB", -1.0))}
         feedforward[:, i] = np.where(piston > 0.0, piston * row[_C_AREA_A] / full["PA"], piston * row[_C_AREA_B] / full["PB"])
     gains = np.repeat(rng.uniform(*OPERATOR_GAIN, (1, len(joints))), n, axis=0)
     return targets, gains, feedforward, targets[0]
@@ -719,6 +723,8 @@ def measure(rig: ArmRig, run: RigRun, seed: int) -> Samples:
     if machine.mobile:
         pilot_max = np.array([act.valve.pilot_pressure_max for act in machine.actuators])
         pilot_noise = sensors.pilot_pressure_noise_std
+        if pilot_noise is None:
+            raise InputError(f"independent arm: {machine.source} has mobile valves and no sensors.pilot_pressure_noise_std")
 
         def pilot_transmitter(pressure: np.ndarray) -> np.ndarray:
             return np.clip(pressure + rng.normal(0.0, pilot_noise, pressure.shape), 0.0, None)
