@@ -112,7 +112,13 @@ ARM_LINK = {"length": Rule("m", 0.0, 100.0, hint="SI: metres"), "offset": Rule("
 LINK_MASS = {"mass": _nonnegative("kg", 1.0e6), "along": Rule("m", -100.0, 100.0), "across": Rule("m", -100.0, 100.0),
              "inertia": _nonnegative("kg m^2", 1.0e7)}
 RANGE_SLACK = 1e-3  # [m] a joint range may reach this far past the cylinder's ends (rounding of data-sheet values)
-TOP_KEYS = set(TOP) | {"machine", "actuators", "sensors", "simulation", "excitation", "effects", "effect_forms", "can", "fdi", "arm"} | CRANE_KEYS
+HYDRAULICS = {"supply_pressure_cp": PRESSURE, "tank_pressure": _nonnegative("Pa", 1.0e7), "ls_margin": _nonnegative("Pa", 1.0e7),
+              "compensator_drop": _nonnegative("Pa", 1.0e7), "efficiency": Rule("-", 0.0, 1.0, open_low=True),
+              "drive_threshold": _positive("m/s", 1.0), "pump_flow_max": _positive("m^3/s", 1.0), "supply_pressure_max": PRESSURE}
+PLANNER_ACTUATOR = {"velocity_max": _positive("m/s", 10.0), "acceleration_max": _positive("m/s^2", 100.0)}
+PLANNER_KEYS = {"redundant", "actuators", "hydraulics", "dp", "paths", "controller", "plant", "catalog"}
+TOP_KEYS = set(TOP) | {"machine", "actuators", "sensors", "simulation", "excitation", "effects", "effect_forms", "can", "fdi", "arm",
+                       "planner"} | CRANE_KEYS
 
 
 class _Problems:
@@ -255,6 +261,55 @@ def crane_problems(config: dict[str, Any]) -> list[str]:
     return found.found
 
 
+def planner_problems(config: dict[str, Any]) -> list[str]:
+    """Every rule the planner's reading of a machine config with ``arm:`` and ``planner:`` breaks: the chain (three links, each
+    on an actuator's cylinder and mount), which one is redundant, each actuator's rate limits, the grid and the paths. The
+    monitor's sections (valves, sensors) are not the planner's to require."""
+    found = _Problems()
+    top = found.numbers(config, "", {"supply_pressure": PRESSURE, "tank_pressure": TOP["tank_pressure"]}, required=("supply_pressure",))
+    actuators = config.get("actuators") if isinstance(config.get("actuators"), dict) else {}
+    for name, actuator in actuators.items():
+        path = f"actuators.{name}"
+        if not isinstance(actuator, dict) or not isinstance(actuator.get("joint"), str):
+            found.add(f"{path}.joint", "missing (its name in /joint_states)")
+            continue
+        cylinder = found.numbers(actuator.get("cylinder"), f"{path}.cylinder", CYLINDER, required=tuple(CYLINDER))
+        _mount(found, f"{path}.mount", actuator.get("mount"), cylinder.get("stroke"))
+    simulation = config["simulation"] if isinstance(config.get("simulation"), dict) else {}
+    if not isinstance(config.get("arm"), dict):
+        found.add("arm", "missing: the planner plans the chain arm: describes (links base to tip, each on an actuator's joint)")
+        return found.found
+    _arm(found, config["arm"], actuators, simulation)
+    links = config["arm"].get("links") if isinstance(config["arm"].get("links"), list) else []
+    if len(links) != 3:
+        found.add("arm.links", f"{len(links)} links: a planar tip path (x, y) fixes two joints, so the planner needs three, one of them "
+                               "redundant" + (" (two have no redundancy to optimise)" if len(links) < 3 else " (more than one redundant "
+                                                                                                            "degree of freedom is not planned)"))
+    planner = config["planner"]
+    if not isinstance(planner, dict):
+        found.add("planner", "must be a mapping (redundant, actuators, hydraulics, dp, paths)")
+        return found.found
+    found.unknown(planner, "planner", PLANNER_KEYS)
+    redundant = planner.get("redundant")
+    if redundant not in actuators:
+        found.add("planner.redundant", f"{redundant!r}: must name the actuator whose stroke the planner chooses (one of "
+                                       f"{', '.join(map(str, actuators))})")
+    limits = planner.get("actuators") if isinstance(planner.get("actuators"), dict) else {}
+    for name in actuators:
+        node = limits.get(name)
+        found.numbers(node, f"planner.actuators.{name}", PLANNER_ACTUATOR, required=tuple(PLANNER_ACTUATOR))
+        if isinstance(node, dict):
+            found.unknown(node, f"planner.actuators.{name}", set(PLANNER_ACTUATOR) | {"spool", "lowered_by_gravity"})
+            _choice(found, node, f"planner.actuators.{name}", "spool", "non_differential")
+    for name in limits:
+        if name not in actuators:
+            found.add(f"planner.actuators.{name}", f"not an actuator (actuators: {', '.join(map(str, actuators))})")
+    _planning_sections(found, planner, "planner.")
+    if "tank_pressure" in top and top["tank_pressure"] >= top.get("supply_pressure", math.inf):
+        found.add("tank_pressure", f"{top['tank_pressure']:g} Pa: must be below supply_pressure")
+    return found.found
+
+
 def _choice(found: _Problems, node: dict[str, Any], path: str, key: str, default: str | None = None) -> None:
     value = node.get(key, default)
     if value not in CRANE_CHOICES[key]:
@@ -306,13 +361,25 @@ def _crane(found: _Problems, config: dict[str, Any]) -> None:
     steps = (friction.get("steps") or []) if isinstance(friction, dict) else []
     if not (isinstance(steps, list) and all(isinstance(step, list) and len(step) == 2 and None not in map(_number, step) for step in steps)):
         found.add("extension_friction.steps", f"{steps!r}: expected a list of [from, to] extensions [m]")
-    dp = config.get("dp")
-    found.numbers(dp, "dp", CRANE_DP, required=tuple(CRANE_DP))
+    _planning_sections(found, config, "", required=("supply_pressure_cp", "tank_pressure"))
+
+
+def _planning_sections(found: _Problems, node: dict[str, Any], prefix: str, required: tuple[str, ...] = ()) -> None:
+    """The hydraulics, the grid and the paths, in a crane config or a machine config's planner: section (``required``: the
+    hydraulics' values it does not take from elsewhere)."""
+    hydraulics = node.get("hydraulics")
+    found.numbers(hydraulics, f"{prefix}hydraulics", HYDRAULICS,
+                  required=(*required, "ls_margin", "compensator_drop", "efficiency", "drive_threshold"))
+    if isinstance(hydraulics, dict):
+        found.unknown(hydraulics, f"{prefix}hydraulics", set(HYDRAULICS))
+    dp = node.get("dp")
+    found.numbers(dp, f"{prefix}dp", CRANE_DP, required=tuple(CRANE_DP))
     grid = dp.get("grid") if isinstance(dp, dict) else None
     if not (isinstance(grid, list) and len(grid) == 3 and all(isinstance(n, int) and n >= DP_GRID_MIN for n in grid)):
-        found.add("dp.grid", f"{grid!r}: expected three whole numbers >= {DP_GRID_MIN} (extension positions, velocities, controls)")
-    if not isinstance(config.get("paths"), dict) or not config["paths"]:
-        found.add("paths", "must name at least one tip path")
+        found.add(f"{prefix}dp.grid", f"{grid!r}: expected three whole numbers >= {DP_GRID_MIN} (the redundant cylinder's positions, "
+                                      "velocities, controls)")
+    if not isinstance(node.get("paths"), dict) or not node["paths"]:
+        found.add(f"{prefix}paths", "must name at least one tip path")
 
 
 def _arm(found: _Problems, node: Any, actuators: dict[str, Any], simulation: dict[str, Any]) -> None:

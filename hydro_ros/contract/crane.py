@@ -1,35 +1,30 @@
-"""The crane half of a machine config (``kind: crane``, P-V section 2, P-VI section 2), parsed once into frozen dataclasses.
+"""What the planner reads of a machine, parsed once into frozen dataclasses (P-V section 2, P-VI section 2).
 
-A crane redundant in its telescope: a planar lift-tilt-extension chain, optionally on a slewing base, each joint driven
-by a cylinder (a triangle mount or a linear mapping), point masses on its links, the pump and valves of its
-hydraulics, the planner's grid and the tip paths it plans along. :func:`parse_crane` reads the mapping
-:func:`hydro_ros.contract.config.read_config` returns; a missing or non-numeric entry is a one-line ConfigError naming
-its key; every rule the sections break is refused first, all at once (``check.crane_problems``, what
-``hydro-ros machine check`` lists). SI units throughout, as in ``config/k70m.yaml``.
+A planar chain of three joints redundant in one of them along a planar tip path, optionally on a slewing base, each
+joint driven by a cylinder (a triangle mount or a linear mapping), masses on its links, the pump and valves of its
+hydraulics, the planner's grid and the tip paths it plans along. Two forms are read into one :class:`CraneConfig`:
+
+- a crane config (``kind: crane``, :func:`parse_crane`): links, joints and masses of the lift-tilt-telescope crane of both
+  papers, redundant in its telescope (``config/k70m.yaml``);
+- a machine config with an ``arm:`` and a ``planner:`` section (:func:`parse_planner`): the monitor's own description of
+  the chain and its cylinders, the planner's limits, hydraulics, grid and paths beside them, redundant in the joint
+  ``planner.redundant`` names (``config/excavator.yaml``).
+
+A missing or non-numeric entry is a one-line ConfigError naming its key; every rule the sections break is refused
+first, all at once (``check.crane_problems``, what ``hydro-ros machine check`` lists). SI units throughout.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from hydro_ros.contract.check import crane_problems, list_entry
+from hydro_ros.contract.check import crane_problems, list_entry, planner_problems
 from hydro_ros.contract.config import ConfigError, with_overrides
-from hydro_ros.contract.machine import Section, refuse_problems
-
-
-@dataclass(frozen=True)
-class CraneLinks:
-    lift_length: float
-    """[m] L1: lift joint to tilt joint"""
-    tilt_offset: float
-    """[m] L2: offset of the extension axis from the tilt joint"""
-    extension_base: float
-    """[m] L3: tilt joint to tip at zero extension"""
-    lift_joint: tuple[float, float]
-    """[m] (ox, oy): the lift joint from the base axis, horizontally and up"""
+from hydro_ros.contract.machine import Arm, ArmLink, LinkMass, Section, parse_arm, parse_mount, refuse_problems
 
 
 @dataclass(frozen=True)
@@ -71,19 +66,6 @@ class CraneJoint:
 
 
 @dataclass(frozen=True)
-class PointMass:
-    name: str
-    link: str
-    """``lift`` or ``boom`` (the tilt link with the telescope)"""
-    s: float
-    """[m] along the link from its joint"""
-    moves_with_extension: bool
-    """rides on the telescope (its s grows with the extension)"""
-    mass: float
-    """[kg]"""
-
-
-@dataclass(frozen=True)
 class ExtensionFriction:
     coulomb: float = 0.0
     """[N]"""
@@ -96,7 +78,7 @@ class ExtensionFriction:
 @dataclass(frozen=True)
 class DpSettings:
     grid: tuple[int, int, int]
-    """the extension's position, velocity and control grid sizes"""
+    """the redundant cylinder's position, velocity and control grid sizes"""
     sample_time: float
     """[s] of the stages"""
     filter_cutoff: float
@@ -112,10 +94,14 @@ class CraneConfig:
     """a first joint turns the planar chain about the vertical axis"""
     gravity: float
     """[m/s^2] along -y"""
-    links: CraneLinks
+    arm: Arm
+    """the planar chain and its masses, base to tip (the slewing base not among its links)"""
     joints: tuple[CraneJoint, ...]
-    masses: tuple[PointMass, ...]
+    """the base (where it turns) and one per link of ``arm``"""
+    redundant: int
+    """the index in ``joints`` of the joint whose cylinder the planner chooses (the telescope of both papers' cranes)"""
     extension_friction: ExtensionFriction
+    """on the redundant joint (P-VI eqs. A3-A4, the telescope's)"""
     hydraulics: Mapping[str, float]
     """pressures [Pa], flows [m^3/s] and the drive threshold [m/s] of the energy model (P-V eqs. 36-41)"""
     dp: DpSettings
@@ -141,7 +127,7 @@ class CraneConfig:
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> CraneConfig:
         """This crane with a nested patch in the file's terms merged in (a list, such as ``masses``, is replaced)."""
-        return parse_crane(with_overrides(dict(self.mapping), dict(overrides)), self.source)
+        return parse_planning(with_overrides(dict(self.mapping), dict(overrides)), self.source)
 
     def with_paths(self, paths: Mapping[str, Mapping[str, Any]]) -> CraneConfig:
         """This crane planning along ``paths`` instead of its own (a study's lines across the workspace)."""
@@ -171,12 +157,6 @@ def _joint(section: Section) -> CraneJoint:
     )
 
 
-def _mass(section: Section) -> PointMass:
-    link = section.text("link")
-    return PointMass(name=section.text("name", link), link=link, s=section.number("s"),
-                     moves_with_extension=bool(section.node.get("moves_with_extension", False)), mass=section.number("mass"))
-
-
 def _entries(top: Section, name: str) -> list[Section]:
     entries = top.node.get(name) or []
     if not isinstance(entries, list):
@@ -188,32 +168,118 @@ def _numbers(section: Section) -> dict[str, float]:
     return {str(name): section.number(name) for name in section.node}
 
 
+def parse_planning(config: Mapping[str, Any], source: Path) -> CraneConfig:
+    """The planner's view of a config mapping in either form (a ``planner:`` section or ``kind: crane``)."""
+    if "planner" in config:
+        return parse_planner(config, source)
+    if config.get("kind") == "crane":
+        return parse_crane(config, source)
+    joints = len((config.get("arm") or {}).get("links") or []) if isinstance(config.get("arm"), dict) else len(config.get("actuators") or {})
+    why = ("a planar tip path fixes two joints, so there is no redundancy to optimise" if joints <= 2 else
+           f"its {joints} joints may be redundant along a tip path: describe them in arm: and say which one the planner chooses "
+           "in a planner: section (as config/excavator.yaml does)")
+    raise ConfigError(f"config {source}: nothing to plan (no planner: section, not kind: crane): the planner needs one redundant "
+                      f"degree of freedom along a planar tip path; {why}")
+
+
 def parse_crane(config: Mapping[str, Any], source: Path) -> CraneConfig:
-    """The crane of a config mapping; ConfigError names its problems (``check.crane_problems``)."""
+    """The crane of a ``kind: crane`` mapping; ConfigError names its problems (``check.crane_problems``)."""
     refuse_problems(crane_problems(dict(config)), source)
     top = Section(str(source), "", dict(config))
     links = top.section("links")
     friction = top.section("extension_friction", optional=True)
-    dp = top.section("dp")
-    grid = dp.numbers("grid", 3)
+    joints = tuple(_joint(entry) for entry in _entries(top, "joints"))
+    arm = _crane_arm(joints[-3:], links, _entries(top, "masses"))
     return CraneConfig(
         name=top.text("machine"),
         source=source,
         base_rotation=bool(config.get("base_rotation", False)),
         gravity=top.number("gravity", 9.81),
-        links=CraneLinks(lift_length=links.number("lift_length"), tilt_offset=links.number("tilt_offset", 0.0),
-                         extension_base=links.number("extension_base"),
-                         lift_joint=(links.number("lift_joint_x"), links.number("lift_joint_y"))),
-        joints=tuple(_joint(entry) for entry in _entries(top, "joints")),
-        masses=tuple(_mass(entry) for entry in _entries(top, "masses")),
+        arm=arm,
+        joints=joints,
+        redundant=len(joints) - 1,
         extension_friction=ExtensionFriction(coulomb=friction.number("coulomb", 0.0), tanh_gain=friction.number("tanh_gain", 2000.0),
                                              steps=tuple((float(low), float(high)) for low, high in friction.node.get("steps") or [])),
-        hydraulics=_numbers(top.section("hydraulics")),
-        dp=DpSettings(grid=(int(grid[0]), int(grid[1]), int(grid[2])), sample_time=dp.number("sample_time"),
-                      filter_cutoff=dp.number("filter_cutoff")),
-        paths=dict(top.section("paths").node),
-        controller=_numbers(top.section("controller", optional=True)),
-        plant=_numbers(top.section("plant", optional=True)),
-        catalog=dict(top.section("catalog", optional=True).node),
+        **_planning_sections(top),
         mapping=dict(config),
+    )
+
+
+def _crane_arm(joints: tuple[CraneJoint, ...], links: Section, masses: list[Section]) -> Arm:
+    """The crane's planar joints as a serial arm: the lift link, the tilt link (its masses on the extension's axis, L2 from
+    the tilt joint) and the telescope sliding on it from ``extension_base``; the masses that ride on the telescope slide
+    with it."""
+    lift, tilt, extension = joints
+    offset = links.number("tilt_offset", 0.0)
+    on: dict[str, list[LinkMass]] = {"lift": [], "tilt": [], "telescope": []}
+    for mass in masses:
+        link = "lift" if mass.text("link") == "lift" else "telescope" if mass.node.get("moves_with_extension", False) else "tilt"
+        on[link].append(LinkMass(mass.text("name", mass.text("link")), mass.number("mass"), mass.number("s"), 0.0 if link == "lift" else offset))
+    return Arm(links=(ArmLink(lift.name, "revolute", links.number("lift_length"), (lift.q_min, lift.q_max), 0.0, tuple(on["lift"])),
+                      ArmLink(tilt.name, "revolute", 0.0, (tilt.q_min, tilt.q_max), 0.0, tuple(on["tilt"])),
+                      ArmLink(extension.name, "prismatic", links.number("extension_base"), (extension.q_min, extension.q_max), offset,
+                              tuple(on["telescope"]))),
+               origin=(links.number("lift_joint_x"), links.number("lift_joint_y")))
+
+
+def _planning_sections(planner: Section) -> dict[str, Any]:
+    """The sections both forms share: hydraulics, grid, paths, and the controller's, plant's and catalog's overrides."""
+    dp = planner.section("dp")
+    grid = dp.numbers("grid", 3)
+    return {
+        "hydraulics": _numbers(planner.section("hydraulics")),
+        "dp": DpSettings(grid=(int(grid[0]), int(grid[1]), int(grid[2])), sample_time=dp.number("sample_time"),
+                         filter_cutoff=dp.number("filter_cutoff")),
+        "paths": dict(planner.section("paths").node),
+        "controller": _numbers(planner.section("controller", optional=True)),
+        "plant": _numbers(planner.section("plant", optional=True)),
+        "catalog": dict(planner.section("catalog", optional=True).node),
+    }
+
+
+def parse_planner(config: Mapping[str, Any], source: Path) -> CraneConfig:
+    """The planner's chain of a machine config with ``arm:`` and ``planner:``: each arm link's joint driven by the actuator on
+    it (its cylinder's areas and mount), the limits ``planner.actuators`` gives; ConfigError names its problems
+    (``check.planner_problems``)."""
+    refuse_problems(planner_problems(dict(config)), source)
+    top = Section(str(source), "", dict(config))
+    planner = top.section("planner")
+    arm = parse_arm(top.section("arm"))
+    actuators = top.section("actuators")
+    on_joint = {str(node["joint"]): str(name) for name, node in actuators.node.items()}
+    joints = tuple(_actuated_joint(link, actuators.section(on_joint[link.joint]), planner.section("actuators").section(on_joint[link.joint]))
+                   for link in arm.links)
+    redundant = str(actuators.node[planner.text("redundant")]["joint"])
+    hydraulics = dict(planner.section("hydraulics").node)
+    hydraulics.setdefault("supply_pressure_cp", top.number("supply_pressure"))
+    hydraulics.setdefault("tank_pressure", top.number("tank_pressure"))
+    return CraneConfig(
+        name=top.text("machine"),
+        source=source,
+        base_rotation=False,
+        gravity=top.section("simulation", optional=True).number("gravity", 9.81),
+        arm=replace(arm, payload=0.0),
+        joints=joints,
+        redundant=[link.joint for link in arm.links].index(redundant),
+        extension_friction=ExtensionFriction(),
+        **_planning_sections(Section(str(source), "planner", {**planner.node, "hydraulics": hydraulics})),
+        mapping=dict(config),
+    )
+
+
+def _actuated_joint(link: ArmLink, actuator: Section, limits: Section) -> CraneJoint:
+    """A link's joint as the planner sees it: the range, the mount's stroke (retracted end at the range's end where the
+    cylinder is shortest), the cylinder's areas, the pump's areas and the planner's rate limits."""
+    cylinder, mount = actuator.section("cylinder"), parse_mount(actuator.section("mount"))
+    area_a = math.pi * cylinder.number("piston_diameter") ** 2 / 4.0
+    area_b = area_a - math.pi * cylinder.number("rod_diameter") ** 2 / 4.0
+    differential = limits.text("spool", "non_differential") == "differential"
+    q_min, q_max = link.joint_range
+    return CraneJoint(
+        name=link.joint, q_min=q_min, q_max=q_max, mapping=mount.kind, ratio=mount.ratio, la=mount.l1, lb=mount.l2,
+        theta_at_min=mount.sign * q_min + mount.theta_offset, sign=mount.sign, area_a=area_a, area_b=area_b,
+        pump_area_extend=area_a - area_b if differential else area_a,
+        pump_area_retract=0.0 if bool(limits.node.get("lowered_by_gravity", False)) else area_b,
+        differential=differential, velocity_max=limits.number("velocity_max"), acceleration_max=limits.number("acceleration_max"),
+        constant_force=None,
     )

@@ -430,7 +430,7 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
     if not actuators.node:
         raise ConfigError(f"config {source}: no actuators")
     crane = config.get("kind") == "crane"  # a crane's cylinders carry its links and masses (joints:, masses:), not a boom
-    arm = _arm(top.section("arm")) if "arm" in config else None
+    arm = parse_arm(top.section("arm")) if "arm" in config else None
     parsed = tuple(_actuator(actuators.section(name), str(name), index, crane, arm) for index, name in enumerate(actuators.node, start=1))
     sensors = top.section("sensors")
     simulation = top.section("simulation", optional=True)
@@ -513,7 +513,7 @@ def _actuator(section: Section, name: str, index: int, crane: bool, arm: Arm | N
         joint=section.text("joint"),
         can_slot=int(section.number("can_slot", index)),
         cylinder=Cylinder(*(cylinder.number(k) for k in ("piston_diameter", "rod_diameter", "stroke", "dead_volume_a", "dead_volume_b"))),
-        mount=_mount(mount),
+        mount=parse_mount(mount),
         valve=Valve(
             type=valve_type,
             natural_frequency=valve.number("natural_frequency"),
@@ -537,7 +537,7 @@ def _load(section: Section) -> Load:
     return Load(*(section.number(k) for k in ("boom_mass", "boom_length", "boom_cog_distance", "left_mass", "right_mass", "load_distance")))
 
 
-def _arm(section: Section) -> Arm:
+def parse_arm(section: Section) -> Arm:
     links = section.node.get("links")
     if not isinstance(links, list):
         raise ConfigError(f"config {section.source}: arm.links must be a list of links, base to tip")
@@ -563,7 +563,7 @@ def _link_mass(section: Section, index: int) -> LinkMass:
                     across=section.number("across", 0.0), inertia=section.number("inertia", 0.0))
 
 
-def _mount(section: Section) -> Mount:
+def parse_mount(section: Section) -> Mount:
     kind = _choice(section, "kind", ("triangle", "linear"), "triangle")
     if kind == "linear":
         return Mount(0.0, 0.0, 0.0, section.number("theta_offset"), kind, 1.0, section.number("ratio"))

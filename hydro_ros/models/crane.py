@@ -1,10 +1,10 @@
-"""Kinematics and cylinder forces of a crane redundant in its telescope (P-V section 2, P-VI section 2).
+"""Kinematics and cylinder forces of an arm redundant in one joint along a planar tip path (P-V section 2, P-VI section 2).
 
-One model serves both cranes of the papers: a planar lift-tilt-extension chain (P-V eqs. 1-8,
-P-VI eqs. 2-7 with the tilt offset L2), optionally turned about the vertical axis by a base joint
-(P-VI q1). The extension is the redundant joint: given the tip path and the extension cylinder's
-position, velocity and acceleration, the other joints follow from the closed-form inverse
-kinematics (P-V eq. 22-26, P-VI eqs. 33-35; the closed form of h2, h3 is INFERRED, dp.md 4.2).
+One model serves every chain the planner reads (``contract.crane``): three planar joints (P-V eqs. 1-8, P-VI eqs. 2-7 with
+the tilt offset L2), optionally turned about the vertical axis by a base joint (P-VI q1), one of them redundant. Given
+the tip path and the redundant cylinder's position, velocity and acceleration, the other two joints follow from the
+inverse kinematics of the two-link chain they leave (P-V eqs. 22-26, P-VI eqs. 33-35 for the telescope; the same closed
+form wherever the redundancy sits, on one elbow branch, for any two revolute joints).
 
 Every function works elementwise, so the same code evaluates one state, a grid of states
 (NumPy broadcasting) or symbolic nodes of a direct-collocation problem (CasADi): the math
@@ -22,8 +22,7 @@ from typing import Any
 import numpy as np
 
 from hydro_ros.contract.config import ConfigError, read_config
-from hydro_ros.contract.crane import CraneConfig, CraneJoint, parse_crane
-from hydro_ros.contract.machine import Arm, ArmLink, LinkMass
+from hydro_ros.contract.crane import CraneConfig, CraneJoint, parse_planning
 from hydro_ros.models.serial_arm import SerialArm
 
 NUMPY = SimpleNamespace(
@@ -65,13 +64,13 @@ class CraneCylinder(CraneJoint):
         arm = self.sign * self.la * self.lb * xp.sin(theta) / length
         return arm, (self.la * self.lb * xp.cos(theta) - arm * arm) / length
 
-    def joint(self, c: Any) -> Any:
-        """Inverse of ``stroke`` (NumPy)."""
+    def joint(self, c: Any, xp: SimpleNamespace = NUMPY) -> Any:
+        """Inverse of ``stroke`` (a triangle's angle at the joint between 0 and pi)."""
         if self.mapping == "linear":
             return self.q_min + c / self.ratio
         length = c + self.stroke_offset
         cos_theta = (self.la**2 + self.lb**2 - length**2) / (2.0 * self.la * self.lb)
-        theta = np.arccos(np.clip(cos_theta, -1.0, 1.0))
+        theta = xp.acos(xp.clip_unit(cos_theta))
         return self.q_min + (theta - self.theta_at_min) / self.sign
 
     @property
@@ -94,8 +93,8 @@ class Motion:
 
 
 class Crane:
-    """A crane of ``config/crane3dof.yaml`` or ``config/k70m.yaml``: its planar joints a :class:`SerialArm` (lift, tilt and a
-    telescope sliding on the tilt link), the planner's closed-form inverse kinematics on top."""
+    """The planner's machine (``contract.crane.CraneConfig``): its planar joints a :class:`SerialArm`, one of them redundant,
+    the two others solved from the tip by the inverse kinematics of the two-link chain they leave."""
 
     def __init__(self, config: CraneConfig, payload: float = 0.0) -> None:
         """``payload`` [kg] hangs at the tip."""
@@ -103,17 +102,60 @@ class Crane:
         self.name = config.name
         self.base_rotation = config.base_rotation
         self.cylinders = [_cylinder(joint) for joint in config.joints]
-        self.arm = SerialArm(replace(crane_arm(config), payload=payload), config.gravity)
+        self.arm = SerialArm(replace(config.arm, payload=payload), config.gravity)
         self.hydraulics = dict(config.hydraulics)
         self.names = [cylinder.name for cylinder in self.cylinders]
-        self.extension = self.cylinders[-1]
+        self.redundant = config.redundant
+        self.extension = self.cylinders[self.redundant]
         self.task_dim = 3 if self.base_rotation else 2
+        self._base = 1 if self.base_rotation else 0  # the planar joints follow the base's
+        self._planar_redundant = self.redundant - self._base
+        self._solved = [i for i in range(len(self.arm.links)) if i != self._planar_redundant]
+        prismatic = [self.arm.links[i].joint for i in self._solved if self.arm.links[i].kind != "revolute"]
+        if len(self.arm.links) != 3 or not 0 <= self._planar_redundant < 3 or prismatic:
+            raise ConfigError(f"config {config.source}: the planner solves two revolute joints for the tip and chooses the third "
+                              f"(found {len(self.arm.links)} planar joints, redundant {self.extension.name}"
+                              + (f", {' and '.join(prismatic)} prismatic: make a prismatic joint the redundant one" if prismatic else "")
+                              + ")")
+        self._branch = self._elbow_branch()
+
+    def _elbow_branch(self) -> float:
+        """The elbow the joint ranges lie on: the sign of the two solved links' relative angle at the middle of every range
+        (+1 and -1 are the two mirror solutions; both papers' cranes sit on -1, the elbow below the line from the lift
+        joint to the tip). The planner keeps that branch along every path, so an elbow never flips."""
+        middle = [0.5 * (low + high) for low, high in (link.joint_range for link in self.arm.links)]
+        *_, phi_a, phi_b, alpha_a, alpha_b = self._two_links(middle[self._planar_redundant], NUMPY)
+        a, b = self._solved
+        relative = (alpha_b + middle[a] + middle[b] + phi_b) - (alpha_a + middle[a] + phi_a)
+        sine = float(np.sin(relative))
+        if abs(sine) < 1e-6:
+            raise ConfigError(f"config {self.config.source}: the chain is straight at the middle of its joint ranges, so its elbow "
+                              "branch is not defined there: narrow a range to one side of the straight pose")
+        return 1.0 if sine > 0.0 else -1.0
+
+    def _two_links(self, q_r: Any, xp: SimpleNamespace) -> tuple[Any, ...]:
+        """The chain the redundant joint at ``q_r`` leaves: the first solved joint's position, the lengths and directions of
+        the vectors from it to the second and from that to the tip (their angles in the solved joints' frames at zero), and
+        those frames' angles."""
+        q: list[Any] = [0.0 * q_r, 0.0 * q_r, 0.0 * q_r]
+        q[self._planar_redundant] = q_r
+        frames = self.arm.frames(q, xp)
+        a, b = self._solved
+        (xa, ya), (ca, sa) = frames[a]
+        (xb, yb), (cb, sb) = frames[b]
+        xt, yt = self.arm.tip(q, xp)
+        ax, ay = xb - xa, yb - ya
+        bx, by = xt - xb, yt - yb
+        a_along, a_across = ca * ax + sa * ay, -sa * ax + ca * ay
+        b_along, b_across = cb * bx + sb * by, -sb * bx + cb * by
+        return ((xa, ya), xp.sqrt(a_along * a_along + a_across * a_across), xp.sqrt(b_along * b_along + b_across * b_across),
+                xp.atan2(a_across, a_along), xp.atan2(b_across, b_along), xp.atan2(sa, ca), xp.atan2(sb, cb))
 
     # -- kinematics ------------------------------------------------------------------------
     def forward(self, q: np.ndarray) -> np.ndarray:
         """Tip [x, y, z] of joint vectors q (..., n) (P-V eqs. 5-6, P-VI eqs. 4-6)."""
         q = np.asarray(q, dtype=float)
-        rho, height = self.arm.tip([q[..., -3], q[..., -2], q[..., -1]])
+        rho, height = self.arm.tip([q[..., self._base + i] for i in range(3)])
         if self.base_rotation:
             return np.stack([np.cos(q[..., 0]) * rho, height, np.sin(q[..., 0]) * rho], axis=-1)
         return np.stack([rho, height, np.zeros_like(rho)], axis=-1)
@@ -121,7 +163,7 @@ class Crane:
     def jacobian(self, q: np.ndarray) -> np.ndarray:
         """d tip / d q, shape (..., task_dim, n) (P-V eq. 8, P-VI eq. 7)."""
         q = np.asarray(q, dtype=float)
-        planar_q = [q[..., -3], q[..., -2], q[..., -1]]
+        planar_q = [q[..., self._base + i] for i in range(3)]
         columns = [(np.broadcast_to(d_rho, q.shape[:-1]), np.broadcast_to(d_h, q.shape[:-1])) for d_rho, d_h in self.arm.tip_columns(planar_q)]
         if not self.base_rotation:
             return np.stack([np.stack(column, axis=-1) for column in columns], axis=-1)
@@ -143,7 +185,7 @@ class Crane:
         xp: SimpleNamespace = NUMPY,
         forces: bool = True,
     ) -> Motion:
-        """All joints and cylinders from the tip path sample and the extension cylinder's state.
+        """All joints and cylinders from the tip path sample and the redundant cylinder's state.
 
         Position: P-V eq. 22 / P-VI eq. 33; velocity: eqs. 23-25 / 34; acceleration: eq. 26 / 35.
         Unreachable states come out singular (NaN rates) with ``reachable`` False.
@@ -153,8 +195,11 @@ class Crane:
             return self._motion(tip, tip_vel, tip_acc, c_ext, v_ext, a_ext, xp, forces)
 
     def _motion(self, tip: tuple, tip_vel: tuple, tip_acc: tuple, c_ext: Any, v_ext: Any, a_ext: Any, xp: SimpleNamespace, forces: bool) -> Motion:
-        ext = self.extension
-        q_e, qd_e, qdd_e = ext.q_min + c_ext / ext.ratio, v_ext / ext.ratio, a_ext / ext.ratio
+        redundant = self.extension
+        q_r = redundant.joint(c_ext, xp)
+        arm_r, arm_rate_r = redundant.arm(q_r, xp)
+        qd_r = v_ext / arm_r
+        qdd_r = (a_ext - arm_rate_r * qd_r * qd_r) / arm_r
         x, y, z = tip
         xd, yd, zd = tip_vel
         xdd, ydd, zdd = tip_acc
@@ -170,58 +215,71 @@ class Crane:
         else:
             rho, rho_d, rho_dd = x, xd, xdd
 
-        # position: triangle lift joint - tilt joint - tip with the extension's reach
-        links = self.config.links
-        reach = links.extension_base + q_e
-        rel_rho, rel_h = rho - links.lift_joint[0], y - links.lift_joint[1]
-        arm_length = xp.sqrt(reach * reach + links.tilt_offset**2)
-        offset_angle = xp.atan2(links.tilt_offset + 0.0 * reach, reach)
-        cos_elbow = (rel_rho * rel_rho + rel_h * rel_h - links.lift_length**2 - arm_length * arm_length) / (
-            2.0 * links.lift_length * arm_length
-        )
-        tilt = -xp.acos(xp.clip_unit(cos_elbow)) - offset_angle  # the elbow-down branch of both papers
-        lift = xp.atan2(rel_h, rel_rho) - xp.atan2(
-            arm_length * xp.sin(tilt + offset_angle), links.lift_length + arm_length * xp.cos(tilt + offset_angle)
-        )
+        # position: the two solved links as a triangle from the first solved joint to the tip
+        (xa, ya), length_a, length_b, phi_a, phi_b, alpha_a, alpha_b = self._two_links(q_r, xp)
+        rel_rho, rel_h = rho - xa, y - ya
+        cos_elbow = (rel_rho * rel_rho + rel_h * rel_h - length_a * length_a - length_b * length_b) / (2.0 * length_a * length_b)
+        elbow = self._branch * xp.acos(xp.clip_unit(cos_elbow))
+        first = xp.atan2(rel_h, rel_rho) - xp.atan2(length_b * xp.sin(elbow), length_a + length_b * xp.cos(elbow))
+        q_a = first - alpha_a - phi_a
+        q_b = first + elbow - alpha_b - q_a - phi_b
+        a, b = self._solved
+        planar_q: list[Any] = [q_r, q_r, q_r]
+        planar_q[a], planar_q[b] = q_a, q_b
 
-        # velocity: [J_lift J_tilt]^-1 (tip rate - J_ext ext rate)
-        (ja_r, ja_h), (jb_r, jb_h), (je_r, je_h) = self.arm.tip_columns([lift, tilt, q_e], xp)
+        # velocity: [J_a J_b]^-1 (tip rate - J_r q_r')
+        columns = self.arm.tip_columns(planar_q, xp)
+        (ja_r, ja_h), (jb_r, jb_h), (jr_r, jr_h) = columns[a], columns[b], columns[self._planar_redundant]
         det = ja_r * jb_h - jb_r * ja_h
-        rhs_r, rhs_h = rho_d - je_r * qd_e, yd - je_h * qd_e
-        lift_d = (jb_h * rhs_r - jb_r * rhs_h) / det
-        tilt_d = (-ja_h * rhs_r + ja_r * rhs_h) / det
+        rhs_r, rhs_h = rho_d - jr_r * qd_r, yd - jr_h * qd_r
+        qd_a = (jb_h * rhs_r - jb_r * rhs_h) / det
+        qd_b = (-ja_h * rhs_r + ja_r * rhs_h) / det
+        planar_qd: list[Any] = [qd_r, qd_r, qd_r]
+        planar_qd[a], planar_qd[b] = qd_a, qd_b
 
         # acceleration: the same matrix; the velocity-product terms are J-dot q-dot (P-VI eq. 9)
-        phi_d = lift_d + tilt_d
-        phi = lift + tilt
-        cp, sp = xp.cos(phi), xp.sin(phi)
-        cl, sl = xp.cos(lift), xp.sin(lift)
-        centripetal = reach * phi_d * phi_d
-        coriolis = 2.0 * qd_e * phi_d
-        offset_term = links.tilt_offset * phi_d * phi_d
-        bias_r = -links.lift_length * lift_d * lift_d * cl - centripetal * cp - coriolis * sp + offset_term * sp
-        bias_h = -links.lift_length * lift_d * lift_d * sl - centripetal * sp + coriolis * cp - offset_term * cp
-        rhs_r, rhs_h = rho_dd - je_r * qdd_e - bias_r, ydd - je_h * qdd_e - bias_h
-        lift_dd = (jb_h * rhs_r - jb_r * rhs_h) / det
-        tilt_dd = (-ja_h * rhs_r + ja_r * rhs_h) / det
+        bias_r, bias_h = self._velocity_product(planar_q, planar_qd, xp)
+        rhs_r, rhs_h = rho_dd - jr_r * qdd_r - bias_r, ydd - jr_h * qdd_r - bias_h
+        planar_qdd: list[Any] = [qdd_r, qdd_r, qdd_r]
+        planar_qdd[a] = (jb_h * rhs_r - jb_r * rhs_h) / det
+        planar_qdd[b] = (-ja_h * rhs_r + ja_r * rhs_h) / det
 
         if self.base_rotation:
             spread = 0.0 * c_ext  # the base follows the tip alone: give it the states' shape
-            q = [q1 + spread, lift, tilt, q_e]
-            qd, qdd = [q1_d + spread, lift_d, tilt_d, qd_e], [q1_dd + spread, lift_dd, tilt_dd, qdd_e]
+            q = [q1 + spread, *planar_q]
+            qd, qdd = [q1_d + spread, *planar_qd], [q1_dd + spread, *planar_qdd]
         else:
-            q, qd, qdd = [lift, tilt, q_e], [lift_d, tilt_d, qd_e], [lift_dd, tilt_dd, qdd_e]
-        c, v, a = [], [], []
+            q, qd, qdd = planar_q, planar_qd, planar_qdd
+        c, v, acc = [], [], []
         for cylinder, qi, qdi, qddi in zip(self.cylinders, q, qd, qdd):
             arm, arm_rate = cylinder.arm(qi, xp)
             c.append(cylinder.stroke(qi, xp))
             v.append(arm * qdi)
-            a.append(arm_rate * qdi * qdi + arm * qddi)
+            acc.append(arm_rate * qdi * qdi + arm * qddi)
         reachable = np.abs(cos_elbow) <= 1.0 if xp is NUMPY else None
-        motion = Motion(q=q, qd=qd, qdd=qdd, c=c, v=v, a=a, force=None, reachable=reachable)
+        motion = Motion(q=q, qd=qd, qdd=qdd, c=c, v=v, a=acc, force=None, reachable=reachable)
         if forces:
             motion.force = self.cylinder_forces(motion)
         return motion
+
+    def _velocity_product(self, q: list[Any], qd: list[Any], xp: SimpleNamespace) -> tuple[Any, Any]:
+        """The tip's acceleration at zero joint accelerations (J-dot q-dot): each link's vector u turning at w and its slide
+        s' give -w^2 u + 2 w s' (the link's direction turned a quarter)."""
+        frames = self.arm.frames(q, xp)
+        ends = [joint for joint, _ in frames[1:]] + [self.arm.tip(q, xp)]
+        turning: Any = 0.0
+        bias_r: Any = 0.0
+        bias_h: Any = 0.0
+        for link, ((x, y), (c, s)), (x_end, y_end), qi_d in zip(self.arm.links, frames, ends, qd):
+            if link.kind == "revolute":
+                turning = turning + qi_d
+                slide: Any = 0.0
+            else:
+                slide = qi_d
+            square = turning * turning
+            bias_r = bias_r - square * (x_end - x) - 2.0 * turning * slide * s
+            bias_h = bias_h - square * (y_end - y) + 2.0 * turning * slide * c
+        return bias_r, bias_h
 
     # -- dynamics --------------------------------------------------------------------------
     def cylinder_forces(self, motion: Motion) -> list[Any]:
@@ -230,14 +288,13 @@ class Crane:
         The masses sum into M (3 x 3) and G on the joint positions' shape; only M q'' is evaluated on the
         states' shape (the DP evaluates a grid of velocities and two controls per position).
         """
-        lift, tilt, q_e = motion.q[-3], motion.q[-2], motion.q[-1]
-        qdd = motion.qdd[-3:]
-        inertia, gravity = self.planar_inertia_gravity(lift, tilt, q_e)
+        planar_q, planar_qd, qdd = motion.q[self._base:], motion.qd[self._base:], motion.qdd[self._base:]
+        inertia, gravity = self.arm.inertia_gravity(planar_q)
         torque = [gravity[j] + inertia[j][0] * qdd[0] + inertia[j][1] * qdd[1] + inertia[j][2] * qdd[2] for j in range(3)]
-        torque[2] = torque[2] + self.extension_friction(q_e, motion.qd[-1])
+        r = self._planar_redundant
+        torque[r] = torque[r] + self.extension_friction(planar_q[r], planar_qd[r])
         forces = []
-        planar = self.cylinders[-3:]
-        for cylinder, qi, tau in zip(planar, motion.q[-3:], torque):
+        for cylinder, qi, tau in zip(self.cylinders[self._base:], planar_q, torque):
             arm, _ = cylinder.arm(qi)
             forces.append(tau / arm)  # F v = tau qdot for either sign of the arm
         if self.base_rotation:
@@ -245,13 +302,9 @@ class Crane:
             forces.insert(0, np.zeros_like(np.asarray(qdd[0])) + (base.constant_force or 0.0))
         return forces
 
-    def planar_inertia_gravity(self, lift: Any, tilt: Any, q_e: Any, payload: float | None = None) -> tuple[list[list[Any]], list[Any]]:
-        """M (3 x 3) and G (3) of the point masses in the lift, tilt and extension joints (P-VI eq. 16), ``payload`` [kg] at the
-        tip (None: the crane's)."""
-        return self.arm.inertia_gravity([lift, tilt, q_e], payload)
-
     def extension_friction(self, q_e: Any, qd_e: Any) -> Any:
-        """P-VI eqs. A3-A4: tanh(K qdot4) times a level that ramps by one coulomb per metre over each step."""
+        """P-VI eqs. A3-A4 on the redundant joint: tanh(K qdot) times a level that ramps by one coulomb per metre over each
+        step."""
         friction = self.config.extension_friction
         level = friction.coulomb + 0.0 * q_e
         for low, high in friction.steps:
@@ -272,23 +325,6 @@ class Crane:
         return {"position": position, "velocity": velocity, "acceleration": acceleration}
 
 
-def crane_arm(config: CraneConfig) -> Arm:
-    """The crane's planar joints as a serial arm: the lift link, the tilt link (its masses on the extension's axis, L2 from
-    the tilt joint) and the telescope sliding on it from ``extension_base``; the masses that ride on the telescope slide
-    with it."""
-    lift, tilt, extension = config.joints[-3:]
-    links = config.links
-    on: dict[str, list[LinkMass]] = {"lift": [], "tilt": [], "telescope": []}
-    for mass in config.masses:
-        link = "lift" if mass.link == "lift" else "telescope" if mass.moves_with_extension else "tilt"
-        on[link].append(LinkMass(mass.name, mass.mass, mass.s, 0.0 if link == "lift" else links.tilt_offset))
-    return Arm(links=(ArmLink(lift.name, "revolute", links.lift_length, (lift.q_min, lift.q_max), 0.0, tuple(on["lift"])),
-                      ArmLink(tilt.name, "revolute", 0.0, (tilt.q_min, tilt.q_max), 0.0, tuple(on["tilt"])),
-                      ArmLink(extension.name, "prismatic", links.extension_base, (extension.q_min, extension.q_max), links.tilt_offset,
-                              tuple(on["telescope"]))),
-               origin=links.lift_joint)
-
-
 def _cylinder(joint: CraneJoint) -> CraneCylinder:
     cylinder = CraneCylinder(**{f.name: getattr(joint, f.name) for f in fields(joint)})
     if cylinder.mapping == "triangle":
@@ -298,14 +334,7 @@ def _cylinder(joint: CraneJoint) -> CraneCylinder:
 
 
 def load_crane(path: str | Path) -> tuple[Crane, CraneConfig]:
-    """The crane of a machine config and its typed config (one-line ConfigError on bad input)."""
+    """The planner's machine of a config and its typed config (one-line ConfigError on bad input)."""
     config = read_config(path, required=("machine",), nonempty="machine")
-    if config.get("kind") != "crane":
-        joints = len(config.get("actuators") or {})
-        why = ("a planar tip path fixes two joints, so it has nothing to optimise" if joints <= 2 else
-               f"its {joints} joints may be redundant along a tip path, but the planner's inverse kinematics is the lift-tilt-"
-               "telescope crane's (kind: crane, with links, joints and paths as in k70m.yaml); other chains are not planned yet")
-        raise ConfigError(f"config {path}: not a crane config (kind: crane): the planner needs one redundant degree of freedom "
-                          f"along a planar tip path; {why}")
-    crane_config = parse_crane(config, Path(path).resolve())
+    crane_config = parse_planning(config, Path(path).resolve())
     return Crane(crane_config), crane_config

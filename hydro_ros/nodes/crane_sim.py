@@ -113,7 +113,7 @@ class CraneSim(Node):
         self.create_timer(self.params["tick_period"], self._tick)
         self.get_logger().info(
             f"crane {config.name} ({supply.upper()} pump) at the start of {initial_path!r}, "
-            f"extension {float(self.crane.extension.stroke(start[-1])):.3f} m; "
+            f"extension {float(self.crane.extension.stroke(start[self.crane.redundant])):.3f} m; "
             + (f"valve commands on {topics.VALVE_COMMANDS}" if self.external else f"trajectories on {trajectory_topic}")
         )
 

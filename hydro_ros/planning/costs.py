@@ -43,5 +43,5 @@ def stage_power(cost: Cost, crane: Crane, motion: Motion) -> np.ndarray:
     if cost is Cost.ACTUATOR:
         return sum(np.maximum(f * v, 0.0) for f, v in zip(motion.force, motion.v))
     if cost is Cost.EXTENSION:
-        return motion.v[-1] ** 2
+        return motion.v[crane.redundant] ** 2
     return sum(v**2 for v in motion.v)

@@ -174,8 +174,8 @@ class TrajectoryService:
                 f"(tolerance {self.tip_tolerance} m); move it there first"
             )
         extension = crane.extension
-        c0 = float(extension.stroke(q[-1]))
-        v0 = float(extension.ratio * qd[-1])
+        c0 = float(extension.stroke(q[crane.redundant]))
+        v0 = float(extension.arm(q[crane.redundant])[0] * qd[crane.redundant])
         try:
             if stored.has_policy:
                 raw = self._dp_solution(context, stored).follow(c0, v0)

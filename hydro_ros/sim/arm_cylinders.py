@@ -361,8 +361,12 @@ def crane_cylinders(machine: Machine, crane_config: CraneConfig, run: ArmRun, st
             raise InputError(f"config {machine.source}: actuator {model.actuator}'s mount differs from joint {cylinder.name}'s "
                              f"cylinder mapping by {gap * 1000:.1f} mm; one crane, one geometry")
 
+    redundant = crane.redundant - (1 if crane.base_rotation else 0)
+
     def extension_friction(q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        return np.array([0.0, 0.0, float(crane.extension_friction(q[2], qd[2]))])
+        friction = np.zeros(3)
+        friction[redundant] = float(crane.extension_friction(q[redundant], qd[redundant]))
+        return friction
 
     return ArmCylinders(machine, crane.arm, run, start, extension_friction)
 

@@ -148,7 +148,7 @@ class CranePlant:
 
     def _plant_forces(self, motion: Motion) -> np.ndarray:
         friction = self.settings["coulomb_friction"] * np.tanh(np.asarray(self.state.velocity) / _FRICTION_VELOCITY)
-        friction[-1] = 0.0  # the extension's friction is in the crane model already (P-VI eqs. A3-A4)
+        friction[self.crane.redundant] = 0.0  # the redundant joint's friction is in the crane model already (P-VI eqs. A3-A4)
         return np.asarray(motion.force, dtype=float) + friction
 
     def _load_sensed_pressure(self) -> float:

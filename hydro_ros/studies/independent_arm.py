@@ -171,9 +171,7 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None, 
     if machine.crane:
         if crane is None:
             raise InputError(f"independent arm: {machine.source} is a crane: pass its crane config (its links and masses)")
-        from hydro_ros.models.crane import crane_arm  # the crane's description as a chain: geometry, no equation of motion
-
-        arm = crane_arm(crane)
+        arm = crane.arm
         # the telescope's pads (P-VI eqs. A3-A4's level), here a Stribeck curve on the cylinder like the others
         joint_coulomb = {arm.links[-1].joint: crane.extension_friction.coulomb}
     if arm is not None:
