@@ -15,13 +15,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hydro_ros.contract.config import read_config
-from hydro_ros.contract.crane import parse_crane
+from hydro_ros.contract.crane import parse_planning
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import parse_machine
 from hydro_ros.fdi.monitor import FdiMonitor
+from hydro_ros.models.crane import Crane
 from test.conftest import REPO
 
-CONFIGS = ("sam", "sam_mobile", "sam_mems", "boom_arm", "k70m")
+CONFIGS = ("sam", "sam_mobile", "sam_mems", "boom_arm", "k70m", "excavator")
 DAMAGE = (None, "", "x", True, [], {}, [1.0, 2.0], math.nan, math.inf, -math.inf, -1.0, 0.0, 1e308, -1e308, 3, "1.4e9")
 REMOVE = object()
 EXAMPLES = os.environ.get("FUZZ_EXAMPLES")  # more, and freshly drawn, when set (e.g. 400); else 60 of a fixed draw
@@ -65,13 +66,17 @@ def test_a_damaged_config_is_a_working_machine_or_one_line(name):
                 mapping = _damaged(mapping, path, value)
             except (KeyError, IndexError, TypeError):  # an earlier change removed or replaced the path's parent
                 continue
-        try:
-            machine = parse_machine(copy.deepcopy(mapping), Path(source))
-            if mapping.get("kind") == "crane":
-                parse_crane(copy.deepcopy(mapping), Path(source))
-            FdiMonitor(machine)  # what was accepted builds a monitor, or its fdi section is refused in one line
-        except InputError as refused:
-            message = str(refused)
-            assert message and "\n" not in message and "Traceback" not in message, message
+        def monitor() -> None:
+            FdiMonitor(parse_machine(copy.deepcopy(mapping), Path(source)))  # accepted builds a monitor, or a refusal
+
+        def planner() -> None:
+            Crane(parse_planning(copy.deepcopy(mapping), Path(source)))
+
+        for tool in (monitor, planner) if config.get("kind") == "crane" or "planner" in config else (monitor,):
+            try:
+                tool()
+            except InputError as refused:
+                message = str(refused)
+                assert message and "\n" not in message and "Traceback" not in message, message
 
     damaged()

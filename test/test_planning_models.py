@@ -125,7 +125,7 @@ def test_bad_paths_and_configs_fail_with_one_line_errors(tmp_path) -> None:
         path_from_config(config, "diagonal")
     with pytest.raises(ConfigError, match="not a multiple"):
         TipPath("odd", {"start": [3, 0.5, 0], "segments": [{"to": [4, 0.5, 0], "duration": 1.01}]}).sample(0.05)
-    with pytest.raises(ConfigError, match="nothing to plan .*no redundancy to optimise"):
+    with pytest.raises(ConfigError, match=r"nothing to plan .*no redundancy to optimise"):
         load_crane(default_config_path("sam"))
     broken = tmp_path / "crane.yaml"
     broken.write_text(default_config_path("crane3dof").read_text().replace("      velocity_max: 0.2\n", "", 1))

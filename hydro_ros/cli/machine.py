@@ -82,21 +82,33 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_machine_check(args: argparse.Namespace) -> int:
-    from hydro_ros.contract.check import annotated_values, config_problems, crane_problems
+    from hydro_ros.contract.check import annotated_values, config_problems, crane_problems, planner_problems
     from hydro_ros.contract.config import read_config
-    from hydro_ros.contract.crane import parse_crane
+    from hydro_ros.contract.crane import parse_planning
+    from hydro_ros.models.crane import Crane
 
     config = read_config(args.config, required=(), nonempty="machine")
-    # a crane config without actuators describes only what the planner needs (config/crane3dof.yaml): no machine to monitor
-    planner_only = config.get("kind") == "crane" and "actuators" not in config
-    problems = crane_problems(config) if planner_only else config_problems(config)
+    planned = config.get("kind") == "crane" or "planner" in config
+    # a config without sensors describes only what the planner needs (config/crane3dof.yaml, config/excavator.yaml)
+    planner_only = planned and "sensors" not in config
+    problems = [] if planner_only else config_problems(config)
+    if "planner" in config:
+        problems += [problem for problem in planner_problems(config) if problem not in problems]
+    elif planner_only:
+        problems += crane_problems(config)
     for problem in problems:
         print(f"{args.config}: {problem}")
-    if planner_only and not problems:
-        crane = parse_crane(config, Path(args.config).resolve())
-        print(f"{args.config}: {crane.name}: a crane for the planner only ({', '.join(crane.joint_names)}; paths "
-              f"{', '.join(crane.paths)}); no actuators, so nothing to simulate at the cylinders or monitor: ok")
-    elif not problems:
+    if planned and not problems:
+        try:
+            crane = Crane(parse_planning(config, Path(args.config).resolve()))
+        except InputError as exc:
+            problems.append(str(exc))
+            print(f"{args.config}: {exc}")
+        else:
+            print(f"{args.config}: {crane.name}: planned along {', '.join(crane.config.paths)}, redundant in {crane.extension.name} "
+                  f"({', '.join(crane.names)})" + ("; no sensors or valves, so nothing to simulate at the cylinders or monitor: ok"
+                                                   if planner_only else ""))
+    if not planner_only and not problems:
         from hydro_ros.can.codec import BusMapError, MachineBus
         from hydro_ros.fdi.settings import unset_threshold
         from hydro_ros.models.serial_arm import arm_problems

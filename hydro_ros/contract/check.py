@@ -291,7 +291,7 @@ def planner_problems(config: dict[str, Any]) -> list[str]:
         return found.found
     found.unknown(planner, "planner", PLANNER_KEYS)
     redundant = planner.get("redundant")
-    if redundant not in actuators:
+    if not isinstance(redundant, str) or redundant not in actuators:
         found.add("planner.redundant", f"{redundant!r}: must name the actuator whose stroke the planner chooses (one of "
                                        f"{', '.join(map(str, actuators))})")
     limits = planner.get("actuators") if isinstance(planner.get("actuators"), dict) else {}
@@ -428,7 +428,8 @@ def _arm(found: _Problems, node: Any, actuators: dict[str, Any], simulation: dic
             found.pair(link, path, "range")
             limit = RANGE_LIMIT.get(kind) if isinstance(kind, str) else None
             ends = [v for v in (_number(v) for v in link["range"]) if v is not None] if isinstance(link["range"], list) else []
-            if limit and limit.high is not None and len(ends) == len(link["range"]) == 2 and any(abs(v) > limit.high for v in ends):
+            whole = isinstance(link["range"], list) and len(ends) == len(link["range"]) == 2
+            if limit and limit.high is not None and whole and any(abs(v) > limit.high for v in ends):
                 found.add(f"{path}.range", f"{link['range']!r} {limit.unit}: must lie within +-{limit.high:g} ({limit.hint})")
         masses = link.get("masses") or []
         if not isinstance(masses, list):
@@ -467,8 +468,8 @@ def _range_in_stroke(found: _Problems, path: str, link: dict[str, Any], name: st
             pistons.append(ratio * (q + offset))
         else:
             l1, l2, l3, sign = (_number(mount.get(k, 1.0 if k == "sign" else None)) for k in ("l1", "l2", "l3", "sign"))
-            if l1 is None or l2 is None or l3 is None or sign is None or not all(math.isfinite(v) for v in (l1, l2, l3, sign)):
-                return
+            if l1 is None or l2 is None or l3 is None or sign not in (1.0, -1.0) or not all(math.isfinite(v) for v in (l1, l2, l3)):
+                return  # a sign other than +-1 is _mount's to refuse
             theta = sign * q + offset
             pistons.append(math.sqrt(max(l1 * l1 + l2 * l2 - 2.0 * l1 * l2 * math.cos(theta), 0.0)) - l3)
     lower = _number(simulation.get("end_stop_lower", 0.0)) or 0.0

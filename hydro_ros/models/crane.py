@@ -14,6 +14,7 @@ functions come from a namespace, ``NUMPY`` by default.
 from __future__ import annotations
 
 import contextlib
+import math
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -37,6 +38,8 @@ NUMPY = SimpleNamespace(
 )
 
 _LOWER_FACTOR = 1.0 + 1e-9  # limit checks forgive rounding, nothing more
+STRETCHED_ELBOW = 0.02  # [rad] an elbow this close to a line counts as stretched (singular): the planner does not go there
+_STRETCHED = math.cos(STRETCHED_ELBOW)
 
 
 @dataclass(frozen=True)
@@ -118,6 +121,7 @@ class Crane:
                               + (f", {' and '.join(prismatic)} prismatic: make a prismatic joint the redundant one" if prismatic else "")
                               + ")")
         self._branch = self._elbow_branch()
+        self.solved_names = [self.names[self._base + i] for i in self._solved]
 
     def _elbow_branch(self) -> float:
         """The elbow the joint ranges lie on: the sign of the two solved links' relative angle at the middle of every range
@@ -256,7 +260,8 @@ class Crane:
             c.append(cylinder.stroke(qi, xp))
             v.append(arm * qdi)
             acc.append(arm_rate * qdi * qdi + arm * qddi)
-        reachable = np.abs(cos_elbow) <= 1.0 if xp is NUMPY else None
+        # a stretched elbow is a singular pose: the tip's rates need unbounded joint rates there
+        reachable = np.abs(cos_elbow) <= _STRETCHED if xp is NUMPY else None
         motion = Motion(q=q, qd=qd, qdd=qdd, c=c, v=v, a=acc, force=None, reachable=reachable)
         if forces:
             motion.force = self.cylinder_forces(motion)

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from hydro_ros.contract.config import ConfigError
-from hydro_ros.contract.crane import CraneConfig, parse_crane
+from hydro_ros.contract.crane import CraneConfig, parse_planning
 from hydro_ros.contract.errors import DatabaseError
 from hydro_ros.contract.machine import MONITOR_KEYS
 from hydro_ros.planning.trajectory import JointTrajectoryData
@@ -216,7 +216,7 @@ class TrajectoryDatabase:
         if row is None:
             raise DatabaseError(f"database {self.path}: no machine {machine!r}")
         try:
-            return parse_crane(json.loads(row[0]), Path(self.path))
+            return parse_planning(json.loads(row[0]), Path(self.path))
         except ConfigError as exc:
             raise DatabaseError(f"database {self.path}: machine {machine!r}: {exc}") from None
 

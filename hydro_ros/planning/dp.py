@@ -43,7 +43,7 @@ from tqdm import tqdm
 
 from hydro_ros.contract.check import DP_GRID_MIN
 from hydro_ros.contract.errors import InputError
-from hydro_ros.models.crane import Crane
+from hydro_ros.models.crane import STRETCHED_ELBOW, Crane
 from hydro_ros.models.crane_hydraulics import cylinder_table, driven_pressure, total_pump_flow
 from hydro_ros.planning.costs import Cost, stage_power
 from hydro_ros.planning.paths import PathSamples
@@ -101,8 +101,9 @@ def extension_windows(crane: Crane, samples: PathSamples) -> np.ndarray:
     """(N+1, 2): per path sample, the least and greatest extension at which the IK reaches the tip
     with every joint position within its limits, each end to 1e-12 of the stroke and on its inside.
 
-    A stage where no scanned extension is feasible (or only one point is) keeps the whole stroke:
-    its nodes are all infeasible and the DP reports the path infeasible as before.
+    A stage where only one scanned extension is feasible keeps the whole stroke: its nodes are all
+    infeasible and the DP reports the path infeasible. A sample no extension reaches is refused in one
+    line (InputError): out of reach, or reached only with the solved links stretched into a line.
     """
     stroke = crane.extension.stroke_max
     tips = tuple(samples.position[:, i, None] for i in range(samples.position.shape[1]))
@@ -115,6 +116,12 @@ def extension_windows(crane: Crane, samples: PathSamples) -> np.ndarray:
 
     scan = np.broadcast_to(np.linspace(0.0, stroke, EDGE_SCAN), (samples.stages + 1, EDGE_SCAN))
     ok = inside(scan)
+    if not ok.any(axis=1).all():
+        k = int(np.argmin(ok.any(axis=1)))
+        solved = " and ".join(crane.solved_names)
+        raise InputError(f"tip path at t = {samples.time[k]:.2f} s: the tip {np.round(samples.position[k], 3).tolist()} m is out of reach "
+                         f"of {crane.name}: no {crane.extension.name} stroke reaches it with every joint in its range and {solved} "
+                         f"bent more than {STRETCHED_ELBOW} rad from a line (a stretched elbow is singular: unbounded joint rates)")
     first = np.argmax(ok, axis=1)
     last = EDGE_SCAN - 1 - np.argmax(ok[:, ::-1], axis=1)
     rows = np.arange(len(scan))

@@ -58,7 +58,10 @@ class Problem:
     ) -> Problem:
         path = path_from_config(config, path_id)
         samples = path.sample(config.dp.sample_time)
-        dp_grid = DpGrid.for_path(crane, samples, grid or config.dp.grid)
+        try:
+            dp_grid = DpGrid.for_path(crane, samples, grid or config.dp.grid)
+        except InputError as exc:
+            raise InputError(f"path {path_id!r}: {exc}") from None
         return cls(crane, config, path, samples, dp_grid, start_position(crane, samples, dp_grid, start), config.dp.filter_cutoff)
 
 

@@ -223,7 +223,7 @@ def path_start_state(config: CraneConfig, path_id: str, extension_stroke: float)
     samples = path_from_config(config, path_id).sample(config.dp.sample_time)
     if extension_stroke < 0.0:
         extension_stroke = start_position(crane, samples, DpGrid.for_path(crane, samples, config.dp.grid))
-    motion = crane.motion(tuple(samples.position[0]), (0.0,) * crane.task_dim, (0.0,) * crane.task_dim, extension_stroke, 0.0, 0.0, forces=False)
+    motion = crane.motion(tuple(samples.position[0]), (0.0,) * 3, (0.0,) * 3, extension_stroke, 0.0, 0.0, forces=False)
     if not bool(motion.reachable):
         raise ServeError(f"path {path_id!r}: extension {extension_stroke:.3f} m cannot reach the path start")
     return np.array([float(q) for q in motion.q])
