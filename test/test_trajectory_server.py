@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +14,8 @@ from std_msgs.msg import Bool, String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from hydro_ros.contract import topics
-from hydro_ros.models.crane import Crane
+from hydro_ros.contract.config import default_config_path
+from hydro_ros.models.crane import Crane, load_crane
 from hydro_ros.nodes.common import HALT_QOS, LATCHED_QOS
 from hydro_ros.nodes.trajectory_server import RESULT_QOS
 from hydro_ros.planning.catalog import build, plan_units
@@ -23,6 +25,8 @@ from hydro_ros.planning.trajectory import LIMIT_TOLERANCE
 from hydro_ros.studies.execution import iso9283_path_accuracy
 from test.conftest import K70M
 from test.ros_graph import change_state, lifecycle_state, node_output, node_process, probe_node, spin_until
+
+EXCAVATOR = default_config_path("excavator")
 
 
 @pytest.fixture(scope="module")
@@ -171,12 +175,12 @@ def test_served_trajectory_runs_on_the_simulated_crane(ros_domain, catalog_db):
     assert run["path_accuracy_iso9283_m"] < 0.2
 
 
-def _request_until_discovered(node, requests, results: list[dict]) -> None:
-    """Request the horizontal path until discovery has connected the joint states to the server (and the server to
-    its output's subscriber): the answers before that say so ("nothing received", "no subscriber")."""
+def _request_until_discovered(node, requests, results: list[dict], path: str = "horizontal") -> None:
+    """Request ``path`` until discovery has connected the joint states to the server (and the server to its output's
+    subscriber): the answers before that say so ("nothing received", "no subscriber")."""
     for _ in range(20):
         count = len(results)
-        requests.publish(String(data="horizontal"))
+        requests.publish(String(data=path))
         assert spin_until(node, lambda: len(results) > count, 20)
         if results[-1]["ok"] or not ("nothing received" in results[-1]["error"] or "no subscriber" in results[-1]["error"]):
             return
@@ -186,12 +190,12 @@ def _request_until_discovered(node, requests, results: list[dict]) -> None:
 EXECUTOR_IN_CRANE = "/crane/trajectory_executor"
 
 
-def _crane_plant_and_executor(*executor_args: str):
+def _crane_plant_and_executor(*executor_args: str, config: Path = K70M, path: str = "horizontal", start: float = 0.3):
     """crane_sim as a plant only (its valves take /crane/hydraulics/valve_commands) and the executor driving it."""
     return (
-        node_process("hydro_ros.nodes.crane_sim", "-r", "__ns:=/crane", "-p", f"config:={K70M}", "-p", "external_commands:=true",
-                     "-p", "publish_rate:=100.0", "-p", "initial_path:=horizontal", "-p", "initial_extension:=0.3"),
-        node_process("hydro_ros.nodes.trajectory_executor", "-r", "__ns:=/crane", "-p", f"config:={K70M}",
+        node_process("hydro_ros.nodes.crane_sim", "-r", "__ns:=/crane", "-p", f"config:={config}", "-p", "external_commands:=true",
+                     "-p", "publish_rate:=100.0", "-p", f"initial_path:={path}", "-p", f"initial_extension:={start}"),
+        node_process("hydro_ros.nodes.trajectory_executor", "-r", "__ns:=/crane", "-p", f"config:={config}",
                      "-p", "joint_state_source:=crane_sim", "-p", "require_monitor:=false", *executor_args),
     )
 
@@ -206,10 +210,22 @@ def _watch_crane(node) -> dict[str, list]:
     return seen
 
 
-def test_the_executor_drives_the_crane_along_the_served_path_within_the_bench_accuracy(ros_domain, catalog_db):
-    """trajectory_server -> output_topic -> trajectory_executor -> valve commands -> the crane plant -> joint states."""
-    db_path, config = catalog_db
-    plant, executor = _crane_plant_and_executor()
+@pytest.fixture(scope="module")
+def excavator_db(tmp_path_factory):
+    config = load_crane(EXCAVATOR)[1]
+    path = tmp_path_factory.mktemp("excavator") / "catalog.db"
+    with TrajectoryDatabase(path, writable=True) as db:
+        build(db, plan_units(config, methods=("dp_cp",), grid=(60, 31, 31), paths=("level_cut",)), workers=1)
+    return path, config
+
+
+@pytest.mark.parametrize("machine", ["k70m", "excavator"])
+def test_the_executor_drives_the_crane_along_the_served_path_within_the_bench_accuracy(ros_domain, machine, request):
+    """trajectory_server -> output_topic -> trajectory_executor -> valve commands -> the crane plant -> joint states, on the
+    K70M and on the excavator (an arm redundant in its bucket, described in the monitor's terms)."""
+    db_path, config = request.getfixturevalue("catalog_db" if machine == "k70m" else "excavator_db")
+    path = "horizontal" if machine == "k70m" else "level_cut"
+    plant, executor = _crane_plant_and_executor(config=config.source, path=path, start=0.3 if machine == "k70m" else 0.05)
     with plant, executor, node_process("hydro_ros.nodes.trajectory_server", "-r", "__ns:=/crane", "-p", f"database:={db_path}",
                                        "-p", "output_topic:=trajectory_executor/joint_trajectory"), probe_node("client") as node:
         seen = _watch_crane(node)
@@ -225,7 +241,7 @@ def test_the_executor_drives_the_crane_along_the_served_path_within_the_bench_ac
         # that writer yet and then never gets the message (volatile on purpose: a restarted executor must not replay an old
         # trajectory). So ask again, from where the crane now is, until one arrives
         for _ in range(3):
-            _request_until_discovered(node, requests, results)
+            _request_until_discovered(node, requests, results, path)
             assert results[-1]["ok"], results[-1]
             if spin_until(node, lambda: any(s["state"] == "executing" for s in seen["status"]), 10):
                 break
