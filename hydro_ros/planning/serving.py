@@ -27,8 +27,8 @@ from hydro_ros.planning.costs import Cost
 from hydro_ros.planning.database import StoredSolution, TrajectoryDatabase
 from hydro_ros.planning.dp import DpGrid, DpSolution, InfeasibleStart, start_position
 from hydro_ros.planning.paths import path_from_config
-from hydro_ros.planning.problem import METHODS, Problem, method_record, run_method
-from hydro_ros.planning.trajectory import JointTrajectoryData, evaluate, joint_trajectory
+from hydro_ros.planning.problem import METHODS, Problem, method_record, run_method, smoothed
+from hydro_ros.planning.trajectory import JointTrajectoryData, joint_trajectory
 
 # a state this close to the stored start (rad or m, rad/s or m/s) is served as stored
 SAME_START_TOLERANCE = 1e-3
@@ -178,16 +178,14 @@ class TrajectoryService:
         v0 = float(extension.arm(q[crane.redundant])[0] * qd[crane.redundant])
         try:
             if stored.has_policy:
-                raw = self._dp_solution(context, stored).follow(c0, v0)
-                extension_trajectory = raw.filtered(problem.filter_cutoff)
+                extension_trajectory, evaluation, _ = smoothed(problem, self._dp_solution(context, stored).follow(c0, v0))
                 plan_record = None
             else:
                 plan = run_method(replace(problem, start=c0), stored.method)
-                extension_trajectory = plan.trajectory
+                extension_trajectory, evaluation = plan.trajectory, plan.evaluation
                 plan_record = method_record(plan)
         except InfeasibleStart as exc:
             raise ServeError(f"from the current state (extension {c0:.3f} m): {exc}") from None
-        evaluation = evaluate(crane, problem.samples, extension_trajectory)
         claims = METHODS[stored.method][1]
         broken = [kind for kind in claims if not evaluation["limits"][kind]]
         if broken or not math.isfinite(evaluation["tip_error_max_m"]):
