@@ -77,7 +77,7 @@ def main() -> int:
     for k, plant_seed in enumerate(range(700, 700 + args.plants)):
         plant = mismatched_config(nominal, plant_seed)
         began = time.perf_counter()
-        recordings = commissioning_recordings(plant, crane, trajectories, 1)
+        recordings = commissioning_recordings(plant, trajectories, 1)
         try:
             block, report = commission(nominal, recordings)
         except InputError as refused:  # a refusal is a result: the plant stays on the shipped thresholds
@@ -89,11 +89,11 @@ def main() -> int:
         free = work_cases(range(50, 50 + args.fault_free_seeds), paths, 90.0, 1.0)
         alarms = {}
         for name, machine in (("shipped", nominal), ("commissioned", commissioned)):
-            outcomes = run_crane_cases(machine, crane, trajectories, free, plant=plant, workers=args.workers, progress=bar.update)
+            outcomes = run_crane_cases(machine, trajectories, free, plant=plant, workers=args.workers, progress=bar.update)
             fault_free[name] += outcomes
             alarms[name] = [{"run": f"{o.case.seed}/{o.case.path or 'operator'}", **a} for o in outcomes for a in o.alarms]
         leaks = fault_cases([60], actuators, [paths[k % len(paths)]], SIZES, 60.0, 20.0)
-        faults += run_crane_cases(commissioned, crane, trajectories, leaks, plant=plant, workers=args.workers, progress=bar.update)
+        faults += run_crane_cases(commissioned, trajectories, leaks, plant=plant, workers=args.workers, progress=bar.update)
         plants.append({"plant_seed": plant_seed, "path": paths[k % len(paths)], "commission_s": round(commission_s, 1),
                        "recorded_s": round(sum(float(r.samples.times[-1] - r.samples.times[0]) for r in recordings), 1),
                        "fit": block["fit"], "threshold": {key: report["threshold"][key] for key in ("form", "reached", "value")},

@@ -101,9 +101,9 @@ def main() -> int:
     doubled = work_cases(range(850, 850 + args.fault_free_seeds // 2), paths, 120.0, 2.0)
     start = time.perf_counter()
     with tqdm(total=len(faulty) + len(free) + len(doubled), unit="run", desc="crane monitoring") as bar:
-        free_outcomes = run_crane_cases(machine, crane_config, trajectories, free, workers=args.workers, progress=bar.update)
-        doubled_outcomes = run_crane_cases(machine, crane_config, trajectories, doubled, workers=args.workers, progress=bar.update)
-        fault_outcomes = run_crane_cases(machine, crane_config, trajectories, faulty, workers=args.workers, progress=bar.update)
+        free_outcomes = run_crane_cases(machine, trajectories, free, workers=args.workers, progress=bar.update)
+        doubled_outcomes = run_crane_cases(machine, trajectories, doubled, workers=args.workers, progress=bar.update)
+        fault_outcomes = run_crane_cases(machine, trajectories, faulty, workers=args.workers, progress=bar.update)
     summary = summarise_crane(fault_outcomes, free_outcomes)
     summary["fault_free_doubled_mismatch"] = summarise_fault_free(doubled_outcomes)
     summary["setup"] = {"config": Path(args.config).name, "paths": paths, "trajectory_method": "dp_cp", "sizes_l_min": list(SIZES),

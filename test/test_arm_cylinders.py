@@ -10,6 +10,7 @@ import pytest
 
 from hydro_ros.bags.align import SampleLayout
 from hydro_ros.bags.reader import read_bag
+from hydro_ros.contract.crane import parse_planning
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import Injection
@@ -17,11 +18,11 @@ from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import run_monitor
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.fdi.settings import FdiSettings
-from hydro_ros.models.crane import load_crane
+from hydro_ros.models.crane import Crane, load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel, simulate_segments
+from hydro_ros.models.serial_arm import SerialArm
 from hydro_ros.planning.serving import executable_trajectory
-from hydro_ros.sim.arm_cylinders import ArmRun, crane_cylinders
-from hydro_ros.sim.scenario import Scenario, simulate
+from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun
 from hydro_ros.studies.commissioning import LEAK_LIMIT, commission
 from hydro_ros.studies.crane_monitoring import CraneCase, commissioning_recordings, path_trajectories, run_crane_cases
 from hydro_ros.studies.fdi_evaluation import mismatched_config
@@ -38,9 +39,9 @@ def crane_machine():
 
 
 def test_one_k70m_config_gives_the_planner_and_the_monitor_the_same_cylinders(crane_machine):
-    machine, config = crane_machine
+    machine, _ = crane_machine
     crane, _ = load_crane(K70M)
-    assert machine.crane and machine.actuator_names == ["lift", "tilt", "extension"]
+    assert machine.planned and machine.actuator_names == ["lift", "tilt", "extension"]
     for cylinder in crane.cylinders[1:]:  # the base rotation has no actuator (non-differential plungers, no load model)
         model = SamModel(machine, cylinder.name)
         q = np.linspace(cylinder.q_min, cylinder.q_max, 40)
@@ -48,17 +49,22 @@ def test_one_k70m_config_gives_the_planner_and_the_monitor_the_same_cylinders(cr
         assert np.allclose(model.piston_velocity(q, 0.1), cylinder.arm(q)[0] * 0.1, rtol=1e-6), cylinder.name
         assert np.allclose(model.joint_from_piston(cylinder.stroke(q)), q, atol=1e-6), cylinder.name
         assert model.base[[AREA_A, AREA_B]] == pytest.approx([cylinder.area_a, cylinder.area_b], rel=1e-4), cylinder.name
-    shifted = machine.with_overrides({"actuators": {"tilt": {"mount": {"l3": 0.91}}}})
-    with pytest.raises(InputError, match=r"tilt's mount differs from joint tilt's cylinder mapping by 9.9 mm"):
-        crane_cylinders(shifted, config, ArmRun(1.0))
+    # one cylinder, one description: a mount changed for the monitor is the planner's mount too
+    shifted = machine.with_overrides({"actuators": {"tilt": {"mount": {"theta_offset": 0.1}}}})
+    replanned = Crane(parse_planning(shifted.mapping, shifted.source)).cylinders[2]
+    q = np.linspace(replanned.q_min, replanned.q_max, 40)
+    moved = SamModel(shifted, "tilt").piston_from_joint(q)
+    assert np.allclose(moved - moved[0], replanned.stroke(q) - replanned.stroke(q[0]), atol=1e-6)
+    assert not np.allclose(replanned.stroke(q), crane.cylinders[2].stroke(q), atol=1e-3)
+    arm = SerialArm.of(machine)
     with pytest.raises(InputError, match="lift:payload_mass: an arm's payload hangs at its tip"):
-        crane_cylinders(machine, config, ArmRun(1.0, faults={"lift": [Injection("payload_mass", 300.0)]}))
-    with pytest.raises(InputError, match="fault on slew: no such actuator"):
-        crane_cylinders(machine, config, ArmRun(1.0, faults={"slew": [Injection("external_leakage_a", 1.0)]}))
-    with pytest.raises(InputError, match="crane's cylinder"):  # the SAM simulator does not take a crane for a boom
-        simulate(machine, Scenario(1.0))
-    with pytest.raises(InputError, match="crane's cylinder"):  # nor does the discrepancy workflow's multiple shooting
-        simulate_segments(SamModel(machine, "lift"), np.zeros((1, 7)), np.zeros(10), np.array([0]), np.array([10]), np.zeros((1, 4096)))
+        ArmCylinders(machine, arm, ArmRun(1.0, faults={"lift": [Injection("payload_mass", 300.0)]}))
+    with pytest.raises(InputError, match="fault on base: no such actuator"):  # the slew is described, not monitored or simulated
+        ArmCylinders(machine, arm, ArmRun(1.0, faults={"base": [Injection("external_leakage_a", 1.0)]}))
+    # the one-cylinder boom model takes the lift with its share of the chain (as a boom and arm's), not the sliding telescope
+    with pytest.raises(InputError, match="joint extension is prismatic"):
+        simulate_segments(SamModel(machine, "extension"), np.zeros((1, 7)), np.zeros(10), np.array([0]), np.array([10]),
+                          np.zeros((1, 4096)))
 
 
 def test_a_leak_shows_in_the_residual_of_its_own_cylinder_while_the_others_move(crane_machine, tmp_path):
@@ -112,17 +118,17 @@ def test_the_crane_at_work_raises_no_alarm_on_plants_that_differ_from_its_model(
     """The shipped thresholds on cranes no fit has seen (every notch, bulk modulus, friction and noise drawn per plant):
     the random operator moving every joint at once, then the energy-optimal horizontal path worked forwards and back
     at full speed; 300 kg gripped and released in both."""
-    machine, config = crane_machine
+    machine, _ = crane_machine
     cases = [CraneCase(901, 90.0), CraneCase(902, 60.0, "horizontal")]
-    for outcome in run_crane_cases(machine, config, horizontal, cases, workers=2):
+    for outcome in run_crane_cases(machine, horizontal, cases, workers=2):
         assert outcome.alarms == [], (outcome.case, outcome.alarms)
 
 
 def test_a_leak_is_isolated_to_its_cylinder_while_the_crane_works_its_path(crane_machine, horizontal):
-    machine, config = crane_machine
+    machine, _ = crane_machine
     cases = [CraneCase(903, 60.0, "horizontal", actuator="lift", fault="external_leakage_a", value=1.0, onset_s=20.0),
              CraneCase(904, 60.0, "horizontal", actuator="tilt", fault="external_leakage_b", value=1.0, onset_s=20.0)]
-    for outcome in run_crane_cases(machine, config, horizontal, cases, workers=2):
+    for outcome in run_crane_cases(machine, horizontal, cases, workers=2):
         case = outcome.case
         assert outcome.false_alarms == [], (case, outcome.alarms)  # nothing before onset, nothing on another cylinder
         named = [a for a in outcome.alarms if a["fault"] != "unisolated"]
@@ -138,7 +144,7 @@ def test_commissioning_on_the_cranes_own_work_lowers_its_thresholds_and_names_ha
     machine, config = crane_machine
     trajectories = path_trajectories(config)
     plant = mismatched_config(machine, 905)
-    block, report = commission(machine, commissioning_recordings(plant, config, trajectories, 1))
+    block, report = commission(machine, commissioning_recordings(plant, trajectories, 1))
     for ident in report["identification"]:
         # the model's own equations leave no leak to fit: far below what refuses a recording on a machine unlike it
         assert max(ident["leaks_l_min"].values()) < 0.15 < LEAK_LIMIT, ident["actuator"]
@@ -154,7 +160,7 @@ def test_commissioning_on_the_cranes_own_work_lowers_its_thresholds_and_names_ha
     assert np.all(commissioned_rest < shipped_rest), (commissioned_rest, shipped_rest)
     quiet = [CraneCase(51, 60.0), CraneCase(52, 60.0, "horizontal")]
     leaks = [CraneCase(54, 60.0, "horizontal", actuator="extension", fault="external_leakage_b", value=0.5, onset_s=20.0)]
-    for outcome in run_crane_cases(commissioned, config, trajectories, quiet + leaks, plant=plant, workers=2):
+    for outcome in run_crane_cases(commissioned, trajectories, quiet + leaks, plant=plant, workers=2):
         case = outcome.case
         assert outcome.false_alarms == [], (case, outcome.alarms)
         if case.fault:

@@ -165,11 +165,10 @@ def test_mobile_machine_frames_carry_pilot_and_compensator_pressures(tmp_path):
 def test_the_crane_cylinders_frames_carry_every_cylinder_in_its_slot(k70m):
     """The K70M's three monitored cylinders in slots 2-4 of the four-slot DBC: one cycle carries every cylinder's joint,
     chamber, pilot and compensator pressures, and decodes back to them within the signals' resolution."""
-    from hydro_ros.models.crane import load_crane
-    from hydro_ros.sim.arm_cylinders import ArmRun, simulate_crane
+    from hydro_ros.sim.arm_cylinders import ArmRun, simulate_arm
 
     machine = load_machine_config(REPO / "config" / "k70m.yaml")
-    samples = simulate_crane(machine, load_crane(REPO / "config" / "k70m.yaml")[1], ArmRun(0.2, seed=1))
+    samples = simulate_arm(machine, ArmRun(0.2, seed=1))
     bus = MachineBus(machine)
     assert sorted(slot.number for slot in bus.slots) == [2, 3, 4] and len(bus.expected) == 10
     actuators = {a.name: a.joint for a in machine.actuators}
@@ -191,11 +190,10 @@ def test_a_crane_log_converts_to_a_bag_of_every_cylinder(tmp_path):
     """A K70M recording on the bus (three cylinders in slots 2-4) becomes one contract bag with every cylinder, as
     `hydro-ros sim` writes it: the samples within the signals' resolution, a corrupt frame's cycle left out."""
     from hydro_ros.bags.align import SampleLayout
-    from hydro_ros.models.crane import load_crane
-    from hydro_ros.sim.arm_cylinders import ArmRun, simulate_crane
+    from hydro_ros.sim.arm_cylinders import ArmRun, simulate_arm
 
     machine = load_machine_config(REPO / "config" / "k70m.yaml")
-    samples = simulate_crane(machine, load_crane(REPO / "config" / "k70m.yaml")[1], ArmRun(1.0, seed=2))
+    samples = simulate_arm(machine, ArmRun(1.0, seed=2))
     bus = MachineBus(machine)
     actuators = {a.name: a.joint for a in machine.actuators}
     log = tmp_path / "crane.blf"

@@ -148,7 +148,7 @@ def test_dp_plans_a_straight_line_given_on_the_command_line_as_the_config_path_i
         result = json.loads(out.read_text())
         energies.append((result["cp_energy_J"], result["ls_energy_J"]))
     assert energies[0] == pytest.approx(energies[1], rel=1e-9)
-    for args, needle in ((("--path", "far", "--line", "30,0:31,0", "--duration", "5"), "no extension reaches it"),
+    for args, needle in ((("--path", "far", "--line", "30,0:31,0", "--duration", "5"), "is out of reach of k70m: no extension stroke reaches it"),
                          (("--path", "dot", "--line", "4,0.5:4,0.5", "--duration", "5"), "the line has no length"),
                          (("--path", "horizontal", "--line", "3,0.5:6,0.5", "--duration", "5"), "the config's own path"),
                          (("--path", "nodur", "--line", "3,0.5:6,0.5"), "--line and --duration go together")):

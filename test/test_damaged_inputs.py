@@ -130,7 +130,7 @@ def test_a_config_saying_a_key_twice_is_refused_naming_it(tmp_path):
     twice.write_text(text)
     with pytest.raises(ConfigError, match=r"not valid YAML \(duplicate key 'along' \(line \d+\)\)"):
         load_machine_config(twice)
-    assert load_machine_config(REPO / "config" / "k70m.yaml").crane  # YAML merge keys (<<) are not duplicates
+    assert load_machine_config(REPO / "config" / "k70m.yaml").planned  # YAML merge keys (<<) are not duplicates
 
 
 @pytest.mark.parametrize("case", ["binary", "not_utf8", "folder", "oversized", "alias_bomb"])

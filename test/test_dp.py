@@ -108,7 +108,8 @@ def test_the_compiled_policy_pass_stays_admissible_costs_what_the_search_costs_a
 
 def test_cp_optimum_is_load_independent_and_ls_optimum_is_not() -> None:
     crane, config, samples, grid = _setup("k70m", "horizontal")
-    heavy = Crane(config.with_overrides({"masses": [dict(m, mass=3 * m["mass"]) for m in config.mapping["masses"]]}))
+    links = [{**link, "masses": [dict(m, mass=3 * m["mass"]) for m in link["masses"]]} for link in config.mapping["arm"]["links"]]
+    heavy = Crane(config.with_overrides({"arm": {"links": links}}))
     light_cp, heavy_cp = solve(crane, samples, Cost.CP, grid), solve(heavy, samples, Cost.CP, grid)
     assert np.array_equal(light_cp.cost_to_go, heavy_cp.cost_to_go)
     light_ls, heavy_ls = solve(crane, samples, Cost.LS, grid), solve(heavy, samples, Cost.LS, grid)

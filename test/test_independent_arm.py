@@ -41,7 +41,7 @@ def test_the_chain_dynamics_follow_the_masses_energies(machine, request):
     positions computed here by plain trigonometry; the velocity-product term makes M q'' + b the rate of momentum. On
     the boom and arm (two turning links) and on the crane (two turning, then the telescope sliding on the second)."""
     described = request.getfixturevalue(machine)
-    rig = plant.build_rig(described[0], RIG, crane=described[1]) if machine == "k70m" else plant.build_rig(described, RIG)
+    rig = plant.build_rig(described[0] if machine == "k70m" else described, RIG)
     rng = np.random.default_rng(4)
     payload = 120.0
 
@@ -107,7 +107,7 @@ def test_the_crane_follows_its_path_on_compensated_valves(k70m):
     from hydro_ros.studies.crane_monitoring import path_trajectories
 
     machine, crane = k70m
-    rig = plant.build_rig(machine, RIG, crane=crane)
+    rig = plant.build_rig(machine, RIG)
     work = plant.ArmWork(30.0, 3, path=path_trajectories(crane)["horizontal"])
     run = plant.simulate(rig, work)
     reference = plant._path_operator(rig, work, len(run.times), machine.sample_rate_hz)[0]
@@ -139,9 +139,9 @@ def test_each_main_spools_overlap_is_identified_on_the_crane_built_apart(k70m, r
     more than 0.015 from the sheet (rig 2's lift and tilt), the identified overlap halves the sheet's error at least."""
     from hydro_ros.studies.commissioning import fitted_overlap
 
-    machine, crane = k70m
-    samples = plant.recording(machine, rig, plant.ArmWork(90.0, 1, payload_steps=((30.0, 300.0), (60.0, 0.0)), lever_limit=0.5), crane=crane)
-    built = plant.build_rig(machine, rig, crane=crane).cylinder[:, plant._C_OVERLAP]
+    machine, _ = k70m
+    samples = plant.recording(machine, rig, plant.ArmWork(90.0, 1, payload_steps=((30.0, 300.0), (60.0, 0.0)), lever_limit=0.5))
+    built = plant.build_rig(machine, rig).cylinder[:, plant._C_OVERLAP]
     sheet = machine.first.valve.deadzone
     for index, name in enumerate(machine.actuator_names):
         found = fitted_overlap(machine, name, index, [samples])
@@ -151,8 +151,6 @@ def test_each_main_spools_overlap_is_identified_on_the_crane_built_apart(k70m, r
 
 
 def test_the_plant_refuses_what_it_cannot_build(boom_arm, k70m):
-    with pytest.raises(InputError, match="is a crane: pass its crane config"):
-        plant.build_rig(k70m[0], RIG)
     sam_mobile = load_machine_config(REPO / "config" / "sam_mobile.yaml")
     with pytest.raises(InputError, match="the path has no"):
         plant.simulate(plant.build_rig(sam_mobile, RIG), plant.ArmWork(1.0, 1, path=type("Path", (), {

@@ -10,6 +10,7 @@ from hydro_ros.models.crane import Crane, Motion, load_crane
 from hydro_ros.models.crane_hydraulics import driven_pressure, pump_flow
 from hydro_ros.planning.costs import Cost, stage_power
 from hydro_ros.planning.paths import TipPath, path_from_config
+from test.conftest import REPO
 
 CRANES = ("k70m", "crane3dof")
 
@@ -90,8 +91,9 @@ def test_forces_do_the_work_of_lifting_a_tip_mass() -> None:
     """Static tip mass only: sum F_i v_i = m g dy/dt for any motion (signs of arms, telescope ratio)."""
     path = default_config_path("k70m")
     crane, config = load_crane(path)
-    crane = Crane(config.with_overrides({"masses": [{"name": "load", "link": "boom", "s": 2.13, "moves_with_extension": True, "mass": 100.0}],
-                                         "extension_friction": {"coulomb": 0.0}}))
+    links = [{**link, "masses": []} for link in config.mapping["arm"]["links"]]
+    links[-1]["masses"] = [{"name": "load", "mass": 100.0, "along": 2.13, "across": 0.376}]  # at the tip, sliding with the telescope
+    crane = Crane(config.with_overrides({"arm": {"links": links}, "planner": {"friction": {"coulomb": 0.0}}}))
     q = _random_configurations(crane, 2000, seed=3)
     rng = np.random.default_rng(4)
     qd = 0.05 * rng.normal(size=q.shape)
@@ -128,7 +130,8 @@ def test_bad_paths_and_configs_fail_with_one_line_errors(tmp_path) -> None:
     with pytest.raises(ConfigError, match=r"nothing to plan .*no redundancy to optimise"):
         load_crane(default_config_path("sam"))
     broken = tmp_path / "crane.yaml"
-    broken.write_text(default_config_path("crane3dof").read_text().replace("      velocity_max: 0.2\n", "", 1))
+    broken.write_text(default_config_path("crane3dof").read_text().replace("lift: {velocity_max: 0.2, acceleration_max: 0.5}",
+                                                                           "lift: {acceleration_max: 0.5}", 1))
     with pytest.raises(ConfigError, match="velocity_max"):
         load_crane(broken)
 
@@ -170,7 +173,8 @@ def test_stage_powers_by_hand() -> None:
 
 def test_a_crane_configs_problems_are_named_at_once_by_the_check_and_the_planner(tmp_path) -> None:
     """Each bad entry of the planner's sections named by its key path (list entries by their name), the same in
-    `hydro-ros machine check` and in every loader of the crane; the typed config says where the values went."""
+    `hydro-ros machine check` and in every loader of the crane; the typed config says where the values went. The same for
+    a config in the crane form of earlier releases, checked in its own terms before it is converted."""
     import subprocess
     import sys
 
@@ -178,15 +182,41 @@ def test_a_crane_configs_problems_are_named_at_once_by_the_check_and_the_planner
 
     _, good = load_crane(default_config_path("k70m"))
     assert good.joint_names == ["base", "lift", "tilt", "extension"] and good.dp.grid == (356, 101, 151)
-    assert good.arm.origin == (-0.208, 1.605) and good.joints[-1].differential
+    assert good.arm.origin == (-0.208, 1.605) and good.joints[-1].differential and good.joints[1].pump_area_retract == 0.0
     broken = yaml.safe_load(default_config_path("k70m").read_text())
+    broken["arm"]["links"][0]["length"] = -3.5
+    broken["planner"]["actuators"]["lift"]["velocity_max"] = -0.15
+    broken["actuators"]["tilt"]["mount"]["kind"] = "triangel"
+    broken["actuators"]["extension"]["cylinder"]["piston_diamter"] = broken["actuators"]["extension"]["cylinder"].pop("piston_diameter")
+    broken["planner"]["spool"] = "differential"
+    broken["planner"]["dp"]["grid"] = [356, 101]
+    bad = tmp_path / "k70m_bad.yaml"
+    bad.write_text(yaml.safe_dump(broken))
+    expected = ("arm.links[lift].length: -3.5 m: must be >= 0 m", "planner.actuators.lift.velocity_max: -0.15 m/s: must be > 0",
+                "actuators.tilt.mount.kind: 'triangel': expected triangle or linear",
+                "actuators.extension.cylinder.piston_diamter: unknown key (did you mean piston_diameter?)",
+                "actuators.extension.cylinder.piston_diameter: missing [m]", "planner.spool: unknown key",
+                "planner.dp.grid: [356, 101]: expected three whole numbers")
+    checked = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "machine", "check", str(bad), "--quiet"], capture_output=True, text=True)
+    lines = checked.stdout.strip().splitlines()
+    assert checked.returncode == 1 and "Traceback" not in checked.stderr
+    for problem in expected:
+        assert sum(problem in line for line in lines) == 1, (problem, lines)
+    with pytest.raises(ConfigError, match=r"config .*k70m_bad.yaml: .*planner.actuators.lift.velocity_max: -0.15 m/s") as refused:
+        load_crane(bad)
+    assert "(hydro-ros machine check" in str(refused.value) and "\n" not in str(refused.value)
+    planner_only = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "machine", "check", str(default_config_path("crane3dof")), "--quiet"],
+                                  capture_output=True, text=True)
+    assert planner_only.returncode == 0 and "no sensors or valves" in planner_only.stdout and "(lift, tilt, extension)" in planner_only.stdout
+
+    broken = yaml.safe_load((REPO / "test" / "crane_form" / "k70m.yaml").read_text())
     broken["links"]["lift_length"] = -3.5
     broken["joints"][1]["cylinder"]["velocity_max"] = -0.15
     broken["joints"][2]["cylinder"]["mapping"] = "triangel"
     broken["joints"][3]["cylinder"]["are_a"] = broken["joints"][3]["cylinder"].pop("area_a")
     broken["masses"][0]["link"] = "lfit"
     broken["dp"]["grid"] = [356, 101]
-    bad = tmp_path / "k70m_bad.yaml"
+    bad = tmp_path / "k70m_crane_form_bad.yaml"
     bad.write_text(yaml.safe_dump(broken))
     expected = ("links.lift_length: -3.5 m: must be > 0 m", "joints[lift].cylinder.velocity_max: -0.15 m/s: must be > 0",
                 "joints[tilt].cylinder.mapping: 'triangel': expected linear or triangle",
@@ -200,20 +230,64 @@ def test_a_crane_configs_problems_are_named_at_once_by_the_check_and_the_planner
     with pytest.raises(ConfigError, match=r"links.lift_length: -3.5 m: must be > 0 m; joints\[lift\]") as refused:
         load_crane(bad)
     assert "and 2 more (hydro-ros machine check" in str(refused.value) and "\n" not in str(refused.value)
-    planner_only = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "machine", "check", str(default_config_path("crane3dof")), "--quiet"],
-                                  capture_output=True, text=True)
-    assert planner_only.returncode == 0 and "a crane for the planner only (lift, tilt, extension" in planner_only.stdout, planner_only
 
 
 def test_a_crane_friction_ramp_that_is_not_a_pair_is_refused_naming_its_key(tmp_path) -> None:
     import yaml
 
     broken = yaml.safe_load(default_config_path("k70m").read_text())
-    broken["extension_friction"]["steps"] = [[1.0, 2.0], [3.0]]
+    broken["planner"]["friction"]["steps"] = [[1.0, 2.0], [3.0]]
     bad = tmp_path / "k70m_steps.yaml"
     bad.write_text(yaml.safe_dump(broken))
-    with pytest.raises(ConfigError, match=r"extension_friction.steps: \[\[1.0, 2.0\], \[3.0\]\]: expected a list of \[from, to\]"):
+    with pytest.raises(ConfigError, match=r"planner.friction.steps: \[\[1.0, 2.0\], \[3.0\]\]: expected a list of \[from, to\]"):
         load_crane(bad)
-    broken["extension_friction"]["steps"] = [[1.0, 2.0]]
+    broken["planner"]["friction"]["steps"] = [[1.0, 2.0]]
     bad.write_text(yaml.safe_dump(broken))
     assert load_crane(bad)[1].extension_friction.steps == ((1.0, 2.0),)
+
+
+@pytest.mark.parametrize("machine", ["k70m", "crane3dof"])
+def test_a_crane_form_config_is_read_converted_and_upgraded_losslessly(machine, tmp_path) -> None:
+    """The crane form of earlier releases (test/crane_form/, the shipped files as they were) is read with a warning into
+    the numbers the shipped machine form gives, and `hydro-ros machine upgrade` writes it so with every value's source."""
+    import subprocess
+    import sys
+
+    from hydro_ros.contract.check import annotated_values
+    from hydro_ros.contract.machine import load_machine_config
+
+    old = REPO / "test" / "crane_form" / f"{machine}.yaml"
+    with pytest.warns(FutureWarning, match=r"crane form \(kind: crane\) is read converted .* machine upgrade"):
+        _, converted = load_crane(old)
+    _, shipped = load_crane(default_config_path(machine))
+    for got, want in ((converted, shipped), (load_crane(_upgraded(old, tmp_path))[1], shipped)):
+        assert got.joint_names == want.joint_names and got.redundant == want.redundant and got.base_rotation == want.base_rotation
+        for a, b in zip(got.joints, want.joints):
+            for name in ("q_min", "q_max", "area_a", "area_b", "pump_area_extend", "pump_area_retract", "velocity_max", "acceleration_max"):
+                assert getattr(a, name) == pytest.approx(getattr(b, name), rel=1e-4), (a.name, name)
+        q = np.linspace(0.0, 1.0, 30)
+        for a, b in zip(Crane(got).cylinders, Crane(want).cylinders):
+            span = a.q_min + (a.q_max - a.q_min) * q
+            assert np.allclose(a.stroke(span), b.stroke(span), atol=1e-4), a.name
+        assert got.arm.links == want.arm.links and got.arm.origin == want.arm.origin
+        assert (got.hydraulics, got.dp, got.paths, got.extension_friction) == (shipped.hydraulics, shipped.dp, shipped.paths,
+                                                                              shipped.extension_friction)
+    upgraded = _upgraded(old, tmp_path)
+    # every value the crane form marked PLACEHOLDER or INFERRED is marked so in the machine form, beside its new key
+    kept = "\n".join(annotated_values(upgraded))
+    for note in annotated_values(old):
+        assert note.split(": ", 1)[1] in kept, note
+    if machine == "k70m":  # the monitor reads the same machine from it
+        assert load_machine_config(upgraded).actuators == load_machine_config(default_config_path("k70m")).actuators
+    again = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "machine", "upgrade", str(upgraded), "--out", str(tmp_path / "x.yaml")],
+                           capture_output=True, text=True)
+    assert again.returncode == 1 and "not in the crane form" in again.stderr and "\n" not in again.stderr.strip()
+
+
+def _upgraded(old, tmp_path):
+    out = tmp_path / f"{old.stem}_upgraded.yaml"
+    if not out.exists():
+        from hydro_ros.cli import main
+
+        assert main(["machine", "upgrade", str(old), "--out", str(out)]) == 0
+    return out

@@ -58,7 +58,7 @@ def test_rebuild_skips_what_is_stored_and_recomputes_what_changed(small_db, k70m
     with TrajectoryDatabase(small_db, writable=True) as db:
         report = build(db, units, workers=1)
         assert report.computed == [] and len(report.skipped) == 4
-        changed = k70m.with_overrides({"dp": {"filter_cutoff": 4.0}})
+        changed = k70m.with_overrides({"planner": {"dp": {"filter_cutoff": 4.0}}})
         report = build(db, plan_units(changed, methods=("pinv_joint",), grid=SMALL_GRID, paths=("vertical",)), workers=1)
         assert report.computed == [("k70m", "vertical", "pinv_joint")]
 

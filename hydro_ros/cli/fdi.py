@@ -113,7 +113,7 @@ def cmd_fdi_fit(args: argparse.Namespace) -> int:
     machine = load_machine_config(args.config)
     if args.train < 1 or args.held_out < 1:
         raise InputError("--train and --held-out must be >= 1")
-    if machine.crane:
+    if machine.planned:
         return fdi_fit_crane(args, machine)
     print(f"fitting parity thresholds on {args.train} fault-free mismatched plants, checking on {args.held_out} others ...")
     thresholds, report = fit_parity_thresholds(machine, range(100, 100 + args.train), range(300, 300 + args.held_out))
@@ -151,7 +151,7 @@ def fdi_fit_crane(args: argparse.Namespace, machine) -> int:
     print(f"fitting the crane's thresholds: {args.train} nominal cranes at work, the factor on {args.held_out} mismatched ones "
           f"(the operator and paths {', '.join(trajectories)} each, 90 s, payload steps) ...")
     with tqdm(total=runs, unit="run", desc="fdi fit", disable=args.quiet) as bar:
-        thresholds, report = fit_crane_thresholds(machine, crane_config, trajectories, train=range(100, 100 + args.train),
+        thresholds, report = fit_crane_thresholds(machine, trajectories, train=range(100, 100 + args.train),
                                                   held_out=range(300, 300 + args.held_out), progress=bar.update)
     print(f"threshold factors per flow bin {', '.join(f'{c:.3g}' for c in thresholds.factor)} = {report['margin']:g} x the "
           f"factor reached held out ({report['held_out_hours']:.2f} h), at least {report['margin']:g} x {report['floor']:g}")

@@ -8,7 +8,7 @@ import json
 import re
 from pathlib import Path
 
-from hydro_ros.cli.common import COUNT, SECONDS, add_config, add_out, number, output_file, write_json
+from hydro_ros.cli.common import COUNT, SECONDS, add_config, add_out, new_output, number, output_file, write_json
 from hydro_ros.contract.config import write_extending
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
@@ -48,6 +48,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_out(new, "the new config file")
     new.set_defaults(func=cmd_machine_new)
 
+    upgrade = verbs.add_parser("upgrade", help="write a crane-form config (kind: crane) in the machine form",
+                               description="Each cylinder once (actuators:), the chain once (arm:, its slewing base arm.slew), the "
+                               "planner's limits, hydraulics, grid and paths in planner:; every number the planner and the "
+                               "monitor read comes out the same, each value's comment (its source) beside its new key.")
+    upgrade.add_argument("config", help="crane-form config (YAML)")
+    add_out(upgrade, "the machine-form config to write")
+    upgrade.set_defaults(func=cmd_machine_upgrade)
+
     params = sub.add_parser("params", help="the commented params file of a machine's bring-up (can_bridge, fdi_node, hmi)",
                             description="Print the ros__parameters of the nodes launch/machine.launch.py starts, every "
                             "parameter with its unit, default and range, from the nodes' own tables.")
@@ -85,17 +93,24 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
     from hydro_ros.contract.check import annotated_values, config_problems, crane_problems, planner_problems
     from hydro_ros.contract.config import read_config
     from hydro_ros.contract.crane import parse_planning
+    from hydro_ros.contract.upgrade import is_crane_form, upgraded
     from hydro_ros.models.crane import Crane
 
     config = read_config(args.config, required=(), nonempty="machine")
-    planned = config.get("kind") == "crane" or "planner" in config
+    problems = []
+    if is_crane_form(config):  # checked in its own terms, then read converted as every tool reads it
+        problems = crane_problems(config)
+        if not problems:
+            print(f"{args.config}: warning: in the crane form (kind: crane), read converted; `hydro-ros machine upgrade "
+                  f"{args.config} --out NEW` writes it in the machine form")
+            config, _ = upgraded(config, args.config)
+    planned = "planner" in config
     # a config without sensors describes only what the planner needs (config/crane3dof.yaml, config/excavator.yaml)
     planner_only = planned and "sensors" not in config
-    problems = [] if planner_only else config_problems(config)
-    if "planner" in config:
-        problems += [problem for problem in planner_problems(config) if problem not in problems]
-    elif planner_only:
-        problems += crane_problems(config)
+    if not problems:
+        problems = [] if planner_only else config_problems(config)
+        if planned:
+            problems += [problem for problem in planner_problems(config) if problem not in problems]
     for problem in problems:
         print(f"{args.config}: {problem}")
     if planned and not problems:
@@ -111,7 +126,7 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
     if not planner_only and not problems:
         from hydro_ros.can.codec import BusMapError, MachineBus
         from hydro_ros.fdi.settings import unset_threshold
-        from hydro_ros.models.serial_arm import arm_problems
+        from hydro_ros.models.serial_arm import arm_problems, hold_warnings
 
         machine = load_machine_config(args.config)
         problems = arm_problems(machine)
@@ -128,7 +143,7 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
         advice = unset_threshold(machine)
         if advice:
             print(f"{args.config}: warning: {advice}")
-        for warning in reach_warnings(machine):
+        for warning in [*reach_warnings(machine), *hold_warnings(machine)]:
             print(f"{args.config}: warning: {warning}")
         if args.plot:
             from hydro_ros.studies.plots import plot_machine
@@ -156,7 +171,7 @@ def reach_warnings(machine) -> list[str]:
         reach = f"{actuator.name}'s cylinder moves its joint {low:.3f} to {high:.3f}"
         if low < plausible[0] or high > plausible[1]:
             out.append(f"sensors.joint_range {list(plausible)}: {reach}; a reading in that travel would be called implausible")
-        if not machine.crane and machine.arm is None and (operator[0] < low or operator[1] > high):
+        if machine.arm is None and (operator[0] < low or operator[1] > high):
             out.append(f"excitation.joint_range {list(operator)}: {reach}; the simulated operator drives it into the end stops")
     if machine.arm is not None:
         for section, key in (("excitation", "joint_range"), ("simulation", "initial_joint_position")):
@@ -215,6 +230,15 @@ def cmd_machine_new(args: argparse.Namespace) -> int:
     text = re.sub(r"(?m)^(\s*)threshold_constant:.*$", rf"\1# threshold_constant: yours from `hydro-ros machine threshold {out}`", text)
     out.write_text(header + text)
     print(f"{out}: written from {source.name}; next: hydro-ros machine check {out}")
+    return 0
+
+
+def cmd_machine_upgrade(args: argparse.Namespace) -> int:
+    from hydro_ros.contract.upgrade import upgraded_text
+
+    out = new_output(args.out)
+    out.write_text(upgraded_text(Path(args.config)))
+    print(f"{out}: {args.config} in the machine form; next: hydro-ros machine check {out}")
     return 0
 
 

@@ -85,7 +85,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     if args.duration <= 0:
         raise InputError(f"--duration {args.duration}: must be > 0 s")
     given = [f"--{name}" for name in ("path", "method", "db", "hold") if getattr(args, name) is not None]
-    if machine.crane:
+    if machine.planned:
         if given and args.path is None:
             raise InputError(f"{', '.join(given)}: only with --path (the stored trajectory the crane works)")
         with bag_or_nothing(args.out):
@@ -118,7 +118,8 @@ def sim_crane(args: argparse.Namespace, machine) -> int:
     from hydro_ros.bags.reader import read_bag
     from hydro_ros.bags.writer import ContractBagWriter
     from hydro_ros.models.crane import load_crane
-    from hydro_ros.sim.arm_cylinders import ArmRun, crane_cylinders
+    from hydro_ros.models.serial_arm import SerialArm
+    from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun
     from hydro_ros.studies.plots import plot_bag
 
     # a crane's payload hangs at its tip, on no one cylinder
@@ -134,7 +135,7 @@ def sim_crane(args: argparse.Namespace, machine) -> int:
         trajectory, _ = executable_trajectory(crane_config, args.path, method, database=args.db)
         work = {"path": args.path, "method": method, "hold_s": hold, "source": args.db or "planned"}
     run = ArmRun(args.duration, seed=args.seed, faults=faults, payload=payload, trajectory=trajectory, hold_s=hold)
-    plant = crane_cylinders(machine, crane_config, run)
+    plant = ArmCylinders(machine, SerialArm.of(machine), run)
     writer = ContractBagWriter(args.out, actuators={a.name: a.joint for a in machine.actuators},
                                pressure_variance=machine.sensors.pressure_noise_std ** 2, mobile=machine.mobile)
     with writer, tqdm(total=int(round(args.duration * machine.sample_rate_hz)), unit="sample", desc="simulate", disable=args.quiet) as bar:

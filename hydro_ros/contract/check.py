@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from hydro_ros.contract.config import ConfigError
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.names import Injection
 
@@ -115,10 +116,24 @@ RANGE_SLACK = 1e-3  # [m] a joint range may reach this far past the cylinder's e
 HYDRAULICS = {"supply_pressure_cp": PRESSURE, "tank_pressure": _nonnegative("Pa", 1.0e7), "ls_margin": _nonnegative("Pa", 1.0e7),
               "compensator_drop": _nonnegative("Pa", 1.0e7), "efficiency": Rule("-", 0.0, 1.0, open_low=True),
               "drive_threshold": _positive("m/s", 1.0), "pump_flow_max": _positive("m^3/s", 1.0), "supply_pressure_max": PRESSURE}
+SLEW_DRIVES = {"rack": {"ratio": _positive("m/rad", 10.0, hint="the plungers' stroke per radian: the pinion's radius"),
+                        "area": _positive("m^2", 1.0, hint="SI: a 115 mm plunger is 1.04e-2")},
+               "motor": {"displacement": _positive("m^3/rad", 1.0, hint="a 100 cm^3/rev motor is 1.59e-5 m^3/rad")}}
+PLANNER_FRICTION = {"coulomb": _nonnegative("N"), "tanh_gain": _positive("s/m")}
 PLANNER_ACTUATOR = {"velocity_max": _positive("m/s", 10.0), "acceleration_max": _positive("m/s^2", 100.0)}
-PLANNER_KEYS = {"redundant", "actuators", "hydraulics", "dp", "paths", "controller", "plant", "catalog"}
+PLANNER_KEYS = {"redundant", "actuators", "friction", "hydraulics", "dp", "paths", "controller", "plant", "catalog"}
 TOP_KEYS = set(TOP) | {"machine", "actuators", "sensors", "simulation", "excitation", "effects", "effect_forms", "can", "fdi", "arm",
-                       "planner"} | CRANE_KEYS
+                       "planner"}
+
+
+MAX_LISTED = 5  # problems named in one error line; `hydro-ros machine check` lists all
+
+
+def refuse_problems(problems: list[str], source: Path | str) -> None:
+    """One ConfigError line with the first problems, if there are any."""
+    if problems:
+        listed = "; ".join(problems[:MAX_LISTED]) + (f"; and {len(problems) - MAX_LISTED} more" if len(problems) > MAX_LISTED else "")
+        raise ConfigError(f"config {source}: {listed} (hydro-ros machine check {source} lists each)")
 
 
 class _Problems:
@@ -184,7 +199,6 @@ def _number(value: Any) -> float | None:
 def config_problems(config: dict[str, Any]) -> list[str]:
     """Every rule the merged machine config breaks, one ``key.path: value unit: rule`` line each."""
     found = _Problems()
-    crane = config.get("kind") == "crane"
     found.unknown(config, "", TOP_KEYS)
     top = found.numbers(config, "", TOP, required=tuple(TOP))
     if "supply_pressure" in top and "tank_pressure" in top and top["tank_pressure"] >= top["supply_pressure"]:
@@ -196,7 +210,7 @@ def config_problems(config: dict[str, Any]) -> list[str]:
     simulation: dict[str, Any] = config["simulation"] if isinstance(config.get("simulation"), dict) else {}
     arm = "arm" in config
     for name, actuator in actuators.items():
-        _actuator(found, f"actuators.{name}", actuator, crane, arm, _number(simulation.get("end_stop_upper")))
+        _actuator(found, f"actuators.{name}", actuator, arm, _number(simulation.get("end_stop_upper")))
     effects = config.get("effects")
     if isinstance(effects, dict):
         for name, value in effects.items():
@@ -206,9 +220,7 @@ def config_problems(config: dict[str, Any]) -> list[str]:
                 found.add(f"effects.{name}", str(exc))
     elif effects is not None:
         found.add("effects", "must be a mapping of effect names to values")
-    if arm and crane:
-        found.add("arm", "a crane's links are its links:, joints: and masses: (kind: crane); remove arm:")
-    elif arm:
+    if arm:
         _arm(found, config["arm"], actuators, simulation)
     joints = [a.get("joint") for a in actuators.values() if isinstance(a, dict) and isinstance(a.get("joint"), str)]
     for joint in sorted({j for j in joints if joints.count(j) > 1}, key=str):
@@ -249,13 +261,11 @@ def config_problems(config: dict[str, Any]) -> list[str]:
             found.add("sensors.motion_sensor", f"{sensors['motion_sensor']!r}: expected encoder or mems")
         if sensors.get("motion_sensor") == "mems":
             found.numbers(sensors.get("mems"), "sensors.mems", MEMS, required=tuple(MEMS))
-    if crane:
-        _crane(found, config)
     return found.found
 
 
 def crane_problems(config: dict[str, Any]) -> list[str]:
-    """Every rule the planner's sections of a crane config break (a planner-only config has no monitored machine)."""
+    """Every rule the crane form (``kind: crane``) breaks, checked before ``contract.upgrade`` converts it."""
     found = _Problems()
     _crane(found, config)
     return found.found
@@ -266,14 +276,19 @@ def planner_problems(config: dict[str, Any]) -> list[str]:
     on an actuator's cylinder and mount), which one is redundant, each actuator's rate limits, the grid and the paths. The
     monitor's sections (valves, sensors) are not the planner's to require."""
     found = _Problems()
+    found.unknown(config, "", TOP_KEYS)
     top = found.numbers(config, "", {"supply_pressure": PRESSURE, "tank_pressure": TOP["tank_pressure"]}, required=("supply_pressure",))
-    actuators = config.get("actuators") if isinstance(config.get("actuators"), dict) else {}
+    node = config.get("actuators")
+    actuators: dict[str, Any] = node if isinstance(node, dict) else {}
     for name, actuator in actuators.items():
         path = f"actuators.{name}"
         if not isinstance(actuator, dict) or not isinstance(actuator.get("joint"), str):
             found.add(f"{path}.joint", "missing (its name in /joint_states)")
             continue
-        cylinder = found.numbers(actuator.get("cylinder"), f"{path}.cylinder", CYLINDER, required=tuple(CYLINDER))
+        # the planner needs the areas and the stroke; the dead volumes are the monitor's
+        cylinder = found.numbers(actuator.get("cylinder"), f"{path}.cylinder", CYLINDER, required=("piston_diameter", "rod_diameter", "stroke"))
+        if {"rod_diameter", "piston_diameter"} <= set(cylinder) and cylinder["rod_diameter"] >= cylinder["piston_diameter"]:
+            found.add(f"{path}.cylinder.rod_diameter", f"{cylinder['rod_diameter']:g} m: must be smaller than piston_diameter")
         _mount(found, f"{path}.mount", actuator.get("mount"), cylinder.get("stroke"))
     simulation = config["simulation"] if isinstance(config.get("simulation"), dict) else {}
     if not isinstance(config.get("arm"), dict):
@@ -294,16 +309,28 @@ def planner_problems(config: dict[str, Any]) -> list[str]:
     if not isinstance(redundant, str) or redundant not in actuators:
         found.add("planner.redundant", f"{redundant!r}: must name the actuator whose stroke the planner chooses (one of "
                                        f"{', '.join(map(str, actuators))})")
-    limits = planner.get("actuators") if isinstance(planner.get("actuators"), dict) else {}
-    for name in actuators:
-        node = limits.get(name)
-        found.numbers(node, f"planner.actuators.{name}", PLANNER_ACTUATOR, required=tuple(PLANNER_ACTUATOR))
-        if isinstance(node, dict):
-            found.unknown(node, f"planner.actuators.{name}", set(PLANNER_ACTUATOR) | {"spool", "lowered_by_gravity"})
-            _choice(found, node, f"planner.actuators.{name}", "spool", "non_differential")
+    given = planner.get("actuators")
+    limits: dict[str, Any] = given if isinstance(given, dict) else {}
+    slew = config["arm"].get("slew")
+    driven = [*actuators, *([slew["joint"]] if isinstance(slew, dict) and isinstance(slew.get("joint"), str) else [])]
+    for name in driven:
+        entry = limits.get(name)
+        path = f"planner.actuators.{name}"
+        found.numbers(entry, path, PLANNER_ACTUATOR | {"constant_force": Rule("N")}, required=tuple(PLANNER_ACTUATOR))
+        if isinstance(entry, dict):
+            found.unknown(entry, path, set(PLANNER_ACTUATOR) | ({"constant_force"} if name not in actuators else {"spool", "lowered_by_gravity"}))
+            if name in actuators:
+                _choice(found, entry, path, "spool", "non_differential")
     for name in limits:
-        if name not in actuators:
-            found.add(f"planner.actuators.{name}", f"not an actuator (actuators: {', '.join(map(str, actuators))})")
+        if name not in driven:
+            found.add(f"planner.actuators.{name}", f"not an actuator or the slew (they are: {', '.join(map(str, driven))})")
+    found.numbers(planner.get("friction", {}), "planner.friction", PLANNER_FRICTION)
+    friction = planner.get("friction")
+    steps = (friction.get("steps") or []) if isinstance(friction, dict) else []
+    if isinstance(friction, dict):
+        found.unknown(friction, "planner.friction", set(PLANNER_FRICTION) | {"steps"})
+    if not (isinstance(steps, list) and all(isinstance(step, list) and len(step) == 2 and None not in map(_number, step) for step in steps)):
+        found.add("planner.friction.steps", f"{steps!r}: expected a list of [from, to] positions of the redundant joint")
     _planning_sections(found, planner, "planner.")
     if "tank_pressure" in top and top["tank_pressure"] >= top.get("supply_pressure", math.inf):
         found.add("tank_pressure", f"{top['tank_pressure']:g} Pa: must be below supply_pressure")
@@ -382,12 +409,37 @@ def _planning_sections(found: _Problems, node: dict[str, Any], prefix: str, requ
         found.add(f"{prefix}paths", "must name at least one tip path")
 
 
+def _slew(found: _Problems, node: Any) -> None:
+    """A slewing base: its joint, its range and its drive (a rack and pinion or a motor)."""
+    if not isinstance(node, dict):
+        found.add("arm.slew", "must be a mapping (joint, range, drive)")
+        return
+    found.unknown(node, "arm.slew", {"joint", "range", "drive"})
+    if not isinstance(node.get("joint"), str):
+        found.add("arm.slew.joint", f"{node.get('joint')!r}: must be the slew's name in /joint_states")
+    if "range" not in node:
+        found.add("arm.slew.range", "missing [rad]")
+    else:
+        found.pair(node, "arm.slew", "range")
+    drive = node.get("drive")
+    kind = drive.get("kind", "rack") if isinstance(drive, dict) else None
+    if kind not in SLEW_DRIVES:
+        found.add("arm.slew.drive" + (".kind" if isinstance(drive, dict) else ""),
+                  f"{kind!r}: expected a mapping of kind rack (ratio, area) or motor (displacement)")
+        return
+    found.numbers(drive, "arm.slew.drive", SLEW_DRIVES[kind], required=tuple(SLEW_DRIVES[kind]))
+    if isinstance(drive, dict):
+        found.unknown(drive, "arm.slew.drive", set(SLEW_DRIVES[kind]) | {"kind"})
+
+
 def _arm(found: _Problems, node: Any, actuators: dict[str, Any], simulation: dict[str, Any]) -> None:
     """The links base to tip, each on an actuator's joint, its range inside the cylinder's stroke."""
     if not isinstance(node, dict):
         found.add("arm", "must be a mapping (origin, payload, links)")
         return
-    found.unknown(node, "arm", set(ARM) | {"origin", "links"})
+    found.unknown(node, "arm", set(ARM) | {"origin", "links", "slew"})
+    if "slew" in node:
+        _slew(found, node["slew"])
     found.numbers(node, "arm", ARM)
     if "origin" in node:
         origin = node["origin"]
@@ -484,7 +536,7 @@ def _range_in_stroke(found: _Problems, path: str, link: dict[str, Any], name: st
                                    "(its stroke, or simulation.end_stop_lower / _upper)")
 
 
-def _actuator(found: _Problems, path: str, node: Any, crane: bool, arm: bool, end_stop_upper: float | None) -> None:
+def _actuator(found: _Problems, path: str, node: Any, arm: bool, end_stop_upper: float | None) -> None:
     if not isinstance(node, dict):
         found.add(path, "must be a mapping")
         return
@@ -508,7 +560,7 @@ def _actuator(found: _Problems, path: str, node: Any, crane: bool, arm: bool, en
     _valve(found, f"{path}.valve", node.get("valve"))
     if arm and "load" in node:
         found.add(f"{path}.load", "the arm: section describes the links; each actuator's load follows from it (remove load)")
-    for key, rules in (("fluid", FLUID), ("friction", FRICTION)) + ((("load", LOAD),) if not (crane or arm) else ()):
+    for key, rules in (("fluid", FLUID), ("friction", FRICTION)) + ((("load", LOAD),) if not arm else ()):
         found.numbers(node.get(key), f"{path}.{key}", rules, required=tuple(rules))
         if isinstance(node.get(key), dict):
             found.unknown(node[key], f"{path}.{key}", set(rules))
@@ -563,12 +615,12 @@ def _valve(found: _Problems, path: str, node: Any) -> None:
                     found.add(f"{path}.kv_poly.{notch}", f"{poly!r}: expected 4 numbers [c3, c2, c1, c0] (m^3/(s Pa^0.5))")
 
 
-def annotated_values(path: str | Path) -> list[str]:
-    """``key.path: comment`` for every value whose comment in the file says PLACEHOLDER or INFERRED (this file only,
-    not the one it extends)."""
-    out: list[str] = []
+def keyed_lines(text: str) -> list[tuple[int, str, str]]:
+    """(line index, key path, end-of-line comment) of every key in a YAML text, a list entry named by its ``name`` or
+    ``joint`` (``joints[lift].cylinder.area_a``, ``arm.links[arm_joint]``)."""
+    out: list[tuple[int, str, str]] = []
     stack: list[tuple[int, str]] = []  # (indent, key)
-    for line in Path(path).read_text().splitlines():
+    for index, line in enumerate(text.splitlines()):
         match = re.match(r"^(\s*)(- )?([A-Za-z_][\w.]*|'[^']*'|\"[^\"]*\")\s*:(.*)$", line)
         if not match or line.lstrip().startswith("#"):
             continue
@@ -576,10 +628,15 @@ def annotated_values(path: str | Path) -> list[str]:
         while stack and stack[-1][0] >= indent:
             stack.pop()
         value, _, comment = rest.partition("#")
-        if item and key in ("name", "joint"):  # a list entry is named by its name: joints[lift].cylinder.area_a, arm.links[arm_joint]
+        if item and key in ("name", "joint"):
             stack.append((indent, f"[{value.strip()}]"))
         else:
             stack.append((indent + (2 if item else 0), key))
-        if any(word in comment for word in ANNOTATIONS):
-            out.append("".join(k if k.startswith("[") or not i else f".{k}" for i, (_, k) in enumerate(stack)) + f": {comment.strip()}")
+        out.append((index, "".join(k if k.startswith("[") or not i else f".{k}" for i, (_, k) in enumerate(stack)), comment.strip()))
     return out
+
+
+def annotated_values(path: str | Path) -> list[str]:
+    """``key.path: comment`` for every value whose comment in the file says PLACEHOLDER or INFERRED (this file only,
+    not the one it extends)."""
+    return [f"{key}: {comment}" for _, key, comment in keyed_lines(Path(path).read_text()) if any(word in comment for word in ANNOTATIONS)]

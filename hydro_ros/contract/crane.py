@@ -2,16 +2,14 @@
 
 A planar chain of three joints redundant in one of them along a planar tip path, optionally on a slewing base, each
 joint driven by a cylinder (a triangle mount or a linear mapping), masses on its links, the pump and valves of its
-hydraulics, the planner's grid and the tip paths it plans along. Two forms are read into one :class:`CraneConfig`:
-
-- a crane config (``kind: crane``, :func:`parse_crane`): links, joints and masses of the lift-tilt-telescope crane of both
-  papers, redundant in its telescope (``config/k70m.yaml``);
-- a machine config with an ``arm:`` and a ``planner:`` section (:func:`parse_planner`): the monitor's own description of
-  the chain and its cylinders, the planner's limits, hydraulics, grid and paths beside them, redundant in the joint
-  ``planner.redundant`` names (``config/excavator.yaml``).
+hydraulics, the planner's grid and the tip paths it plans along. It is read from the machine's one description: the
+chain and its masses in ``arm:`` (with ``arm.slew``), each cylinder in ``actuators:`` (the monitor's: its bore and mount),
+and a ``planner:`` section beside them (which joint is redundant, the rate limits, hydraulics, grid, paths), as
+``config/k70m.yaml`` and ``config/excavator.yaml`` are. The crane form of earlier releases (``kind: crane``) is read
+converted (``contract.upgrade``).
 
 A missing or non-numeric entry is a one-line ConfigError naming its key; every rule the sections break is refused
-first, all at once (``check.crane_problems``, what ``hydro-ros machine check`` lists). SI units throughout.
+first, all at once (``check.planner_problems``, what ``hydro-ros machine check`` lists). SI units throughout.
 """
 
 from __future__ import annotations
@@ -22,9 +20,10 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from hydro_ros.contract.check import crane_problems, list_entry, planner_problems
+from hydro_ros.contract.check import planner_problems, refuse_problems
 from hydro_ros.contract.config import ConfigError, with_overrides
-from hydro_ros.contract.machine import Arm, ArmLink, LinkMass, Section, parse_arm, parse_mount, refuse_problems
+from hydro_ros.contract.machine import Arm, ArmLink, Section, Slew, parse_arm, parse_mount
+from hydro_ros.contract.upgrade import machine_form
 
 
 @dataclass(frozen=True)
@@ -134,92 +133,22 @@ class CraneConfig:
         return replace(self, paths=dict(paths), mapping={**self.mapping, "paths": dict(paths)})
 
 
-def _joint(section: Section) -> CraneJoint:
-    cylinder = section.section("cylinder")
-    return CraneJoint(
-        name=section.text("name"),
-        q_min=section.number("min"),
-        q_max=section.number("max"),
-        mapping=cylinder.text("mapping", "linear"),
-        ratio=cylinder.number("ratio", 1.0),
-        la=cylinder.number("la", 0.0),
-        lb=cylinder.number("lb", 0.0),
-        theta_at_min=cylinder.number("theta_at_min", 0.0),
-        sign=cylinder.number("sign", 1.0),
-        area_a=cylinder.number("area_a"),
-        area_b=cylinder.number("area_b"),
-        pump_area_extend=cylinder.number("pump_area_extend"),
-        pump_area_retract=cylinder.number("pump_area_retract"),
-        differential=cylinder.text("spool", "non_differential") == "differential",
-        velocity_max=cylinder.number("velocity_max"),
-        acceleration_max=cylinder.number("acceleration_max"),
-        constant_force=cylinder.number("constant_force") if "constant_force" in cylinder.node else None,
-    )
-
-
-def _entries(top: Section, name: str) -> list[Section]:
-    entries = top.node.get(name) or []
-    if not isinstance(entries, list):
-        raise ConfigError(f"config {top.source}: {name} must be a list")
-    return [Section(top.source, list_entry(name, index, entry), entry) for index, entry in enumerate(entries)]
-
-
 def _numbers(section: Section) -> dict[str, float]:
     return {str(name): section.number(name) for name in section.node}
 
 
 def parse_planning(config: Mapping[str, Any], source: Path) -> CraneConfig:
-    """The planner's view of a config mapping in either form (a ``planner:`` section or ``kind: crane``)."""
+    """The planner's view of a config mapping (a ``planner:`` section; the crane form converted, ``contract.upgrade``)."""
+    config = machine_form(dict(config), source)
     if "planner" in config:
         return parse_planner(config, source)
-    if config.get("kind") == "crane":
-        return parse_crane(config, source)
-    joints = len((config.get("arm") or {}).get("links") or []) if isinstance(config.get("arm"), dict) else len(config.get("actuators") or {})
+    links = config["arm"].get("links") if isinstance(config.get("arm"), dict) else None
+    joints = len(links) if isinstance(links, list) else len(config.get("actuators") or {})
     why = ("a planar tip path fixes two joints, so there is no redundancy to optimise" if joints <= 2 else
            f"its {joints} joints may be redundant along a tip path: describe them in arm: and say which one the planner chooses "
            "in a planner: section (as config/excavator.yaml does)")
-    raise ConfigError(f"config {source}: nothing to plan (no planner: section, not kind: crane): the planner needs one redundant "
-                      f"degree of freedom along a planar tip path; {why}")
-
-
-def parse_crane(config: Mapping[str, Any], source: Path) -> CraneConfig:
-    """The crane of a ``kind: crane`` mapping; ConfigError names its problems (``check.crane_problems``)."""
-    refuse_problems(crane_problems(dict(config)), source)
-    top = Section(str(source), "", dict(config))
-    links = top.section("links")
-    friction = top.section("extension_friction", optional=True)
-    joints = tuple(_joint(entry) for entry in _entries(top, "joints"))
-    arm = _crane_arm(joints[-3:], links, _entries(top, "masses"))
-    return CraneConfig(
-        name=top.text("machine"),
-        source=source,
-        base_rotation=bool(config.get("base_rotation", False)),
-        gravity=top.number("gravity", 9.81),
-        arm=arm,
-        joints=joints,
-        redundant=len(joints) - 1,
-        extension_friction=ExtensionFriction(coulomb=friction.number("coulomb", 0.0), tanh_gain=friction.number("tanh_gain", 2000.0),
-                                             steps=tuple((float(low), float(high)) for low, high in friction.node.get("steps") or [])),
-        **_planning_sections(top),
-        mapping=dict(config),
-    )
-
-
-def _crane_arm(joints: tuple[CraneJoint, ...], links: Section, masses: list[Section]) -> Arm:
-    """The crane's planar joints as a serial arm: the lift link, the tilt link (its masses on the extension's axis, L2 from
-    the tilt joint) and the telescope sliding on it from ``extension_base``; the masses that ride on the telescope slide
-    with it."""
-    lift, tilt, extension = joints
-    offset = links.number("tilt_offset", 0.0)
-    on: dict[str, list[LinkMass]] = {"lift": [], "tilt": [], "telescope": []}
-    for mass in masses:
-        link = "lift" if mass.text("link") == "lift" else "telescope" if mass.node.get("moves_with_extension", False) else "tilt"
-        on[link].append(LinkMass(mass.text("name", mass.text("link")), mass.number("mass"), mass.number("s"), 0.0 if link == "lift" else offset))
-    return Arm(links=(ArmLink(lift.name, "revolute", links.number("lift_length"), (lift.q_min, lift.q_max), 0.0, tuple(on["lift"])),
-                      ArmLink(tilt.name, "revolute", 0.0, (tilt.q_min, tilt.q_max), 0.0, tuple(on["tilt"])),
-                      ArmLink(extension.name, "prismatic", links.number("extension_base"), (extension.q_min, extension.q_max), offset,
-                              tuple(on["telescope"]))),
-               origin=(links.number("lift_joint_x"), links.number("lift_joint_y")))
+    raise ConfigError(f"config {source}: nothing to plan (no planner: section): the planner needs one redundant degree of freedom "
+                      f"along a planar tip path; {why}")
 
 
 def _planning_sections(planner: Section) -> dict[str, Any]:
@@ -246,24 +175,41 @@ def parse_planner(config: Mapping[str, Any], source: Path) -> CraneConfig:
     planner = top.section("planner")
     arm = parse_arm(top.section("arm"))
     actuators = top.section("actuators")
+    limits = planner.section("actuators")
     on_joint = {str(node["joint"]): str(name) for name, node in actuators.node.items()}
-    joints = tuple(_actuated_joint(link, actuators.section(on_joint[link.joint]), planner.section("actuators").section(on_joint[link.joint]))
+    joints = tuple(_actuated_joint(link, actuators.section(on_joint[link.joint]), limits.section(on_joint[link.joint]))
                    for link in arm.links)
+    if arm.slew is not None:
+        joints = (_slew_joint(arm.slew, limits.section(arm.slew.joint)), *joints)
     redundant = str(actuators.node[planner.text("redundant")]["joint"])
+    friction = planner.section("friction", optional=True)
     hydraulics = dict(planner.section("hydraulics").node)
     hydraulics.setdefault("supply_pressure_cp", top.number("supply_pressure"))
     hydraulics.setdefault("tank_pressure", top.number("tank_pressure"))
     return CraneConfig(
         name=top.text("machine"),
         source=source,
-        base_rotation=False,
+        base_rotation=arm.slew is not None,
         gravity=top.section("simulation", optional=True).number("gravity", 9.81),
-        arm=replace(arm, payload=0.0),
+        arm=replace(arm, payload=0.0, slew=None),
         joints=joints,
-        redundant=[link.joint for link in arm.links].index(redundant),
-        extension_friction=ExtensionFriction(),
+        redundant=[joint.name for joint in joints].index(redundant),
+        extension_friction=ExtensionFriction(coulomb=friction.number("coulomb", 0.0), tanh_gain=friction.number("tanh_gain", 2000.0),
+                                             steps=tuple((float(low), float(high)) for low, high in friction.node.get("steps") or [])),
         **_planning_sections(Section(str(source), "planner", {**planner.node, "hydraulics": hydraulics})),
         mapping=dict(config),
+    )
+
+
+def _slew_joint(slew: Slew, limits: Section) -> CraneJoint:
+    """The slewing base as the planner sees it: a linear mapping of its angle onto the drive's stroke, the same area either
+    way (each direction its own plunger or the motor's two ports)."""
+    low, high = slew.joint_range
+    return CraneJoint(
+        name=slew.joint, q_min=low, q_max=high, mapping="linear", ratio=slew.ratio, la=0.0, lb=0.0, theta_at_min=0.0, sign=1.0,
+        area_a=slew.area, area_b=slew.area, pump_area_extend=slew.area, pump_area_retract=slew.area, differential=False,
+        velocity_max=limits.number("velocity_max"), acceleration_max=limits.number("acceleration_max"),
+        constant_force=limits.number("constant_force") if "constant_force" in limits.node else None,
     )
 
 

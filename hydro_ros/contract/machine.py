@@ -16,16 +16,16 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hydro_ros.contract.check import config_problems, list_entry
+from hydro_ros.contract.check import config_problems, list_entry, refuse_problems
 from hydro_ros.contract.config import ConfigError, read_config, unshared, with_overrides
 from hydro_ros.contract.names import EFFECT_FORMS, first_form
+from hydro_ros.contract.upgrade import machine_form
 
 NOTCHES = ("PA", "PB", "AT", "BT")
 VALVE_TYPES = ("proportional", "mobile")
 _REQUIRED = ("machine", "sample_rate_hz", "actuators", "supply_pressure", "tank_pressure", "sensors")
 # what the machine config holds for the monitor and the simulators, beside the name (a crane config also has its
 # planner's keys: joints, masses, hydraulics, dp, paths)
-MAX_LISTED = 5  # problems named in one error line; `hydro-ros machine check` lists all
 MONITOR_KEYS = frozenset(_REQUIRED[1:]) | {"simulation", "excitation", "effects", "effect_forms", "can", "fdi"}
 
 
@@ -215,6 +215,24 @@ class ArmLink:
 
 
 @dataclass(frozen=True)
+class Slew:
+    """A base turning the planar links about the vertical axis (``arm.slew``), and what drives it: the P-VI crane's rack
+    and pinion (two plungers: a stroke of ``ratio`` metres per radian on ``area`` either way) or a hydraulic motor (its
+    ``displacement`` per radian as ``area``, ``ratio`` 1). Described for the planner (the flow and force of turning); the
+    monitor and the simulators of the cylinders do not model it."""
+
+    joint: str
+    joint_range: tuple[float, float]
+    """[rad]"""
+    drive: str
+    """``rack`` or ``motor``"""
+    ratio: float
+    """[m/rad] a rack's stroke per radian; 1 for a motor"""
+    area: float
+    """[m^2] a plunger's area, or [m^3/rad] a motor's displacement"""
+
+
+@dataclass(frozen=True)
 class Arm:
     """The links the cylinders move, base to tip (``arm:``): the simulator couples their dynamics."""
 
@@ -223,6 +241,8 @@ class Arm:
     """[m] the first joint, horizontally and up from the base"""
     payload: float = 0.0
     """[kg] at the tip of the last link"""
+    slew: Slew | None = None
+    """a slewing base under the first link, or None (a planar machine)"""
 
 
 @dataclass(frozen=True)
@@ -364,9 +384,10 @@ class Machine:
         return [a.name for a in self.actuators]
 
     @property
-    def crane(self) -> bool:
-        """A crane config (``kind: crane``): its cylinders carry the crane's links and masses, not a SAM boom."""
-        return self.mapping.get("kind") == "crane"
+    def planned(self) -> bool:
+        """A machine with a ``planner:`` section: it works the planner's paths (``contract.crane``), its cylinders moving the
+        chain the planner plans."""
+        return "planner" in self.mapping
 
     @property
     def first(self) -> Actuator:
@@ -392,6 +413,7 @@ class Machine:
         mapping["actuators"] = {actuator: mapping["actuators"][actuator]}
         mapping["actuators"][actuator]["load"] = asdict(load)
         mapping.pop("arm", None)
+        mapping.pop("planner", None)
         can_map = (mapping.get("can") or {}).get("map") or {}
         if "actuators" in can_map:
             can_map["actuators"] = {name: entry for name, entry in can_map["actuators"].items() if name == actuator}
@@ -407,13 +429,6 @@ class Machine:
         return copied
 
 
-def refuse_problems(problems: list[str], source: Path) -> None:
-    """One ConfigError line with the first problems, if there are any."""
-    if problems:
-        listed = "; ".join(problems[:MAX_LISTED]) + (f"; and {len(problems) - MAX_LISTED} more" if len(problems) > MAX_LISTED else "")
-        raise ConfigError(f"config {source}: {listed} (hydro-ros machine check {source} lists each)")
-
-
 def load_machine_config(path: str | Path) -> Machine:
     """Read and parse a valve-controlled machine's ``config/<machine>.yaml``; ConfigError names a bad key."""
     path = Path(path)
@@ -421,6 +436,7 @@ def load_machine_config(path: str | Path) -> Machine:
 
 
 def parse_machine(config: dict[str, Any], source: Path) -> Machine:
+    config = machine_form(config, source)
     refuse_problems(config_problems(config), source)
     top = Section(str(source), "", config)
     missing = [key for key in _REQUIRED if key not in config]
@@ -429,9 +445,8 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
     actuators = top.section("actuators")
     if not actuators.node:
         raise ConfigError(f"config {source}: no actuators")
-    crane = config.get("kind") == "crane"  # a crane's cylinders carry its links and masses (joints:, masses:), not a boom
     arm = parse_arm(top.section("arm")) if "arm" in config else None
-    parsed = tuple(_actuator(actuators.section(name), str(name), index, crane, arm) for index, name in enumerate(actuators.node, start=1))
+    parsed = tuple(_actuator(actuators.section(name), str(name), index, arm) for index, name in enumerate(actuators.node, start=1))
     sensors = top.section("sensors")
     simulation = top.section("simulation", optional=True)
     excitation = top.section("excitation", optional=True)
@@ -502,7 +517,7 @@ def _choice(section: Section, name: str, allowed: tuple[str, ...], default: str)
     return value
 
 
-def _actuator(section: Section, name: str, index: int, crane: bool, arm: Arm | None) -> Actuator:
+def _actuator(section: Section, name: str, index: int, arm: Arm | None) -> Actuator:
     cylinder, mount, valve = section.section("cylinder"), section.section("mount"), section.section("valve")
     fluid, friction = section.section("fluid"), section.section("friction")
     valve_type = _choice(valve, "type", VALVE_TYPES, "proportional")
@@ -529,7 +544,7 @@ def _actuator(section: Section, name: str, index: int, crane: bool, arm: Arm | N
         ),
         fluid=Fluid(*(fluid.number(k) for k in ("oil_bulk_modulus", "hose_bulk_modulus", "hose_volume"))),
         friction=Friction(*(friction.number(k) for k in ("viscous", "static", "coulomb", "stribeck_velocity", "bristle_stiffness"))),
-        load=Load(0.0, 1.0, 0.0, 0.0, 0.0, 1.0) if crane else None if arm is not None else _load(section.section("load")),
+        load=None if arm is not None else _load(section.section("load")),
     )
 
 
@@ -555,7 +570,14 @@ def parse_arm(section: Section) -> Arm:
                          for m, mass in enumerate(masses)),
         ))
     origin = section.numbers("origin", 2) if "origin" in section.node else (0.0, 0.0)
-    return Arm(links=tuple(parsed), origin=origin, payload=section.number("payload", 0.0))  # type: ignore[arg-type]
+    slew = None
+    if "slew" in section.node:
+        node = section.section("slew")
+        drive = node.section("drive")
+        kind = _choice(drive, "kind", ("rack", "motor"), "rack")
+        slew = Slew(node.text("joint"), node.numbers("range", 2), kind,  # type: ignore[arg-type]
+                    drive.number("ratio") if kind == "rack" else 1.0, drive.number("area" if kind == "rack" else "displacement"))
+    return Arm(links=tuple(parsed), origin=origin, payload=section.number("payload", 0.0), slew=slew)  # type: ignore[arg-type]
 
 
 def _link_mass(section: Section, index: int) -> LinkMass:

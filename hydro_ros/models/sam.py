@@ -440,9 +440,6 @@ class SamModel:
 
     def require_boom(self) -> None:
         """Refuse a cylinder this model's boom dynamics (P-I eqs. 20-21: a triangle that opens with its joint) do not move."""
-        if self.machine.crane:
-            raise InputError(f"config {self.machine.source}: actuator {self.actuator} is a crane's cylinder, moved by the crane's "
-                             "dynamics (hydro_ros.sim.arm_cylinders), not by a SAM boom; this simulator runs SAM-type machines")
         if self.boom_refusal:
             raise InputError(f"config {self.machine.source}: actuator {self.actuator}: {self.boom_refusal}")
         if self.base[MOUNT_KIND] != MOUNT_KINDS.index("triangle") or self.base[MOUNT_SIGN] != 1.0:

@@ -164,9 +164,20 @@ def arm_problems(machine: Machine, payload: float | None = None, points: int = 7
     """What keeps the machine's arm from being simulated, over a grid of ``points`` poses per joint inside the ranges, one
     line each: a joint that moves no mass (its inertia zero: nothing to integrate), or a cylinder that cannot hold the
     arm and its payload (``payload`` [kg] in place of the arm's) still with the supply pressure on its pushing or pulling
-    side, at its worst pose. A mass in grams or a payload in the wrong unit shows here before it makes the simulator flail."""
+    side with every joint at the middle of its range, named with its worst pose. A mass in grams or a payload in the
+    wrong unit shows here before it makes the simulator flail."""
+    return _hold(machine, payload, points)[0]
+
+
+def hold_warnings(machine: Machine, payload: float | None = None, points: int = 7) -> list[str]:
+    """Cylinders that hold the arm at the middle of the ranges but not at some pose within them: a load chart's limit (the
+    K70M's tilt, its placeholder triangle, with the telescope out and the tilt folded down), not a wrong unit."""
+    return _hold(machine, payload, points)[1]
+
+
+def _hold(machine: Machine, payload: float | None, points: int) -> tuple[list[str], list[str]]:
     if machine.arm is None:
-        return []
+        return [], []
     arm = SerialArm.of(machine)
     payload = arm.payload if payload is None else payload
     grid = np.meshgrid(*[np.linspace(low, high, points) for low, high in (link.joint_range for link in arm.links)], indexing="ij")
@@ -181,9 +192,11 @@ def arm_problems(machine: Machine, payload: float | None = None, points: int = 7
 
     if singular.any():
         return [f"arm: its links' masses leave a joint with no inertia at {pose(int(np.argmax(singular)))} (M(q) singular): every "
-                "joint must move a mass off its axis (its link's, one beyond, or the payload)"]
+                "joint must move a mass off its axis (its link's, one beyond, or the payload)"], []
     by_joint = {a.joint: a for a in machine.actuators}
-    out = []
+    middle = (points ** len(q) - 1) // 2  # the grid's middle point: every joint at the middle of its range (points is odd)
+    out: list[str] = []
+    corners: list[str] = []
     for index, joint in enumerate(arm.joint_names):
         actuator = by_joint[joint]
         cylinder, mount = actuator.cylinder, actuator.mount
@@ -195,8 +208,11 @@ def arm_problems(machine: Machine, payload: float | None = None, points: int = 7
                             machine.supply_pressure * (area_a - math.pi * cylinder.rod_diameter**2 / 4.0))
         worst = int(np.argmax(np.abs(force) / capacity))
         if abs(force[worst]) > capacity[worst]:
-            out.append(f"arm: actuator {actuator.name}'s cylinder cannot hold the arm and its {payload:g} kg payload: it must "
-                       f"{'push' if force[worst] > 0 else 'pull'} {abs(force[worst]) / 1e3:.1f} kN at {pose(worst)}, its "
-                       f"{'piston' if force[worst] > 0 else 'rod'} side gives {capacity[worst] / 1e3:.1f} kN at supply pressure "
-                       "(a mass in grams? masses are kg)")
-    return out
+            held_in_middle = abs(force[middle]) <= capacity[middle]
+            (corners if held_in_middle else out).append(
+                f"arm: actuator {actuator.name}'s cylinder cannot hold the arm and its {payload:g} kg payload: it must "
+                f"{'push' if force[worst] > 0 else 'pull'} {abs(force[worst]) / 1e3:.1f} kN at {pose(worst)}, its "
+                f"{'piston' if force[worst] > 0 else 'rod'} side gives {capacity[worst] / 1e3:.1f} kN at supply pressure "
+                + ("(it holds at the middle of the ranges: keep the machine away from there with this payload)" if held_in_middle
+                   else "(a mass in grams? masses are kg)"))
+    return out, corners

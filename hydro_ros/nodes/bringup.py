@@ -39,7 +39,7 @@ def machine_params(config: Path) -> str:
         f"# {PACKAGE_SHARE} is expanded by the launch file; for `--params-file` write the path out.\n"
         "# /**: the same values for these node names in any namespace (-r __ns:=/machine2).\n"
     )
-    crane = load_machine_config(config).crane
+    crane = load_machine_config(config).planned
     blocks = [params_yaml(name, specs, {"config": config_value, **(CRANE_VALUES.get(name, {}) if crane else {})})
               .replace(f"{name}:\n", f"/**/{name}:\n", 1)
               for name, specs in BRINGUP.items()]

@@ -146,15 +146,16 @@ class CraneSource:
     """The cylinders of a crane config (``hydro_ros.sim.arm_cylinders``); faults per cylinder."""
 
     def __init__(self, machine: Machine, crane: Any, config: CraneConfig, seed: int, start_joints: dict[str, float] | None) -> None:
-        from hydro_ros.sim.arm_cylinders import NOT_PER_CYLINDER, ArmRun, crane_cylinders
+        from hydro_ros.models.serial_arm import SerialArm
+        from hydro_ros.sim.arm_cylinders import NOT_PER_CYLINDER, ArmCylinders, ArmRun
 
         self.actuators = machine.actuator_names
         self.joints = {a.name: a.joint for a in machine.actuators}
         planar = [self.joints[a] for a in self.actuators]
         start_joints = start_joints or {}
         self.held = {name: float(start_joints.get(name, 0.0)) for name in crane.names if name not in planar}
-        self.plant = crane_cylinders(machine, config, ArmRun(math.inf, seed),
-                                    None if not start_joints else [start_joints[name] for name in planar])
+        self.plant = ArmCylinders(machine, SerialArm.of(machine), ArmRun(math.inf, seed),
+                                  None if not start_joints else [start_joints[name] for name in planar])
         self.mobile = machine.mobile
         self.topics = tuple(topics.sensor_topics(self.actuators, mobile=self.mobile))
         self.not_per_cylinder = NOT_PER_CYLINDER
@@ -201,7 +202,7 @@ class PlantSim(Node):
         self.publish_clock = self.params["publish_clock"]
         self._pending: dict[str, float] = {}
         self.refused = ""
-        if self.machine.crane:
+        if self.machine.planned:
             self.source = self._crane_source()
         else:
             if self.excitation == "trajectory":

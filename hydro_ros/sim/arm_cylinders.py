@@ -32,7 +32,7 @@ from typing import Protocol
 import numpy as np
 from numba import njit
 
-from hydro_ros.contract.crane import CraneConfig
+from hydro_ros.contract.crane import parse_planning
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
@@ -65,7 +65,6 @@ from hydro_ros.sim.sensors import SensorModel
 
 FRICTION_VELOCITY = 0.005  # [m/s] tanh smoothing of the Coulomb force's sign (as the closed-loop crane plant)
 OPERATOR_SHARE = 0.8  # the operator's targets lie within this share of each joint's range, about its middle
-MOUNT_AGREEMENT = 1e-3  # [m] the machine config's mount must give the crane config's stroke to this
 NOT_PER_CYLINDER = {  # injections the SAM's model takes that this plant does not, refused rather than ignored
     "payload_mass": "an arm's payload hangs at its tip, not on one cylinder (ArmRun.payload)",
     "valve_delay": "not simulated on an arm's coupled cylinders",
@@ -151,6 +150,22 @@ class ArmRun:
     hold_s: float = 4.0  # [s] the work cycle's holds at either end of the trajectory
 
 
+def redundant_friction(machine: Machine) -> JointFriction | None:
+    """The friction a planned machine's ``planner.friction`` puts on its redundant joint (the K70M telescope's pads, P-VI
+    eqs. A3-A4), in the same chain dynamics the planner uses; None for a machine without a planner: section."""
+    if not machine.planned:
+        return None
+    crane = Crane(parse_planning(machine.mapping, machine.source))
+    redundant = crane.redundant - (1 if crane.base_rotation else 0)
+
+    def friction(q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(q))
+        out[redundant] = float(crane.extension_friction(q[redundant], qd[redundant]))
+        return out
+
+    return friction
+
+
 class ArmCylinders:
     """The cylinders of ``machine`` moving the links of ``arm``, one actuator per link (by its joint)."""
 
@@ -180,7 +195,7 @@ class ArmCylinders:
         self.models = [SamModel(machine, by_joint[name].name) for name in arm.joint_names]  # link order, as the state
         # the machine config's actuator i is link order[i]
         self.order = [arm.joint_names.index(a.joint) for a in machine.actuators]
-        self.joint_friction = joint_friction
+        self.joint_friction = joint_friction if joint_friction is not None else redundant_friction(machine)
         self.run = run
         self.dt = 1.0 / machine.sample_rate_hz
         self.substeps = self.models[0].substeps
@@ -347,32 +362,8 @@ def combine(per_actuator: Sequence[Samples]) -> Samples:
     return Samples(**out)
 
 
-def crane_cylinders(machine: Machine, crane_config: CraneConfig, run: ArmRun, start: Sequence[float] | None = None) -> ArmCylinders:
-    """The planar cylinders of a crane config (``kind: crane``): its lift, tilt and telescope, the telescope's friction."""
-    crane = Crane(crane_config)
-    by_joint = {a.joint: a for a in machine.actuators}
-    for cylinder in crane.cylinders[-3:]:
-        if cylinder.name not in by_joint:
-            continue  # ArmCylinders names every missing one
-        model = SamModel(machine, by_joint[cylinder.name].name)
-        span = np.linspace(cylinder.q_min, cylinder.q_max, 50)
-        gap = np.max(np.abs(model.piston_from_joint(span) - cylinder.stroke(span)))
-        if gap > MOUNT_AGREEMENT:
-            raise InputError(f"config {machine.source}: actuator {model.actuator}'s mount differs from joint {cylinder.name}'s "
-                             f"cylinder mapping by {gap * 1000:.1f} mm; one crane, one geometry")
-
-    redundant = crane.redundant - (1 if crane.base_rotation else 0)
-
-    def extension_friction(q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        friction = np.zeros(3)
-        friction[redundant] = float(crane.extension_friction(q[redundant], qd[redundant]))
-        return friction
-
-    return ArmCylinders(machine, crane.arm, run, start, extension_friction)
-
-
-def simulate_crane(machine: Machine, crane_config: CraneConfig, run: ArmRun) -> Samples:
+def simulate_arm(machine: Machine, run: ArmRun) -> Samples:
     """The whole run's measurements, (n, A)."""
-    parts = [measured for _, measured in crane_cylinders(machine, crane_config, run).blocks()]
+    parts = [measured for _, measured in ArmCylinders(machine, SerialArm.of(machine), run).blocks()]
     return Samples(**{f.name: None if getattr(parts[0], f.name) is None else np.concatenate([getattr(p, f.name) for p in parts])
                       for f in fields(Samples)})

@@ -35,7 +35,8 @@ from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_episodes
 from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS, ParityThresholds
-from hydro_ros.sim.arm_cylinders import ArmRun, crane_cylinders, simulate_crane
+from hydro_ros.models.serial_arm import SerialArm
+from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun, simulate_arm
 from hydro_ros.studies.commissioning import FaultFreeRecording
 from hydro_ros.studies.fdi_evaluation import mismatched_config, parallel_map
 
@@ -96,7 +97,7 @@ def crane_run(case: CraneCase, trajectories: dict[str, Any]) -> ArmRun:
     return ArmRun(case.duration_s, case.seed, faults, payload, trajectories.get(case.path) if case.path else None)
 
 
-def run_crane_case(machine: Machine, crane_config: CraneConfig, trajectories: dict[str, Any], case: CraneCase, *,
+def run_crane_case(machine: Machine, trajectories: dict[str, Any], case: CraneCase, *,
                    keep_residuals: bool = False, plant: Machine | None = None) -> CraneOutcome:
     """The monitor of ``machine`` on ``plant``, else on the crane plant of the case (``machine`` mismatched per its seed)."""
     if plant is None:
@@ -108,7 +109,7 @@ def run_crane_case(machine: Machine, crane_config: CraneConfig, trajectories: di
     kept: list[tuple[np.ndarray, np.ndarray]] = []
     armed_from = monitor.startup + monitor.window
     seen = 0
-    for _, block in crane_cylinders(plant, crane_config, crane_run(case, trajectories)).blocks():
+    for _, block in ArmCylinders(plant, SerialArm.of(plant), crane_run(case, trajectories)).blocks():
         result = monitor.process(block)
         for i, name in enumerate(monitor.actuators):
             new, crossing[name] = crossing_episodes(result.code[:, i], previous=crossing[name])
@@ -127,14 +128,14 @@ def run_crane_case(machine: Machine, crane_config: CraneConfig, trajectories: di
 
 
 def _run(arguments: tuple) -> CraneOutcome:
-    machine, crane_config, trajectories, case, keep, plant = arguments
-    return run_crane_case(machine, crane_config, trajectories, case, keep_residuals=keep, plant=plant)
+    machine, trajectories, case, keep, plant = arguments
+    return run_crane_case(machine, trajectories, case, keep_residuals=keep, plant=plant)
 
 
-def run_crane_cases(machine: Machine, crane_config: CraneConfig, trajectories: dict[str, Any], cases: Sequence[CraneCase], *,
+def run_crane_cases(machine: Machine, trajectories: dict[str, Any], cases: Sequence[CraneCase], *,
                     keep_residuals: bool = False, workers: int = 2, progress: Callable[[int], None] | None = None,
                     plant: Machine | None = None) -> list[CraneOutcome]:
-    return parallel_map(_run, [(machine, crane_config, trajectories, case, keep_residuals, plant) for case in cases], workers=workers,
+    return parallel_map(_run, [(machine, trajectories, case, keep_residuals, plant) for case in cases], workers=workers,
                         progress=progress)
 
 
@@ -145,13 +146,13 @@ def path_trajectories(crane_config: CraneConfig, method: str = "dp_cp", database
     return {path: executable_trajectory(crane_config, path, method, database=database)[0] for path in crane_config.paths}
 
 
-def commissioning_recordings(plant: Machine, crane_config: CraneConfig, trajectories: dict[str, Any], seed: int, *,
+def commissioning_recordings(plant: Machine, trajectories: dict[str, Any], seed: int, *,
                              operator_s: float = 120.0, path_s: float = 60.0) -> list[FaultFreeRecording]:
     """A crane's fault-free work to commission it on: the operator twice, each path's cycle once, a payload gripped and
     released in each (a forestry crane's day; recorded into the bags ``hydro-ros commission`` reads)."""
     runs = [(f"operator{seed + k}", CraneCase(seed + k, operator_s)) for k in range(2)]
     runs += [(path, CraneCase(seed, path_s, path)) for path in trajectories]
-    return [FaultFreeRecording(f"{name} (seed {case.seed})", simulate_crane(plant, crane_config, crane_run(case, trajectories)))
+    return [FaultFreeRecording(f"{name} (seed {case.seed})", simulate_arm(plant, crane_run(case, trajectories)))
             for name, case in runs]
 
 
@@ -167,16 +168,16 @@ def _flatten(outcomes: Sequence[CraneOutcome]) -> tuple[np.ndarray, np.ndarray]:
     return residual[keep], point[keep]
 
 
-def fit_crane_thresholds(machine: Machine, crane_config: CraneConfig, trajectories: dict[str, Any], *, train: Iterable[int],
+def fit_crane_thresholds(machine: Machine, trajectories: dict[str, Any], *, train: Iterable[int],
                          held_out: Iterable[int], duration_s: float = 90.0, workers: int = 2,
                          progress: Callable[[int], None] | None = None) -> tuple[ParityThresholds, dict[str, Any]]:
     """Statistics on the nominal crane at work, the factor on held-out mismatched cranes (module docstring)."""
     probe = machine.with_overrides({"fdi": {"parity_thresholds": ParityThresholds.probe()}})
     paths = list(trajectories)
-    fitted = run_crane_cases(probe, crane_config, trajectories, work_cases(train, paths, duration_s, 0.0), keep_residuals=True,
+    fitted = run_crane_cases(probe, trajectories, work_cases(train, paths, duration_s, 0.0), keep_residuals=True,
                              workers=workers, progress=progress)
     statistics = ParityThresholds.from_statistics(*_flatten(fitted), FLOW_EDGES, 1.0, FLOW_FRACTION, "flow")
-    checked = run_crane_cases(probe, crane_config, trajectories, work_cases(held_out, paths, duration_s, 1.0), keep_residuals=True,
+    checked = run_crane_cases(probe, trajectories, work_cases(held_out, paths, duration_s, 1.0), keep_residuals=True,
                               workers=workers, progress=progress)
     reached = {f"{o.case.seed}/{o.case.path or 'operator'}": statistics.factors_reached(*_flatten([o])) for o in checked}
     per_bin = np.max(list(reached.values()), axis=0)

@@ -65,7 +65,7 @@ from numba import njit
 from scipy.signal import butter, lfilter
 
 from hydro_ros.bags.writer import ContractBagWriter
-from hydro_ros.contract.crane import CraneConfig
+from hydro_ros.contract.crane import parse_planning
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.samples import Samples
@@ -162,18 +162,16 @@ _CYLINDER_NUMBERS = 30
 _STATES_PER_CYLINDER = 4  # p_A, p_B at the ports, spool, spool rate
 
 
-def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None, crane: CraneConfig | None = None) -> ArmRig:
-    """The arm of ``machine`` as one built machine (``rig_seed``): the config's numbers drawn off by ``spread``. A crane
-    (``kind: crane``) is built from its crane config's links, masses and telescope friction (``crane``); its base
-    rotation is held still."""
+def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) -> ArmRig:
+    """The arm of ``machine`` as one built machine (``rig_seed``): the config's numbers drawn off by ``spread``. A slewing
+    base (``arm.slew``) is held still."""
     spread = spread or RigSpread()
     arm, joint_coulomb = machine.arm, {}
-    if machine.crane:
-        if crane is None:
-            raise InputError(f"independent arm: {machine.source} is a crane: pass its crane config (its links and masses)")
-        arm = crane.arm
-        # the telescope's pads (P-VI eqs. A3-A4's level), here a Stribeck curve on the cylinder like the others
-        joint_coulomb = {arm.links[-1].joint: crane.extension_friction.coulomb}
+    if machine.planned:
+        planned = parse_planning(machine.mapping, machine.source)
+        # the redundant joint's friction (the K70M telescope's pads, P-VI eqs. A3-A4's level), here a Stribeck curve on
+        # the cylinder like the others
+        joint_coulomb = {planned.joints[planned.redundant].name: planned.extension_friction.coulomb}
     if arm is not None:
         joints = [link.joint for link in arm.links]
         links = np.array([[link.length, link.offset] for link in arm.links])
@@ -739,17 +737,17 @@ def measure(rig: ArmRig, run: RigRun, seed: int) -> Samples:
                    supply_pressure=transmitter(supplies[:, None], zeros[2 * a:2 * a + 1])[:, 0], valve_command=commands, **mobile)
 
 
-def recording(machine: Machine, rig_seed: int, work: ArmWork, spread: RigSpread | None = None, crane: CraneConfig | None = None) -> Samples:
-    """What the machine's sensors record of one run of the built arm ``rig_seed`` (a crane's from its ``crane`` config)."""
-    rig = build_rig(machine, rig_seed, spread, crane)
+def recording(machine: Machine, rig_seed: int, work: ArmWork, spread: RigSpread | None = None) -> Samples:
+    """What the machine's sensors record of one run of the built arm ``rig_seed``."""
+    rig = build_rig(machine, rig_seed, spread)
     return measure(rig, simulate(rig, work), work.seed)
 
 
 def recording_bag(machine: Machine, path: Path, rig_seed: int, work: ArmWork, spread: RigSpread | None = None,
-                  start_s: float = 0.0, crane: CraneConfig | None = None) -> Path:
+                  start_s: float = 0.0) -> Path:
     """One run as a contract bag (every joint in one JointState, per-cylinder pressures), its truth in the metadata;
     stamped from ``start_s`` (a recorder's wall time)."""
-    samples = recording(machine, rig_seed, work, spread, crane)
+    samples = recording(machine, rig_seed, work, spread)
     samples.times = samples.times + start_s
     with ContractBagWriter(path, actuators={a.name: a.joint for a in machine.actuators},
                            pressure_variance=machine.sensors.pressure_noise_std ** 2, mobile=machine.mobile) as writer:
