@@ -125,7 +125,7 @@ class CraneConfig:
         return self.paths[path_id]
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> CraneConfig:
-        """This crane with a nested patch in the file's terms merged in (a list, such as ``masses``, is replaced)."""
+        """This crane with a nested patch in the file's terms merged in (a list, such as ``arm.links``, is replaced)."""
         return parse_planning(with_overrides(dict(self.mapping), dict(overrides)), self.source)
 
     def with_paths(self, paths: Mapping[str, Mapping[str, Any]]) -> CraneConfig:

@@ -1,4 +1,4 @@
-"""crane_sim: a crane config (``kind: crane``) as a simulated machine, the closed-loop crane of
+"""crane_sim: a planned machine (a config with a ``planner:`` section) as a simulated machine, the closed-loop crane of
 ``hydro_ros.studies.execution`` (plant + P-VI Appendix A controller) in scaled real time.
 
 The crane starts at rest with its tip at the start of ``initial_path`` (extension
@@ -47,7 +47,7 @@ MAX_CATCH_UP_S = 0.25
 
 
 PARAMETERS = {
-    "config": Spec(str(default_config_path("k70m")), "crane config (YAML, kind: crane)", existing_file=True),
+    "config": Spec(str(default_config_path("k70m")), "machine config with a planner: section (YAML)", existing_file=True),
     "real_time_factor": Spec(1.0, "[-] simulated seconds per wall second", 0.01, 100.0),
     "tick_period": Spec(0.01, "[s] wall time between simulation steps", 0.001, 1.0),
     "seed": Spec(0, "seed of the sensor noise", 0),

@@ -8,7 +8,7 @@ own (``sim.scenario.MachineRun``). Faults and effects are injected at run time b
 `fault.<name>`, or `fault.<actuator>.<name>` on a machine of several actuators (units: `hydro-ros sim
 --help`). Health on /diagnostics as `hydro_ros/plant_sim`.
 
-Crane mode (a config with ``kind: crane`` and an actuator per planar joint, e.g. config/k70m.yaml):
+Crane mode (a config with a ``planner:`` section and an actuator per planar joint, e.g. config/k70m.yaml):
 the crane's cylinders with their valves (``hydro_ros.sim.arm_cylinders``), every joint in one
 /joint_states (the base held where it started), the pressures of every cylinder. Faults name
 their cylinder: ``fault.<actuator>.<name>``. With ``excitation: trajectory`` the crane starts at
@@ -206,7 +206,7 @@ class PlantSim(Node):
             self.source = self._crane_source()
         else:
             if self.excitation == "trajectory":
-                raise InputError(f"parameter excitation=trajectory: config {self.params['config']} is not a crane (kind: crane)")
+                raise InputError(f"parameter excitation=trajectory: config {self.params['config']} has no planner: section (nothing plans its trajectories)")
             self.source = SamSource(self.machine, self.params["seed"])
         self.add_on_set_parameters_callback(self._refuse_fault)
         if len(self.source.actuators) > 1:

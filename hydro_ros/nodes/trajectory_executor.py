@@ -69,7 +69,7 @@ from hydro_ros.safety.motion import Heartbeat, MotionAuthority
 
 PARAMETERS = {
     "machine_id": MACHINE_ID,
-    "config": Spec(str(default_config_path("k70m")), "crane config (YAML, kind: crane): joints, limits, valve table, controller",
+    "config": Spec(str(default_config_path("k70m")), "machine config with a planner: section (YAML): joints, limits, valve table, controller",
                    existing_file=True),
     "autostart": Spec(True, "configure and activate at start; false: wait for a lifecycle manager"),
     "rate": Spec(0.0, "[Hz] control rate; 0: the config's controller.rate (100 Hz)", 0.0, 1000.0),

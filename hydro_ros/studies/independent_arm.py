@@ -42,9 +42,9 @@ A machine without an ``arm:`` whose one actuator carries its ``load`` (the SAM) 
 describes (P-I eqs. 20-21: the boom's mass at its centre of gravity with its inertia about it, m_L and m_R at +-L),
 moved within the joint range its mount and end stops allow.
 
-A crane (``kind: crane``) is the chain its crane config describes (its links and masses; the telescope a prismatic
-link sliding on the tilt link, its cylinder on a linear mount, its pads' Coulomb force as a Stribeck curve on it);
-the base rotation is held still. Its mobile valves: the main spool's overlap drawn per rig, the opening beyond it
+A planned machine (the K70M) is the chain its ``arm:`` describes (the telescope a prismatic link sliding on the tilt
+link, its cylinder on a linear mount, its pads' Coulomb force, ``planner.friction``, as a Stribeck curve on it); its
+slewing base is held still. Its mobile valves: the main spool's overlap drawn per rig, the opening beyond it
 rescaled to full travel; a pressure compensator whose spring holds ``COMPENSATOR_RISE`` more drop at full opening and
 whose check closes when the load is above what the supply can hold; the pilot stage a first-order lag
 (``PILOT_LAG``) whose pressures are measured with the compensator's. ``ArmWork.path`` (a planned joint trajectory)
