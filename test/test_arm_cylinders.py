@@ -49,8 +49,13 @@ def test_one_k70m_config_gives_the_planner_and_the_monitor_the_same_cylinders(cr
         assert np.allclose(model.piston_velocity(q, 0.1), cylinder.arm(q)[0] * 0.1, rtol=1e-6), cylinder.name
         assert np.allclose(model.joint_from_piston(cylinder.stroke(q)), q, atol=1e-6), cylinder.name
         assert model.base[[AREA_A, AREA_B]] == pytest.approx([cylinder.area_a, cylinder.area_b], rel=1e-4), cylinder.name
-    # one cylinder, one description: a mount changed for the monitor is the planner's mount too
-    shifted = machine.with_overrides({"actuators": {"tilt": {"mount": {"theta_offset": 0.1}}}})
+    # one cylinder, one description: a mount changed for the monitor is the planner's mount too (its rod-end pin 4 cm
+    # further out, the retracted length where the range starts)
+    mount = machine.actuator("tilt").mount
+    low, high = machine.arm.links[1].joint_range
+    l1 = mount.l1 + 0.04
+    l3 = min(np.sqrt(l1**2 + mount.l2**2 - 2 * l1 * mount.l2 * np.cos(mount.sign * np.linspace(low, high, 201) + mount.theta_offset)))
+    shifted = machine.with_overrides({"actuators": {"tilt": {"mount": {"l1": l1, "l3": float(l3)}}}})
     replanned = Crane(parse_planning(shifted.mapping, shifted.source)).cylinders[2]
     q = np.linspace(replanned.q_min, replanned.q_max, 40)
     moved = SamModel(shifted, "tilt").piston_from_joint(q)
