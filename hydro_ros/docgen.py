@@ -91,7 +91,30 @@ def cli_markdown() -> str:
     return "\n".join(out)
 
 
+def _limit(rule: Any) -> str:
+    low = "" if rule.low is None else f"{'>' if rule.open_low else '>='} {rule.low:g}"
+    high = "" if rule.high is None else f"<= {rule.high:g}"
+    return ", ".join(part for part in (low, high) if part) or "finite"
+
+
+def config_markdown() -> str:
+    """One table per section of the machine form, from the rules `machine check` applies."""
+    from hydro_ros.contract.check import REFERENCE
+
+    out = []
+    for section, rules, what in REFERENCE:
+        out += [f"### `{section or '(top level)'}`", "", f"{_escaped(what[:1].upper() + what[1:])}.", "", "| key | unit | accepted | hint |", "|---|---|---|---|"]
+        out += [f"| `{key}` | {rule.unit or '-'} | {_limit(rule)} | {_escaped(rule.hint)} |" for key, rule in rules.items()]
+        out.append("")
+    return "\n".join(out)
+
+
+def _escaped(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
 PAGES: dict[str, Callable[[], str]] = {"reference/parameters.md": parameters_markdown, "reference/cli.md": cli_markdown,
+                                       "reference/config.md": config_markdown,
                                        "benchmarks.md": benchmarks_markdown, "reproduction.md": reproduction_markdown}
 
 

@@ -125,6 +125,34 @@ PLANNER_KEYS = {"redundant", "actuators", "friction", "hydraulics", "dp", "paths
 TOP_KEYS = set(TOP) | {"machine", "actuators", "sensors", "simulation", "excitation", "effects", "effect_forms", "can", "fdi", "arm",
                        "planner"}
 
+# Every numeric rule of the machine form by the section it checks, with what the section is: `hydro-ros machine check`
+# applies them, docs/reference/config.md is generated from them (hydro_ros.docgen).
+REFERENCE: tuple[tuple[str, dict[str, Rule], str], ...] = (
+    ("", TOP, "the machine: its sample rate and supply"),
+    ("actuators.<name>.cylinder", CYLINDER, "the cylinder's data sheet"),
+    ("actuators.<name>.mount (kind: triangle)", TRIANGLE,
+     "a cylinder between two links: length = sqrt(l1^2 + l2^2 - 2 l1 l2 cos(sign q + theta_offset)), stroke = length - l3"),
+    ("actuators.<name>.mount (kind: linear)", LINEAR, "a telescope or rack: stroke = ratio (q + theta_offset)"),
+    ("actuators.<name>.valve", VALVE, "the valve's data sheet (type proportional or mobile; kv_poly, centre_leakage per notch)"),
+    ("actuators.<name>.valve (type: mobile)", MOBILE_VALVE, "a pressure-compensated, pilot-operated valve"),
+    ("actuators.<name>.fluid", FLUID, "the oil and the lines"),
+    ("actuators.<name>.friction", FRICTION, "LuGre friction of the cylinder"),
+    ("actuators.<name>.load", LOAD, "a boom of its own (no arm:), P-I eqs. 20-21"),
+    ("arm", ARM, "the links the cylinders move, base to tip (origin [x, y] m; links; slew)"),
+    ("arm.links[]", ARM_LINK, "a link: joint (its actuator's), kind revolute or prismatic, range [low, high] (rad or m), masses"),
+    ("arm.links[].masses[]", LINK_MASS, "a mass fixed on the link (name optional)"),
+    ("arm.slew.drive (kind: rack)", SLEW_DRIVES["rack"], "a slewing base's rack and pinion (arm.slew: joint, range [rad], drive)"),
+    ("arm.slew.drive (kind: motor)", SLEW_DRIVES["motor"], "a slewing base's hydraulic motor"),
+    ("sensors", SENSORS, "the transmitters and encoders (pressure_range, joint_range: [low, high]; mems)"),
+    ("sensors.mems", MEMS, "P-III's MEMS motion sensor"),
+    ("simulation", SIMULATION, "the simulated plant"),
+    ("excitation", EXCITATION, "the simulated operator (joint_range, move_speed, rest_time: [low, high])"),
+    ("can", CAN, "the machine bus (dbc, map)"),
+    ("planner.actuators.<name>", PLANNER_ACTUATOR, "each cylinder's rate limits (spool: differential, lowered_by_gravity: true; the slew: constant_force N)"),
+    ("planner.friction", PLANNER_FRICTION, "on the redundant joint, P-VI eqs. A3-A4 (steps: [[from, to], ...])"),
+    ("planner.hydraulics", HYDRAULICS, "the energy model, P-V eqs. 36-41 (supply_pressure_cp and tank_pressure default to the machine's)"),
+    ("planner.dp", CRANE_DP, "the DP (grid: [positions, velocities, controls], each >= 3)"),
+)
 
 MAX_LISTED = 5  # problems named in one error line; `hydro-ros machine check` lists all
 
