@@ -103,7 +103,8 @@ def config_markdown() -> str:
 
     out = []
     for section, rules, what in REFERENCE:
-        out += [f"### `{section or '(top level)'}`", "", f"{_escaped(what[:1].upper() + what[1:])}.", "", "| key | unit | accepted | hint |", "|---|---|---|---|"]
+        out += [f"### `{section or '(top level)'}`", "", f"{_escaped(what[:1].upper() + what[1:])}.", "",
+                "| key | unit | accepted | hint |", "|---|---|---|---|"]
         out += [f"| `{key}` | {rule.unit or '-'} | {_limit(rule)} | {_escaped(rule.hint)} |" for key, rule in rules.items()]
         out.append("")
     return "\n".join(out)
