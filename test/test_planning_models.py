@@ -291,3 +291,51 @@ def _upgraded(old, tmp_path):
 
         assert main(["machine", "upgrade", str(old), "--out", str(out)]) == 0
     return out
+
+
+def test_every_rule_the_config_reference_lists_is_one_machine_check_applies() -> None:
+    """docs/reference/config.md is generated from check.REFERENCE: each listed rule, broken in a shipped config that has
+    its section, is refused naming the key (so the page lists what the check does, not a copy of it)."""
+    import copy
+
+    import yaml
+
+    from hydro_ros.contract.check import REFERENCE, config_problems, planner_problems
+
+    configs = {name: yaml.safe_load(default_config_path(name).read_text()) for name in ("k70m", "boom_arm", "sam", "sam_mems")}
+    tried = 0
+    for section, rules, _ in REFERENCE:
+        base, _, kind = section.partition(" (")
+        for config in configs.values():
+            node, path = config, []
+            for part in base.split(".") if base else []:
+                name = part.removesuffix("[]")
+                if not isinstance(node, dict) or name not in node and name != "<name>":
+                    node = None
+                    break
+                if name == "<name>":
+                    name = next(iter(node))
+                node = node[name]
+                path.append(name)
+                if part.endswith("[]"):
+                    node, path[-1] = node[0], f"{name}[{node[0].get('joint', node[0].get('name'))}]"
+            if not isinstance(node, dict) or (kind and kind.rstrip(")").split(": ")[1] not in (node.get("kind", "triangle"),
+                                                                                                 node.get("type"))):
+                continue
+            for key, rule in rules.items():
+                if key not in node or rule.high is None:
+                    continue
+                broken = copy.deepcopy(config)
+                target = broken
+                for part in base.split(".") if base else []:
+                    name = part.removesuffix("[]")
+                    target = target[next(iter(target)) if name == "<name>" else name]
+                    target = target[0] if part.endswith("[]") else target
+                target[key] = rule.high * 10 + 1
+                found = config_problems(broken) + (planner_problems(broken) if "planner" in broken else [])
+                named = ".".join([*path, key]) if path else key
+                assert any(problem.startswith(f"{named}: ") for problem in found), (section, named, found)
+                tried += 1
+                break
+            break
+    assert tried >= 15
