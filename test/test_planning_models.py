@@ -310,7 +310,7 @@ def test_every_rule_the_config_reference_lists_is_one_machine_check_applies() ->
             node, path = config, []
             for part in base.split(".") if base else []:
                 name = part.removesuffix("[]")
-                if not isinstance(node, dict) or name not in node and name != "<name>":
+                if not isinstance(node, dict) or (name not in node and name != "<name>"):
                     node = None
                     break
                 if name == "<name>":
