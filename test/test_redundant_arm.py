@@ -13,7 +13,7 @@ import yaml
 from hydro_ros.cli import main as cli_main
 from hydro_ros.contract.config import ConfigError, default_config_path
 from hydro_ros.contract.errors import InputError
-from hydro_ros.models.crane import load_crane
+from hydro_ros.models.crane import STRETCHED_ELBOW, Crane, Motion, load_crane
 from hydro_ros.planning.catalog import build, plan_units
 from hydro_ros.planning.database import TrajectoryDatabase
 from hydro_ros.planning.problem import Problem, method_record, run_method
@@ -29,22 +29,27 @@ def excavator():
     return load_crane(EXCAVATOR)
 
 
-def _elbow(crane, q: np.ndarray) -> np.ndarray:
-    """The sine of the angle between the boom-to-arm-pin and the arm-pin-to-tip vectors (the solved pair's elbow)."""
+def _elbow(crane, q: np.ndarray, solved: tuple[str, ...] = ("boom_joint", "arm_joint")) -> np.ndarray:
+    """The sine of the angle between the vector from the first solved joint to the second and the one from the second to
+    the tip (the solved pair's elbow)."""
     frames = crane.arm.frames(list(q.T))
-    (xb, yb), _ = frames[1]
-    xa, ya = crane.arm.arm.origin
+    (xa, ya), _ = frames[crane.names.index(solved[0])]
+    (xb, yb), _ = frames[crane.names.index(solved[1])]
     xt, yt = crane.arm.tip(list(q.T))
-    return (xb - xa) * (yt - yb) - (yb - ya) * (xt - xb)
+    return ((xb - xa) * (yt - yb) - (yb - ya) * (xt - xb)) / np.hypot(xb - xa, yb - ya) / np.hypot(xt - xb, yt - yb)
 
 
-def test_the_excavator_is_read_from_the_monitors_description_and_its_inverse_kinematics_inverts_its_forward(excavator) -> None:
-    crane, _ = excavator
-    assert crane.names == ["boom_joint", "arm_joint", "bucket_joint"] and crane.extension.name == "bucket_joint"
-    assert crane.solved_names == ["boom_joint", "arm_joint"]
+@pytest.mark.parametrize("redundant", ["bucket", "arm", "boom"])
+def test_the_excavator_is_read_from_the_monitors_description_and_its_inverse_kinematics_inverts_its_forward(excavator,
+                                                                                                            redundant) -> None:
+    """Whichever joint is redundant: the last, one between the two solved, or the first (each solved angle within half a
+    turn of its range's middle: the sums of atan2 come out a turn away for some poses)."""
+    crane = Crane(excavator[1].with_overrides({"planner": {"redundant": redundant}}))
+    assert crane.names == ["boom_joint", "arm_joint", "bucket_joint"] and crane.extension.name == f"{redundant}_joint"
+    assert crane.solved_names == [name for name in crane.names if name != f"{redundant}_joint"]
     # the cylinders are the actuators' own: the bore's area, and the mount's stroke over the joint's range
     assert crane.cylinders[0].area_a == pytest.approx(np.pi * 0.140**2 / 4)
-    assert 0.6 < crane.extension.stroke_max < 0.75  # inside the bucket cylinder's 0.75 m
+    assert crane.cylinders[2].stroke_max == pytest.approx(0.703, abs=1e-3)  # the bucket's mount over its range, in its 0.75 m
     rng = np.random.default_rng(3)
     low, high = (np.array([getattr(c, end) for c in crane.cylinders]) for end in ("q_min", "q_max"))
     q = low + (high - low) * rng.random((5000, 3))
@@ -55,12 +60,17 @@ def test_the_excavator_is_read_from_the_monitors_description_and_its_inverse_kin
     tip_vel = np.einsum("kij,kj->ki", jac, qd)
     tip_acc = np.einsum("kij,kj->ki", jac_rate, qd) + np.einsum("kij,kj->ki", jac, qdd)
     zero = np.zeros(len(q))
-    bucket = crane.extension
-    arm, arm_rate = bucket.arm(q[:, 2])
-    motion = crane.motion(tuple(crane.forward(q).T), (*tip_vel.T, zero), (*tip_acc.T, zero), bucket.stroke(q[:, 2]), arm * qd[:, 2],
-                          arm_rate * qd[:, 2] ** 2 + arm * qdd[:, 2])
-    # every pose in the ranges lies on the elbow branch the planner keeps, so each comes back
-    assert motion.reachable.all() and (_elbow(crane, q) < 0).all()
+    r = crane.redundant
+    arm, arm_rate = crane.extension.arm(q[:, r])
+    motion = crane.motion(tuple(crane.forward(q).T), (*tip_vel.T, zero), (*tip_acc.T, zero), crane.extension.stroke(q[:, r]),
+                          arm * qd[:, r], arm_rate * qd[:, r] ** 2 + arm * qdd[:, r])
+    # the poses in the ranges on the elbow branch the planner keeps (for the bucket: all of them) come back
+    elbow = _elbow(crane, q, crane.solved_names)
+    kept = (np.sign(elbow) == crane._branch) & (np.abs(elbow) > np.sin(STRETCHED_ELBOW))  # a stretched elbow is out of reach
+    assert kept.mean() > (0.999 if redundant == "bucket" else 0.5) and motion.reachable[kept].all()
+    q, qd, qdd = q[kept], qd[kept], qdd[kept]
+    motion = Motion(*(list(np.stack(values, axis=-1)[kept].T) for values in (motion.q, motion.qd, motion.qdd, motion.c, motion.v,
+                                                                             motion.a)), None, None)
     assert np.abs(np.stack(motion.q, axis=-1) - q).max() < 1e-9
     assert np.abs(np.stack(motion.qd, axis=-1) - qd).max() < 1e-8
     assert np.abs(np.stack(motion.qdd, axis=-1) - qdd).max() < 1e-5  # J-dot by finite differences

@@ -24,9 +24,6 @@ from hydro_ros.contract.upgrade import machine_form
 NOTCHES = ("PA", "PB", "AT", "BT")
 VALVE_TYPES = ("proportional", "mobile")
 _REQUIRED = ("machine", "sample_rate_hz", "actuators", "supply_pressure", "tank_pressure", "sensors")
-# what the machine config holds for the monitor and the simulators, beside the name (a crane config also has its
-# planner's keys: joints, masses, hydraulics, dp, paths)
-MONITOR_KEYS = frozenset(_REQUIRED[1:]) | {"simulation", "excitation", "effects", "effect_forms", "can", "fdi"}
 
 
 class Section:

@@ -225,9 +225,9 @@ class Crane:
         cos_elbow = (rel_rho * rel_rho + rel_h * rel_h - length_a * length_a - length_b * length_b) / (2.0 * length_a * length_b)
         elbow = self._branch * xp.acos(xp.clip_unit(cos_elbow))
         first = xp.atan2(rel_h, rel_rho) - xp.atan2(length_b * xp.sin(elbow), length_a + length_b * xp.cos(elbow))
-        q_a = first - alpha_a - phi_a
-        q_b = first + elbow - alpha_b - q_a - phi_b
         a, b = self._solved
+        q_a = self._wrapped(first - alpha_a - phi_a, a, xp)
+        q_b = self._wrapped(first + elbow - alpha_b - q_a - phi_b, b, xp)
         planar_q: list[Any] = [q_r, q_r, q_r]
         planar_q[a], planar_q[b] = q_a, q_b
 
@@ -266,6 +266,14 @@ class Crane:
         if forces:
             motion.force = self.cylinder_forces(motion)
         return motion
+
+    def _wrapped(self, angle: Any, link: int, xp: SimpleNamespace) -> Any:
+        """A solved joint's angle within half a turn of the middle of its range (atan2 sums come out a turn away)."""
+        if xp is not NUMPY:  # a collocation's nodes start from a seed inside the ranges and move continuously
+            return angle
+        low, high = self.arm.links[link].joint_range
+        middle = 0.5 * (low + high)
+        return middle + np.mod(angle - middle + np.pi, 2.0 * np.pi) - np.pi
 
     def _velocity_product(self, q: list[Any], qd: list[Any], xp: SimpleNamespace) -> tuple[Any, Any]:
         """The tip's acceleration at zero joint accelerations (J-dot q-dot): each link's vector u turning at w and its slide

@@ -16,7 +16,7 @@ import json
 import sqlite3
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +25,6 @@ import numpy as np
 from hydro_ros.contract.config import ConfigError
 from hydro_ros.contract.crane import CraneConfig, parse_planning
 from hydro_ros.contract.errors import DatabaseError
-from hydro_ros.contract.machine import MONITOR_KEYS
 from hydro_ros.planning.trajectory import JointTrajectoryData
 
 SCHEMA_VERSION = 2  # 2: DP position nodes span each stage's feasible window (dp.DpGrid)
@@ -79,9 +78,12 @@ class StoredSolution:
 
 
 def inputs_hash(config: CraneConfig, path_id: str, method: str, grid: tuple[int, int, int]) -> str:
-    """What a solution depends on; the config's own file path and the monitor's keys are not part of it."""
-    relevant = {key: value for key, value in config.mapping.items() if key != "paths" and key not in MONITOR_KEYS}
-    payload = json.dumps([relevant, config.path(path_id), path_id, method, list(grid)], sort_keys=True, default=str)
+    """What a solution depends on, as the planner read it (the chain, its cylinders and limits, the hydraulics, the DP's
+    sample time and filter, the path): a change to a cylinder's bore or mount in ``actuators:`` counts, the monitor's
+    valves and sensors, another path and the controller's and plant's settings do not."""
+    read = [[asdict(joint) for joint in config.joints], asdict(config.arm), config.redundant, config.base_rotation, config.gravity,
+            asdict(config.extension_friction), dict(config.hydraulics), config.dp.sample_time, config.dp.filter_cutoff]
+    payload = json.dumps([read, config.path(path_id), path_id, method, list(grid)], sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
