@@ -32,7 +32,8 @@ def generate_launch_description() -> LaunchDescription:
 
     arguments = [
         DeclareLaunchArgument("namespace", default_value="", description="namespace of the crane's nodes and topics"),
-        DeclareLaunchArgument("config", default_value=PathJoinSubstitution([share, "config", "k70m.yaml"]), description="crane config"),
+        DeclareLaunchArgument("config", default_value=PathJoinSubstitution([share, "config", "k70m.yaml"]),
+                              description="machine config with a planner: section"),
         DeclareLaunchArgument("database", description="trajectory database (hydro-ros db build)"),
         DeclareLaunchArgument("joint_state_source", default_value="can_bridge", description="the only node whose /joint_states move it"),
         DeclareLaunchArgument("auto_configure", default_value="true", description="configure trajectory_executor at launch"),

@@ -32,7 +32,7 @@ def test_every_subcommand_has_help(sub):
         (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--fault", "bogus_leak=1@2", "--out", "X"], "unknown fault or effect 'bogus_leak'"),
         (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--fault", "internal_leakage=oops", "--out", "X"], "cannot parse"),
         (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--effect", "payload_mass=50@3", "--out", "X"], "effects are present from t = 0"),
-        (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--path", "horizontal", "--out", "X"], "--path: crane configs only"),
+        (["sim", "--config", str(SAM_CONFIG), "--duration", "1", "--path", "horizontal", "--out", "X"], "--path: planned machines only"),
         (["sim", "--config", str(K70M), "--duration", "1", "--hold", "2", "--out", "X"], "--hold: only with --path"),
         (["sim", "--config", str(K70M), "--duration", "1", "--path", "nowhere", "--out", "X"], "path 'nowhere': not in config k70m"),
         (["fdi", "run", "--bag", "nobag", "--config", str(SAM_CONFIG), "--out", "X"], "bag nobag: no such file or directory"),

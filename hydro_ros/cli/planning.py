@@ -11,7 +11,7 @@ import time
 from hydro_ros.cli.common import COUNT, SECONDS, SEED, add_grid, add_out, add_quiet, new_output, number, output_file, write_json
 from hydro_ros.contract.errors import InputError
 
-CRANE_CONFIG = "crane config: config/k70m.yaml or config/crane3dof.yaml"
+CRANE_CONFIG = "machine config with a planner: section: config/k70m.yaml, config/crane3dof.yaml, config/excavator.yaml"
 
 
 def tip_line(text: str) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -75,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     db = sub.add_parser("db", help="the trajectory database the trajectory_server serves")
     verbs = db.add_subparsers(dest="db_command", required=True)
     build = verbs.add_parser("build", help="precompute the config's paths x methods into the database (resumes)",
-                             description="Solve every path of a crane config with every catalog method and store the "
+                             description="Solve every path of a machine config with every catalog method and store the "
                              "solutions; what is already stored with the same inputs is skipped, so a killed build resumes.")
     build.add_argument("--config", required=True, help=CRANE_CONFIG)
     build.add_argument("--db", required=True, help="SQLite file (created if missing)")

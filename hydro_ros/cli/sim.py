@@ -91,7 +91,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         with bag_or_nothing(args.out):
             return sim_crane(args, machine)
     if given:
-        raise InputError(f"{', '.join(given)}: crane configs only ({args.config} is not a crane)")
+        raise InputError(f"{', '.join(given)}: planned machines only ({args.config} has no planner: section)")
     # an arm's payload hangs at its tip (MachineRun takes it from any actuator's list)
     injections, payload, truth = actuatorinjections(args, machine, {"payload_mass": "at the tip"} if machine.arm is not None else {})
     injections.setdefault(machine.first.name, []).extend(payload)

@@ -349,10 +349,18 @@ def planner_problems(config: dict[str, Any]) -> list[str]:
             found.unknown(entry, path, set(PLANNER_ACTUATOR) | ({"constant_force"} if name not in actuators else {"spool", "lowered_by_gravity"}))
             if name in actuators:
                 _choice(found, entry, path, "spool", "non_differential")
+                if not isinstance(entry.get("lowered_by_gravity", False), bool):
+                    found.add(f"{path}.lowered_by_gravity", f"{entry['lowered_by_gravity']!r}: expected true or false")
     for name in limits:
         if name not in driven:
             found.add(f"planner.actuators.{name}", f"not an actuator or the slew (they are: {', '.join(map(str, driven))})")
     found.numbers(planner.get("friction", {}), "planner.friction", PLANNER_FRICTION)
+    drives = actuators.get(redundant) if isinstance(redundant, str) else None
+    redundant_link = next((link for link in links if isinstance(link, dict) and isinstance(drives, dict)
+                           and link.get("joint") == drives.get("joint")), None)
+    if "friction" in planner and redundant_link is not None and redundant_link.get("kind", "revolute") != "prismatic":
+        found.add("planner.friction", f"the redundant joint {redundant_link.get('joint')} turns; the friction the planner models is a "
+                                      "telescope's (N on a sliding joint, P-VI eqs. A3-A4): remove it")
     friction = planner.get("friction")
     steps = (friction.get("steps") or []) if isinstance(friction, dict) else []
     if isinstance(friction, dict):

@@ -130,7 +130,7 @@ class CraneConfig:
 
     def with_paths(self, paths: Mapping[str, Mapping[str, Any]]) -> CraneConfig:
         """This crane planning along ``paths`` instead of its own (a study's lines across the workspace)."""
-        return replace(self, paths=dict(paths), mapping={**self.mapping, "paths": dict(paths)})
+        return replace(self, paths=dict(paths), mapping={**self.mapping, "planner": {**self.mapping["planner"], "paths": dict(paths)}})
 
 
 def _numbers(section: Section) -> dict[str, float]:
@@ -184,8 +184,9 @@ def parse_planner(config: Mapping[str, Any], source: Path) -> CraneConfig:
     redundant = str(actuators.node[planner.text("redundant")]["joint"])
     friction = planner.section("friction", optional=True)
     hydraulics = dict(planner.section("hydraulics").node)
-    hydraulics.setdefault("supply_pressure_cp", top.number("supply_pressure"))
-    hydraulics.setdefault("tank_pressure", top.number("tank_pressure"))
+    for key, machine_key in (("supply_pressure_cp", "supply_pressure"), ("tank_pressure", "tank_pressure")):
+        if key not in hydraulics:
+            hydraulics[key] = top.number(machine_key)
     return CraneConfig(
         name=top.text("machine"),
         source=source,
@@ -225,7 +226,7 @@ def _actuated_joint(link: ArmLink, actuator: Section, limits: Section) -> CraneJ
         name=link.joint, q_min=q_min, q_max=q_max, mapping=mount.kind, ratio=mount.ratio, la=mount.l1, lb=mount.l2,
         theta_at_min=mount.sign * q_min + mount.theta_offset, sign=mount.sign, area_a=area_a, area_b=area_b,
         pump_area_extend=area_a - area_b if differential else area_a,
-        pump_area_retract=0.0 if bool(limits.node.get("lowered_by_gravity", False)) else area_b,
+        pump_area_retract=0.0 if limits.node.get("lowered_by_gravity", False) is True else area_b,
         differential=differential, velocity_max=limits.number("velocity_max"), acceleration_max=limits.number("acceleration_max"),
         constant_force=None,
     )

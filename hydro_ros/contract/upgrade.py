@@ -44,8 +44,22 @@ def machine_form(config: dict[str, Any], source: Path | str) -> dict[str, Any]:
 
 
 def upgraded(config: Mapping[str, Any], source: str) -> tuple[dict[str, Any], dict[str, str]]:
-    """The machine form of a crane-form mapping, and where each old key path went (for carrying its comment)."""
+    """The machine form of a crane-form mapping, and where each old key path went (for carrying its comment); a value the
+    conversion cannot place refused in one line."""
+    try:
+        return _upgraded(config, source)
+    except (KeyError, TypeError, ValueError, AttributeError, ArithmeticError) as exc:  # what check.crane_problems leaves
+        raise ConfigError(f"config {source}: the crane form cannot be converted: {type(exc).__name__} {exc} (every joint's "
+                          "cylinder needs its mapping's numbers: la, lb, theta_at_min for a triangle; each actuator its joint, "
+                          "cylinder and mount)") from None
+
+
+def _upgraded(config: Mapping[str, Any], source: str) -> tuple[dict[str, Any], dict[str, str]]:
     moved: dict[str, str] = {}
+    for key in ("arm", "planner"):
+        if key in config:
+            raise ConfigError(f"config {source}: {key}: is the machine form's; a crane-form file (kind: crane) describes its chain in "
+                              "links:, joints: and masses: (remove one or the other)")
     joints = config.get("joints")
     links = config.get("links")
     if not isinstance(joints, list) or not isinstance(links, dict) or not all(isinstance(joint, dict) for joint in joints):
@@ -87,7 +101,7 @@ def upgraded(config: Mapping[str, Any], source: str) -> tuple[dict[str, Any], di
         cylinder = base.get("cylinder") or {}
         area = float(cylinder.get("area_a", 0.0))
         if any(float(cylinder.get(key, area)) != area for key in ("area_b", "pump_area_extend", "pump_area_retract")) or \
-                cylinder.get("mapping", "linear") != "linear":
+                cylinder.get("mapping", "linear") != "linear" or cylinder.get("spool", "non_differential") != "non_differential":
             raise ConfigError(f"config {source}: joints[{base['name']}].cylinder: a slewing base in the machine form is a rack with one "
                               "area both ways (area_a = area_b = the pump areas, mapping linear), or a motor")
         out["arm"]["slew"] = {"joint": base["name"], "range": [base["min"], base["max"]],
@@ -97,6 +111,7 @@ def upgraded(config: Mapping[str, Any], source: str) -> tuple[dict[str, Any], di
         old = f"joints[{base['name']}]"
         moved[f"{old}.cylinder.ratio"] = "arm.slew.drive.ratio"
         moved[f"{old}.cylinder.area_a"] = "arm.slew.drive.area"
+        moved[f"{old}.min"] = moved[f"{old}.max"] = "arm.slew.range"
         for key in limits:
             moved[f"{old}.cylinder.{key}"] = f"planner.actuators.{base['name']}.{key}"
     if "extension_friction" in config:
@@ -108,8 +123,12 @@ def upgraded(config: Mapping[str, Any], source: str) -> tuple[dict[str, Any], di
             planner[section] = config[section]
             moved[section] = f"planner.{section}"
     out["planner"] = planner
+    simulation = out.get("simulation") or {}
+    if "gravity" in config and float(simulation.get("gravity", config["gravity"])) != float(config["gravity"]):
+        raise ConfigError(f"config {source}: gravity {config['gravity']} and simulation.gravity {simulation['gravity']} differ; the "
+                          "machine form has one (simulation.gravity)")
     if "gravity" in config:
-        out["simulation"] = {**(out.get("simulation") or {}), "gravity": config["gravity"]}
+        out["simulation"] = {**simulation, "gravity": config["gravity"]}
         moved["gravity"] = "simulation.gravity"
     if "supply_pressure" not in out:
         out["supply_pressure"] = (config.get("hydraulics") or {}).get("supply_pressure_cp")
@@ -117,7 +136,7 @@ def upgraded(config: Mapping[str, Any], source: str) -> tuple[dict[str, Any], di
     return out, moved
 
 
-_MOUNT_KEYS = {"la": "l1", "lb": "l2", "theta_at_min": "theta_offset", "sign": "sign", "ratio": "ratio"}
+_MOUNT_KEYS = {"la": "l1", "lb": "l2", "sign": "sign", "ratio": "ratio"}  # theta_at_min is another number than theta_offset
 _LIMIT_KEYS = {"pump_area_extend": "spool", "pump_area_retract": "lowered_by_gravity"}
 
 
@@ -172,7 +191,8 @@ def _agree(actuator: Mapping[str, Any], mount: Mapping[str, Any], bores: Mapping
                               "cylinders; one cylinder, one description")
     span = [float(joint["min"]) + (float(joint["max"]) - float(joint["min"])) * k / 50 for k in range(51)]
     full = {"kind": own.get("kind", "triangle"), "sign": own.get("sign", 1.0), **own}
-    gap = max(abs((_piston(full, q) - _piston(full, span[0])) - (_piston(mount, q) - _piston(mount, span[0]))) for q in span)
+    # the piston as the monitor places it (from the actuator's l3) against the crane form's stroke from its shortest length
+    gap = max(abs(_piston(full, q) - _piston(mount, q)) for q in span)
     if gap > AGREEMENT:
         raise ConfigError(f"config {source}: {path}: its mapping and actuator {actuator.get('joint')}'s mount differ by "
                           f"{gap * 1000:.1f} mm over the range; one cylinder, one geometry")

@@ -182,7 +182,7 @@ class HmiNode(Node):
         try:
             machine = load_machine_config(self.params["config"])
             sensors = topics.sensor_topics(machine.actuator_names, mobile=machine.mobile)
-        except InputError:  # a crane config without actuators (crane3dof): its joints, supply and commands
+        except InputError:  # a machine described for the planner only (crane3dof: no valves or sensors): its joints, supply and commands
             sensors = topics.sensor_topics([])
         cert, key = self.params["foxglove_tls_cert"], self.params["foxglove_tls_key"]
         try:

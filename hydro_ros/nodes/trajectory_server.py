@@ -58,7 +58,7 @@ OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Re
 PARAMETERS = {
     "database": Spec("", "SQLite trajectory database (hydro-ros db build); required, may appear after start"),
     "output_topic": Spec("", "also send the served JointTrajectory here (a controller's input); empty: only ~/trajectory"),
-    "config": Spec("", "crane config (YAML): serve only its machine's trajectories; empty: any", existing_file=True),
+    "config": Spec("", "machine config with a planner: section (YAML): serve only its machine's trajectories; empty: any", existing_file=True),
     "method": Spec("dp_cp", "solution served when a request names none", choices=tuple(METHODS)),
     "joint_state_timeout": Spec(0.5, "[s] a joint state older than this is not fresh enough to re-plan from", 0.01, 60.0,
                                 read_only=False),

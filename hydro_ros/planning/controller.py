@@ -5,7 +5,7 @@ position error, through the inverse of the valve's static dead-zone table (DZI).
 regulation modes (L11659-L11666), INFERRED reading of dp.md section 10: outside the position band
 eps_p the controller regulates; inside it, a desired velocity below eps_v leaves the valve closed
 so that numerically small references do not move the cylinder and raise the LS pressure. K_p,
-eps_p, eps_v and the rate are NOT GIVEN: ``controller:`` in the crane config holds our choices.
+eps_p, eps_v and the rate are NOT GIVEN: ``planner.controller`` in the machine config holds our choices.
 
 The simulated closed loop (``hydro_ros.studies.execution``) and the ``trajectory_executor`` node of a
 real crane run this same code.

@@ -75,29 +75,33 @@ class Plan:
     info: dict[str, Any] | None = None
 
 
-def smoothed(problem: Problem, raw: ExtensionTrajectory) -> tuple[ExtensionTrajectory, dict[str, Any], dict[str, Any]]:
-    """A DP reference low-pass filtered, with its evaluation, unless the filter breaks a limit the DP kept: the filter
-    averages the redundant cylinder's accelerations, which keeps them, but the joints solved for the tip follow it
-    nonlinearly, and one of theirs can come out past its limit (0.8 % past on the excavator's lift_out with the actuator
-    energy cost). Then the reference is the DP's own, whose every stage keeps every limit. Also the raw evaluation."""
+def smoothed(problem: Problem, raw: ExtensionTrajectory) -> tuple[ExtensionTrajectory, dict[str, Any], bool]:
+    """A DP reference low-pass filtered, with its evaluation and True, unless the filter breaks a limit the DP kept: the
+    filter averages the redundant cylinder's accelerations, which keeps them, but the joints solved for the tip follow it
+    nonlinearly, and one of theirs can come out past its limit (up to 0.8 % on the excavator's lift_out with the actuator
+    energy cost). Then the DP's own reference, whose every stage keeps every limit, and False."""
     filtered = raw.filtered(problem.filter_cutoff)
     evaluation = evaluate(problem.crane, problem.samples, filtered)
+    if all(evaluation["limits"].values()):
+        return filtered, evaluation, True
     unfiltered = evaluate(problem.crane, problem.samples, raw)
-    if not all(evaluation["limits"].values()) and all(unfiltered["limits"].values()):
-        return raw, unfiltered, unfiltered
-    return filtered, evaluation, unfiltered
+    if all(unfiltered["limits"].values()):
+        return raw, unfiltered, False
+    return filtered, evaluation, True
 
 
 def plan_dp(problem: Problem, cost: Cost, *, progress: bool = False, acceleration_limits: bool = True) -> Plan:
     began = time.perf_counter()
     solution = solve(problem.crane, problem.samples, cost, problem.grid, progress=progress, acceleration_limits=acceleration_limits)
-    trajectory, evaluation, unfiltered = smoothed(problem, solution.forward(problem.start))
+    raw = solution.forward(problem.start)
+    trajectory, evaluation, filtered = smoothed(problem, raw)
     seconds = time.perf_counter() - began
+    unfiltered = evaluate(problem.crane, problem.samples, raw) if filtered else evaluation
     j0 = int(np.argmin(np.abs(problem.grid.velocities)))
     i0 = int(np.argmin(np.abs(problem.grid.positions[0] - problem.start)))
     info = {
         "predicted_cost": float(solution.cost_to_go[0, i0, j0]),
-        "filtered": evaluation is not unfiltered,
+        "filtered": filtered,
         "unfiltered": {key: unfiltered[key] for key in ("cp_energy_J", "ls_energy_J", "limits")},
     }
     return Plan(f"dp_{cost.value}", trajectory, evaluation, seconds, solution, info)

@@ -4,8 +4,9 @@ The thesis solved every path offline from one initial configuration and left on-
 (P-VI L11209-L11212: the backward pass can be reused, only a new forward simulation is needed).
 This closes it: when the current joint state differs from the stored start, a DP solution runs its
 stored policy forward from the actual extension (``DpSolution.follow``: compiled, under a
-millisecond for 200 stages), a pseudo-inverse simply runs again from there; the result is filtered,
-completed by IK and checked against every limit before it is served. The redundant joint may be
+millisecond for 200 stages), a pseudo-inverse simply runs again from there; a DP's result is filtered
+(unless the filter would break a limit, ``problem.smoothed``), completed by IK and checked against every limit
+before it is served. The redundant joint may be
 anywhere; the tip must be at the path's start. ``prepare`` loads the tables and compiles the pass
 before the first request, so the first re-plan is as fast as the rest.
 """
@@ -178,7 +179,7 @@ class TrajectoryService:
         v0 = float(extension.arm(q[crane.redundant])[0] * qd[crane.redundant])
         try:
             if stored.has_policy:
-                extension_trajectory, evaluation, _ = smoothed(problem, self._dp_solution(context, stored).follow(c0, v0))
+                extension_trajectory, evaluation, filtered = smoothed(problem, self._dp_solution(context, stored).follow(c0, v0))
                 plan_record = None
             else:
                 plan = run_method(replace(problem, start=c0), stored.method)
@@ -196,6 +197,7 @@ class TrajectoryService:
             "ls_energy_J": evaluation["ls_energy_J"],
             "limits": evaluation["limits"],
             "limits_ok": True,
+            "info": {"filtered": filtered},
         }
         return trajectory, record
 

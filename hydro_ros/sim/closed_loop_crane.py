@@ -12,7 +12,7 @@ What the planner leaves out, this has (P-VI Appendix A, L11557-L11559; P-V L9380
 Cylinder motion follows the compensated valve flow through a first-order lag (the mechanics'
 dominant mode); chamber pressures are the steady-state ones of the P-VI model (eqs. 20-28) for the
 forces of the plant's own point masses, so supply pressure and pump flow are those of the
-executed motion, not the plan's. All values are PLACEHOLDERS of ``plant:`` in the crane config.
+executed motion, not the plan's. All values are PLACEHOLDERS of ``planner.plant`` in the machine config.
 """
 
 from __future__ import annotations
