@@ -277,6 +277,11 @@ def test_a_crane_form_config_is_read_converted_and_upgraded_losslessly(machine, 
     kept = "\n".join(annotated_values(upgraded))
     for note in annotated_values(old):
         assert note.split(": ", 1)[1] in kept, note
+    # and every full-line note that says so (the masses', the paths' and the friction's sources)
+    written = upgraded.read_text()
+    for line in old.read_text().splitlines():
+        if line.lstrip().startswith("#") and ("PLACEHOLDER" in line or "INFERRED" in line):
+            assert line.strip() in written, line
     if machine == "k70m":  # the monitor reads the same machine from it
         assert load_machine_config(upgraded).actuators == load_machine_config(default_config_path("k70m")).actuators
     again = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "machine", "upgrade", str(upgraded), "--out", str(tmp_path / "x.yaml")],

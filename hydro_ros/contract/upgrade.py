@@ -239,6 +239,8 @@ def _arm(config: Mapping[str, Any], links: Mapping[str, Any], joints: tuple[Mapp
         moved[f"links.{key}"] = new
     for joint in joints:
         moved[f"joints[{joint['name']}].min"] = moved[f"joints[{joint['name']}].max"] = f"arm.links[{joint['name']}].range"
+    moved["links"] = moved["masses"] = "arm"  # a section's own comments go before the section it went to
+    moved["joints"] = "actuators"
     return {"origin": [links["lift_joint_x"], links["lift_joint_y"]], "links": [
         {"joint": lift["name"], "kind": "revolute", "length": links["lift_length"], "range": [lift["min"], lift["max"]], "masses": on["lift"]},
         {"joint": tilt["name"], "kind": "revolute", "length": 0.0, "range": [tilt["min"], tilt["max"]], "masses": on["tilt"]},
@@ -258,19 +260,30 @@ def upgraded_text(path: Path) -> str:
         raise ConfigError(f"config {path}: not in the crane form (no kind: crane): nothing to upgrade")
     refuse_problems(crane_problems(config), path)
     converted, moved = upgraded(config, str(path))
+    moved.setdefault("extension_friction", "planner.friction")
+    old_lines = text.splitlines()
+    header = old_lines[:next((i for i, line in enumerate(old_lines) if not line.startswith("#")), len(old_lines))]
     comments: dict[str, list[str]] = {}
-    for _, key, comment in keyed_lines(text):
+    leading: dict[str, list[str]] = {}  # the full-line comments just above a key (a section's sources), after the header
+    for index, key, comment in keyed_lines(text):
         if comment:
             comments.setdefault(_moved(key, moved), []).append(comment)
+        above = []
+        while index - len(above) - 1 >= len(header) and old_lines[index - len(above) - 1].lstrip().startswith("#"):
+            above.insert(0, old_lines[index - len(above) - 1].strip())
+        if above:
+            leading.setdefault(_moved(key, moved), []).extend(above)
     lines = yaml.dump(converted, Dumper=_BlockDumper, sort_keys=False, width=160).splitlines()
-    for index, key, _ in keyed_lines("\n".join(lines)):
+    for index, key, _ in reversed(keyed_lines("\n".join(lines))):
         if key in comments:
             lines[index] += "  # " + "; ".join(dict.fromkeys(comments.pop(key)))
-    header = [line for line in text.splitlines() if line.startswith("#")]
-    header = header[:next((i for i, line in enumerate(text.splitlines()) if not line.startswith("#")), len(header))]
+        if key in leading:
+            indent = " " * (len(lines[index]) - len(lines[index].lstrip(" -")))
+            lines[index:index] = [indent + line for line in leading.pop(key)]
     note = [f"# Written in the machine form by `hydro-ros machine upgrade {path.name}` from the crane form (kind: crane): each",
             "# cylinder once in actuators:, the chain in arm:, the planner's limits, hydraulics, grid and paths in planner:."]
     left = [f"#   {key}: {'; '.join(texts)}" for key, texts in comments.items()]
+    left += [f"#   {key}: {' '.join(text.lstrip('# ') for text in texts)}" for key, texts in leading.items()]
     if left:
         note += ["# Comments of the crane form with no key of their own here:", *left]
     return "\n".join([*header, *note, *lines]) + "\n"
