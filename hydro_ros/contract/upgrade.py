@@ -268,7 +268,7 @@ def upgraded_text(path: Path) -> str:
     for index, key, comment in keyed_lines(text):
         if comment:
             comments.setdefault(_moved(key, moved), []).append(comment)
-        above = []
+        above: list[str] = []
         while index - len(above) - 1 >= len(header) and old_lines[index - len(above) - 1].lstrip().startswith("#"):
             above.insert(0, old_lines[index - len(above) - 1].strip())
         if above:
