@@ -2,7 +2,7 @@
 works it with the crane's cylinders, fdi_node monitors every cylinder; a leak set on one cylinder shows at WARN on it.
 
 plant_sim runs the crane at 0.3 x real time: its 19 sensor topics at 1 kHz are ~19 000 messages a second, which
-neither plant_sim nor fdi_node can carry in rclpy on this 2-core machine (docs/monitoring.md, the K70M's cylinders).
+neither plant_sim nor fdi_node can carry in rclpy on this 2-core machine (docs/crane_monitoring.md).
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ LS_PRESSURE = "/hydraulics/ls_pressure"
 # Extension of the contract: every measured column of a machine, many samples per message (a PointCloud2 used as a
 # table: one point per sample, fields "t" [s after header.stamp] then "<joint or actuator>/<quantity>" and
 # "supply_pressure"). At 1 kHz a crane's 19 per-sample topics are ~19 000 messages a second, more than rclpy carries
-# in one process; the same samples in blocks of 10 ms are 100 (docs/monitoring.md, the K70M's cylinders).
+# in one process; the same samples in blocks of 10 ms are 100 (docs/crane_monitoring.md).
 SAMPLE_BLOCK = "/hydraulics/sample_block"
 POINT_CLOUD2_TYPE = "sensor_msgs/msg/PointCloud2"
 MOBILE_VALVE_PRESSURES = ("pilot_pressure_1", "pilot_pressure_2", "compensator_pressure")

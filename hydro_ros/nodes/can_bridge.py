@@ -13,7 +13,7 @@ unknown ids, reconnects). A lost bus is reopened with exponential back-off.
 
 With ``sample_blocks`` each decoding tick's complete cycles also go out as one message on
 /hydraulics/sample_block, plant_sim's format, and ``sensor_topics`` can turn the per-sample topics off:
-a crane's cycles at 1 kHz are more per-sample messages than rclpy carries (docs/monitoring.md, the K70M's cylinders).
+a crane's cycles at 1 kHz are more per-sample messages than rclpy carries (docs/crane_monitoring.md).
 
 `forward_commands` (off by default: it drives a machine) sends /hydraulics/valve_commands as
 VALVEn_REQUEST frames while the node is active; the bridge then leaves /hydraulics/valve_commands

@@ -40,7 +40,7 @@ from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun, simulate_arm
 from hydro_ros.studies.commissioning import FaultFreeRecording
 from hydro_ros.studies.fdi_evaluation import mismatched_config, parallel_map
 
-FLOW_FRACTION = 0.1  # k: the notch coefficients' tolerance the allowance covers: twice MISMATCH's +-5 % (INFERRED; see docs/monitoring.md)
+FLOW_FRACTION = 0.1  # k: the notch coefficients' tolerance the allowance covers: twice MISMATCH's +-5 % (INFERRED; see docs/crane_monitoring.md)
 MARGIN = 1.5  # c = margin x the largest held-out factor of the bin (the evaluation's plants are others again)
 FACTOR_FLOOR = 3.0  # [sigma] no bin's c below margin x this, however quiet its held-out data
 PAYLOAD_KG = 300.0  # a log in the grapple (INFERRED, as the SAM's payload steps)
