@@ -9,8 +9,9 @@ import pytest
 
 from hydro_ros.bags.reader import read_bag
 from hydro_ros.cli import main as cli_main
+from hydro_ros.contract.crane import CONTROLLER_DEFAULTS
 from hydro_ros.models.crane import Crane
-from hydro_ros.planning.controller import CONTROLLER_DEFAULTS, MotionController
+from hydro_ros.planning.controller import MotionController
 from hydro_ros.planning.problem import Problem, run_method
 from hydro_ros.planning.trajectory import joint_trajectory
 from hydro_ros.sim.closed_loop_crane import CranePlant

@@ -136,8 +136,32 @@ def test_a_path_out_of_reach_or_through_a_stretched_elbow_and_chains_without_one
         variant["actuators"]["arm"]["mount"] = {"kind": "linear", "ratio": 0.5, "theta_offset": 0.0}
 
     assert "make a prismatic joint the redundant one" in refusal(prismatic_arm)
+    assert "planner.controller.position_gian: unknown key (did you mean position_gain?)" in refusal(
+        lambda v: v["planner"].update(controller={"position_gian": 3.0}))
+    assert "planner.friction: the redundant joint bucket_joint turns" in refusal(lambda v: v["planner"].update(friction={"coulomb": 10.0}))
     with pytest.raises(ConfigError, match=r"nothing to plan .* no redundancy to optimise"):
         load_crane(default_config_path("boom_arm"))
+
+
+def test_machine_check_samples_every_path_and_says_what_the_monitor_would_need(tmp_path, capsys) -> None:
+    """A file for the planner only passes, saying what the monitor lacks; a path out of reach, one without segments and
+    one of an unknown segment type are each named with their id (the planner would refuse them later, one by one)."""
+    assert cli_main(["machine", "check", str(EXCAVATOR), "--quiet"]) == 0
+    said = capsys.readouterr().out
+    assert "planned along level_cut, lift_out (each within reach), redundant joint bucket_joint" in said
+    assert "not monitored: the monitor would need sample_rate_hz: missing" in said and "actuators.boom.valve: missing" in said
+    mapping = yaml.safe_load(EXCAVATOR.read_text())
+    mapping["planner"]["paths"].update({
+        "far": {"start": [20.0, 0.0, 0.0], "segments": [{"type": "quintic", "to": [4.5, 0.0, 0.0], "duration": 4.0}]},
+        "bare": {"start": [7.0, 0.0, 0.0]},
+        "line": {"start": [7.0, 0.0, 0.0], "segments": [{"type": "line", "to": [4.5, 0.0, 0.0], "duration": 4.0}]}})
+    broken = tmp_path / "paths.yaml"
+    broken.write_text(yaml.safe_dump(mapping))
+    assert cli_main(["machine", "check", str(broken), "--quiet"]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert any("path 'far': tip path at t = 0.00 s: the tip [20.0, 0.0, 0.0] m is out of reach of excavator" in line for line in lines)
+    assert any("path bare: missing 'segments'" in line for line in lines)
+    assert any("path line: segment type 'line' (quintic or spline)" in line for line in lines)
 
 
 def test_the_excavators_plans_are_stored_served_from_the_measured_state_and_executed_on_the_simulated_arm(excavator, tmp_path,

@@ -51,7 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     upgrade = verbs.add_parser("upgrade", help="write a crane-form config (kind: crane) in the machine form",
                                description="Each cylinder once (actuators:), the chain once (arm:, its slewing base arm.slew), the "
                                "planner's limits, hydraulics, grid and paths in planner:; every number the planner and the "
-                               "monitor read comes out the same, each value's comment (its source) beside its new key.")
+                               "monitor read comes out the same, each value's comment (its source) beside its new key. The "
+                               "old file is left as it is; --out must not exist.")
     upgrade.add_argument("config", help="crane-form config (YAML)")
     add_out(upgrade, "the machine-form config to write")
     upgrade.set_defaults(func=cmd_machine_upgrade)
@@ -92,9 +93,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_machine_check(args: argparse.Namespace) -> int:
     from hydro_ros.contract.check import annotated_values, config_problems, crane_problems, planner_problems
     from hydro_ros.contract.config import read_config
-    from hydro_ros.contract.crane import parse_planning
     from hydro_ros.contract.upgrade import is_crane_form, upgraded
-    from hydro_ros.models.crane import Crane
 
     config = read_config(args.config, required=(), nonempty="machine")
     problems = []
@@ -114,15 +113,14 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
     for problem in problems:
         print(f"{args.config}: {problem}")
     if planned and not problems:
-        try:
-            crane = Crane(parse_planning(config, Path(args.config).resolve()))
-        except InputError as exc:
-            problems.append(str(exc))
-            print(f"{args.config}: {exc}")
-        else:
-            print(f"{args.config}: {crane.name}: planned along {', '.join(crane.config.paths)}, redundant in {crane.extension.name} "
-                  f"({', '.join(crane.names)})" + ("; no sensors or valves, so nothing to simulate at the cylinders or monitor: ok"
-                                                   if planner_only else ""))
+        problems += planner_checks(config, args.config)
+        for problem in problems:
+            print(problem if problem.startswith("config ") else f"{args.config}: {problem}")
+        if planner_only and not problems:
+            missing = config_problems(config)
+            print(f"{args.config}: not monitored: the monitor would need " + "; ".join(missing[:3])
+                  + (f"; and {len(missing) - 3} more" if len(missing) > 3 else "")
+                  + " (valves, fluid, friction, sensors and a sample rate, as config/boom_arm.yaml has)")
     if not planner_only and not problems:
         from hydro_ros.can.codec import BusMapError, MachineBus
         from hydro_ros.fdi.settings import unset_threshold
@@ -155,6 +153,32 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
         for note in notes:
             print(f"  {note}")
     return 1 if problems else 0
+
+
+def planner_checks(config: dict, source: str) -> list[str]:
+    """What the planner refuses of a config its checks accept: the chain (one redundant joint, two revolute ones solved for
+    the tip), and each path sampled and reached (a point out of reach, or only with a stretched elbow, named with its
+    time). Prints what it plans along when all is well."""
+    from hydro_ros.contract.check import DP_GRID_MIN
+    from hydro_ros.contract.crane import parse_planning
+    from hydro_ros.models.crane import Crane
+    from hydro_ros.planning.problem import Problem
+
+    try:
+        crane = Crane(parse_planning(config, Path(source).resolve()))
+    except InputError as exc:
+        return [str(exc)]
+    problems = []
+    for path_id in crane.config.paths:
+        try:
+            Problem.build(crane, crane.config, path_id, grid=(DP_GRID_MIN,) * 3)
+        except InputError as exc:  # the path's own form, its reach, its start
+            problems.append(str(exc) if str(exc).startswith("path") else f"path {path_id!r}: {exc}")
+    if not problems:
+        print(f"{source}: {crane.name}: planned along {', '.join(crane.config.paths)} (each within reach), redundant joint "
+              f"{crane.extension.name}, the tip solved by {' and '.join(crane.solved_names)}"
+              + (f", {crane.names[0]} turning the chain" if crane.base_rotation else "") + ": ok")
+    return problems
 
 
 def reach_warnings(machine) -> list[str]:

@@ -51,7 +51,9 @@ def register(sub: argparse._SubParsersAction) -> None:
             cmd.add_argument("--all-methods", action="store_true", help="also P-V's DP (Act. velocity) and weighted pseudo-inverse")
         add_out(cmd, "output JSON (compare: the table .md and plot .png go beside it)")
         add_grid(cmd, "the config's dp.grid")
-        cmd.add_argument("--start", choices=["smallest", "middle"], default="smallest", help="initial extension (P-VI's two configurations)")
+        cmd.add_argument("--start", choices=["smallest", "middle"], default="smallest",
+                         help="initial stroke of the redundant cylinder: the smallest feasible or the middle of its window "
+                         "(P-VI's two configurations)")
         add_quiet(cmd)
         cmd.set_defaults(func=cmd_dp_solve if name == "solve" else cmd_dp_compare)
 
@@ -66,7 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     execute.add_argument("--db", default=None, help="take the solution from this trajectory database (default: plan it now)")
     add_grid(execute, "dp.grid, when planning now")
     execute.add_argument("--start-extension", type=number(float, 0.0, 100.0, unit="m"), default=None, metavar="M",
-                         help="start with the extension cylinder at this stroke (re-planned from there)")
+                         help="start with the redundant cylinder (the K70M's telescope) at this stroke (re-planned from there)")
     execute.add_argument("--seed", type=SEED, default=0, help="seed of the plant's valve spread")
     add_out(execute, "bag directory to create (must not exist)")
     execute.add_argument("--summary", default=None, help="also write the summary as JSON here")

@@ -148,10 +148,13 @@ REFERENCE: tuple[tuple[str, dict[str, Rule], str], ...] = (
     ("simulation", SIMULATION, "the simulated plant"),
     ("excitation", EXCITATION, "the simulated operator (joint_range, move_speed, rest_time: [low, high])"),
     ("can", CAN, "the machine bus (dbc, map)"),
-    ("planner.actuators.<name>", PLANNER_ACTUATOR, "each cylinder's rate limits (spool: differential, lowered_by_gravity: true; the slew: constant_force N)"),
+    ("planner.actuators.<name>", PLANNER_ACTUATOR,
+     "each cylinder's rate limits, both required (spool: non_differential or differential, lowered_by_gravity: false or true; the "
+     "slew, keyed by its joint: its drive's units and constant_force N)"),
     ("planner.friction", PLANNER_FRICTION, "on the redundant joint, P-VI eqs. A3-A4 (steps: [[from, to], ...])"),
-    ("planner.hydraulics", HYDRAULICS, "the energy model, P-V eqs. 36-41 (supply_pressure_cp and tank_pressure default to the machine's)"),
-    ("planner.dp", CRANE_DP, "the DP (grid: [positions, velocities, controls], each >= 3)"),
+    ("planner.hydraulics", HYDRAULICS, "the energy model, P-V eqs. 36-41: ls_margin, compensator_drop, efficiency, drive_threshold "
+                                       "required; supply_pressure_cp and tank_pressure default to the machine's"),
+    ("planner.dp", CRANE_DP, "the DP, every key required (grid: [positions, velocities, controls], each >= 3)"),
 )
 
 MAX_LISTED = 5  # problems named in one error line; `hydro-ros machine check` lists all
@@ -180,7 +183,7 @@ class _Problems:
     def numbers(self, node: Any, path: str, rules: dict[str, Rule], required: tuple[str, ...] = ()) -> dict[str, float]:
         """The numbers of ``node`` checked against ``rules``; missing required ones and non-numbers reported."""
         if not isinstance(node, dict):
-            self.add(path, "must be a mapping")
+            self.add(path, "missing" + (f" ({', '.join(required)} required)" if required else "") if node is None else "must be a mapping")
             return {}
         values = {}
         for key, rule in rules.items():

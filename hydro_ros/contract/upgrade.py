@@ -39,7 +39,7 @@ def machine_form(config: dict[str, Any], source: Path | str) -> dict[str, Any]:
     refuse_problems(crane_problems(config), source)
     converted, _ = upgraded(config, str(source))
     warnings.warn(f"config {source}: the crane form (kind: crane) is read converted to the machine form; `hydro-ros machine "
-                  f"upgrade {source}` writes it so", FutureWarning, stacklevel=2)
+                  f"upgrade {source} --out NEW.yaml` writes it so", FutureWarning, stacklevel=2)
     return converted
 
 

@@ -81,14 +81,8 @@ def ls_supply_pressure(crane: Crane, motion: Motion) -> np.ndarray:
     return np.maximum.reduce([np.asarray(p, dtype=float) for p in pressures]) + h["ls_margin"]
 
 
-# The mobile valves' static table, PLACEHOLDERS in the crane config's ``plant:`` section: dead zone as a
-# fraction of the command (P-VI L11557: ~53 %) and the velocity at full command per unit of the
-# cylinder's velocity limit. The simulated plant spreads these per valve; a controller inverts them.
-VALVE_TABLE_DEFAULTS = {"valve_dead_zone": 0.53, "full_command_velocity_factor": 1.25}
-
-
 def nominal_valve_table(crane: Crane, config: CraneConfig) -> tuple[float, np.ndarray]:
-    """Dead zone and velocity at full command (m/s per cylinder) of the machine's valves."""
-    plant = {**VALVE_TABLE_DEFAULTS, **config.plant}
+    """Dead zone and velocity at full command (m/s per cylinder) of the machine's valves (``planner.plant``)."""
+    plant = config.plant
     factor = float(plant["full_command_velocity_factor"])
     return float(plant["valve_dead_zone"]), factor * np.array([c.velocity_max for c in crane.cylinders])

@@ -63,7 +63,7 @@ from hydro_ros.models.crane import Crane, load_crane
 from hydro_ros.nodes.authority import PinnedSource
 from hydro_ros.nodes.common import HALT_QOS, LATCHED_QOS, MACHINE_ID, SENSOR_QOS, destroy_entities, machine_instance, namespaced_statuses, relative, run_node
 from hydro_ros.nodes.parameters import Parameters, Spec
-from hydro_ros.planning.controller import CylinderReference, MotionController, controller_settings
+from hydro_ros.planning.controller import CylinderReference, MotionController
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE, JointTrajectoryData
 from hydro_ros.safety.motion import Heartbeat, MotionAuthority
 
@@ -145,8 +145,8 @@ class TrajectoryExecutor(LifecycleNode):
             self.get_logger().error(str(exc))
             return TransitionCallbackReturn.FAILURE
         self.controller = MotionController.for_crane(self.crane, config)
-        self.settle_time = controller_settings(config)["settle_time"]
-        rate = self.params["rate"] or controller_settings(config)["rate"]
+        self.settle_time = config.controller["settle_time"]
+        rate = self.params["rate"] or config.controller["rate"]
         self.names = list(self.crane.names)
         self.slew_step = self.params["command_slew_rate"] / rate
         self.sources = {

@@ -20,19 +20,6 @@ from hydro_ros.models.crane import Crane
 from hydro_ros.models.crane_hydraulics import nominal_valve_table
 from hydro_ros.planning.trajectory import JointTrajectoryData
 
-CONTROLLER_DEFAULTS = {
-    "rate": 100.0,  # Hz
-    "position_gain": 2.0,  # 1/s
-    "position_deadband": 0.005,  # m
-    "velocity_deadband": 0.002,  # m/s
-    "settle_time": 1.0,  # s the final reference is held after the trajectory
-    "log_rate": 100.0,  # Hz of the recorded signals
-}
-
-
-def controller_settings(config: CraneConfig) -> dict[str, float]:
-    return {**CONTROLLER_DEFAULTS, **config.controller}
-
 
 class MotionController:
     """P-VI Appendix A: I = DZI(v_d + K_p e) with tracking / regulation switching, per cylinder."""
@@ -47,7 +34,7 @@ class MotionController:
     @classmethod
     def for_crane(cls, crane: Crane, config: CraneConfig) -> MotionController:
         """The controller of ``config`` inverting the nominal valve table of its cylinders."""
-        return cls(controller_settings(config), *nominal_valve_table(crane, config))
+        return cls(dict(config.controller), *nominal_valve_table(crane, config))
 
     def inverse_table(self, velocity: np.ndarray) -> np.ndarray:
         """DZI: the command whose steady-state velocity is ``velocity`` (the nominal table, eq. A1)."""

@@ -83,7 +83,10 @@ class TipPath:
                     raise InputError("segment 'to' must be [x, y, z]")
                 self.segments.append(segment)
                 point = segment.end
-        except (KeyError, TypeError, ValueError) as exc:
+        except KeyError as exc:
+            raise ConfigError(f"path {path_id}: missing {exc.args[0]!r} (start [x, y, z]; segments, each a type quintic or spline, "
+                              "to [x, y, z], duration [s], a spline's via points)") from None
+        except (TypeError, ValueError) as exc:
             raise ConfigError(f"path {path_id}: {exc}") from None
         if not self.segments:
             raise ConfigError(f"path {path_id}: no segments")

@@ -25,26 +25,10 @@ import numpy as np
 from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane, Motion
-from hydro_ros.models.crane_hydraulics import VALVE_TABLE_DEFAULTS, pump_flow
+from hydro_ros.models.crane_hydraulics import pump_flow
 
-PLANT_DEFAULTS = {
-    **VALVE_TABLE_DEFAULTS,
-    "valve_dead_zone_spread": 0.02,
-    "valve_gain_spread": 0.05,
-    "valve_delay": 0.15,
-    "spool_time_constant": 0.03,
-    "motion_time_constant": 0.05,
-    "payload": 200.0,
-    "coulomb_friction": 1500.0,
-    "ls_time_constant": 0.20,
-    "time_step": 0.002,
-}
 SUPPLIES = ("cp", "ls")
 _FRICTION_VELOCITY = 0.005  # m/s: tanh smoothing of the Coulomb friction sign
-
-
-def plant_settings(config: CraneConfig) -> dict[str, float]:
-    return {**PLANT_DEFAULTS, **config.plant}
 
 
 def valve_velocity(command: np.ndarray, dead_zone: np.ndarray, full_velocity: np.ndarray) -> np.ndarray:
@@ -72,7 +56,7 @@ class CranePlant:
     def __init__(self, config: CraneConfig, supply: str, start: np.ndarray, *, seed: int = 0) -> None:
         if supply not in SUPPLIES:
             raise InputError(f"supply {supply!r}: cp or ls")
-        self.settings = settings = plant_settings(config)
+        self.settings = settings = dict(config.plant)
         self.supply = supply
         self.crane = Crane(config, payload=settings["payload"])
         self.dt = settings["time_step"]

@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from hydro_ros.bags.writer import ContractBagWriter
 from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.models.crane import Crane
-from hydro_ros.planning.controller import CylinderReference, MotionController, controller_settings
+from hydro_ros.planning.controller import CylinderReference, MotionController
 from hydro_ros.planning.database import JointTrajectoryData
 from hydro_ros.sim.closed_loop_crane import CranePlant
 
@@ -53,7 +53,7 @@ class ClosedLoop:
     """Plant and controller stepped together; ``follow`` sets the trajectory, ``advance`` runs it."""
 
     def __init__(self, config: CraneConfig, supply: str, start: np.ndarray, *, seed: int = 0) -> None:
-        self.settings = controller_settings(config)
+        self.settings = dict(config.controller)
         self.plant = CranePlant(config, supply, start, seed=seed)
         self.controller = MotionController.for_crane(self.plant.crane, config)
         self.control_every = max(int(round(1.0 / (self.settings["rate"] * self.plant.dt))), 1)
