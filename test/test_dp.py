@@ -250,10 +250,11 @@ def test_random_cylinder_limits_are_kept_by_the_dp_or_its_start_is_refused(facto
     the smallest feasible start keeps every limit at the exact states and the tip on the path, or the start is refused
     with its reason in one line (FUZZ_EXAMPLES draws more)."""
     _, config = load_crane(default_config_path("k70m"))
-    joints = [dict(joint, cylinder=dict(joint["cylinder"], velocity_max=joint["cylinder"]["velocity_max"] * v,
-                                        acceleration_max=joint["cylinder"]["acceleration_max"] * a))
-              for joint, (v, a) in zip(config.mapping["joints"], factors)]
-    crane = Crane(config.with_overrides({"joints": joints}))
+    limits = config.mapping["planner"]["actuators"]  # the K70M's actuators are named as their joints, the slew by its joint
+    drawn = {name: {"velocity_max": limits[name]["velocity_max"] * v, "acceleration_max": limits[name]["acceleration_max"] * a}
+             for name, (v, a) in zip(config.joint_names, factors)}
+    crane = Crane(config.with_overrides({"planner": {"actuators": drawn}}))
+    assert [c.velocity_max for c in crane.cylinders] == pytest.approx([drawn[name]["velocity_max"] for name in config.joint_names])
     samples = path_from_config(config, path_id).sample(config.dp.sample_time)
     grid = DpGrid.for_path(crane, samples, (40, 21, 31))
     try:

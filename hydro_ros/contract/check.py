@@ -105,8 +105,6 @@ CRANE_MASS = {"s": Rule("m", -50.0, 50.0), "mass": _nonnegative("kg", 1.0e6)}
 CRANE_FRICTION = {"coulomb": _nonnegative("N"), "tanh_gain": _positive("s/m")}
 CRANE_DP = {"sample_time": _positive("s", 10.0), "filter_cutoff": _positive("Hz", 1.0e3)}
 CRANE_CHOICES = {"mapping": ("linear", "triangle"), "spool": ("non_differential", "differential"), "link": ("lift", "boom")}
-CRANE_KEYS = {"kind", "base_rotation", "gravity", "links", "joints", "masses", "extension_friction", "hydraulics", "dp", "paths", "controller",
-              "plant", "catalog"}
 ARM = {"payload": _nonnegative("kg", 1.0e6)}
 RANGE_LIMIT = {"revolute": Rule("rad", -7.0, 7.0, hint="radians: 90 deg is 1.571"), "prismatic": Rule("m", -50.0, 50.0, hint="metres")}
 ARM_LINK = {"length": Rule("m", 0.0, 100.0, hint="SI: metres"), "offset": Rule("m", -100.0, 100.0)}
