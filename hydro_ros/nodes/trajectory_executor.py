@@ -48,6 +48,7 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.duration import Duration
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.task import Future
 from rclpy.time import Time
@@ -67,6 +68,7 @@ from hydro_ros.planning.controller import CylinderReference, MotionController
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE, JointTrajectoryData
 from hydro_ros.safety.motion import Heartbeat, MotionAuthority
 
+LAST_WORDS_S = 0.5  # [s] the longest the executor waits, on its way out, for its neutral commands to be delivered
 PARAMETERS = {
     "machine_id": MACHINE_ID,
     "config": Spec(str(default_config_path("k70m")), "machine config with a planner: section (YAML): joints, limits, valve table, controller",
@@ -224,17 +226,22 @@ class TrajectoryExecutor(LifecycleNode):
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         if self.active:
-            self._stop("inactive", "shut down")
-            self.active = False
+            self._last_words("shut down")
         self._release()
         return TransitionCallbackReturn.SUCCESS
 
     def destroy_node(self) -> None:
         if self.active:
-            self._stop("inactive", "node destroyed")
-            self.active = False
+            self._last_words("node destroyed")
         self._release()
         super().destroy_node()
+
+    def _last_words(self, reason: str) -> None:
+        """Neutral commands before the process goes: sent, then waited for until every valve driver has them (reliable
+        delivery, at most LAST_WORDS_S): a loaded machine's exit would otherwise drop the message still in flight."""
+        self._stop("inactive", reason)
+        self.active = False
+        self.command_pub.wait_for_all_acked(Duration(seconds=LAST_WORDS_S))
 
     def _release(self) -> None:
         destroy_entities(self, self._entities)
