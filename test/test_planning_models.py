@@ -190,18 +190,12 @@ def test_a_crane_configs_problems_are_named_at_once_by_the_check_and_the_planner
     broken["actuators"]["extension"]["cylinder"]["piston_diamter"] = broken["actuators"]["extension"]["cylinder"].pop("piston_diameter")
     broken["planner"]["spool"] = "differential"
     broken["planner"]["dp"]["grid"] = [356, 101]
-    bad = tmp_path / "k70m_bad.yaml"
-    bad.write_text(yaml.safe_dump(broken))
-    expected = ("arm.links[lift].length: -3.5 m: must be >= 0 m", "planner.actuators.lift.velocity_max: -0.15 m/s: must be > 0",
+    bad = _each_problem_named_once(tmp_path / "k70m_bad.yaml", broken, (
+                "arm.links[lift].length: -3.5 m: must be >= 0 m", "planner.actuators.lift.velocity_max: -0.15 m/s: must be > 0",
                 "actuators.tilt.mount.kind: 'triangel': expected triangle or linear",
                 "actuators.extension.cylinder.piston_diamter: unknown key (did you mean piston_diameter?)",
                 "actuators.extension.cylinder.piston_diameter: missing [m]", "planner.spool: unknown key",
-                "planner.dp.grid: [356, 101]: expected three whole numbers")
-    checked = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "machine", "check", str(bad), "--quiet"], capture_output=True, text=True)
-    lines = checked.stdout.strip().splitlines()
-    assert checked.returncode == 1 and "Traceback" not in checked.stderr
-    for problem in expected:
-        assert sum(problem in line for line in lines) == 1, (problem, lines)
+                "planner.dp.grid: [356, 101]: expected three whole numbers"))
     with pytest.raises(ConfigError, match=r"config .*k70m_bad.yaml: .*planner.actuators.lift.velocity_max: -0.15 m/s") as refused:
         load_crane(bad)
     assert "(hydro-ros machine check" in str(refused.value) and "\n" not in str(refused.value)
@@ -217,20 +211,31 @@ def test_a_crane_configs_problems_are_named_at_once_by_the_check_and_the_planner
     broken["joints"][3]["cylinder"]["are_a"] = broken["joints"][3]["cylinder"].pop("area_a")
     broken["masses"][0]["link"] = "lfit"
     broken["dp"]["grid"] = [356, 101]
-    bad = tmp_path / "k70m_crane_form_bad.yaml"
-    bad.write_text(yaml.safe_dump(broken))
-    expected = ("links.lift_length: -3.5 m: must be > 0 m", "joints[lift].cylinder.velocity_max: -0.15 m/s: must be > 0",
+    bad = _each_problem_named_once(tmp_path / "k70m_crane_form_bad.yaml", broken, (
+                "links.lift_length: -3.5 m: must be > 0 m", "joints[lift].cylinder.velocity_max: -0.15 m/s: must be > 0",
                 "joints[tilt].cylinder.mapping: 'triangel': expected linear or triangle",
                 "joints[extension].cylinder.are_a: unknown key (did you mean area_a?)", "joints[extension].cylinder.area_a: missing [m^2]",
-                "masses[inner_boom].link: 'lfit': expected lift or boom", "dp.grid: [356, 101]: expected three whole numbers")
-    checked = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "machine", "check", str(bad), "--quiet"], capture_output=True, text=True)
+                "masses[inner_boom].link: 'lfit': expected lift or boom", "dp.grid: [356, 101]: expected three whole numbers"))
+    with pytest.raises(ConfigError, match=r"links.lift_length: -3.5 m: must be > 0 m; joints\[lift\]") as refused:
+        load_crane(bad)
+    assert "and 2 more (hydro-ros machine check" in str(refused.value) and "\n" not in str(refused.value)
+
+
+def _each_problem_named_once(path, broken: dict, expected: tuple[str, ...]):
+    """``broken`` written to ``path``; `hydro-ros machine check` exits 1 without a traceback, each expected problem on one
+    line of its own."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    path.write_text(yaml.safe_dump(broken))
+    checked = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "machine", "check", str(path), "--quiet"], capture_output=True, text=True)
     lines = checked.stdout.strip().splitlines()
     assert checked.returncode == 1 and "Traceback" not in checked.stderr
     for problem in expected:
         assert sum(problem in line for line in lines) == 1, (problem, lines)
-    with pytest.raises(ConfigError, match=r"links.lift_length: -3.5 m: must be > 0 m; joints\[lift\]") as refused:
-        load_crane(bad)
-    assert "and 2 more (hydro-ros machine check" in str(refused.value) and "\n" not in str(refused.value)
+    return path
 
 
 def test_a_crane_friction_ramp_that_is_not_a_pair_is_refused_naming_its_key(tmp_path) -> None:
