@@ -17,6 +17,7 @@ from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from hydro_ros.hmi.state import HEALTHY_MESSAGES
 from hydro_ros.nodes.common import LATCHED_QOS
 from hydro_ros.planning.catalog import build, plan_units
 from hydro_ros.planning.database import TrajectoryDatabase
@@ -50,7 +51,7 @@ def _armed(node, diags: list[DiagnosticArray], timeout: float) -> None:
 
 
 def _leak_named_on_its_cylinder_only(node, diags: list[DiagnosticArray], actuator: str, fault: str, timeout: float):
-    """Set the leak through plant_sim's parameter; its cylinder turns WARN with the fault's name, the others stay ok.
+    """Set the leak through plant_sim's parameter; its cylinder turns WARN with the fault's name, the others name no fault.
     Returns the parameter client and the cylinder's last status."""
     client = AsyncParameterClient(node, "plant_sim")
     assert client.wait_for_services(10.0)
@@ -62,7 +63,8 @@ def _leak_named_on_its_cylinder_only(node, diags: list[DiagnosticArray], actuato
     assert status.level == bytes([1])  # WARN: a leak is a minor fault
     for other in CYLINDERS:
         if other != actuator:
-            assert {s.message for s in _statuses(diags, other)} <= {"ok", "stale", "not_monitored"}, other
+            # no fault named on it; "overloaded" (the node behind its input under a full test run's load) names none
+            assert {s.message for s in _statuses(diags, other)} <= set(HEALTHY_MESSAGES), other
     return client, status
 
 

@@ -123,8 +123,9 @@ def test_record_of_a_live_plant_is_a_split_contract_bag_the_monitor_reads(ros_do
 def test_record_in_a_namespace_takes_the_sample_blocks_and_the_bag_reads_whole(ros_domain, tmp_path):
     """A machine in namespace /machine1 whose simulator sends sample blocks and only /joint_states per sample (the crane's
     bring-up), started after the recorder: hydro-ros bag record with --ros-args -r __ns:=/machine1 records the blocks once they
-    appear, and the bag reads as every column."""
+    appear; a SIGTERM ends the recording (no --duration) with the open part closed, and the bag reads as every column."""
     import json
+    import signal
     import subprocess
     import sys
 
@@ -133,12 +134,14 @@ def test_record_in_a_namespace_takes_the_sample_blocks_and_the_bag_reads_whole(r
     bag = tmp_path / "recorded"
     # the recorder first, the machine after it (a recorder started before the bring-up must still take the blocks)
     recorder = subprocess.Popen([sys.executable, "-m", "hydro_ros.cli", "bag", "record", "--config", str(SAM_CONFIG), "--out", str(bag),
-                                 "--duration", "12", "--quiet", "--ros-args", "-r", "__ns:=/machine1"],
+                                 "--quiet", "--ros-args", "-r", "__ns:=/machine1"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(6.0)  # past the recorder's start and its first look at the graph
     with node_process("hydro_ros.nodes.plant_sim", "-p", f"config:={SAM_CONFIG}", "-p", "real_time_factor:=1.0", "-p", "seed:=2",
                       "-p", "sample_blocks:=true", "-p", "sensor_topics:=joint_states", "-r", "__ns:=/machine1"):
-        out, err = recorder.communicate(timeout=120)
+        time.sleep(6.0)
+        recorder.send_signal(signal.SIGTERM)
+        out, err = recorder.communicate(timeout=60)
     assert recorder.returncode == 0, err
     summary = json.loads(out)
     assert summary["topics"][topics.SAMPLE_BLOCK] > 10 and summary["topics"][topics.pressure_a("boom")] == 0

@@ -6,12 +6,14 @@ import importlib
 import math
 import signal
 import sys
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -158,41 +160,46 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None
 
     Every node handles the two signals itself: rclpy's own handlers shut the context down first, after which a timer
     still due publishes into an invalid context (a traceback) and nothing can be sent (a valve's neutral command). Here
-    the signal ends the spin, and the node is destroyed while its publishers still work.
+    the signal ends the spin (see `stop_signals`), and the node is destroyed while its publishers still work.
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGTERM, _interrupt)
-    signal.signal(signal.SIGINT, _interrupt)
     node = None
-    try:
+    with stop_signals() as stop:
         try:
-            node = factory()
-        except InputError as exc:  # bad parameter or config (ConfigError is one): one line, no traceback
-            print(f"{getattr(factory, '__name__', 'node')}: error: {exc}", file=sys.stderr)
-            raise SystemExit(2) from None
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        if not _stop_requested:
-            raise
-        # the signal's KeyboardInterrupt raised inside a binding's argument conversion arrives as another error
+            try:
+                node = factory()
+            except InputError as exc:  # bad parameter or config (ConfigError is one): one line, no traceback
+                print(f"{getattr(factory, '__name__', 'node')}: error: {exc}", file=sys.stderr)
+                raise SystemExit(2) from None
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            while not stop.is_set() and rclpy.ok():
+                executor.spin_once(timeout_sec=SPIN_PERIOD_S)
+        except ExternalShutdownException:
+            pass
+        finally:
+            if node is not None:
+                node.destroy_node()
+            if rclpy.ok():
+                rclpy.shutdown()
+
+
+SPIN_PERIOD_S = 0.1  # the longest a stop request waits for an idle executor's wait set to return
+
+
+@contextmanager
+def stop_signals() -> Iterator[threading.Event]:
+    """SIGINT and SIGTERM set the event yielded, for a spin loop to look at between callbacks; the handlers before come
+    back on exit. The handler raises nothing: an exception raised wherever a signal happens to land (inside rclpy's Task
+    constructor, in a binding's argument conversion, halfway through a bag write) left half-built objects whose
+    finalisers printed tracebacks at exit; a second signal cannot cut a node's last words short either."""
+    stop = threading.Event()
+    previous = {number: signal.signal(number, lambda *_: stop.set()) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stop
     finally:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second signal does not cut the node's last words short
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-
-
-_stop_requested = False
-
-
-def _interrupt(signum: int, frame: Any) -> None:
-    global _stop_requested
-    _stop_requested = True
-    raise KeyboardInterrupt
+        for number, handler in previous.items():
+            signal.signal(number, handler)
 
 
 def destroy_entities(node: Any, entities: list[Any]) -> None:

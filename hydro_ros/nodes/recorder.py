@@ -11,7 +11,6 @@ Stopping with Ctrl-C or SIGTERM closes the open part and writes metadata.yaml.
 from __future__ import annotations
 
 import math
-import signal
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,13 +19,14 @@ from typing import Any
 import rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
 from hydro_ros.bags.cdr import CdrError, header_stamp_ns
 from hydro_ros.bags.writer import BagWriter
 from hydro_ros.contract import topics
 from hydro_ros.contract.machine import Machine
-from hydro_ros.nodes.common import SENSOR_QOS, message_class, relative
+from hydro_ros.nodes.common import SENSOR_QOS, message_class, relative, stop_signals
 
 DISCOVERY_S = 2.0  # wait for publishers before subscribing, so their QoS is known
 BLOCK_LOOK_S = 1.0  # [s] how often the graph is asked for publishers that came late (sample blocks, slow discovery)
@@ -90,10 +90,6 @@ class Recorder(Node):
         self.counts[topic] += 1
 
 
-def _interrupt(*_: Any) -> None:
-    raise KeyboardInterrupt  # SIGTERM ends a recording as Ctrl-C does: the open part is closed
-
-
 def record(machine: Machine, out: Path, *, duration_s: float | None, split_duration_s: float | None,
            split_size_bytes: int | None, outputs: bool, progress: Any = None, ros_args: Sequence[str] = ()) -> dict[str, Any]:
     """Record until ``duration_s`` of wall time has passed (None: until Ctrl-C / SIGTERM). ``ros_args``: what followed
@@ -102,23 +98,23 @@ def record(machine: Machine, out: Path, *, duration_s: float | None, split_durat
     wanted = topics.sensor_topics(machine.actuator_names, mobile=machine.mobile)
     if outputs:
         wanted.update({topics.DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray"})
-    previous = signal.signal(signal.SIGTERM, _interrupt)
-    rclpy.init(args=["hydro-ros", *ros_args])
+    rclpy.init(args=["hydro-ros", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
     began = time.monotonic()
     try:
-        with BagWriter(out, split_size_bytes=split_size_bytes) as writer:
+        with stop_signals() as stop, BagWriter(out, split_size_bytes=split_size_bytes) as writer:
+            # SIGTERM ends a recording as Ctrl-C does: the loop ends, the open part is closed
             writer.custom_data["hydro_ros.recorded"] = f"{machine.name} ({machine.source})"
             node = Recorder(writer, wanted)
             try:
                 end = began + DISCOVERY_S
-                while time.monotonic() < end:
+                while time.monotonic() < end and not stop.is_set():
                     rclpy.spin_once(node, timeout_sec=0.1)
                 node.subscribe_all()
                 started = time.monotonic()
-                stop = math.inf if duration_s is None else started + duration_s
+                stop_at = math.inf if duration_s is None else started + duration_s
                 next_split = math.inf if split_duration_s is None else started + split_duration_s
                 next_look = started
-                while rclpy.ok() and time.monotonic() < stop:
+                while rclpy.ok() and not stop.is_set() and time.monotonic() < stop_at:
                     rclpy.spin_once(node, timeout_sec=0.1)
                     if time.monotonic() >= next_look:  # a publisher discovered late, or started after the recorder, is recorded
                         node.take_sample_blocks()
@@ -129,8 +125,6 @@ def record(machine: Machine, out: Path, *, duration_s: float | None, split_durat
                         next_split += split_duration_s
                     if progress is not None:
                         progress(writer.messages)
-            except KeyboardInterrupt:
-                pass
             finally:
                 node.subscribe_all(unseen_too=True)  # every wanted topic is listed in the bag, with 0 messages if none came
                 counts = dict(node.counts)
@@ -138,6 +132,5 @@ def record(machine: Machine, out: Path, *, duration_s: float | None, split_durat
     finally:
         if rclpy.ok():
             rclpy.shutdown()
-        signal.signal(signal.SIGTERM, previous)
     return {"bag": str(out), "files": writer.files, "messages": writer.messages, "topics": counts,
             "seconds": round(time.monotonic() - began, 3)}
