@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import rclpy
@@ -23,44 +24,49 @@ from hydro_ros.bags.reader import bag_topics, mcap_files
 from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
 from hydro_ros.nodes.common import CLOCK_QOS, SENSOR_QOS, message_class, relative, run_node
-from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.nodes.parameters import declare, parameter, specs_of
 
-PARAMETERS = {
-    "bag": Spec("", "bag directory (or one .mcap file) to play; a split bag is played whole"),
-    "rate": Spec(1.0, "[-] playback speed, bag seconds per wall second", 0.01, 100.0),
-    "loop": Spec(False, "start again at the end"),
-    "publish_clock": Spec(False, "publish /clock with each message's log time, for use_sim_time nodes (off by default, as in "
-                                 "ros2 bag play without --clock)"),
-    "tick_period": Spec(0.005, "[s] wall time between publishing the messages due", 0.0005, 1.0),
-    # like `ros2 bag play --delay`: give subscribers time to match before the first message
-    "start_delay": Spec(1.0, "[s] wait before the first message", 0.0, 60.0),
-}
+
+@dataclass
+class BagPlayerParameters:
+    """bag_player's parameters, each declared once with its unit, range and description."""
+
+    bag: str = parameter("", "bag directory (or one .mcap file) to play; a split bag is played whole")
+    rate: float = parameter(1.0, "[-] playback speed, bag seconds per wall second", 0.01, 100.0)
+    loop: bool = parameter(False, "start again at the end")
+    publish_clock: bool = parameter(False, "publish /clock with each message's log time, for use_sim_time nodes (off by default, as in "
+                                           "ros2 bag play without --clock)")
+    tick_period: float = parameter(0.005, "[s] wall time between publishing the messages due", 0.0005, 1.0)
+    start_delay: float = parameter(1.0, "[s] wait before the first message", 0.0, 60.0)
+
+
+PARAMETERS = specs_of(BagPlayerParameters)
 
 
 class BagPlayer(Node):
     def __init__(self, bag: str | None = None, rate: float | None = None, loop: bool | None = None, clock: bool | None = None) -> None:
         super().__init__("bag_player")
         given = {"bag": bag, "rate": None if rate is None else float(rate), "loop": loop, "publish_clock": clock}
-        self.params = Parameters(self, PARAMETERS, defaults={name: value for name, value in given.items() if value is not None})
-        if not self.params["bag"]:
+        self.params = declare(self, BagPlayerParameters, defaults={name: value for name, value in given.items() if value is not None})
+        if not self.params.bag:
             raise InputError("parameter bag: required (a bag directory or .mcap file)")
-        self.path = Path(self.params["bag"])
-        self.rate = self.params["rate"]
-        self.loop = self.params["loop"]
+        self.path = Path(self.params.bag)
+        self.rate = self.params.rate
+        self.loop = self.params.loop
         self.errors: list[str] = []
         self.files = mcap_files(self.path, self.errors)
         for error in self.errors:
             self.get_logger().error(error)
         self.publishers_by_topic: dict[str, object] = {}
         self.skipped_topics: list[str] = []
-        self.clock_pub = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.params["publish_clock"] else None
+        self.clock_pub = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.params.publish_clock else None
         self.finished = False
         self.published = 0
         self.publish_errors = 0  # messages rmw would not send (a transient DDS failure): counted, said once, the rest played
         self._advertise()
-        self._delay = self.params["start_delay"]
+        self._delay = self.params.start_delay
         self._restart()
-        self.create_timer(self.params["tick_period"], self._tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.create_timer(self.params.tick_period, self._tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _messages(self) -> Iterator[tuple[str, str, int, bytes]]:
         for file in self.files:

@@ -36,6 +36,7 @@ from __future__ import annotations
 import collections
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import can
@@ -55,8 +56,9 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.nodes.common import (
     MACHINE_ID,
-    SAMPLE_OUTPUT_PARAMETERS,
+    SAMPLE_BLOCKS,
     SENSOR_QOS,
+    SENSOR_TOPICS,
     VALVE_COMMAND_TIMEOUT,
     checked_valve_commands,
     destroy_entities,
@@ -66,7 +68,7 @@ from hydro_ros.nodes.common import (
     relative,
     run_node,
 )
-from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.nodes.parameters import declare, declared, parameter, specs_of
 from hydro_ros.safety.motion import ValveDeadman
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
@@ -137,27 +139,33 @@ class BusReader(threading.Thread):
 
 
 AT_CONFIGURE = " (read at configure: set it, then cleanup and configure)"
-PARAMETERS = {
-    "machine_id": MACHINE_ID,
-    "config": Spec(str(default_config_path("sam")), "machine config (YAML) whose sensors are on the bus" + AT_CONFIGURE, existing_file=True,
-                   read_only=False),
-    "dbc": Spec("", "DBC file of the bus; empty: the config's can.dbc" + AT_CONFIGURE, existing_file=True, read_only=False),
-    "interface": Spec("socketcan", "python-can interface (socketcan, pcan, kvaser, virtual, udp_multicast, ...)" + AT_CONFIGURE,
-                      read_only=False),
-    "channel": Spec("can0", "channel of the interface" + AT_CONFIGURE, read_only=False),
-    "bitrate": Spec(500000, "[bit/s] bus bit rate (not used by virtual and udp_multicast)" + AT_CONFIGURE, 10000, 1000000, read_only=False),
-    "hardware_filters": Spec(True, "let the interface pass only the DBC's sensor frames" + AT_CONFIGURE, read_only=False),
-    "forward_commands": Spec(False, "while active, send /hydraulics/valve_commands as valve request frames (this drives "
-                                    "the machine); deactivating sends neutral requests" + AT_CONFIGURE, read_only=False),
-    "command_timeout": VALVE_COMMAND_TIMEOUT,
-    **SAMPLE_OUTPUT_PARAMETERS,
-    "autostart": Spec(True, "configure and activate at start, and retry configure (reconnect_backoff) while the bus cannot be "
-                            "opened; false: wait for a lifecycle manager"),
-    "process_period": Spec(0.01, "[s] period of decoding the received frames", 0.001, 1.0),
-    "diagnostics_period": Spec(1.0, "[s] period of /diagnostics", 0.05, 60.0),
-    "stale_cycles": Spec(50, "[cycles] a message missing this many DBC cycles is STALE", 1, 100000),
-    "reconnect_backoff": Spec([0.5, 10.0], "[s] first and longest wait before reopening a lost bus (doubling in between)"),
-}
+@dataclass
+class CanBridgeParameters:
+    """can_bridge's parameters, each declared once with its unit, range and description."""
+
+    machine_id: str = declared(MACHINE_ID)
+    config: str = parameter(str(default_config_path("sam")), "machine config (YAML) whose sensors are on the bus" + AT_CONFIGURE, existing_file=True,
+                            read_only=False)
+    dbc: str = parameter("", "DBC file of the bus; empty: the config's can.dbc" + AT_CONFIGURE, existing_file=True, read_only=False)
+    interface: str = parameter("socketcan", "python-can interface (socketcan, pcan, kvaser, virtual, udp_multicast, ...)" + AT_CONFIGURE,
+                               read_only=False)
+    channel: str = parameter("can0", "channel of the interface" + AT_CONFIGURE, read_only=False)
+    bitrate: int = parameter(500000, "[bit/s] bus bit rate (not used by virtual and udp_multicast)" + AT_CONFIGURE, 10000, 1000000, read_only=False)
+    hardware_filters: bool = parameter(True, "let the interface pass only the DBC's sensor frames" + AT_CONFIGURE, read_only=False)
+    forward_commands: bool = parameter(False, "while active, send /hydraulics/valve_commands as valve request frames (this drives "
+                                              "the machine); deactivating sends neutral requests" + AT_CONFIGURE, read_only=False)
+    command_timeout: float = declared(VALVE_COMMAND_TIMEOUT)
+    sensor_topics: str = declared(SENSOR_TOPICS)
+    sample_blocks: bool = declared(SAMPLE_BLOCKS)
+    autostart: bool = parameter(True, "configure and activate at start, and retry configure (reconnect_backoff) while the bus cannot be "
+                                      "opened; false: wait for a lifecycle manager")
+    process_period: float = parameter(0.01, "[s] period of decoding the received frames", 0.001, 1.0)
+    diagnostics_period: float = parameter(1.0, "[s] period of /diagnostics", 0.05, 60.0)
+    stale_cycles: int = parameter(50, "[cycles] a message missing this many DBC cycles is STALE", 1, 100000)
+    reconnect_backoff: list[float] = parameter([0.5, 10.0], "[s] first and longest wait before reopening a lost bus (doubling in between)")
+
+
+PARAMETERS = specs_of(CanBridgeParameters)
 
 
 class CanBridge(LifecycleNode):
@@ -166,13 +174,13 @@ class CanBridge(LifecycleNode):
 
     def __init__(self) -> None:
         super().__init__("can_bridge")
-        self.params = Parameters(self, PARAMETERS)
-        backoff = self.params["reconnect_backoff"]
+        self.params = declare(self, CanBridgeParameters)
+        backoff = self.params.reconnect_backoff
         if not 0 < backoff[0] <= backoff[1]:
             raise InputError(f"parameter reconnect_backoff={backoff}: expected [first, longest] with 0 < first <= longest")
-        self.machine = machine_instance(self, load_machine_config(self.params["config"]).name)
+        self.machine = machine_instance(self, load_machine_config(self.params.config).name)
         self.forward = False
-        self.bus_name = f"{self.params['interface']}:{self.params['channel']}"
+        self.bus_name = f"{self.params.interface}:{self.params.channel}"
         # /diagnostics in every state: a bus that cannot be opened is reported while the node waits unconfigured
         self.pub_diag = self.create_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
         self.configure_error = ""
@@ -182,15 +190,15 @@ class CanBridge(LifecycleNode):
         self.reader: BusReader | None = None
         self._entities: list[Any] = []  # publishers, timers and the subscription of the configured state
         self._request_counter = 0
-        self.command_timeout = self.params["command_timeout"]
+        self.command_timeout = self.params.command_timeout
         self.deadman: ValveDeadman | None = None  # the forwarded valves' last commands (or neutral requests), from activation
         self.refused_commands = 0
         self.deadman_neutrals = 0
         self._autostarting = False
         # the bus status in every lifecycle state, as diagnostic_updater's periodic Updater publishes: unconfigured with
         # the last configure error, inactive, active (every message's rate and health), finalized
-        self.create_timer(self.params["diagnostics_period"], self._diagnose, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        if self.params["autostart"]:
+        self.create_timer(self.params.diagnostics_period, self._diagnose, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        if self.params.autostart:
             self._autostart(backoff[0])
 
     def _autostart(self, delay: float) -> None:
@@ -205,8 +213,8 @@ class CanBridge(LifecycleNode):
             self.trigger_activate()
             return
         self._diagnose()
-        retry_in = min(delay, self.params["reconnect_backoff"][1])
-        self._retry = self.create_timer(retry_in, lambda: self._autostart(min(2.0 * retry_in, self.params["reconnect_backoff"][1])),
+        retry_in = min(delay, self.params.reconnect_backoff[1])
+        self._retry = self.create_timer(retry_in, lambda: self._autostart(min(2.0 * retry_in, self.params.reconnect_backoff[1])),
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _state_status(self) -> DiagnosticStatus:
@@ -227,19 +235,19 @@ class CanBridge(LifecycleNode):
         """Read the hardware parameters, load the machine's bus map and open the bus; FAILURE (with the reason logged and
         on /diagnostics) when any of that fails, as ros2_socketcan does, so a lifecycle manager sees it."""
         self.configure_attempts += 1
-        interface = self.params["interface"]
-        self.bus_name = f"{interface}:{self.params['channel']}"
+        interface = self.params.interface
+        self.bus_name = f"{interface}:{self.params.channel}"
         try:
-            machine = load_machine_config(self.params["config"])
-            self.codec = MachineBus(machine, self.params["dbc"] or None)
-            self.forward = self.params["forward_commands"]
+            machine = load_machine_config(self.params.config)
+            self.codec = MachineBus(machine, self.params.dbc or None)
+            self.forward = self.params.forward_commands
             if self.forward and self.codec.requests_missing():
                 raise InputError(f"parameter forward_commands=true: the bus map names no valve_request for "
                                  f"{', '.join(self.codec.requests_missing())} (can.map.actuators.<name>.valve_request)")
-            kwargs: dict[str, Any] = {"interface": interface, "channel": self.params["channel"]}
+            kwargs: dict[str, Any] = {"interface": interface, "channel": self.params.channel}
             if interface not in ("virtual", "udp_multicast"):
-                kwargs["bitrate"] = self.params["bitrate"]
-            if self.params["hardware_filters"]:
+                kwargs["bitrate"] = self.params.bitrate
+            if self.params.hardware_filters:
                 kwargs["can_filters"] = [{"can_id": frame_id, "can_mask": 0x1FFFFFFF if m.is_extended_frame else 0x7FF,
                                           "extended": bool(m.is_extended_frame)}
                                          for frame_id, m in self.codec.by_id.items() if m.name in self.codec.expected]
@@ -251,7 +259,7 @@ class CanBridge(LifecycleNode):
             return TransitionCallbackReturn.FAILURE
         self.machine = machine_instance(self, machine.name)
         self.configure_error = ""
-        backoff = self.params["reconnect_backoff"]
+        backoff = self.params.reconnect_backoff
         extended = frozenset(frame_id for frame_id, message in self.codec.by_id.items() if message.is_extended_frame)
         self.reader = BusReader(lambda: can.Bus(**kwargs), (backoff[0], backoff[1]), extended, bus=opened)
 
@@ -260,10 +268,10 @@ class CanBridge(LifecycleNode):
         self.pubs = {name: self.create_lifecycle_publisher(JointState if kind == topics.JOINT_STATE_TYPE else FluidPressure,
                                                            relative(name), SENSOR_QOS)
                      for name, kind in types.items()
-                     if publishes_sensor_topic(self.params["sensor_topics"], name) and not (self.forward and name == topics.VALVE_COMMANDS)}
+                     if publishes_sensor_topic(self.params.sensor_topics, name) and not (self.forward and name == topics.VALVE_COMMANDS)}
         self.layout = SampleLayout([slot.actuator for slot in self.codec.slots], [slot.joint for slot in self.codec.slots], mobile=mobile)
         self.pub_block = (self.create_lifecycle_publisher(PointCloud2, relative(topics.SAMPLE_BLOCK), SENSOR_QOS)
-                          if self.params["sample_blocks"] else None)
+                          if self.params.sample_blocks else None)
         self._entities = [*self.pubs.values()] + ([self.pub_block] if self.pub_block else [])
         if self.forward:
             self._entities.append(self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._forward, SENSOR_QOS))
@@ -274,10 +282,10 @@ class CanBridge(LifecycleNode):
         self._window_counts: collections.Counter = collections.Counter()
         self._rates: dict[str, float] = {}
         self.published_cycles = 0
-        self.stale_cycles = self.params["stale_cycles"]
+        self.stale_cycles = self.params.stale_cycles
         self.started = time.monotonic()
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._entities.append(self.create_timer(self.params["process_period"], self._process, clock=steady))
+        self._entities.append(self.create_timer(self.params.process_period, self._process, clock=steady))
         self.reader.start()
         self.get_logger().info(f"bus {self.bus_name} open ({self.codec.dbc_path.name}) for {self.machine}; "
                                f"forward_commands={self.forward}")

@@ -46,12 +46,10 @@ HALT_QOS = QoSProfile(
 
 # the two nodes that put sensor samples on the graph (plant_sim, can_bridge) offer the same outputs: a crane at 1 kHz is
 # ~19 000 per-sample messages a second, more than rclpy carries, so its monitor takes sample blocks instead
-SAMPLE_OUTPUT_PARAMETERS = {
-    "sensor_topics": Spec("all", "which of the contract's per-sample sensor topics to publish: all, only /joint_states (what a "
-                                 "trajectory server and an HMI read, when the monitor takes sample blocks), none",
-                          choices=("all", "joint_states", "none")),
-    "sample_blocks": Spec(False, f"also publish every tick's samples as one message on {topics.SAMPLE_BLOCK} (fdi_node input:=sample_block)"),
-}
+SENSOR_TOPICS = Spec("all", "which of the contract's per-sample sensor topics to publish: all, only /joint_states (what a "
+                            "trajectory server and an HMI read, when the monitor takes sample blocks), none",
+                     choices=("all", "joint_states", "none"))
+SAMPLE_BLOCKS = Spec(False, f"also publish every tick's samples as one message on {topics.SAMPLE_BLOCK} (fdi_node input:=sample_block)")
 
 
 # every consumer of /hydraulics/valve_commands (can_bridge forwarding, plant_sim, crane_sim) goes neutral when its
@@ -67,7 +65,7 @@ MACHINE_ID = Spec("", "this machine instance's hardware_id on /diagnostics; empt
 
 def machine_instance(node: Node, machine_name: str) -> str:
     """The hardware_id of ``node``'s statuses: its ``machine_id`` parameter, else its namespace, else the machine's name."""
-    return node.params["machine_id"] or node.get_namespace().strip("/") or machine_name
+    return node.params.machine_id or node.get_namespace().strip("/") or machine_name
 
 
 def checked_valve_commands(names: list[str], positions: list[float], actuators: list[str]) -> tuple[dict[str, float], dict[str, str]]:

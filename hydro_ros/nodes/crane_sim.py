@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -36,7 +37,7 @@ from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import load_crane
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, VALVE_COMMAND_TIMEOUT, checked_valve_commands, relative, run_node
-from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.nodes.parameters import declare, declared, parameter, specs_of
 from hydro_ros.planning.controller import CylinderReference
 from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import JointTrajectoryData
@@ -46,22 +47,27 @@ from hydro_ros.studies.execution import ClosedLoop, execution_from_rows, log_row
 MAX_CATCH_UP_S = 0.25
 
 
-PARAMETERS = {
-    "config": Spec(str(default_config_path("k70m")), "machine config with a planner: section (YAML)", existing_file=True),
-    "real_time_factor": Spec(1.0, "[-] simulated seconds per wall second", 0.01, 100.0),
-    "tick_period": Spec(0.01, "[s] wall time between simulation steps", 0.001, 1.0),
-    "seed": Spec(0, "seed of the sensor noise", 0),
-    "supply": Spec("cp", "pump: constant pressure or load sensing", choices=("cp", "ls")),
-    "initial_path": Spec("", "path id whose start the crane begins at; empty: the config's first path"),
-    "initial_extension": Spec(-1.0, "[m] telescope extension at the start; negative: the smallest feasible one", None, 10.0),
-    "trajectory_topic": Spec("joint_trajectory", "JointTrajectory input (trajectory_server's output_topic)"),
-    "start_tolerance": Spec(0.02, "[rad or m] a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
-                            read_only=False),
-    "publish_rate": Spec(50.0, "[Hz] rate of the sensor topics", 1.0, 1000.0),
-    "external_commands": Spec(False, "take the valve commands from /hydraulics/valve_commands (an outside controller, e.g. "
-                                     "trajectory_executor) instead of following trajectories itself"),
-    "command_timeout": VALVE_COMMAND_TIMEOUT,
-}
+@dataclass
+class CraneSimParameters:
+    """crane_sim's parameters, each declared once with its unit, range and description."""
+
+    config: str = parameter(str(default_config_path("k70m")), "machine config with a planner: section (YAML)", existing_file=True)
+    real_time_factor: float = parameter(1.0, "[-] simulated seconds per wall second", 0.01, 100.0)
+    tick_period: float = parameter(0.01, "[s] wall time between simulation steps", 0.001, 1.0)
+    seed: int = parameter(0, "seed of the sensor noise", 0)
+    supply: str = parameter("cp", "pump: constant pressure or load sensing", choices=("cp", "ls"))
+    initial_path: str = parameter("", "path id whose start the crane begins at; empty: the config's first path")
+    initial_extension: float = parameter(-1.0, "[m] telescope extension at the start; negative: the smallest feasible one", None, 10.0)
+    trajectory_topic: str = parameter("joint_trajectory", "JointTrajectory input (trajectory_server's output_topic)")
+    start_tolerance: float = parameter(0.02, "[rad or m] a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
+                                       read_only=False)
+    publish_rate: float = parameter(50.0, "[Hz] rate of the sensor topics", 1.0, 1000.0)
+    external_commands: bool = parameter(False, "take the valve commands from /hydraulics/valve_commands (an outside controller, e.g. "
+                                               "trajectory_executor) instead of following trajectories itself")
+    command_timeout: float = declared(VALVE_COMMAND_TIMEOUT)
+
+
+PARAMETERS = specs_of(CraneSimParameters)
 
 
 class CraneSim(Node):
@@ -69,27 +75,27 @@ class CraneSim(Node):
 
     def __init__(self) -> None:
         super().__init__("crane_sim")
-        self.params = Parameters(self, PARAMETERS, self._on_parameter)
-        real_time_factor = self.params["real_time_factor"]
-        seed = self.params["seed"]
-        self.crane, config = load_crane(self.params["config"])
+        self.params = declare(self, CraneSimParameters, self._on_parameter)
+        real_time_factor = self.params.real_time_factor
+        seed = self.params.seed
+        self.crane, config = load_crane(self.params.config)
         self.config = config
-        supply = self.params["supply"]
-        initial_path = self.params["initial_path"] or next(iter(config.paths))
-        trajectory_topic = self.params["trajectory_topic"]
-        self.start_tolerance = self.params["start_tolerance"]
-        publish_rate = self.params["publish_rate"]
+        supply = self.params.supply
+        initial_path = self.params.initial_path or next(iter(config.paths))
+        trajectory_topic = self.params.trajectory_topic
+        self.start_tolerance = self.params.start_tolerance
+        publish_rate = self.params.publish_rate
         if initial_path not in config.paths:
             raise InputError(f"parameter initial_path={initial_path!r}: not a path of {config.name} ({', '.join(config.paths)})")
         self.seed = seed
-        start = path_start_state(config, initial_path, self.params["initial_extension"])
+        start = path_start_state(config, initial_path, self.params.initial_extension)
         self.loop = ClosedLoop(config, supply, start, seed=seed)
         self.rtf = real_time_factor
         self.names = list(self.crane.names)
         # relative names: /joint_states etc. by default, /<ns>/joint_states for a machine in a namespace
         self.pub_joints = self.create_publisher(JointState, relative(topics.JOINT_STATES), SENSOR_QOS)
-        self.external = self.params["external_commands"]
-        self.deadman = ValveDeadman(self.names, self.params["command_timeout"])
+        self.external = self.params.external_commands
+        self.deadman = ValveDeadman(self.names, self.params.command_timeout)
         if self.external:  # the valve commands are the outside controller's topic, not this node's
             self.pub_commands = None
             self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._on_valve_commands, SENSOR_QOS)
@@ -110,7 +116,7 @@ class CraneSim(Node):
         self.end_time = math.inf
         self.start_wall = time.monotonic()
         self.stamp_origin_ns = self.get_clock().now().nanoseconds
-        self.create_timer(self.params["tick_period"], self._tick)
+        self.create_timer(self.params.tick_period, self._tick)
         self.get_logger().info(
             f"crane {config.name} ({supply.upper()} pump) at the start of {initial_path!r}, "
             f"extension {float(self.crane.extension.stroke(start[self.crane.redundant])):.3f} m; "

@@ -41,6 +41,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -73,7 +74,7 @@ from hydro_ros.nodes.common import (
     relative,
     run_node,
 )
-from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.nodes.parameters import declare, declared, parameter, specs_of
 from hydro_ros.safety.motion import HEARTBEAT_PERIOD_S
 from hydro_ros.safety.supervisor import ERROR, OK, STALE, WARN, ActuatorView, AlarmEvent, Halt, MonitorSupervisor
 from hydro_ros.safety.timing import SampleTiming
@@ -86,40 +87,45 @@ STEADY_WATCHDOG_S = 2.0  # [s] of wall time without a message: stale under use_s
 OVERLOAD_SHARE = 0.05  # more incomplete samples than this: the input outruns the node ("overloaded")
 
 
-PARAMETERS = {
-    "machine_id": MACHINE_ID,
-    "config": Spec(str(default_config_path("sam")), "machine config (YAML) whose actuators are monitored", existing_file=True),
-    "method": Spec("", "residual generator; empty: the config's fdi.method", choices=("", *GENERATORS)),
-    "input": Spec("topics", "where samples come from: the contract's per-sample sensor topics, or the sample blocks on "
-                            "/hydraulics/sample_block (every column, many samples a message: a crane at 1 kHz)",
-                  choices=("topics", "sample_block")),
-    "process_period": Spec(0.02, "[s] period of aligning and filtering the queued samples", 0.001, 1.0),
-    "diagnostics_period": Spec(1.0, "[s] period of /diagnostics", 0.05, 60.0),
-    "residual_rate": Spec(50.0, "[Hz] rate of /fdi/residuals", 0.1, 1000.0),
-    "sync_window": Spec(0.05, "[s] how long a sample waits for all its topics before it counts as incomplete", 0.001, 1.0),
-    "stale_timeout": Spec(0.5, "[s] a sensor topic may be silent before its actuators are STALE (of the data's clock under "
-                          "use_sim_time, with a 2 s wall-clock watchdog)", 0.01, 60.0,
-                          read_only=False),
-    "time_jump_threshold": Spec(1.0, "[s] a stamp this far from the time base is a jump (held off, then followed)", 0.01, 3600.0,
-                                read_only=False),
-    "alarm_log": Spec("", "SQLite file of the alarm log (every alarm raised, changed, cleared, acknowledged, reset); latched "
-                          "alarms in it come back after a restart; empty: no log"),
-    "reset_min_interval": Spec(5.0, "[s] at least this long between two accepted ~/reset calls (a reset cannot hide a present "
-                                    "fault: it stays shown until re-checked)", 1.0, 3600.0, read_only=False),
-}
+@dataclass
+class FdiNodeParameters:
+    """fdi_node's parameters, each declared once with its unit, range and description."""
+
+    machine_id: str = declared(MACHINE_ID)
+    config: str = parameter(str(default_config_path("sam")), "machine config (YAML) whose actuators are monitored", existing_file=True)
+    method: str = parameter("", "residual generator; empty: the config's fdi.method", choices=("", *GENERATORS))
+    input: str = parameter("topics", "where samples come from: the contract's per-sample sensor topics, or the sample blocks on "
+                                     "/hydraulics/sample_block (every column, many samples a message: a crane at 1 kHz)",
+                           choices=("topics", "sample_block"))
+    process_period: float = parameter(0.02, "[s] period of aligning and filtering the queued samples", 0.001, 1.0)
+    diagnostics_period: float = parameter(1.0, "[s] period of /diagnostics", 0.05, 60.0)
+    residual_rate: float = parameter(50.0, "[Hz] rate of /fdi/residuals", 0.1, 1000.0)
+    sync_window: float = parameter(0.05, "[s] how long a sample waits for all its topics before it counts as incomplete", 0.001, 1.0)
+    stale_timeout: float = parameter(0.5, "[s] a sensor topic may be silent before its actuators are STALE (of the data's clock under "
+                                     "use_sim_time, with a 2 s wall-clock watchdog)", 0.01, 60.0,
+                                     read_only=False)
+    time_jump_threshold: float = parameter(1.0, "[s] a stamp this far from the time base is a jump (held off, then followed)", 0.01, 3600.0,
+                                           read_only=False)
+    alarm_log: str = parameter("", "SQLite file of the alarm log (every alarm raised, changed, cleared, acknowledged, reset); latched "
+                                   "alarms in it come back after a restart; empty: no log")
+    reset_min_interval: float = parameter(5.0, "[s] at least this long between two accepted ~/reset calls (a reset cannot hide a present "
+                                               "fault: it stays shown until re-checked)", 1.0, 3600.0, read_only=False)
+
+
+PARAMETERS = specs_of(FdiNodeParameters)
 
 
 class FdiNode(Node):
     def __init__(self) -> None:
         super().__init__("fdi_node")
-        self.params = Parameters(self, PARAMETERS, self._on_parameter)
-        self.machine_config = load_machine_config(self.params["config"])
-        self.monitor = FdiMonitor(self.machine_config, self.params["method"] or None)
+        self.params = declare(self, FdiNodeParameters, self._on_parameter)
+        self.machine_config = load_machine_config(self.params.config)
+        self.monitor = FdiMonitor(self.machine_config, self.params.method or None)
         if self.monitor.method == "ukf" and unset_threshold(self.machine_config):
             self.get_logger().warning(unset_threshold(self.machine_config))
         self.machine = machine_instance(self, self.machine_config.name)
-        self.stale_timeout = self.params["stale_timeout"]
-        self.alarm_log = AlarmLog(self.params["alarm_log"], self.machine) if self.params["alarm_log"] else None
+        self.stale_timeout = self.params.stale_timeout
+        self.alarm_log = AlarmLog(self.params.alarm_log, self.machine) if self.params.alarm_log else None
         if self.alarm_log is not None and self.alarm_log.error:
             self.get_logger().warning(f"alarm log: {self.alarm_log.error}; events are kept in memory and written once it opens")
         for aside in self.alarm_log.moved_aside if self.alarm_log else []:
@@ -127,15 +133,15 @@ class FdiNode(Node):
         restored = {a.actuator: (a.level, a.fault) for a in (self.alarm_log.latched() if self.alarm_log else [])}
         # the safety core: vouching, latched and held alarms, the halt decision (hydro_ros.safety.supervisor)
         self.supervisor = MonitorSupervisor(self.monitor.actuators, self.monitor.startup + self.monitor.window,
-                                            self.params["reset_min_interval"], restored)
+                                            self.params.reset_min_interval, restored)
         for actuator, held in self.supervisor.held.items():
             self.get_logger().warning(f"{actuator}: {held.fault} latched before the restart (alarm log), until a reset")
         self._simulated_check: bool | None = None  # the self-test's simulated healthy machine, evaluated once
         actuators = self.monitor.actuators
         self.mobile = self.monitor.generator.needs_mobile_pressures
         self.layout = SampleLayout(actuators, self.monitor.joints, mobile=self.mobile)
-        self.aligner = ContractAligner(self.layout, sync_window_ns=int(self.params["sync_window"] * 1e9), max_pending_ns=MAX_PENDING_NS,
-                                       jump_ns=int(self.params["time_jump_threshold"] * 1e9))
+        self.aligner = ContractAligner(self.layout, sync_window_ns=int(self.params.sync_window * 1e9), max_pending_ns=MAX_PENDING_NS,
+                                       jump_ns=int(self.params.time_jump_threshold * 1e9))
         self._hold_until = -math.inf  # monotonic time until which detection holds (overload)
         rate = self.machine_config.sample_rate_hz
         self.timing = SampleTiming(1.0 / rate, int(self.monitor.settings.window_s * rate))
@@ -148,7 +154,7 @@ class FdiNode(Node):
         self.last_stamp: dict[str, int] = {}  # [ns] the header stamp of each topic's last message
         self.sim_time = bool(self.get_parameter("use_sim_time").value)
         self.first_arrival: dict[str, float] = {}
-        self.blocks = self.params["input"] == "sample_block"
+        self.blocks = self.params.input == "sample_block"
         if self.blocks:
             self._subscribe_raw(PointCloud2, topics.SAMPLE_BLOCK, self.aligner.put_block)
         else:
@@ -167,10 +173,10 @@ class FdiNode(Node):
         self.samples = 0
         self.halt: Halt | None = None
         self._levels: list[tuple[int, str]] = []
-        self._residual_interval_ns = int(1e9 / self.params["residual_rate"])
+        self._residual_interval_ns = int(1e9 / self.params.residual_rate)
         self._last_residual_ns = -(1 << 62)
-        self.create_timer(self.params["process_period"], self._process, clock=self.steady)
-        self.create_timer(self.params["diagnostics_period"], self._on_diagnostics_tick, clock=self.steady)
+        self.create_timer(self.params.process_period, self._process, clock=self.steady)
+        self.create_timer(self.params.diagnostics_period, self._on_diagnostics_tick, clock=self.steady)
         self.create_timer(HEARTBEAT_PERIOD_S, self._publish_halt, clock=self.steady)
         self._publish_halt()  # a late subscriber of the latch reads the truth from the start: not vouched yet
         self.get_logger().info(f"monitoring {', '.join(actuators)} of {self.machine} with the {self.monitor.method} method")

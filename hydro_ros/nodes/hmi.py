@@ -20,6 +20,7 @@ import logging
 import os
 import sys
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -50,7 +51,7 @@ from hydro_ros.nodes.common import (
     without_node_name,
 )
 from hydro_ros.nodes.foxglove_live import FoxgloveLive
-from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.nodes.parameters import declare, declared, parameter, specs_of
 
 TOKEN_ENV = "HYDRO_ROS_HMI_TOKEN"
 
@@ -86,35 +87,40 @@ class WebServerThread:
         self.loop.close()
 
 
-PARAMETERS = {
-    "machine_id": MACHINE_ID,
-    "config": Spec(str(default_config_path("sam")), "machine config (YAML): its actuators get tiles before their first status",
-                   existing_file=True),
-    "host": Spec("127.0.0.1", "address the page listens on; beyond loopback only with a token on a trusted network"),
-    "port": Spec(8080, "TCP port of the page (0: any free port)", 0, 65535),
-    "operator_token": Spec("", "token for operator actions; prefer HYDRO_ROS_HMI_TOKEN in the environment, since anyone on "
-                               "the graph can read a parameter; empty and no variable: the page is read-only"),
-    "update_rate": Spec(5.0, "[Hz] page state pushes", 0.1, 50.0),
-    "plot_window": Spec(60.0, "[s] residual history on the page", 1.0, 3600.0),
-    "plot_rate": Spec(10.0, "[Hz] residual points kept per second", 0.1, 100.0),
-    "stale_timeout": Spec(3.0, "[s] an actuator without a status this long shows STALE", 0.1, 600.0),
-    "action_timeout": Spec(5.0, "[s] wait for fdi_node to answer an acknowledge", 0.1, 60.0),
-    "alarm_log": Spec("", "fdi_node's alarm log (its parameter alarm_log), shown paged on the page; empty: none"),
-    "allowed_hosts": Spec("", "comma-separated host names the page may be reached by besides loopback and host (the Host "
-                              "header is checked against DNS rebinding); e.g. the machine's name on the plant network"),
-    "foxglove_port": Spec(8765, "TCP port of the read-only Foxglove WebSocket server (0: any free port, -1: no server; "
-                                "needs the optional foxglove-sdk)", -1, 65535),
-    "foxglove_host": Spec("127.0.0.1", "address the Foxglove server listens on"),
-    "foxglove_origins": Spec("", "comma-separated Origin values a browser may connect to the Foxglove server from (e.g. "
-                                 "https://app.foxglove.dev); clients without an Origin (the desktop app) and loopback origins "
-                                 "are always admitted, any other origin refused (a hostile page in the operator's browser)"),
-    "foxglove_rate": Spec(10.0, "[Hz] rate the 1 kHz sensor topics are sampled at for Foxglove", 0.1, 100.0),
-    "foxglove_tls_cert": Spec("", "PEM certificate for TLS on the Foxglove server (with foxglove_tls_key); empty: plain",
-                              existing_file=True),
-    "foxglove_tls_key": Spec("", "PEM private key of foxglove_tls_cert", existing_file=True),
-    "fdi_node": Spec("fdi_node", "name of the monitor node (relative: in this node's namespace)"),
-    "trajectory_server": Spec("trajectory_server", "name of the trajectory server node (relative: in this node's namespace)"),
-}
+@dataclass
+class HmiNodeParameters:
+    """hmi's parameters, each declared once with its unit, range and description."""
+
+    machine_id: str = declared(MACHINE_ID)
+    config: str = parameter(str(default_config_path("sam")), "machine config (YAML): its actuators get tiles before their first status",
+                            existing_file=True)
+    host: str = parameter("127.0.0.1", "address the page listens on; beyond loopback only with a token on a trusted network")
+    port: int = parameter(8080, "TCP port of the page (0: any free port)", 0, 65535)
+    operator_token: str = parameter("", "token for operator actions; prefer HYDRO_ROS_HMI_TOKEN in the environment, since anyone on "
+                                        "the graph can read a parameter; empty and no variable: the page is read-only")
+    update_rate: float = parameter(5.0, "[Hz] page state pushes", 0.1, 50.0)
+    plot_window: float = parameter(60.0, "[s] residual history on the page", 1.0, 3600.0)
+    plot_rate: float = parameter(10.0, "[Hz] residual points kept per second", 0.1, 100.0)
+    stale_timeout: float = parameter(3.0, "[s] an actuator without a status this long shows STALE", 0.1, 600.0)
+    action_timeout: float = parameter(5.0, "[s] wait for fdi_node to answer an acknowledge", 0.1, 60.0)
+    alarm_log: str = parameter("", "fdi_node's alarm log (its parameter alarm_log), shown paged on the page; empty: none")
+    allowed_hosts: str = parameter("", "comma-separated host names the page may be reached by besides loopback and host (the Host "
+                                       "header is checked against DNS rebinding); e.g. the machine's name on the plant network")
+    foxglove_port: int = parameter(8765, "TCP port of the read-only Foxglove WebSocket server (0: any free port, -1: no server; "
+                                         "needs the optional foxglove-sdk)", -1, 65535)
+    foxglove_host: str = parameter("127.0.0.1", "address the Foxglove server listens on")
+    foxglove_origins: str = parameter("", "comma-separated Origin values a browser may connect to the Foxglove server from (e.g. "
+                                          "https://app.foxglove.dev); clients without an Origin (the desktop app) and loopback origins "
+                                          "are always admitted, any other origin refused (a hostile page in the operator's browser)")
+    foxglove_rate: float = parameter(10.0, "[Hz] rate the 1 kHz sensor topics are sampled at for Foxglove", 0.1, 100.0)
+    foxglove_tls_cert: str = parameter("", "PEM certificate for TLS on the Foxglove server (with foxglove_tls_key); empty: plain",
+                                       existing_file=True)
+    foxglove_tls_key: str = parameter("", "PEM private key of foxglove_tls_cert", existing_file=True)
+    fdi_node: str = parameter("fdi_node", "name of the monitor node (relative: in this node's namespace)")
+    trajectory_server: str = parameter("trajectory_server", "name of the trajectory server node (relative: in this node's namespace)")
+
+
+PARAMETERS = specs_of(HmiNodeParameters)
 
 
 HMI_STATUS = "hydro_ros/hmi"
@@ -126,15 +132,15 @@ class HmiNode(Node):
     def __init__(self) -> None:
         super().__init__("hmi")
         # the monitored machine: its actuators get tiles before their first status (a config without actuators has none)
-        self.params = Parameters(self, PARAMETERS)
-        config = read_config(self.params["config"], required=("machine",), nonempty="machine")
-        host, port = self.params["host"], self.params["port"]
-        token = self.params["operator_token"] or os.environ.get(TOKEN_ENV, "")
-        update_rate, plot_rate = self.params["update_rate"], self.params["plot_rate"]
-        plot_window, stale_timeout = self.params["plot_window"], self.params["stale_timeout"]
-        self.action_timeout = self.params["action_timeout"]
-        fdi_node = self.params["fdi_node"].rstrip("/")
-        server = self.params["trajectory_server"].rstrip("/")
+        self.params = declare(self, HmiNodeParameters)
+        config = read_config(self.params.config, required=("machine",), nonempty="machine")
+        host, port = self.params.host, self.params.port
+        token = self.params.operator_token or os.environ.get(TOKEN_ENV, "")
+        update_rate, plot_rate = self.params.update_rate, self.params.plot_rate
+        plot_window, stale_timeout = self.params.plot_window, self.params.stale_timeout
+        self.action_timeout = self.params.action_timeout
+        fdi_node = self.params.fdi_node.rstrip("/")
+        server = self.params.trajectory_server.rstrip("/")
 
         self.state = HmiState(plot_window_s=plot_window, plot_period_s=1.0 / plot_rate, stale_timeout_s=stale_timeout)
         self.state.expect(str(config["machine"]), list(config.get("actuators") or {}))
@@ -155,14 +161,14 @@ class HmiNode(Node):
         self.acknowledge_client = self.create_client(Trigger, f"{fdi_node}/acknowledge")
         self.request_publisher = self.create_publisher(String, f"{server}/request", 10)
 
-        allowed = {name.strip() for name in self.params["allowed_hosts"].split(",") if name.strip()}
+        allowed = {name.strip() for name in self.params.allowed_hosts.split(",") if name.strip()}
         if not _is_wildcard(host):
             allowed.add(host)
-        if not _is_wildcard(self.params["foxglove_host"]):
-            allowed.add(self.params["foxglove_host"])
+        if not _is_wildcard(self.params.foxglove_host):
+            allowed.add(self.params.foxglove_host)
         self.allowed_hosts = frozenset(allowed)
         app = create_app(self.state, self, token=token, update_period_s=1.0 / update_rate, log=self.get_logger().info,
-                         allowed_hosts=self.allowed_hosts, alarm_log=Path(self.params["alarm_log"]) if self.params["alarm_log"] else None)
+                         allowed_hosts=self.allowed_hosts, alarm_log=Path(self.params.alarm_log) if self.params.alarm_log else None)
         self.guard = app[GUARD_KEY]
         self.machine = machine_instance(self, str(config["machine"]))
         self.pub_diag = self.create_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
@@ -177,18 +183,18 @@ class HmiNode(Node):
 
     def _start_foxglove(self, config: dict[str, Any]) -> FoxgloveLive | None:
         """The Foxglove server, or None with the reason logged: the HMI page never depends on it."""
-        if self.params["foxglove_port"] < 0:
+        if self.params.foxglove_port < 0:
             return None
         try:
-            machine = load_machine_config(self.params["config"])
+            machine = load_machine_config(self.params.config)
             sensors = topics.sensor_topics(machine.actuator_names, mobile=machine.mobile)
         except InputError:  # a machine described for the planner only (crane3dof: no valves or sensors): its joints, supply and commands
             sensors = topics.sensor_topics([])
-        cert, key = self.params["foxglove_tls_cert"], self.params["foxglove_tls_key"]
+        cert, key = self.params.foxglove_tls_cert, self.params.foxglove_tls_key
         try:
             if bool(cert) != bool(key):
                 raise InputError("parameters foxglove_tls_cert and foxglove_tls_key: give both or neither")
-            live = FoxgloveLive(self, self._sampler, sensors, rate_hz=self.params["foxglove_rate"])
+            live = FoxgloveLive(self, self._sampler, sensors, rate_hz=self.params.foxglove_rate)
         except InputError as exc:
             self.get_logger().warning(f"no Foxglove server: {exc}")
             return None
@@ -201,17 +207,17 @@ class HmiNode(Node):
 
             context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
             context.load_cert_chain(cert, key)
-        origins = frozenset(o.strip().lower() for o in self.params["foxglove_origins"].split(",") if o.strip())
+        origins = frozenset(o.strip().lower() for o in self.params.foxglove_origins.split(",") if o.strip())
         try:
             self.foxglove_gate = WebServerThread(foxglove_gate(live.port, allowed_hosts=self.allowed_hosts, allowed_origins=origins),
-                                                 self.params["foxglove_host"], self.params["foxglove_port"], context)
+                                                 self.params.foxglove_host, self.params.foxglove_port, context)
         except InputError as exc:
             live.close()
             self.get_logger().warning(f"no Foxglove server: {exc}")
             return None
         live.port = self.foxglove_gate.port
         scheme = "wss" if cert else "ws"
-        self.get_logger().info(f"Foxglove: {scheme}://{self.params['foxglove_host']}:{live.port} (read-only, {len(live.channels)} topics)")
+        self.get_logger().info(f"Foxglove: {scheme}://{self.params.foxglove_host}:{live.port} (read-only, {len(live.channels)} topics)")
         return live
 
     def _publish_diagnostics(self) -> None:

@@ -1,19 +1,22 @@
-"""A node's parameters from one table: descriptors with unit and range, values refused with a reason.
+"""A node's parameters declared once: descriptors with unit and range, values refused with a reason.
 
-Each node module holds a ``PARAMETERS`` table of :class:`Spec`. :class:`Parameters` declares them with
-a ``ParameterDescriptor`` (description, range, ``read_only`` for what is read once at start), checks
-every value set at start (``-p``, a params file) or at run time (``ros2 param set``) and refuses a bad
-one with its reason, and hands accepted run-time changes to the node. The same tables write the
-commented params files in ``config/params/`` (robot_localization's ``params/*.yaml`` habit).
+Each node module declares its parameters as the fields of a dataclass, each field's :class:`Spec` (default, unit and
+description, range) in its metadata (:func:`parameter`, :func:`declared`); ``PARAMETERS`` is that table read off the
+fields. :func:`declare` declares them on the node with a ``ParameterDescriptor`` (description, range, ``read_only`` for
+what is read once at start), checks every value set at start (``-p``, a params file) or at run time (``ros2 param set``)
+and refuses a bad one with its reason, and returns the dataclass holding the current values, typed
+(``self.params.stale_timeout``); accepted run-time changes update it and reach the node's callback. Names made at run
+time (a fault per cylinder) are a :class:`Parameters` table of their own. The same tables write the commented params
+files in ``config/params/`` (robot_localization's ``params/*.yaml`` habit).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidParameterValueException, ParameterException
@@ -24,6 +27,8 @@ from hydro_ros.contract.config import config_dir
 from hydro_ros.contract.errors import InputError
 
 PACKAGE_SHARE = "$(find-pkg-share hydro_ros)"  # expanded by launch_ros (ParameterFile with allow_substs)
+
+SPEC = "hydro_ros.parameter"  # the key of a field's Spec in its metadata
 
 BUILT_IN = {"use_sim_time": "take the time from /clock (a bag replay or a simulator) instead of the system clock"}
 
@@ -81,6 +86,35 @@ class Spec:
         return descriptor
 
 
+def declared(spec: Spec) -> Any:
+    """A dataclass field declaring one node parameter: ``spec``'s default, ``spec`` in the field's metadata."""
+    if isinstance(spec.default, list):
+        return field(default_factory=lambda: list(spec.default), metadata={SPEC: spec})
+    return field(default=spec.default, metadata={SPEC: spec})
+
+
+def parameter(default: Any, description: str, low: float | None = None, high: float | None = None, **facts: Any) -> Any:
+    """``declared(Spec(...))``: a field declaring a parameter of this node alone."""
+    return declared(Spec(default, description, low, high, **facts))
+
+
+def specs_of(declaration: type) -> dict[str, Spec]:
+    """The parameters a dataclass declares, in field order."""
+    return {item.name: item.metadata[SPEC] for item in fields(declaration)}
+
+
+Declaration = TypeVar("Declaration")
+
+
+def declare(node: Node, declaration: type[Declaration], on_change: Callable[[str, Any], None] | None = None,
+            defaults: dict[str, Any] | None = None) -> Declaration:
+    """Declares the parameters of ``declaration``'s fields on ``node`` (see :class:`Parameters`); returns an instance of it
+    holding their values, kept current as run-time changes are accepted (before ``on_change`` hears of them)."""
+    table = Parameters(node, specs_of(declaration), on_change, defaults)
+    table.mirror = declaration(**table.values)
+    return table.mirror
+
+
 class Parameters:
     """Declares ``specs`` on ``node``; ``values[name]`` is the current value of each.
 
@@ -92,6 +126,7 @@ class Parameters:
                  defaults: dict[str, Any] | None = None) -> None:
         self.specs = specs
         self.values: dict[str, Any] = {}
+        self.mirror: Any = None  # the dataclass `declare` returned, if any: its fields follow the values
         self._on_change = on_change
         for name, description in BUILT_IN.items():  # rclpy declares these without a description
             if node.has_parameter(name) and not node.describe_parameter(name).description:
@@ -128,6 +163,8 @@ class Parameters:
                 continue
             changed = parameter.name in self.values and self.values[parameter.name] != parameter.value
             self.values[parameter.name] = parameter.value
+            if self.mirror is not None:
+                setattr(self.mirror, parameter.name, parameter.value)
             if changed and self._on_change is not None:
                 self._on_change(parameter.name, parameter.value)
 

@@ -49,8 +49,9 @@ from hydro_ros.contract.samples import Samples
 from hydro_ros.nodes.common import (
     CLOCK_QOS,
     MACHINE_ID,
-    SAMPLE_OUTPUT_PARAMETERS,
+    SAMPLE_BLOCKS,
     SENSOR_QOS,
+    SENSOR_TOPICS,
     VALVE_COMMAND_TIMEOUT,
     checked_valve_commands,
     machine_instance,
@@ -59,7 +60,7 @@ from hydro_ros.nodes.common import (
     relative,
     run_node,
 )
-from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.nodes.parameters import Parameters, Spec, declare, declared, parameter, specs_of
 from hydro_ros.safety.motion import ValveDeadman
 from hydro_ros.sim.scenario import MachineRun
 
@@ -67,32 +68,41 @@ MAX_CATCH_UP_S = 0.25  # simulate at most this much per tick; beyond it the node
 TIP_PAYLOAD = "fault.payload_mass"  # on an arm (or crane) the payload hangs at the tip, not on a cylinder: one parameter
 
 
-PARAMETERS = {
-    "machine_id": MACHINE_ID,
-    "config": Spec(str(default_config_path("sam")), "machine config (YAML) of the simulated machine: a SAM-style one, or a crane "
-                                                    "with an actuator per planar joint (crane mode)", existing_file=True),
-    "seed": Spec(0, "seed of the operator's moves and the sensor noise", 0),
-    "excitation": Spec("operator", "where valve commands come from: the simulated operator, /hydraulics/valve_commands, or "
-                                   "(crane mode) the trajectories on trajectory_topic", choices=("operator", "topic", "trajectory")),
-    "real_time_factor": Spec(1.0, "[-] simulated seconds per wall second", 0.01, 100.0),
-    "publish_clock": Spec(False, "publish /clock from the simulation time (stamps then start at 0)"),
-    "command_timeout": VALVE_COMMAND_TIMEOUT,
-    "tick_period": Spec(0.01, "[s] wall time between simulation steps (each publishes the samples due)", 0.001, 1.0),
-    "can_interface": Spec("", "python-can interface that also carries the sensors as CAN frames (socketcan, udp_multicast); "
-                              "empty: none"),
-    "can_channel": Spec("", "channel of can_interface (can0, a multicast address)"),
-    **SAMPLE_OUTPUT_PARAMETERS,
-    "initial_path": Spec("", "crane mode, excitation trajectory: the path id whose start the crane begins at; empty: the config's first"),
-    "initial_extension": Spec(-1.0, "[m] crane mode, excitation trajectory: extension cylinder stroke at the start; negative: the "
-                                    "smallest feasible one", None, 10.0),
-    "trajectory_topic": Spec("joint_trajectory", "crane mode: JointTrajectory input (trajectory_server's output_topic)"),
-    "start_tolerance": Spec(0.05, "[rad or m] crane mode: a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
-                            read_only=False),
-    **{f"fault.{name}": Spec(0.0, f"[{unit}] size of the fault or effect {name} from the moment it is set; 0: none (several "
-                                  f"actuators: fault.<actuator>.{name}" + ("; an arm's or a crane's payload at its tip" if name == "payload_mass"
-                                                                           else "") + ")", read_only=False)
-       for name, unit in sorted(INJECTION_UNITS.items())},
+@dataclass
+class PlantSimParameters:
+    """plant_sim's parameters, each declared once with its unit, range and description."""
+
+    machine_id: str = declared(MACHINE_ID)
+    config: str = parameter(str(default_config_path("sam")), "machine config (YAML) of the simulated machine: a SAM-style one, or a crane "
+                                                             "with an actuator per planar joint (crane mode)", existing_file=True)
+    seed: int = parameter(0, "seed of the operator's moves and the sensor noise", 0)
+    excitation: str = parameter("operator", "where valve commands come from: the simulated operator, /hydraulics/valve_commands, or "
+                                            "(crane mode) the trajectories on trajectory_topic", choices=("operator", "topic", "trajectory"))
+    real_time_factor: float = parameter(1.0, "[-] simulated seconds per wall second", 0.01, 100.0)
+    publish_clock: bool = parameter(False, "publish /clock from the simulation time (stamps then start at 0)")
+    command_timeout: float = declared(VALVE_COMMAND_TIMEOUT)
+    tick_period: float = parameter(0.01, "[s] wall time between simulation steps (each publishes the samples due)", 0.001, 1.0)
+    can_interface: str = parameter("", "python-can interface that also carries the sensors as CAN frames (socketcan, udp_multicast); "
+                                       "empty: none")
+    can_channel: str = parameter("", "channel of can_interface (can0, a multicast address)")
+    sensor_topics: str = declared(SENSOR_TOPICS)
+    sample_blocks: bool = declared(SAMPLE_BLOCKS)
+    initial_path: str = parameter("", "crane mode, excitation trajectory: the path id whose start the crane begins at; empty: the config's first")
+    initial_extension: float = parameter(-1.0, "[m] crane mode, excitation trajectory: extension cylinder stroke at the start; negative: the "
+                                               "smallest feasible one", None, 10.0)
+    trajectory_topic: str = parameter("joint_trajectory", "crane mode: JointTrajectory input (trajectory_server's output_topic)")
+    start_tolerance: float = parameter(0.05, "[rad or m] crane mode: a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
+                                       read_only=False)
+
+
+# faults and effects by name: dotted, so a table of their own beside the dataclass
+FAULT_PARAMETERS = {
+    f"fault.{name}": Spec(0.0, f"[{unit}] size of the fault or effect {name} from the moment it is set; 0: none (several "
+                               f"actuators: fault.<actuator>.{name}" + ("; an arm's or a crane's payload at its tip" if name == "payload_mass"
+                                                                        else "") + ")", read_only=False)
+    for name, unit in sorted(INJECTION_UNITS.items())
 }
+PARAMETERS = {**specs_of(PlantSimParameters), **FAULT_PARAMETERS}
 
 
 class SamSource:
@@ -194,20 +204,21 @@ class CraneSource:
 class PlantSim(Node):
     def __init__(self) -> None:
         super().__init__("plant_sim")
-        self.params = Parameters(self, PARAMETERS, self._on_parameter)
+        self.params = declare(self, PlantSimParameters, self._on_parameter)
+        self.fault_params = Parameters(self, FAULT_PARAMETERS, self._on_parameter)
         self.can_bus = None
-        self.rtf = self.params["real_time_factor"]
-        self.machine = load_machine_config(self.params["config"])
-        self.excitation = self.params["excitation"]
-        self.publish_clock = self.params["publish_clock"]
+        self.rtf = self.params.real_time_factor
+        self.machine = load_machine_config(self.params.config)
+        self.excitation = self.params.excitation
+        self.publish_clock = self.params.publish_clock
         self._pending: dict[str, float] = {}
         self.refused = ""
         if self.machine.planned:
             self.source = self._crane_source()
         else:
             if self.excitation == "trajectory":
-                raise InputError(f"parameter excitation=trajectory: config {self.params['config']} has no planner: section (nothing plans its trajectories)")
-            self.source = SamSource(self.machine, self.params["seed"])
+                raise InputError(f"parameter excitation=trajectory: config {self.params.config} has no planner: section (nothing plans its trajectories)")
+            self.source = SamSource(self.machine, self.params.seed)
         self.add_on_set_parameters_callback(self._refuse_fault)
         if len(self.source.actuators) > 1:
             # faults name their cylinder: fault.<actuator>.<name>, declared once the config says which cylinders there are
@@ -218,7 +229,7 @@ class PlantSim(Node):
                 if name not in self.source.not_per_cylinder
             }, self._on_parameter)
         # faults given at start act from the start
-        for params in (self.params, getattr(self, "cylinder_params", None)):
+        for params in (self.fault_params, getattr(self, "cylinder_params", None)):
             for name, value in (params.values.items() if params else ()):
                 if name.startswith("fault.") and value:
                     refusal = self._fault_refusal(name, value)
@@ -238,20 +249,20 @@ class PlantSim(Node):
                                    mobile=self.source.mobile)
         self.pub_block = (self.create_publisher(PointCloud2, relative(topics.SAMPLE_BLOCK), SENSOR_QOS,
                                                 qos_overriding_options=QoSOverridingOptions.with_default_policies())
-                          if self.params["sample_blocks"] else None)
-        self.deadman = ValveDeadman(self.source.actuators, self.params["command_timeout"])
+                          if self.params.sample_blocks else None)
+        self.deadman = ValveDeadman(self.source.actuators, self.params.command_timeout)
         if self.excitation == "topic":
             self.create_subscription(JointState, relative(topics.VALVE_COMMANDS), self._on_command, SENSOR_QOS,
                                      qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, CLOCK_QOS) if self.publish_clock else None
-        interface = self.params["can_interface"]
+        interface = self.params.can_interface
         if interface:
             import can
 
             from hydro_ros.can.codec import MachineBus
 
             self.can_codec = MachineBus(self.machine)
-            self.can_bus = can.Bus(interface=interface, channel=self.params["can_channel"])
+            self.can_bus = can.Bus(interface=interface, channel=self.params.can_channel)
             self.can_counter = 0
         self.pub_diag = self.create_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
 
@@ -260,7 +271,7 @@ class PlantSim(Node):
         self.stamp_origin_ns = 0 if self.publish_clock else self.get_clock().now().nanoseconds
         self.lag_s = 0.0
         self.command_stale = False
-        self.create_timer(self.params["tick_period"], self._tick, clock=self.steady)
+        self.create_timer(self.params.tick_period, self._tick, clock=self.steady)
         self.create_timer(1.0, self._diagnose, clock=self.steady)
         self.get_logger().info(
             f"simulating {self.machine.name} ({', '.join(self.source.actuators)}) at {self.machine.sample_rate_hz:.0f} Hz, "
@@ -275,21 +286,21 @@ class PlantSim(Node):
         if self.excitation == "trajectory":
             from hydro_ros.planning.serving import path_start_state
 
-            path = self.params["initial_path"] or next(iter(config.paths))
+            path = self.params.initial_path or next(iter(config.paths))
             if path not in config.paths:
                 raise InputError(f"parameter initial_path={path!r}: not a path of {config.name} ({', '.join(config.paths)})")
-            start_joints = dict(zip(crane.names, path_start_state(config, path, self.params["initial_extension"]).tolist()))
-        source = CraneSource(self.machine, crane, config, self.params["seed"], start_joints)
+            start_joints = dict(zip(crane.names, path_start_state(config, path, self.params.initial_extension).tolist()))
+        source = CraneSource(self.machine, crane, config, self.params.seed, start_joints)
         if self.excitation == "trajectory":
             source.plant.hold()
-            self.create_subscription(JointTrajectory, self.params["trajectory_topic"], self._on_trajectory, 10)
+            self.create_subscription(JointTrajectory, self.params.trajectory_topic, self._on_trajectory, 10)
         return source
 
     def _publishes(self, topic: str) -> bool:
         """Whether a sensor topic is this node's to publish (valve commands are not when they come from outside)."""
         if topic == topics.VALVE_COMMANDS and self.excitation == "topic":
             return False
-        return publishes_sensor_topic(self.params["sensor_topics"], topic)
+        return publishes_sensor_topic(self.params.sensor_topics, topic)
 
     def _fault_refusal(self, name: str, value: float) -> str:
         """Why a fault.<name> parameter cannot be set on this plant ("" if it can): on several actuators a fault names its
@@ -314,9 +325,9 @@ class PlantSim(Node):
         return ""
 
     def _refuse_fault(self, parameters: list) -> SetParametersResult:
-        for parameter in parameters:
-            if parameter.name.startswith("fault.") and parameter.value:
-                refusal = self._fault_refusal(parameter.name, parameter.value)
+        for change in parameters:
+            if change.name.startswith("fault.") and change.value:
+                refusal = self._fault_refusal(change.name, change.value)
                 if refusal:
                     return SetParametersResult(successful=False, reason=refusal)
         return SetParametersResult(successful=True)
@@ -362,8 +373,8 @@ class PlantSim(Node):
         if not np.all(np.isfinite(positions)) or np.any(np.diff(times) <= 0):
             raise InputError("non-finite positions or times not increasing")
         gap = float(np.max(np.abs(positions[0] - plant.joints())))
-        if gap > self.params["start_tolerance"]:
-            raise InputError(f"starts {gap:.3f} from the joints (start_tolerance {self.params['start_tolerance']:g})")
+        if gap > self.params.start_tolerance:
+            raise InputError(f"starts {gap:.3f} from the joints (start_tolerance {self.params.start_tolerance:g})")
         return _Path(names, times, positions)
 
     def _apply_pending(self) -> None:

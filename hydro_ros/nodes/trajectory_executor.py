@@ -44,6 +44,7 @@ import math
 import queue
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -63,35 +64,40 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane, load_crane
 from hydro_ros.nodes.authority import PinnedSource
 from hydro_ros.nodes.common import HALT_QOS, LATCHED_QOS, MACHINE_ID, SENSOR_QOS, destroy_entities, machine_instance, namespaced_statuses, relative, run_node
-from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.nodes.parameters import declare, declared, parameter, specs_of
 from hydro_ros.planning.controller import CylinderReference, MotionController
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE, JointTrajectoryData
 from hydro_ros.safety.motion import Heartbeat, MotionAuthority
 
 LAST_WORDS_S = 0.5  # [s] the longest the executor waits, on its way out, for its neutral commands to be delivered
-PARAMETERS = {
-    "machine_id": MACHINE_ID,
-    "config": Spec(str(default_config_path("k70m")), "machine config with a planner: section (YAML): joints, limits, valve table, controller",
-                   existing_file=True),
-    "autostart": Spec(True, "configure and activate at start; false: wait for a lifecycle manager"),
-    "rate": Spec(0.0, "[Hz] control rate; 0: the config's controller.rate (100 Hz)", 0.0, 1000.0),
-    "joint_state_timeout": Spec(0.1, "[s] a joint state older than this stops the crane", 0.005, 5.0, read_only=False),
-    "start_tolerance": Spec(0.02, "[rad or m] a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
-                            read_only=False),
-    "require_monitor": Spec(True, "execute only while the condition monitor vouches for the machine (its /fdi/halt false "
-                                  "heartbeat); false is logged at every configure"),
-    "monitor": Spec("fdi_node", "the condition monitor's node name (relative to this node's namespace, or absolute): only its "
-                                "/fdi/halt false clears a halt and counts as its heartbeat"),
-    "trajectory_source": Spec("trajectory_server", "the only node whose trajectories on ~/joint_trajectory are taken"),
-    "joint_state_source": Spec("can_bridge", "the only node whose /joint_states are taken (the machine's sensor bridge; "
-                                             "crane_sim or plant_sim in simulation)"),
-    "max_points": Spec(10000, "a trajectory with more points is refused before it is decoded", 2, 1000000),
-    "command_slew_rate": Spec(5.0, "[1/s] largest change of a valve command per second while one trajectory takes over from "
-                                   "another", 0.1, 1000.0),
-    "follow_joint_trajectory": Spec(False, "also offer the FollowJointTrajectory action ~/follow_joint_trajectory (MoveIt, "
-                                           "ros2_control clients) where control_msgs is installed; its goals are taken from any "
-                                           "client SROS2 lets call it, so it is off unless asked for"),
-}
+@dataclass
+class TrajectoryExecutorParameters:
+    """trajectory_executor's parameters, each declared once with its unit, range and description."""
+
+    machine_id: str = declared(MACHINE_ID)
+    config: str = parameter(str(default_config_path("k70m")), "machine config with a planner: section (YAML): joints, limits, valve table, controller",
+                            existing_file=True)
+    autostart: bool = parameter(True, "configure and activate at start; false: wait for a lifecycle manager")
+    rate: float = parameter(0.0, "[Hz] control rate; 0: the config's controller.rate (100 Hz)", 0.0, 1000.0)
+    joint_state_timeout: float = parameter(0.1, "[s] a joint state older than this stops the crane", 0.005, 5.0, read_only=False)
+    start_tolerance: float = parameter(0.02, "[rad or m] a trajectory is refused unless it starts this close to the joints", 0.0, 1.0,
+                                       read_only=False)
+    require_monitor: bool = parameter(True, "execute only while the condition monitor vouches for the machine (its /fdi/halt false "
+                                            "heartbeat); false is logged at every configure")
+    monitor: str = parameter("fdi_node", "the condition monitor's node name (relative to this node's namespace, or absolute): only its "
+                                         "/fdi/halt false clears a halt and counts as its heartbeat")
+    trajectory_source: str = parameter("trajectory_server", "the only node whose trajectories on ~/joint_trajectory are taken")
+    joint_state_source: str = parameter("can_bridge", "the only node whose /joint_states are taken (the machine's sensor bridge; "
+                                                      "crane_sim or plant_sim in simulation)")
+    max_points: int = parameter(10000, "a trajectory with more points is refused before it is decoded", 2, 1000000)
+    command_slew_rate: float = parameter(5.0, "[1/s] largest change of a valve command per second while one trajectory takes over from "
+                                              "another", 0.1, 1000.0)
+    follow_joint_trajectory: bool = parameter(False, "also offer the FollowJointTrajectory action ~/follow_joint_trajectory (MoveIt, "
+                                                     "ros2_control clients) where control_msgs is installed; its goals are taken from any "
+                                                     "client SROS2 lets call it, so it is off unless asked for")
+
+
+PARAMETERS = specs_of(TrajectoryExecutorParameters)
 
 
 def follow_joint_trajectory_action() -> tuple[Any, str]:
@@ -107,10 +113,10 @@ def follow_joint_trajectory_action() -> tuple[Any, str]:
 class TrajectoryExecutor(LifecycleNode):
     def __init__(self) -> None:
         super().__init__("trajectory_executor")
-        self.params = Parameters(self, PARAMETERS, self._on_parameter)
-        self.joint_state_timeout = self.params["joint_state_timeout"]
-        self.start_tolerance = self.params["start_tolerance"]
-        self.require_monitor = self.params["require_monitor"]
+        self.params = declare(self, TrajectoryExecutorParameters, self._on_parameter)
+        self.joint_state_timeout = self.params.joint_state_timeout
+        self.start_tolerance = self.params.start_tolerance
+        self.require_monitor = self.params.require_monitor
         self.lock = threading.Lock()  # the trajectory checker's thread against the control loop
         self.incoming: queue.Queue[bytes | None] = queue.Queue(maxsize=4)
         self.checker: threading.Thread | None = None
@@ -129,7 +135,7 @@ class TrajectoryExecutor(LifecycleNode):
         self.reason = ""
         self.status_pub = self.create_publisher(String, "~/status", LATCHED_QOS)
         self._say("inactive", "not configured")
-        if self.params["autostart"]:
+        if self.params.autostart:
             self.trigger_configure()
             self.trigger_activate()
 
@@ -142,19 +148,19 @@ class TrajectoryExecutor(LifecycleNode):
     # life cycle ----------------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
-            self.crane, config = load_crane(self.params["config"])
+            self.crane, config = load_crane(self.params.config)
         except InputError as exc:
             self.get_logger().error(str(exc))
             return TransitionCallbackReturn.FAILURE
         self.controller = MotionController.for_crane(self.crane, config)
         self.settle_time = config.controller["settle_time"]
-        rate = self.params["rate"] or config.controller["rate"]
+        rate = self.params.rate or config.controller["rate"]
         self.names = list(self.crane.names)
-        self.slew_step = self.params["command_slew_rate"] / rate
+        self.slew_step = self.params.command_slew_rate / rate
         self.sources = {
-            "halt": PinnedSource(self, relative(topics.FDI_HALT), self.params["monitor"]),
-            "joint_states": PinnedSource(self, relative(topics.JOINT_STATES), self.params["joint_state_source"]),
-            "trajectory": PinnedSource(self, "~/joint_trajectory", self.params["trajectory_source"]),
+            "halt": PinnedSource(self, relative(topics.FDI_HALT), self.params.monitor),
+            "joint_states": PinnedSource(self, relative(topics.JOINT_STATES), self.params.joint_state_source),
+            "trajectory": PinnedSource(self, "~/joint_trajectory", self.params.trajectory_source),
         }
         self.command_pub = self.create_lifecycle_publisher(JointState, relative(topics.VALVE_COMMANDS), SENSOR_QOS)
         self.diag_pub = self.create_lifecycle_publisher(DiagnosticArray, relative(topics.DIAGNOSTICS), 10)
@@ -174,7 +180,7 @@ class TrajectoryExecutor(LifecycleNode):
         if not self.require_monitor:
             self.get_logger().warning("require_monitor is false: trajectories run without a condition monitor vouching for "
                                       "the machine (only a halt request stops them)")
-        if self.params["follow_joint_trajectory"]:
+        if self.params.follow_joint_trajectory:
             self._offer_action()
         return TransitionCallbackReturn.SUCCESS
 
@@ -303,8 +309,8 @@ class TrajectoryExecutor(LifecycleNode):
         except InputError as exc:  # CdrError is one
             self._refuse(str(exc))
             return
-        if points > self.params["max_points"]:
-            self._refuse(f"trajectory: {points} points, max_points {self.params['max_points']}")
+        if points > self.params.max_points:
+            self._refuse(f"trajectory: {points} points, max_points {self.params.max_points}")
         elif points == 0:
             with self.lock:
                 if self.reference is not None:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import re
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -39,7 +40,7 @@ from hydro_ros.bags.cdr import encode_joint_trajectory
 from hydro_ros.contract import topics
 from hydro_ros.contract.errors import InputError
 from hydro_ros.nodes.common import LATCHED_QOS, SENSOR_QOS, relative, run_node
-from hydro_ros.nodes.parameters import Parameters, Spec
+from hydro_ros.nodes.parameters import declare, parameter, specs_of
 from hydro_ros.planning.database import DatabaseError, TrajectoryDatabase
 from hydro_ros.planning.problem import METHODS
 from hydro_ros.planning.serving import JointStateSample, Served, ServeError, TrajectoryService
@@ -55,28 +56,33 @@ OUTPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Re
                         durability=DurabilityPolicy.VOLATILE)
 
 
-PARAMETERS = {
-    "database": Spec("", "SQLite trajectory database (hydro-ros db build); required, may appear after start"),
-    "output_topic": Spec("", "also send the served JointTrajectory here (a controller's input); empty: only ~/trajectory"),
-    "config": Spec("", "machine config with a planner: section (YAML): serve only its machine's trajectories; empty: any", existing_file=True),
-    "method": Spec("dp_cp", "solution served when a request names none", choices=tuple(METHODS)),
-    "joint_state_timeout": Spec(0.5, "[s] a joint state older than this is not fresh enough to re-plan from", 0.01, 60.0,
-                                read_only=False),
-    "tip_tolerance": Spec(0.05, "[m] the measured tip may be this far from a stored start", 0.0, 10.0, read_only=False),
-    "poll_period": Spec(1.0, "[s] period of checking the database for new data", 0.05, 600.0),
-}
+@dataclass
+class TrajectoryServerParameters:
+    """trajectory_server's parameters, each declared once with its unit, range and description."""
+
+    database: str = parameter("", "SQLite trajectory database (hydro-ros db build); required, may appear after start")
+    output_topic: str = parameter("", "also send the served JointTrajectory here (a controller's input); empty: only ~/trajectory")
+    config: str = parameter("", "machine config with a planner: section (YAML): serve only its machine's trajectories; empty: any", existing_file=True)
+    method: str = parameter("dp_cp", "solution served when a request names none", choices=tuple(METHODS))
+    joint_state_timeout: float = parameter(0.5, "[s] a joint state older than this is not fresh enough to re-plan from", 0.01, 60.0,
+                                           read_only=False)
+    tip_tolerance: float = parameter(0.05, "[m] the measured tip may be this far from a stored start", 0.0, 10.0, read_only=False)
+    poll_period: float = parameter(1.0, "[s] period of checking the database for new data", 0.05, 600.0)
+
+
+PARAMETERS = specs_of(TrajectoryServerParameters)
 
 
 class TrajectoryServer(Node):
     def __init__(self) -> None:
         super().__init__("trajectory_server")
-        self.params = Parameters(self, PARAMETERS, self._on_parameter)
-        self.database_path = self.params["database"]
-        self.output_topic = self.params["output_topic"]
-        self.config_path = self.params["config"]
-        self.default_method = self.params["method"]
-        self.joint_state_timeout = self.params["joint_state_timeout"]
-        self.tip_tolerance = self.params["tip_tolerance"]
+        self.params = declare(self, TrajectoryServerParameters, self._on_parameter)
+        self.database_path = self.params.database
+        self.output_topic = self.params.output_topic
+        self.config_path = self.params.config
+        self.default_method = self.params.method
+        self.joint_state_timeout = self.params.joint_state_timeout
+        self.tip_tolerance = self.params.tip_tolerance
         if not self.database_path:
             raise InputError("parameter database: not set (path of the SQLite file hydro-ros db build writes)")
         self.machine = self._machine_of_config()
@@ -99,7 +105,7 @@ class TrajectoryServer(Node):
         self.joint_state: JointStateSample | None = None
         self.joint_state_time: Time | None = None
         self._poll()
-        self.create_timer(self.params["poll_period"], self._poll)
+        self.create_timer(self.params.poll_period, self._poll)
 
     def _on_parameter(self, name: str, value: Any) -> None:
         if name == "joint_state_timeout":
