@@ -94,13 +94,13 @@ def cli_markdown() -> str:
 def _limit(rule: Any) -> str:
     low = "" if rule.low is None else f"{'>' if rule.open_low else '>='} {rule.low:g}"
     high = "" if rule.high is None else f"<= {rule.high:g}"
-    return ", ".join(part for part in (low, high) if part) or "finite"
+    default = "" if rule.default is None else f"default {rule.default:g}"
+    return ", ".join(part for part in (low, high, default) if part) or "finite"
 
 
 def config_markdown() -> str:
     """One table per section of the machine form, from the rules `machine check` applies."""
-    from hydro_ros.contract.check import REFERENCE
-    from hydro_ros.contract.crane import CATALOG_KEYS, CONTROLLER_DEFAULTS, PLANT_DEFAULTS
+    from hydro_ros.contract.check import CATALOG_KEYS, REFERENCE
 
     out = []
     for section, rules, what in REFERENCE:
@@ -108,10 +108,6 @@ def config_markdown() -> str:
                 "| key | unit | accepted | hint |", "|---|---|---|---|"]
         out += [f"| `{key}` | {rule.unit or '-'} | {_limit(rule)} | {_escaped(rule.hint)} |" for key, rule in rules.items()]
         out.append("")
-    for section, defaults, what in (("planner.controller", CONTROLLER_DEFAULTS, "the closed loop's settings (P-VI App. A; NOT GIVEN there)"),
-                                    ("planner.plant", PLANT_DEFAULTS, "the simulated machine's and its valve table's (PLACEHOLDERS)")):
-        out += [f"### `{section}` (optional)", "", f"{what[:1].upper() + what[1:]}: any of these, each over its default.", "",
-                "| key | default |", "|---|---|", *(f"| `{key}` | {value:g} |" for key, value in defaults.items()), ""]
     out += ["### `planner.catalog` (optional)", "", f"What `hydro-ros db build` plans by default: {', '.join(f'`{k}`' for k in CATALOG_KEYS)} "
             "(method names, as `dp compare` lists them; a grid as `dp.grid`).", ""]
     return "\n".join(out)

@@ -36,6 +36,7 @@ class Rule:
     high: float | None = None
     open_low: bool = False
     hint: str = ""  # what a value outside usually means
+    default: float | None = None  # the value an optional section's key takes when not given
 
     def broken(self, value: float) -> str | None:
         if not math.isfinite(value):
@@ -119,6 +120,40 @@ SLEW_DRIVES = {"rack": {"ratio": _positive("m/rad", 10.0, hint="the plungers' st
                "motor": {"displacement": _positive("m^3/rad", 1.0, hint="a 100 cm^3/rev motor is 1.59e-5 m^3/rad")}}
 PLANNER_FRICTION = {"coulomb": _nonnegative("N"), "tanh_gain": _positive("s/m")}
 PLANNER_ACTUATOR = {"velocity_max": _positive("m/s", 10.0), "acceleration_max": _positive("m/s^2", 100.0)}
+# the planner's optional sections, each key over its default: the closed loop's settings (P-VI App. A, L11659-L11666; K_p,
+# eps_p, eps_v and the rate are NOT GIVEN: our choices)
+PLANNER_CONTROLLER = {
+    "rate": Rule("Hz", 0.0, 1.0e4, open_low=True, default=100.0),
+    "position_gain": Rule("1/s", 0.0, 1.0e3, open_low=True, default=2.0),
+    "position_deadband": Rule("m", 0.0, 1.0, default=0.005),
+    "velocity_deadband": Rule("m/s", 0.0, 1.0, default=0.002),
+    "settle_time": Rule("s", 0.0, 60.0, hint="the final reference is held this long after the trajectory", default=1.0),
+    "log_rate": Rule("Hz", 0.0, 1.0e4, open_low=True, hint="of the recorded signals", default=100.0),
+}
+# the simulated machine's (``sim.closed_loop_crane``), PLACEHOLDERS. The mobile valves' static table (a controller inverts
+# it): dead zone as a fraction of the command (P-VI L11557: ~53 %) and the velocity at full command per unit of the
+# cylinder's velocity limit; the plant spreads both per valve.
+PLANNER_PLANT = {
+    "valve_dead_zone": Rule("", 0.0, 0.95, hint="a fraction of the command", default=0.53),
+    "full_command_velocity_factor": Rule("", 0.0, 10.0, open_low=True, hint="per unit of the cylinder's velocity_max", default=1.25),
+    "valve_dead_zone_spread": Rule("", 0.0, 0.5, default=0.02),
+    "valve_gain_spread": Rule("", 0.0, 0.5, default=0.05),
+    "valve_delay": Rule("s", 0.0, 5.0, default=0.15),
+    "spool_time_constant": Rule("s", 0.0, 5.0, open_low=True, default=0.03),
+    "motion_time_constant": Rule("s", 0.0, 5.0, open_low=True, default=0.05),
+    "payload": Rule("kg", 0.0, 1.0e6, default=200.0),
+    "coulomb_friction": Rule("N", 0.0, 1.0e7, default=1500.0),
+    "ls_time_constant": Rule("s", 0.0, 10.0, open_low=True, default=0.20),
+    "time_step": Rule("s", 0.0, 0.1, open_low=True, default=0.002),
+}
+CATALOG_KEYS = ("methods", "grid")
+
+
+def defaults(rules: dict[str, Rule]) -> dict[str, float]:
+    """An optional section's values when it gives none."""
+    return {key: rule.default for key, rule in rules.items() if rule.default is not None}
+
+
 PLANNER_KEYS = {"redundant", "actuators", "friction", "hydraulics", "dp", "paths", "controller", "plant", "catalog"}
 TOP_KEYS = set(TOP) | {"machine", "actuators", "sensors", "simulation", "excitation", "effects", "effect_forms", "can", "fdi", "arm",
                        "planner"}
@@ -153,6 +188,8 @@ REFERENCE: tuple[tuple[str, dict[str, Rule], str], ...] = (
     ("planner.hydraulics", HYDRAULICS, "the energy model, P-V eqs. 36-41: ls_margin, compensator_drop, efficiency, drive_threshold "
                                        "required; supply_pressure_cp and tank_pressure default to the machine's"),
     ("planner.dp", CRANE_DP, "the DP, every key required (grid: [positions, velocities, controls], each >= 3)"),
+    ("planner.controller", PLANNER_CONTROLLER, "optional: the closed loop's settings (P-VI App. A; NOT GIVEN there), each over its default"),
+    ("planner.plant", PLANNER_PLANT, "optional: the simulated machine's and its valve table's (PLACEHOLDERS), each over its default"),
 )
 
 MAX_LISTED = 5  # problems named in one error line; `hydro-ros machine check` lists all
@@ -444,6 +481,16 @@ def _planning_sections(found: _Problems, node: dict[str, Any], prefix: str, requ
                                       "velocities, controls)")
     if not isinstance(node.get("paths"), dict) or not node["paths"]:
         found.add(f"{prefix}paths", "must name at least one tip path")
+    for section, rules in (("controller", PLANNER_CONTROLLER), ("plant", PLANNER_PLANT)):
+        given = node.get(section, {})
+        found.numbers(given, f"{prefix}{section}", rules)
+        if isinstance(given, dict):
+            found.unknown(given, f"{prefix}{section}", set(rules))
+    catalog = node.get("catalog", {})
+    if isinstance(catalog, dict):
+        found.unknown(catalog, f"{prefix}catalog", set(CATALOG_KEYS))
+    else:
+        found.add(f"{prefix}catalog", f"must be a mapping ({', '.join(CATALOG_KEYS)})")
 
 
 def _slew(found: _Problems, node: Any) -> None:

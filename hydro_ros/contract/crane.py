@@ -14,45 +14,20 @@ first, all at once (``check.planner_problems``, what ``hydro-ros machine check``
 
 from __future__ import annotations
 
-import difflib
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from hydro_ros.contract.check import planner_problems, refuse_problems
+from hydro_ros.contract.check import PLANNER_CONTROLLER, PLANNER_PLANT, defaults, planner_problems, refuse_problems
 from hydro_ros.contract.config import ConfigError, with_overrides
 from hydro_ros.contract.machine import Arm, ArmLink, Section, Slew, parse_arm, parse_mount
 from hydro_ros.contract.upgrade import machine_form
 
-# The closed loop's settings (P-VI App. A, L11659-L11666; K_p, eps_p, eps_v and the rate are NOT GIVEN: our choices), each
-# overridable in ``planner.controller``
-CONTROLLER_DEFAULTS = {
-    "rate": 100.0,  # Hz
-    "position_gain": 2.0,  # 1/s
-    "position_deadband": 0.005,  # m
-    "velocity_deadband": 0.002,  # m/s
-    "settle_time": 1.0,  # s the final reference is held after the trajectory
-    "log_rate": 100.0,  # Hz of the recorded signals
-}
-# The simulated machine's (``sim.closed_loop_crane``), PLACEHOLDERS overridable in ``planner.plant``. The mobile valves'
-# static table (a controller inverts it): dead zone as a fraction of the command (P-VI L11557: ~53 %) and the velocity
-# at full command per unit of the cylinder's velocity limit; the plant spreads both per valve.
-PLANT_DEFAULTS = {
-    "valve_dead_zone": 0.53,
-    "full_command_velocity_factor": 1.25,
-    "valve_dead_zone_spread": 0.02,
-    "valve_gain_spread": 0.05,
-    "valve_delay": 0.15,  # s
-    "spool_time_constant": 0.03,  # s
-    "motion_time_constant": 0.05,  # s
-    "payload": 200.0,  # kg
-    "coulomb_friction": 1500.0,  # N
-    "ls_time_constant": 0.20,  # s
-    "time_step": 0.002,  # s
-}
-CATALOG_KEYS = ("methods", "grid")
+# the planner's controller and plant sections over their defaults (declared with their rules in ``check``)
+CONTROLLER_DEFAULTS = defaults(PLANNER_CONTROLLER)
+PLANT_DEFAULTS = defaults(PLANNER_PLANT)
 
 
 @dataclass(frozen=True)
@@ -162,21 +137,6 @@ class CraneConfig:
         return replace(self, paths=dict(paths), mapping={**self.mapping, "planner": {**self.mapping["planner"], "paths": dict(paths)}})
 
 
-def _known(section: Section, keys: Iterable[str]) -> Section:
-    """``section``, refused in one line if it has a key not among ``keys`` (with the nearest one)."""
-    known = sorted(keys)
-    for key in section.node:
-        if str(key) not in known:
-            near = difflib.get_close_matches(str(key), known, n=1, cutoff=0.6)
-            raise ConfigError(f"config {section.source}: {section._name(str(key))}: unknown key"
-                              + (f" (did you mean {near[0]}?)" if near else f" (known: {', '.join(known)})"))
-    return section
-
-
-def _over_defaults(section: Section, defaults: Mapping[str, float]) -> dict[str, float]:
-    return {**defaults, **_numbers(_known(section, defaults))}
-
-
 def _numbers(section: Section) -> dict[str, float]:
     return {str(name): section.number(name) for name in section.node}
 
@@ -204,9 +164,9 @@ def _planning_sections(planner: Section) -> dict[str, Any]:
         "dp": DpSettings(grid=(int(grid[0]), int(grid[1]), int(grid[2])), sample_time=dp.number("sample_time"),
                          filter_cutoff=dp.number("filter_cutoff")),
         "paths": dict(planner.section("paths").node),
-        "controller": _over_defaults(planner.section("controller", optional=True), CONTROLLER_DEFAULTS),
-        "plant": _over_defaults(planner.section("plant", optional=True), PLANT_DEFAULTS),
-        "catalog": dict(_known(planner.section("catalog", optional=True), CATALOG_KEYS).node),
+        "controller": {**CONTROLLER_DEFAULTS, **_numbers(planner.section("controller", optional=True))},
+        "plant": {**PLANT_DEFAULTS, **_numbers(planner.section("plant", optional=True))},
+        "catalog": dict(planner.section("catalog", optional=True).node),
     }
 
 
