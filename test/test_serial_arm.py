@@ -16,7 +16,7 @@ from hydro_ros.contract.machine import load_machine_config, parse_machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.models.crane import load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
-from hydro_ros.models.serial_arm import SerialArm, arm_problems, equivalent_load
+from hydro_ros.models.serial_arm import SerialArm, arm_problems, equivalent_load, holding
 from hydro_ros.sim.scenario import MachineRun
 
 REPO = Path(__file__).resolve().parents[1]
@@ -197,6 +197,18 @@ def test_an_arm_its_cylinders_cannot_hold_is_refused_naming_the_cylinder_and_pos
     assert problems[1].startswith("arm: actuator arm's cylinder") and "piston side gives 80.4 kN at supply pressure" in problems[1]
     with pytest.raises(InputError, match="actuator boom's cylinder cannot hold the arm"):
         MachineRun(grams, {})
+
+
+def test_a_cylinder_that_holds_the_arm_at_the_middle_but_not_at_a_corner_is_a_warning_not_a_refusal():
+    """The K70M's tilt (its placeholder triangle) holds the crane at the middle of the ranges but not folded down with the
+    telescope out: a load chart's limit, said as a warning naming the pose; the simulator still runs it."""
+    k70m = load_machine_config(REPO / "config" / "k70m.yaml")
+    problems, corners = holding(k70m)
+    assert problems == [] and len(corners) == 1, (problems, corners)
+    assert corners[0].startswith("arm: actuator tilt's cylinder cannot hold") and "tilt = -2.75" in corners[0] and "holds at the middle" in corners[0]
+    problems, corners = holding(k70m.with_overrides({"arm": {"payload": 2000.0}}))  # 2 t at the tip: the lift fails at the middle too
+    assert [p.split("'")[0] for p in problems] == ["arm: actuator lift"], problems
+    assert [p.split("'")[0] for p in corners] == ["arm: actuator tilt", "arm: actuator extension"], corners
 
 
 def _boom_arm_with(change) -> dict:

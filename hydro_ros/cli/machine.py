@@ -124,10 +124,10 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
     if not planner_only and not problems:
         from hydro_ros.can.codec import BusMapError, MachineBus
         from hydro_ros.fdi.settings import unset_threshold
-        from hydro_ros.models.serial_arm import arm_problems, hold_warnings
+        from hydro_ros.models.serial_arm import holding
 
         machine = load_machine_config(args.config)
-        problems = arm_problems(machine)
+        problems, corners = holding(machine)
         try:  # the bus as can_bridge and bag convert will read it: the DBC beside the config, the map against it
             MachineBus(machine)
         except BusMapError as exc:
@@ -141,7 +141,7 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
         advice = unset_threshold(machine)
         if advice:
             print(f"{args.config}: warning: {advice}")
-        for warning in [*reach_warnings(machine), *hold_warnings(machine)]:
+        for warning in [*reach_warnings(machine), *corners]:
             print(f"{args.config}: warning: {warning}")
         if args.plot:
             from hydro_ros.studies.plots import plot_machine

@@ -161,21 +161,19 @@ def machine_load(machine: Machine, actuator: str) -> Load:
 
 
 def arm_problems(machine: Machine, payload: float | None = None, points: int = 7) -> list[str]:
-    """What keeps the machine's arm from being simulated, over a grid of ``points`` poses per joint inside the ranges, one
-    line each: a joint that moves no mass (its inertia zero: nothing to integrate), or a cylinder that cannot hold the
-    arm and its payload (``payload`` [kg] in place of the arm's) still with the supply pressure on its pushing or pulling
-    side with every joint at the middle of its range, named with its worst pose. A mass in grams or a payload in the
-    wrong unit shows here before it makes the simulator flail."""
-    return _hold(machine, payload, points)[0]
+    """What keeps the machine's arm from being simulated (``holding``'s first list)."""
+    return holding(machine, payload, points)[0]
 
 
-def hold_warnings(machine: Machine, payload: float | None = None, points: int = 7) -> list[str]:
-    """Cylinders that hold the arm at the middle of the ranges but not at some pose within them: a load chart's limit (the
-    K70M's tilt, its placeholder triangle, with the telescope out and the tilt folded down), not a wrong unit."""
-    return _hold(machine, payload, points)[1]
+def holding(machine: Machine, payload: float | None = None, points: int = 7) -> tuple[list[str], list[str]]:
+    """The arm over a grid of ``points`` poses per joint inside the ranges, ``payload`` [kg] in place of the arm's.
 
-
-def _hold(machine: Machine, payload: float | None, points: int) -> tuple[list[str], list[str]]:
+    Problems, one line each, that keep it from being simulated: a joint that moves no mass (its inertia zero: nothing to
+    integrate), or a cylinder that cannot hold the arm and its payload still with the supply pressure on its pushing or
+    pulling side with every joint at the middle of its range, named with its worst pose (a mass in grams or a payload in
+    the wrong unit shows here before it makes the simulator flail). Warnings: cylinders that hold it at the middle but not
+    at some pose within the ranges, a load chart's limit (the K70M's tilt, its placeholder triangle, with the telescope
+    out and the tilt folded down), not a wrong unit."""
     if machine.arm is None:
         return [], []
     arm = SerialArm.of(machine)
