@@ -361,3 +361,45 @@ def test_every_rule_the_config_reference_lists_is_one_machine_check_applies() ->
                 break
             break
     assert tried >= 15
+
+
+def test_every_value_a_field_declares_is_read_into_the_typed_machine() -> None:
+    """The parser reads the numbers the dataclass fields declare (contract.schema), not a list of its own: each declared
+    value set in range in config/sam.yaml (a boom with its load) arrives in the typed machine, where machine check accepts it."""
+    import copy
+    from dataclasses import fields
+
+    import yaml
+
+    from hydro_ros.contract.check import config_problems
+    from hydro_ros.contract.machine import parse_machine
+    from hydro_ros.contract.schema import GROUP, RULE, Cylinder, Excitation, Fluid, Friction, Load, Sensors, Simulation, Valve
+
+    path = default_config_path("sam")
+    config = yaml.safe_load(path.read_text())
+    boom = next(iter(config["actuators"]))
+    sections = ((Cylinder, ("actuators", boom, "cylinder"), lambda m: m.first.cylinder),
+                (Valve, ("actuators", boom, "valve"), lambda m: m.first.valve), (Fluid, ("actuators", boom, "fluid"), lambda m: m.first.fluid),
+                (Friction, ("actuators", boom, "friction"), lambda m: m.first.friction), (Load, ("actuators", boom, "load"), lambda m: m.first.load),
+                (Sensors, ("sensors",), lambda m: m.sensors), (Simulation, ("simulation",), lambda m: m.simulation),
+                (Excitation, ("excitation",), lambda m: m.excitation))
+    read, crossed = [], []
+    for declaration, keys, typed in sections:
+        for item in fields(declaration):
+            if RULE not in item.metadata or item.metadata[GROUP]:
+                continue
+            rule = item.metadata[RULE]
+            changed = copy.deepcopy(config)
+            node = changed
+            for key in keys:
+                node = node.setdefault(key, {})
+            low = rule.low if rule.low is not None else -1.0
+            high = rule.high if rule.high is not None else low + 10.0
+            value = 7 if item.type == "int" else low + 0.37 * (high - low)
+            node[item.name] = value
+            if config_problems(changed):  # in range, but against another value of the file (a rod wider than its bore)
+                crossed.append(f"{declaration.__name__}.{item.name}")
+                continue
+            assert getattr(typed(parse_machine(changed, path)), item.name) == pytest.approx(value), (declaration.__name__, item.name)
+            read.append(f"{declaration.__name__}.{item.name}")
+    assert crossed == ["Cylinder.rod_diameter", "Simulation.end_stop_upper"] and len(read) == 39, (crossed, read)

@@ -3,8 +3,9 @@
 :func:`config_problems` runs on the merged mapping before it is typed (``machine.parse_machine`` refuses
 a config with any), so every command that reads a machine says the same thing. ``hydro-ros machine
 check`` prints the list, and :func:`annotated_values` the values the file marks as not measured.
-The ranges are physical plausibility for heavy-duty hydraulics in SI units, wide on purpose: they
-catch a value in the wrong unit (a bore in mm, a pressure in bar) or with the wrong sign, not a design.
+The rules of a value the typed machine holds are declared on its dataclass field (:mod:`hydro_ros.contract.schema`);
+the tables here read them off, and add the rules of what is checked but not typed there (mounts by kind, the crane
+form, the planner's sections).
 """
 
 from __future__ import annotations
@@ -12,7 +13,6 @@ from __future__ import annotations
 import difflib
 import math
 import re
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +21,25 @@ import numpy as np
 from hydro_ros.contract.config import ConfigError
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.names import Injection
+from hydro_ros.contract.schema import (
+    PRESSURE,
+    Arm,
+    ArmLink,
+    Cylinder,
+    Excitation,
+    Fluid,
+    Friction,
+    LinkMass,
+    Load,
+    Mems,
+    Rule,
+    Sensors,
+    Simulation,
+    Valve,
+    nonnegative,
+    positive,
+    rules_of,
+)
 
 DP_GRID_MIN = 3
 """points per axis of the DP grid: a velocity and a control axis need their ends and zero"""
@@ -29,62 +48,22 @@ NOTCHES = ("PA", "PB", "AT", "BT")
 ANNOTATIONS = ("PLACEHOLDER", "INFERRED")
 
 
-@dataclass(frozen=True)
-class Rule:
-    unit: str
-    low: float | None = None  # inclusive unless open_low
-    high: float | None = None
-    open_low: bool = False
-    hint: str = ""  # what a value outside usually means
-    default: float | None = None  # the value an optional section's key takes when not given
-
-    def broken(self, value: float) -> str | None:
-        if not math.isfinite(value):
-            return "must be finite"
-        if self.low is not None and (value < self.low or (self.open_low and value == self.low)):
-            return f"must be {'>' if self.open_low else '>='} {self.low:g} {self.unit}".rstrip() + (f" ({self.hint})" if self.hint else "")
-        if self.high is not None and value > self.high:
-            return f"must be <= {self.high:g} {self.unit}".rstrip() + (f" ({self.hint})" if self.hint else "")
-        return None
-
-
-def _positive(unit: str, high: float | None = None, hint: str = "") -> Rule:
-    return Rule(unit, 0.0, high, open_low=True, hint=hint)
-
-
-def _nonnegative(unit: str, high: float | None = None, hint: str = "") -> Rule:
-    return Rule(unit, 0.0, high, hint=hint)
-
-
 CAN = {"latency_limit": Rule("s", 1.0e-3, 1.0, hint="how late a sensor cycle may reach the host (hydro_ros.can.clock)")}
-PRESSURE = Rule("Pa", 1.0e5, 7.0e7, hint="SI: 10 MPa is 10.0e+6; a smaller value looks like MPa or bar")
-TOP = {"sample_rate_hz": _positive("Hz", 1.0e5), "supply_pressure": PRESSURE, "tank_pressure": _nonnegative("Pa", 1.0e7)}
-CYLINDER = {"piston_diameter": Rule("m", 0.005, 1.0, hint="SI: an 80 mm bore is 0.080"),
-            "rod_diameter": _positive("m", 1.0, hint="SI: a 45 mm rod is 0.045"),
-            "stroke": _positive("m", 20.0, hint="SI: metres"),
-            "dead_volume_a": _nonnegative("m^3", 0.1), "dead_volume_b": _nonnegative("m^3", 0.1)}
-TRIANGLE = {"l1": _positive("m", 50.0), "l2": _positive("m", 50.0), "l3": _positive("m", 50.0), "theta_offset": Rule("rad", -7.0, 7.0),
+# each section's rules as its dataclass's fields declare them (contract.schema)
+TOP = {"sample_rate_hz": positive("Hz", 1.0e5), "supply_pressure": PRESSURE, "tank_pressure": nonnegative("Pa", 1.0e7)}
+CYLINDER = rules_of(Cylinder)
+TRIANGLE = {"l1": positive("m", 50.0), "l2": positive("m", 50.0), "l3": positive("m", 50.0), "theta_offset": Rule("rad", -7.0, 7.0),
             "sign": Rule("", -1.0, 1.0)}
 LINEAR = {"ratio": Rule("m per joint unit", -100.0, 100.0), "theta_offset": Rule("joint unit", -100.0, 100.0)}
-VALVE = {"natural_frequency": _positive("rad/s", 1.0e4), "damping": _positive("", 100.0), "laminar_band": _positive("Pa", 1.0e7),
-         "nominal_flow": _positive("m^3/s", 0.1, hint="SI: 24 L/min is 4.0e-4"), "nominal_pressure_drop": Rule("Pa", 1.0e4, 7.0e7)}
-MOBILE_VALVE = {"compensator_pressure_drop": Rule("Pa", 1.0e4, 1.0e7), "pilot_pressure_max": Rule("Pa", 1.0e4, 1.0e7),
-                "deadzone": Rule("of travel", 0.0, 0.9)}
-FLUID = {"oil_bulk_modulus": Rule("Pa", 1.0e7, 1.0e10, hint="SI: 1.4 GPa is 1.4e+9"), "hose_bulk_modulus": Rule("Pa", 1.0e6, 1.0e11),
-         "hose_volume": _nonnegative("m^3", 0.1)}
-FRICTION = {"viscous": _nonnegative("N s/m"), "static": _nonnegative("N"), "coulomb": _nonnegative("N"),
-            "stribeck_velocity": _positive("m/s", 10.0), "bristle_stiffness": _nonnegative("N/m")}
-LOAD = {"boom_mass": _nonnegative("kg", 1.0e6), "boom_length": _positive("m", 100.0), "boom_cog_distance": Rule("m", -100.0, 100.0),
-        "left_mass": _nonnegative("kg", 1.0e6), "right_mass": _nonnegative("kg", 1.0e6), "load_distance": Rule("m", -100.0, 100.0)}
-SENSORS = {"pressure_noise_std": _nonnegative("Pa", 1.0e7), "encoder_resolution": _nonnegative("rad", 0.5),
-           "velocity_filter_hz": _positive("Hz", 1.0e4), "joint_velocity_max": _positive("rad/s", 100.0), "frozen_s": _positive("s", 3600.0),
-           "pilot_pressure_noise_std": _nonnegative("Pa", 1.0e7), "pressure_rate_max": _positive("Pa/s")}
-MEMS = {"inclination_resolution": _nonnegative("rad"), "inclination_noise_std": _nonnegative("rad"), "gyro_resolution": _nonnegative("rad/s"),
-        "gyro_noise_std": _nonnegative("rad/s"), "gyro_bias": Rule("rad/s", -1.0, 1.0), "k_p": _positive("1/s"), "k_i": _nonnegative("1/s^2")}
-SIMULATION = {"substeps": Rule("", 1.0, 1000.0), "end_stop_lower": _nonnegative("m", 20.0), "end_stop_upper": _positive("m", 20.0),
-              "end_stop_stiffness": _positive("N/m"), "end_stop_damping": _nonnegative("N s/m"), "cavitation_pressure": Rule("Pa", -1.0e5, 0.0),
-              "initial_joint_position": Rule("rad", -7.0, 7.0), "gravity": _nonnegative("m/s^2", 100.0)}
-EXCITATION = {"gain": _positive("1/rad"), "max_command": Rule("", 0.0, 1.0, open_low=True)}
+VALVE = rules_of(Valve)
+MOBILE_VALVE = rules_of(Valve, "mobile")
+FLUID = rules_of(Fluid)
+FRICTION = rules_of(Friction)
+LOAD = rules_of(Load)
+SENSORS = rules_of(Sensors)
+MEMS = rules_of(Mems)
+SIMULATION = rules_of(Simulation)
+EXCITATION = rules_of(Excitation)
 PAIRS = {"sensors": ("pressure_range", "joint_range"), "excitation": ("joint_range", "move_speed", "rest_time")}
 
 CAN_QUANTITIES = {"joint_position", "joint_velocity", "pressure_a", "pressure_b", "valve_command", "pilot_pressure_1", "pilot_pressure_2",
@@ -94,32 +73,31 @@ VALVE_KEYS = set(VALVE) | set(MOBILE_VALVE) | {"type", "command_range", "kv_poly
 SECTION_KEYS = {"sensors": set(SENSORS) | {"pressure_range", "joint_range", "motion_sensor", "mems"}, "simulation": set(SIMULATION),
                 "excitation": set(EXCITATION) | set(PAIRS["excitation"])}
 # a crane config also holds its planner's sections (contract/crane.py types them)
-CRANE_LINKS = {"lift_length": _positive("m", 50.0), "tilt_offset": Rule("m", -10.0, 10.0), "extension_base": _positive("m", 50.0),
+CRANE_LINKS = {"lift_length": positive("m", 50.0), "tilt_offset": Rule("m", -10.0, 10.0), "extension_base": positive("m", 50.0),
                "lift_joint_x": Rule("m", -50.0, 50.0), "lift_joint_y": Rule("m", -50.0, 50.0)}
 CRANE_JOINT = {"min": Rule("rad or m", -7.0, 50.0), "max": Rule("rad or m", -7.0, 50.0)}
-CRANE_CYLINDER = {"ratio": Rule("m per joint unit", -100.0, 100.0), "la": _nonnegative("m", 50.0), "lb": _nonnegative("m", 50.0),
+CRANE_CYLINDER = {"ratio": Rule("m per joint unit", -100.0, 100.0), "la": nonnegative("m", 50.0), "lb": nonnegative("m", 50.0),
                   "theta_at_min": Rule("rad", -7.0, 7.0), "sign": Rule("", -1.0, 1.0),
-                  "area_a": _positive("m^2", 1.0, hint="SI: a 120 mm bore is 1.13e-2"), "area_b": _nonnegative("m^2", 1.0),
-                  "pump_area_extend": _nonnegative("m^2", 1.0), "pump_area_retract": _nonnegative("m^2", 1.0),
-                  "velocity_max": _positive("m/s", 10.0), "acceleration_max": _positive("m/s^2", 100.0), "constant_force": Rule("N")}
-CRANE_MASS = {"s": Rule("m", -50.0, 50.0), "mass": _nonnegative("kg", 1.0e6)}
-CRANE_FRICTION = {"coulomb": _nonnegative("N"), "tanh_gain": _positive("s/m")}
-CRANE_DP = {"sample_time": _positive("s", 10.0), "filter_cutoff": _positive("Hz", 1.0e3)}
+                  "area_a": positive("m^2", 1.0, hint="SI: a 120 mm bore is 1.13e-2"), "area_b": nonnegative("m^2", 1.0),
+                  "pump_area_extend": nonnegative("m^2", 1.0), "pump_area_retract": nonnegative("m^2", 1.0),
+                  "velocity_max": positive("m/s", 10.0), "acceleration_max": positive("m/s^2", 100.0), "constant_force": Rule("N")}
+CRANE_MASS = {"s": Rule("m", -50.0, 50.0), "mass": nonnegative("kg", 1.0e6)}
+CRANE_FRICTION = {"coulomb": nonnegative("N"), "tanh_gain": positive("s/m")}
+CRANE_DP = {"sample_time": positive("s", 10.0), "filter_cutoff": positive("Hz", 1.0e3)}
 CRANE_CHOICES = {"mapping": ("linear", "triangle"), "spool": ("non_differential", "differential"), "link": ("lift", "boom")}
-ARM = {"payload": _nonnegative("kg", 1.0e6)}
+ARM = rules_of(Arm)
 RANGE_LIMIT = {"revolute": Rule("rad", -7.0, 7.0, hint="radians: 90 deg is 1.571"), "prismatic": Rule("m", -50.0, 50.0, hint="metres")}
-ARM_LINK = {"length": Rule("m", 0.0, 100.0, hint="SI: metres"), "offset": Rule("m", -100.0, 100.0)}
-LINK_MASS = {"mass": _nonnegative("kg", 1.0e6), "along": Rule("m", -100.0, 100.0), "across": Rule("m", -100.0, 100.0),
-             "inertia": _nonnegative("kg m^2", 1.0e7)}
+ARM_LINK = rules_of(ArmLink)
+LINK_MASS = rules_of(LinkMass)
 RANGE_SLACK = 1e-3  # [m] a joint range may reach this far past the cylinder's ends (rounding of data-sheet values)
-HYDRAULICS = {"supply_pressure_cp": PRESSURE, "tank_pressure": _nonnegative("Pa", 1.0e7), "ls_margin": _nonnegative("Pa", 1.0e7),
-              "compensator_drop": _nonnegative("Pa", 1.0e7), "efficiency": Rule("-", 0.0, 1.0, open_low=True),
-              "drive_threshold": _positive("m/s", 1.0), "pump_flow_max": _positive("m^3/s", 1.0), "supply_pressure_max": PRESSURE}
-SLEW_DRIVES = {"rack": {"ratio": _positive("m/rad", 10.0, hint="the plungers' stroke per radian: the pinion's radius"),
-                        "area": _positive("m^2", 1.0, hint="SI: a 115 mm plunger is 1.04e-2")},
-               "motor": {"displacement": _positive("m^3/rad", 1.0, hint="a 100 cm^3/rev motor is 1.59e-5 m^3/rad")}}
-PLANNER_FRICTION = {"coulomb": _nonnegative("N"), "tanh_gain": _positive("s/m")}
-PLANNER_ACTUATOR = {"velocity_max": _positive("m/s", 10.0), "acceleration_max": _positive("m/s^2", 100.0)}
+HYDRAULICS = {"supply_pressure_cp": PRESSURE, "tank_pressure": nonnegative("Pa", 1.0e7), "ls_margin": nonnegative("Pa", 1.0e7),
+              "compensator_drop": nonnegative("Pa", 1.0e7), "efficiency": Rule("-", 0.0, 1.0, open_low=True),
+              "drive_threshold": positive("m/s", 1.0), "pump_flow_max": positive("m^3/s", 1.0), "supply_pressure_max": PRESSURE}
+SLEW_DRIVES = {"rack": {"ratio": positive("m/rad", 10.0, hint="the plungers' stroke per radian: the pinion's radius"),
+                        "area": positive("m^2", 1.0, hint="SI: a 115 mm plunger is 1.04e-2")},
+               "motor": {"displacement": positive("m^3/rad", 1.0, hint="a 100 cm^3/rev motor is 1.59e-5 m^3/rad")}}
+PLANNER_FRICTION = {"coulomb": nonnegative("N"), "tanh_gain": positive("s/m")}
+PLANNER_ACTUATOR = {"velocity_max": positive("m/s", 10.0), "acceleration_max": positive("m/s^2", 100.0)}
 # the planner's optional sections, each key over its default: the closed loop's settings (P-VI App. A, L11659-L11666; K_p,
 # eps_p, eps_v and the rate are NOT GIVEN: our choices)
 PLANNER_CONTROLLER = {
@@ -680,7 +658,7 @@ def _valve(found: _Problems, path: str, node: Any) -> None:
         found.add(f"{path}.type", f"{kind!r}: expected proportional or mobile")
     rules = {**VALVE, **(MOBILE_VALVE if kind == "mobile" else {})}
     found.numbers(node, path, rules, required=tuple(k for k in rules if k != "deadzone"))
-    for section, rule in (("kv_poly", None), ("centre_leakage", _nonnegative("m^3/(s Pa)", 1.0e-6))):
+    for section, rule in (("kv_poly", None), ("centre_leakage", nonnegative("m^3/(s Pa)", 1.0e-6))):
         table = node.get(section)
         if not isinstance(table, dict):
             found.add(f"{path}.{section}", "missing: one entry per notch (PA, PB, AT, BT)")

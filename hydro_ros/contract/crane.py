@@ -22,7 +22,8 @@ from typing import Any
 
 from hydro_ros.contract.check import PLANNER_CONTROLLER, PLANNER_PLANT, defaults, planner_problems, refuse_problems
 from hydro_ros.contract.config import ConfigError, with_overrides
-from hydro_ros.contract.machine import Arm, ArmLink, Section, Slew, parse_arm, parse_mount
+from hydro_ros.contract.machine import Section, parse_arm, parse_mount
+from hydro_ros.contract.schema import Arm, ArmLink, Slew
 from hydro_ros.contract.upgrade import machine_form
 
 # the planner's controller and plant sections over their defaults (declared with their rules in ``check``)

@@ -12,13 +12,31 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 from hydro_ros.contract.check import config_problems, list_entry, refuse_problems
 from hydro_ros.contract.config import ConfigError, read_config, unshared, with_overrides
 from hydro_ros.contract.names import EFFECT_FORMS, first_form
+from hydro_ros.contract.schema import (
+    GROUP,
+    RULE,
+    Arm,
+    ArmLink,
+    Cylinder,
+    Excitation,
+    Fluid,
+    Friction,
+    LinkMass,
+    Load,
+    Mems,
+    Mount,
+    Sensors,
+    Simulation,
+    Slew,
+    Valve,
+)
 from hydro_ros.contract.upgrade import machine_form
 
 NOTCHES = ("PA", "PB", "AT", "BT")
@@ -73,176 +91,6 @@ class Section:
 
 
 @dataclass(frozen=True)
-class Cylinder:
-    piston_diameter: float
-    """[m]"""
-    rod_diameter: float
-    """[m]"""
-    stroke: float
-    """[m] x_max of P-I eqs. (8)-(9)"""
-    dead_volume_a: float
-    """[m^3] V0A"""
-    dead_volume_b: float
-    """[m^3] V0B"""
-
-
-@dataclass(frozen=True)
-class Mount:
-    """How the piston follows the joint. ``triangle``: cylinder length = sqrt(l1^2 + l2^2 - 2 l1 l2 cos(theta)),
-    x = length - l3 (P-I eq. 3), theta = sign joint + theta_offset; ``linear``: x = ratio (joint + theta_offset)."""
-
-    l1: float
-    """[m] upper cylinder joint to boom joint"""
-    l2: float
-    """[m] lower cylinder joint to boom joint"""
-    l3: float
-    """[m] cylinder length at x = 0"""
-    theta_offset: float
-    """[rad] theta = sign joint position + theta_offset (linear: [joint unit] added to the joint)"""
-    kind: str = "triangle"
-    """``triangle`` (a cylinder between two links) or ``linear`` (a telescope, a rack)"""
-    sign: float = 1.0
-    """+1: the triangle opens as the joint opens; -1: as it closes (P-VI's tilt)"""
-    ratio: float = 1.0
-    """linear: [m per joint unit]"""
-
-
-@dataclass(frozen=True)
-class Valve:
-    type: str
-    """``proportional`` (servo-solenoid, P-I..P-III) or ``mobile`` (pressure-compensated, pilot-operated, P-IV)"""
-    natural_frequency: float
-    """[rad/s] spool omega_n"""
-    damping: float
-    """[-] spool damping ratio"""
-    laminar_band: float
-    """[Pa] |dp| below this uses a linearised orifice law"""
-    nominal_flow: float
-    """[m^3/s] rated flow per notch at ``nominal_pressure_drop``"""
-    nominal_pressure_drop: float
-    """[Pa]"""
-    kv_poly: Mapping[str, tuple[float, ...]]
-    """per notch (PA, PB, AT, BT): K_v(xs) = c3 xs^3 + c2 xs^2 + c1 xs + c0 [m^3/(s Pa^0.5)] (P-II Table 1)"""
-    centre_leakage: Mapping[str, float]
-    """per notch: [m^3/(s Pa)] laminar leakage near the centre (P-I eqs. 13-14)"""
-    compensator_pressure_drop: float = 0.0
-    """[Pa] mobile valves: regulated drop over the metering notch"""
-    pilot_pressure_max: float = 0.0
-    """[Pa] mobile valves: pilot pressure at full command"""
-    deadzone: float = 0.0
-    """[-] main-spool overlap as a fraction of travel"""
-
-    @property
-    def mobile(self) -> bool:
-        return self.type == "mobile"
-
-
-@dataclass(frozen=True)
-class Fluid:
-    oil_bulk_modulus: float
-    """[Pa] B_o of P-II eq. (19)"""
-    hose_bulk_modulus: float
-    """[Pa] B_h"""
-    hose_volume: float
-    """[m^3] V_h"""
-
-
-@dataclass(frozen=True)
-class Friction:
-    """LuGre (P-I eq. 17)."""
-
-    viscous: float
-    """[N s/m] b"""
-    static: float
-    """[N] F_S"""
-    coulomb: float
-    """[N] F_C"""
-    stribeck_velocity: float
-    """[m/s] v_s"""
-    bristle_stiffness: float
-    """[N/m] sigma0"""
-
-
-@dataclass(frozen=True)
-class Load:
-    boom_mass: float
-    """[kg] m_B"""
-    boom_length: float
-    """[m] L_B"""
-    boom_cog_distance: float
-    """[m] boom centre of gravity from the joint, on the load side"""
-    left_mass: float
-    """[kg] m_L"""
-    right_mass: float
-    """[kg] m_R"""
-    load_distance: float
-    """[m] L"""
-
-
-@dataclass(frozen=True)
-class LinkMass:
-    """A mass fixed on a link (a prismatic link's masses slide with it)."""
-
-    name: str
-    mass: float
-    """[kg]"""
-    along: float
-    """[m] its centre of gravity from the link's joint, along the link (a prismatic link: at zero extension)"""
-    across: float = 0.0
-    """[m] its centre of gravity to the left of the link's line"""
-    inertia: float = 0.0
-    """[kg m^2] about its own centre of gravity (0: a point mass)"""
-
-
-@dataclass(frozen=True)
-class ArmLink:
-    """A link of a planar serial arm and the joint it turns or slides on."""
-
-    joint: str
-    """its joint's name in /joint_states (an actuator's ``joint``)"""
-    kind: str
-    """``revolute`` (turns relative to the link before it) or ``prismatic`` (slides along the link before it)"""
-    length: float
-    """[m] from its joint to the next joint along the link (a prismatic link: at zero extension)"""
-    joint_range: tuple[float, float]
-    """[rad] or [m]: where the joint may go"""
-    offset: float = 0.0
-    """[m] the next joint to the left of the link's line"""
-    masses: tuple[LinkMass, ...] = ()
-
-
-@dataclass(frozen=True)
-class Slew:
-    """A base turning the planar links about the vertical axis (``arm.slew``), and what drives it: the P-VI crane's rack
-    and pinion (two plungers: a stroke of ``ratio`` metres per radian on ``area`` either way) or a hydraulic motor (its
-    ``displacement`` per radian as ``area``, ``ratio`` 1). Described for the planner (the flow and force of turning); the
-    monitor and the simulators of the cylinders do not model it."""
-
-    joint: str
-    joint_range: tuple[float, float]
-    """[rad]"""
-    drive: str
-    """``rack`` or ``motor``"""
-    ratio: float
-    """[m/rad] a rack's stroke per radian; 1 for a motor"""
-    area: float
-    """[m^2] a plunger's area, or [m^3/rad] a motor's displacement"""
-
-
-@dataclass(frozen=True)
-class Arm:
-    """The links the cylinders move, base to tip (``arm:``): the simulator couples their dynamics."""
-
-    links: tuple[ArmLink, ...]
-    origin: tuple[float, float] = (0.0, 0.0)
-    """[m] the first joint, horizontally and up from the base"""
-    payload: float = 0.0
-    """[kg] at the tip of the last link"""
-    slew: Slew | None = None
-    """a slewing base under the first link, or None (a planar machine)"""
-
-
-@dataclass(frozen=True)
 class Actuator:
     name: str
     """the actuator's name in topics (``/hydraulics/<name>/...``) and in /hydraulics/valve_commands"""
@@ -258,89 +106,6 @@ class Actuator:
     load: Load | None
     """what the cylinder carries as a boom of its own; None on a machine with an ``arm:``, whose links carry it
     (``models.serial_arm.equivalent_load`` gives a one-cylinder model its share)"""
-
-
-@dataclass(frozen=True)
-class Mems:
-    """P-III's MEMS motion sensor (inclinometer + gyroscope, complementary filter)."""
-
-    inclination_resolution: float
-    """[rad]"""
-    inclination_noise_std: float
-    """[rad]"""
-    gyro_resolution: float
-    """[rad/s]"""
-    gyro_noise_std: float
-    """[rad/s]"""
-    gyro_bias: float
-    """[rad/s]"""
-    k_p: float
-    """[1/s] complementary-filter proportional gain"""
-    k_i: float
-    """[1/s^2] complementary-filter integral gain"""
-
-
-@dataclass(frozen=True)
-class Sensors:
-    pressure_noise_std: float
-    """[Pa] standard deviation of every chamber and supply pressure reading"""
-    pressure_range: tuple[float, float]
-    """[Pa] readings saturate here"""
-    encoder_resolution: float
-    """[rad] joint encoder quantisation"""
-    velocity_filter_hz: float = 20.0
-    """[Hz] first-order low-pass on the differentiated encoder angle"""
-    motion_sensor: str = "encoder"
-    """``encoder`` or ``mems`` (P-III)"""
-    mems: Mems | None = None
-    pilot_pressure_noise_std: float | None = None
-    """[Pa] mobile valves: pilot and compensator pressure transducers"""
-    joint_range: tuple[float, float] = (-math.pi, math.pi)
-    """[rad] a joint reading outside this is implausible (a sensor fault, not motion)"""
-    joint_velocity_max: float = 5.0
-    """[rad/s] a joint rate reading beyond this is implausible"""
-    frozen_s: float = 1.0
-    """[s] a pressure reading repeating the same value this long, inside its range, is a frozen sensor"""
-    pressure_rate_max: float = 5.0e9
-    """[Pa/s] a pressure changing faster than this between two samples is implausible (a garbage frame, not hydraulics)"""
-
-
-@dataclass(frozen=True)
-class Simulation:
-    """Numerical choices of the simulator, not machine data."""
-
-    substeps: int = 10
-    """[-] RK4 steps per sensor sample"""
-    end_stop_lower: float = 0.0
-    """[m] piston position of the retracted end stop"""
-    end_stop_upper: float | None = None
-    """[m] piston position of the extended end stop (None: the stroke)"""
-    end_stop_stiffness: float = 1.0e8
-    """[N/m]"""
-    end_stop_damping: float = 2.0e6
-    """[N s/m]"""
-    cavitation_pressure: float = -9.0e4
-    """[Pa] gauge floor of the chamber pressures"""
-    initial_joint_position: float = 0.0
-    """[rad]"""
-    gravity: float = 9.81
-    """[m/s^2]"""
-
-
-@dataclass(frozen=True)
-class Excitation:
-    """The simulated operator: closed-loop random rest-to-rest moves of the joint."""
-
-    joint_range: tuple[float, float] = (-0.5, 0.5)
-    """[rad] targets are drawn uniformly from this range"""
-    move_speed: tuple[float, float] = (0.05, 0.2)
-    """[rad/s] reference speed of a move"""
-    rest_time: tuple[float, float] = (0.5, 3.0)
-    """[s] rest between moves"""
-    gain: float = 4.0
-    """[1/rad] joint error to valve command"""
-    max_command: float = 1.0
-    """[-] the operator never pushes the lever beyond this fraction"""
 
 
 @dataclass(frozen=True)
@@ -432,6 +197,19 @@ def load_machine_config(path: str | Path) -> Machine:
     return parse_machine(read_config(path, required=_REQUIRED, nonempty="actuators"), path.resolve())
 
 
+def _given(declaration: type, section: Section) -> dict[str, Any]:
+    """The numbers ``section`` gives for ``declaration``'s ruled fields (``schema.ruled``, the class's own group): each one
+    a field without a default requires, and each other one present."""
+    out: dict[str, Any] = {}
+    for item in fields(declaration):
+        if RULE not in item.metadata or item.metadata[GROUP]:
+            continue
+        if item.name in section.node or (item.default is MISSING and item.default_factory is MISSING):
+            value = section.number(item.name)
+            out[item.name] = int(value) if item.type == "int" else value
+    return out
+
+
 def parse_machine(config: dict[str, Any], source: Path) -> Machine:
     config = machine_form(config, source)
     refuse_problems(config_problems(config), source)
@@ -458,34 +236,18 @@ def parse_machine(config: dict[str, Any], source: Path) -> Machine:
         tank_pressure=top.number("tank_pressure"),
         actuators=parsed,
         sensors=Sensors(
-            pressure_noise_std=sensors.number("pressure_noise_std"),
+            **_given(Sensors, sensors),
             pressure_range=sensors.numbers("pressure_range", 2),  # type: ignore[arg-type]
-            encoder_resolution=sensors.number("encoder_resolution"),
-            velocity_filter_hz=sensors.number("velocity_filter_hz", 20.0),
             motion_sensor=_choice(sensors, "motion_sensor", ("encoder", "mems"), "encoder"),
-            mems=_mems(sensors.section("mems")) if sensors.node.get("motion_sensor") == "mems" else None,
-            pilot_pressure_noise_std=sensors.number("pilot_pressure_noise_std") if "pilot_pressure_noise_std" in sensors.node else None,
+            mems=Mems(**_given(Mems, sensors.section("mems"))) if sensors.node.get("motion_sensor") == "mems" else None,
             joint_range=sensors.numbers("joint_range", 2) if "joint_range" in sensors.node else (-math.pi, math.pi),  # type: ignore[arg-type]
-            joint_velocity_max=sensors.number("joint_velocity_max", 5.0),
-            frozen_s=sensors.number("frozen_s", 1.0),
-            pressure_rate_max=sensors.number("pressure_rate_max", 5.0e9),
         ),
-        simulation=Simulation(
-            substeps=int(simulation.number("substeps", 10)),
-            end_stop_lower=simulation.number("end_stop_lower", 0.0),
-            end_stop_upper=simulation.number("end_stop_upper") if "end_stop_upper" in simulation.node else None,
-            end_stop_stiffness=simulation.number("end_stop_stiffness", 1.0e8),
-            end_stop_damping=simulation.number("end_stop_damping", 2.0e6),
-            cavitation_pressure=simulation.number("cavitation_pressure", -9.0e4),
-            initial_joint_position=simulation.number("initial_joint_position", 0.0),
-            gravity=simulation.number("gravity", 9.81),
-        ),
+        simulation=Simulation(**_given(Simulation, simulation)),
         excitation=Excitation(
+            **_given(Excitation, excitation),
             joint_range=excitation.numbers("joint_range", 2) if "joint_range" in excitation.node else defaults.joint_range,  # type: ignore[arg-type]
             move_speed=excitation.numbers("move_speed", 2) if "move_speed" in excitation.node else defaults.move_speed,  # type: ignore[arg-type]
             rest_time=excitation.numbers("rest_time", 2) if "rest_time" in excitation.node else defaults.rest_time,  # type: ignore[arg-type]
-            gain=excitation.number("gain", defaults.gain),
-            max_command=excitation.number("max_command", defaults.max_command),
         ),
         effects=dict({str(name): effects.number(name) for name in effects.node}),
         effect_forms=_effect_forms(top.section("effect_forms", optional=True)),
@@ -524,29 +286,21 @@ def _actuator(section: Section, name: str, index: int, arm: Arm | None) -> Actua
         name=name,
         joint=section.text("joint"),
         can_slot=int(section.number("can_slot", index)),
-        cylinder=Cylinder(*(cylinder.number(k) for k in ("piston_diameter", "rod_diameter", "stroke", "dead_volume_a", "dead_volume_b"))),
+        cylinder=Cylinder(**_given(Cylinder, cylinder)),
         mount=parse_mount(mount),
         valve=Valve(
             type=valve_type,
-            natural_frequency=valve.number("natural_frequency"),
-            damping=valve.number("damping"),
-            laminar_band=valve.number("laminar_band"),
-            nominal_flow=valve.number("nominal_flow"),
-            nominal_pressure_drop=valve.number("nominal_pressure_drop"),
+            **_given(Valve, valve),
             kv_poly=dict({notch: kv_poly.numbers(notch, 4) for notch in NOTCHES}),
             centre_leakage=dict({notch: leakage.number(notch) for notch in NOTCHES}),
             compensator_pressure_drop=valve.number("compensator_pressure_drop") if mobile else 0.0,
             pilot_pressure_max=valve.number("pilot_pressure_max") if mobile else 0.0,
             deadzone=valve.number("deadzone", 0.0) if mobile else 0.0,
         ),
-        fluid=Fluid(*(fluid.number(k) for k in ("oil_bulk_modulus", "hose_bulk_modulus", "hose_volume"))),
-        friction=Friction(*(friction.number(k) for k in ("viscous", "static", "coulomb", "stribeck_velocity", "bristle_stiffness"))),
-        load=None if arm is not None else _load(section.section("load")),
+        fluid=Fluid(**_given(Fluid, fluid)),
+        friction=Friction(**_given(Friction, friction)),
+        load=None if arm is not None else Load(**_given(Load, section.section("load"))),
     )
-
-
-def _load(section: Section) -> Load:
-    return Load(*(section.number(k) for k in ("boom_mass", "boom_length", "boom_cog_distance", "left_mass", "right_mass", "load_distance")))
 
 
 def parse_arm(section: Section) -> Arm:
@@ -560,9 +314,8 @@ def parse_arm(section: Section) -> Arm:
         parsed.append(ArmLink(
             joint=link.text("joint"),
             kind=_choice(link, "kind", ("revolute", "prismatic"), "revolute"),
-            length=link.number("length"),
+            **_given(ArmLink, link),
             joint_range=link.numbers("range", 2),  # type: ignore[arg-type]
-            offset=link.number("offset", 0.0),
             masses=tuple(_link_mass(Section(section.source, list_entry(f"{link.key}.masses", m, mass), mass), m)
                          for m, mass in enumerate(masses)),
         ))
@@ -574,12 +327,11 @@ def parse_arm(section: Section) -> Arm:
         kind = _choice(drive, "kind", ("rack", "motor"), "rack")
         slew = Slew(node.text("joint"), node.numbers("range", 2), kind,  # type: ignore[arg-type]
                     drive.number("ratio") if kind == "rack" else 1.0, drive.number("area" if kind == "rack" else "displacement"))
-    return Arm(links=tuple(parsed), origin=origin, payload=section.number("payload", 0.0), slew=slew)  # type: ignore[arg-type]
+    return Arm(links=tuple(parsed), origin=origin, slew=slew, **_given(Arm, section))  # type: ignore[arg-type]
 
 
 def _link_mass(section: Section, index: int) -> LinkMass:
-    return LinkMass(name=section.text("name", f"mass{index}"), mass=section.number("mass"), along=section.number("along"),
-                    across=section.number("across", 0.0), inertia=section.number("inertia", 0.0))
+    return LinkMass(name=section.text("name", f"mass{index}"), **_given(LinkMass, section))
 
 
 def parse_mount(section: Section) -> Mount:
@@ -591,8 +343,3 @@ def parse_mount(section: Section) -> Mount:
         raise ConfigError(f"config {section.source}: {section._name('sign')} = {sign:g}: expected 1 or -1")
     l1, l2, l3, theta_offset = (section.number(k) for k in ("l1", "l2", "l3", "theta_offset"))
     return Mount(l1, l2, l3, theta_offset, kind, sign)
-
-
-def _mems(section: Section) -> Mems:
-    return Mems(*(section.number(k) for k in ("inclination_resolution", "inclination_noise_std", "gyro_resolution", "gyro_noise_std",
-                                                "gyro_bias", "k_p", "k_i")))

@@ -28,8 +28,9 @@ import numpy as np
 from numba import njit, prange
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.contract.machine import NOTCHES, Load, Machine
+from hydro_ros.contract.machine import NOTCHES, Machine
 from hydro_ros.contract.names import Effect, Fault, Injection
+from hydro_ros.contract.schema import Load
 from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient, leak_flow
 from hydro_ros.models.friction import bristle_rate, friction_force, stribeck_curve
 from hydro_ros.models.kinematics import (

@@ -27,7 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from hydro_ros.contract.machine import Arm, ArmLink, Load, Machine
+from hydro_ros.contract.machine import Machine
+from hydro_ros.contract.schema import Arm, ArmLink, Load
 from hydro_ros.models.kinematics import MOUNT_KINDS, mount_arm
 
 NUMPY = SimpleNamespace(cos=np.cos, sin=np.sin)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.contract.machine import Excitation
+from hydro_ros.contract.schema import Excitation
 
 
 class OperatorReference:
