@@ -136,6 +136,7 @@ def test_a_usage_error_and_a_refused_input_exit_alike(tmp_path, capsys):
     assert "error:" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # two DP solves through the CLI (~14 s)
 def test_dp_plans_a_straight_line_given_on_the_command_line_as_the_config_path_it_equals(tmp_path):
     """`dp solve --line` plans the K70M's horizontal path's own line (3.0, 0.5) -> (6.2, 0.5) m in 10 s as the config's
     path does, to the joule; a line out of reach, a point for a line and a config path's id are refused in one line."""

@@ -75,6 +75,7 @@ def commissioned(sam_config):
     return sam_config.with_overrides(block["model"]), block, report, recordings
 
 
+@pytest.mark.slow  # three 2-minute days of the machine built apart, commissioned (~40 s)
 def test_commissioning_recovers_each_notch_the_compliance_and_the_centre_leakage(sam_config, commissioned):
     """Against the built machine's own numbers: its notches are tables (each point drawn off), its chambers' compliance
     has the lines' oil and wall added (a form the model does not have) and its centre leakage is blended in."""
@@ -177,6 +178,7 @@ def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_an
     assert run.alarms and run.alarms[0].time_s > 20.0 and named and named[0].fault.value == "external_leakage_a"
 
 
+@pytest.mark.slow  # ~20 s of simulated recordings
 def test_commissioning_refuses_a_leaking_machine_and_a_recording_without_retracting_moves(sam_config):
     leaking = [FaultFreeRecording(f"leak{seed}", _built(sam_config, seed, 90.0, faults=(("external_leakage_a", 0.5, 0.0),)))
                for seed in (1, 2)]

@@ -31,7 +31,8 @@ def _setup(machine: str, path_id: str, sizes: tuple[int, int, int] = COARSE):
 
 @pytest.mark.parametrize(
     ("machine", "path_id", "cost"),
-    [("k70m", "horizontal", Cost.CP), ("k70m", "horizontal", Cost.LS), ("k70m", "half_cycle", Cost.ACTUATOR), ("crane3dof", "triangle", Cost.CP)],
+    [("k70m", "horizontal", Cost.CP), ("k70m", "horizontal", Cost.LS),
+     pytest.param("k70m", "half_cycle", Cost.ACTUATOR, marks=pytest.mark.slow), ("crane3dof", "triangle", Cost.CP)],
 )
 def test_fast_dp_equals_the_reference(machine: str, path_id: str, cost: Cost) -> None:
     crane, _, samples, grid = _setup(machine, path_id, (40, 21, 31))
