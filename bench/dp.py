@@ -66,8 +66,18 @@ def solver_speed() -> dict:
     }
 
 
+CONVERGENCE_SCALES = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4)  # of the K70M's grid (356 x 101 x 151); 1.4: a finer grid to judge 1.0 by
+CONVERGED = 0.005  # the full grid's energy within this share of the finer grid's: converged (issue 55)
+
+
 def convergence(out_dir: Path) -> dict:
-    """P-V Figs. 8/10: energy of coarser grids against the full grid (CP and LS)."""
+    """P-V Figs. 8/10 on every K70M path and both starts (P-VI's smallest feasible extension and the middle of the window):
+    the energy of each grid against the finest, CP and LS. Each grid starts from the full grid's start state (a coarse grid's
+    own smallest node lies up to a cell further out), so the grids solve one problem. Per grid: the realised energy of the
+    reference it serves (filtered) and of the DP's own trajectory, and the cost the DP predicted for it (its cost-to-go at
+    the start node)."""
+    from dataclasses import replace
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -79,33 +89,52 @@ def convergence(out_dir: Path) -> dict:
     from hydro_ros.planning.problem import Problem, plan_dp
 
     crane, config = load_crane(default_config_path("k70m"))
-    scales = (0.25, 0.35, 0.5, 0.7, 1.0)
-    rows = {}
-    for cost in (Cost.CP, Cost.LS):
-        rows[cost.value] = []
-        for scale in scales:
-            grid = (int(355 * scale) + 1, 2 * int(50 * scale) + 1, 2 * int(75 * scale) + 1)
-            problem = Problem.build(crane, config, "horizontal", grid=grid)
-            plan = plan_dp(problem, cost)
-            energy = plan.evaluation[f"{cost.value}_energy_J"]
-            rows[cost.value].append({"grid": list(grid), "energy_J": energy, "seconds": plan.seconds})
-            print(f"convergence {cost.value} {grid}: {energy / 1e3:.2f} kJ in {plan.seconds:.1f} s", flush=True)
-        full = rows[cost.value][-1]["energy_J"]
-        for row in rows[cost.value]:
-            row["relative"] = row["energy_J"] / full
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    for cost, series in rows.items():
-        ax.plot([r["grid"][0] * r["grid"][1] * r["grid"][2] for r in series], [r["relative"] for r in series], "o-", label=cost.upper())
-    ax.set_xscale("log")
-    ax.set_xlabel("grid points N_c N_v N_u")
-    ax.set_ylabel("energy / full-grid energy")
-    ax.set_title("DP grid convergence, k70m horizontal")
-    ax.grid(alpha=0.3)
-    ax.legend()
+    full = config.dp.grid
+    cases: dict[str, dict] = {}
+    for path in ("horizontal", "vertical", "half_cycle"):
+        for start in ("smallest", "middle"):
+            start_position = Problem.build(crane, config, path, start=start).start
+            case = cases[f"{path}/{start}"] = {"start_position_m": start_position}
+            for cost in (Cost.CP, Cost.LS):
+                rows = case[cost.value] = []
+                for scale in CONVERGENCE_SCALES:
+                    grid = (int((full[0] - 1) * scale) + 1, 2 * int((full[1] - 1) / 2 * scale) + 1, 2 * int((full[2] - 1) / 2 * scale) + 1)
+                    problem = replace(Problem.build(crane, config, path, grid=grid), start=start_position)
+                    plan = plan_dp(problem, cost)
+                    key = f"{cost.value}_energy_J"
+                    rows.append({"scale": scale, "grid": list(grid), "energy_J": plan.evaluation[key],
+                                 "unfiltered_energy_J": plan.info["unfiltered"][key], "predicted_J": plan.info["predicted_cost"],
+                                 "limits_ok": all(plan.evaluation["limits"].values()), "seconds": round(plan.seconds, 3)})
+                    print(f"convergence {path}/{start} {cost.value} {grid}: {plan.evaluation[key] / 1e3:.3f} kJ "
+                          f"in {plan.seconds:.1f} s", flush=True)
+                finest = rows[-1]["energy_J"]
+                for row in rows:
+                    row["relative"] = row["energy_J"] / finest
+                    row["predicted_over_realised"] = row["predicted_J"] / row["unfiltered_energy_J"]
+                at_full = next(row for row in rows if row["scale"] == 1.0)
+                case[f"{cost.value}_full_grid_excess"] = at_full["relative"] - 1.0
+    summary = {"scales": list(CONVERGENCE_SCALES), "converged_share": CONVERGED, "cases": cases,
+               "full_grid_excess_max": {cost: max(case[f"{cost}_full_grid_excess"] for case in cases.values()) for cost in ("cp", "ls")},
+               "full_grid_excess_min": {cost: min(case[f"{cost}_full_grid_excess"] for case in cases.values()) for cost in ("cp", "ls")}}
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6), sharey=True)
+    for ax, path in zip(axes, ("horizontal", "vertical", "half_cycle")):
+        for start, style in (("smallest", "-"), ("middle", "--")):
+            for cost, colour in (("cp", "C0"), ("ls", "C1")):
+                rows = cases[f"{path}/{start}"][cost]
+                ax.plot([r["grid"][0] * r["grid"][1] * r["grid"][2] for r in rows], [r["relative"] for r in rows], colour + style, marker="o",
+                        label=f"{cost.upper()}, {start} start")
+        ax.axhline(1.0 + CONVERGED, color="k", lw=0.8, ls=":")
+        ax.set_xscale("log")
+        ax.set_xlabel("grid points N_c N_v N_u")
+        ax.set_title(f"k70m {path}")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("energy / finest grid's")
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"DP grid convergence (full grid {full[0]} x {full[1]} x {full[2]} at scale 1; dotted: +{CONVERGED:.1%})")
     fig.tight_layout()
     fig.savefig(out_dir / "dp_convergence.png", dpi=100)
     plt.close(fig)
-    return rows
+    return summary
 
 
 def comparisons(out_dir: Path, machines: set[str], earlier: dict) -> dict:
