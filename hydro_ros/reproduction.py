@@ -190,6 +190,26 @@ def _table_shape(*compares: dict) -> str:
             + f"; on the vertical path {_signed(over_pinvs, '+.2f')} against the pseudo-inverses (grid resolution)")
 
 
+def _grid_convergence(dp: dict) -> str:
+    """The full grid against a finer one on every K70M path and start (bench/dp.py ``convergence``)."""
+    study = dp["convergence"]
+    cases = study["cases"]
+    # a finer grid whose realised energy is higher (a trajectory riding a moving limit edge) is no convergence either
+    converged = {cost: [name for name, case in cases.items() if abs(case[f"{cost}_full_grid_excess"]) <= study["converged_share"]]
+                 for cost in ("cp", "ls")}
+    at_full = [row for case in cases.values() for cost in ("cp", "ls") for row in case[cost] if row["scale"] == 1.0]
+    coarsest = [case[cost][0]["relative"] - 1.0 for case in cases.values() for cost in ("cp", "ls")]
+    ratio = [row["predicted_over_realised"] for row in at_full]
+    return (f"the full grid's energy against a {study['scales'][-1]:g}x finer grid's on {len(cases)} cases (3 K70M paths x 2 starts): "
+            f"CP {_signed([case['cp_full_grid_excess'] for case in cases.values()], '+.2f')}, "
+            f"LS {_signed([case['ls_full_grid_excess'] for case in cases.values()], '+.2f')}; within "
+            f"{study['converged_share']:.1%}: CP {len(converged['cp'])} of {len(cases)}, LS {len(converged['ls'])} of {len(cases)}"
+            + "".join(f" (not: {', '.join(sorted(set(cases) - set(converged[c])))} {c.upper()})" for c in ("cp", "ls")
+                      if len(converged[c]) < len(cases))
+            + f". The coarsest grid ({study['scales'][0]:g}x) {_signed(coarsest, '+.1f')}. On the full grid the DP's "
+            f"predicted cost is {_pct(ratio, '.1f')} % of its own trajectory's realised energy")
+
+
 def _tracking_errors(trajectories: dict) -> list[float]:
     return [run[s]["path_accuracy_m"] for methods in trajectories["execution"].values() for run in methods.values()
             for s in ("cp", "ls")]
@@ -381,6 +401,8 @@ CLAIMS: list[Claim] = [
                  "test_dp.py::test_policy_runs_forward_from_another_start_without_a_new_backward_pass")),
     Claim("DP vs conventional methods +15-30 % (P-V, P-VI)", "reproduced, but not on the vertical placeholder from the smallest start",
           _dp_vs_conventional, files=DP_SMALLEST_START + DP_MIDDLE_START),
+    Claim("P-V Figs. 8/10: the DP's energy converges as its grid is refined", "measured on every K70M path (placeholder "
+          "geometry)", _grid_convergence, files=("dp",)),
     Claim("P-V Table 2/3 shape: DP(CP) best CP, DP(LS) best LS, DIDO within 0.3 %", "partly", _table_shape,
           files=DP_SMALLEST_START, by_hand="the 2x-grid vertical run, which writes no result file"),
     Claim(f"P-VI Table 4 tracking errors ({P_VI_TRACKING_M[0]}-{P_VI_TRACKING_M[1]} m, CP better than LS)", "in scale", _tracking,
