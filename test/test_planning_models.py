@@ -186,9 +186,10 @@ def test_a_crane_configs_problems_are_named_at_once_by_the_check_and_the_planner
     assert good.plant["payload"] == 200.0 and good.controller["position_gain"] == 2.0  # the optional sections' defaults
     unloaded = yaml.safe_load(default_config_path("k70m").read_text())
     unloaded["planner"]["plant"] = {"payload": 0.0}
+    unloaded["planner"]["controller"] = None  # an empty section: every default
     (tmp_path / "unloaded.yaml").write_text(yaml.safe_dump(unloaded))
     _, light = load_crane(tmp_path / "unloaded.yaml")
-    assert light.plant["payload"] == 0.0 and light.plant["valve_delay"] == good.plant["valve_delay"]
+    assert light.plant["payload"] == 0.0 and light.plant["valve_delay"] == good.plant["valve_delay"] and light.controller == good.controller
     broken = yaml.safe_load(default_config_path("k70m").read_text())
     broken["arm"]["links"][0]["length"] = -3.5
     broken["planner"]["actuators"]["lift"]["velocity_max"] = -0.15
@@ -196,11 +197,12 @@ def test_a_crane_configs_problems_are_named_at_once_by_the_check_and_the_planner
     broken["actuators"]["extension"]["cylinder"]["piston_diamter"] = broken["actuators"]["extension"]["cylinder"].pop("piston_diameter")
     broken["planner"]["spool"] = "differential"
     broken["planner"]["dp"]["grid"] = [356, 101]
-    broken["planner"]["plant"] = {"valve_delay": 50.0, "payload": 0.0}
+    broken["planner"]["plant"] = {"valve_delay": 50.0, "payload": 0.0, "valve_dead_zone": 0.9, "valve_dead_zone_spread": 0.2}
     broken["planner"]["controller"] = {"postion_gain": 3.0}
     broken["planner"]["catalog"] = {"method": ["dp_cp"]}
     bad = _each_problem_named_once(tmp_path / "k70m_bad.yaml", broken, (
-                "planner.plant.valve_delay: 50 s: must be <= 5 s", "planner.controller.postion_gain: unknown key (did you mean position_gain?)",
+                "planner.plant.valve_delay: 50 s: must be <= 5 s", "planner.plant.valve_dead_zone_spread: with valve_dead_zone it reaches",
+                "planner.controller.postion_gain: unknown key (did you mean position_gain?)",
                 "planner.catalog.method: unknown key (did you mean methods?)",
                 "arm.links[lift].length: -3.5 m: must be >= 0 m", "planner.actuators.lift.velocity_max: -0.15 m/s: must be > 0",
                 "actuators.tilt.mount.kind: 'triangel': expected triangle or linear",

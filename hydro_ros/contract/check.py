@@ -101,7 +101,7 @@ PLANNER_ACTUATOR = {"velocity_max": positive("m/s", 10.0), "acceleration_max": p
 # the planner's optional sections, each key over its default: the closed loop's settings (P-VI App. A, L11659-L11666; K_p,
 # eps_p, eps_v and the rate are NOT GIVEN: our choices)
 PLANNER_CONTROLLER = {
-    "rate": Rule("Hz", 0.0, 1.0e4, open_low=True, default=100.0),
+    "rate": Rule("Hz", 0.0, 1.0e3, open_low=True, hint="as trajectory_executor's rate", default=100.0),
     "position_gain": Rule("1/s", 0.0, 1.0e3, open_low=True, default=2.0),
     "position_deadband": Rule("m", 0.0, 1.0, default=0.005),
     "velocity_deadband": Rule("m/s", 0.0, 1.0, default=0.002),
@@ -460,11 +460,16 @@ def _planning_sections(found: _Problems, node: dict[str, Any], prefix: str, requ
     if not isinstance(node.get("paths"), dict) or not node["paths"]:
         found.add(f"{prefix}paths", "must name at least one tip path")
     for section, rules in (("controller", PLANNER_CONTROLLER), ("plant", PLANNER_PLANT)):
-        given = node.get(section, {})
-        found.numbers(given, f"{prefix}{section}", rules)
+        given = node.get(section) or {}  # an empty section (YAML null) is every default
+        values = found.numbers(given, f"{prefix}{section}", rules)
         if isinstance(given, dict):
             found.unknown(given, f"{prefix}{section}", set(rules))
-    catalog = node.get("catalog", {})
+        if section == "plant":
+            dead_zone = {key: values.get(key, rule.default) for key, rule in rules.items() if key.startswith("valve_dead_zone")}
+            if (dead_zone["valve_dead_zone"] or 0.0) + (dead_zone["valve_dead_zone_spread"] or 0.0) >= 1.0:
+                found.add(f"{prefix}plant.valve_dead_zone_spread", "with valve_dead_zone it reaches a whole command: a valve "
+                                                                  "drawn at the spread's end would never open")
+    catalog = node.get("catalog") or {}
     if isinstance(catalog, dict):
         found.unknown(catalog, f"{prefix}catalog", set(CATALOG_KEYS))
     else:

@@ -206,7 +206,7 @@ def _given(declaration: type, section: Section) -> dict[str, Any]:
             continue
         if item.name in section.node or (item.default is MISSING and item.default_factory is MISSING):
             value = section.number(item.name)
-            out[item.name] = int(value) if item.type == "int" else value
+            out[item.name] = int(value) if isinstance(item.default, int) and not isinstance(item.default, bool) else value
     return out
 
 

@@ -1,6 +1,7 @@
 """What a machine config's values may be, declared once on the dataclass fields that hold them.
 
-A field of :mod:`hydro_ros.contract.machine`'s dataclasses that a config gives as a number carries its :class:`Rule`
+The sections of a machine config are the dataclasses below (:mod:`hydro_ros.contract.machine` parses a file into them
+and a ``Machine``). A field a config gives as a number carries its :class:`Rule`
 (unit, plausible range, what a value outside usually means) in its metadata (:func:`ruled`); its default is the
 field's. :mod:`hydro_ros.contract.check` reads its tables off the fields (:func:`rules_of`), the parser reads the
 numbers they name, and docs/reference/config.md is written from the same tables. The ranges are physical

@@ -161,7 +161,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None
     the signal ends the spin (see `stop_signals`), and the node is destroyed while its publishers still work.
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
+    node, executor = None, None
     with stop_signals() as stop:
         try:
             try:
@@ -178,6 +178,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> None
         finally:
             if node is not None:
                 node.destroy_node()
+            if executor is not None:
+                executor.shutdown()
             if rclpy.ok():
                 rclpy.shutdown()
 

@@ -144,9 +144,6 @@ class Parameters:
                 raise InputError(f"parameter {reason}" if reason.startswith(name) else f"parameter {name}: {reason}") from None
             self.values[name] = value
 
-    def __getitem__(self, name: str) -> Any:
-        return self.values[name]
-
     def _check(self, parameters: list[Parameter]) -> SetParametersResult:
         for parameter in parameters:
             spec = self.specs.get(parameter.name)
