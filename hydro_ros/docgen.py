@@ -91,22 +91,15 @@ def cli_markdown() -> str:
     return "\n".join(out)
 
 
-def _limit(rule: Any) -> str:
-    low = "" if rule.low is None else f"{'>' if rule.open_low else '>='} {rule.low:g}"
-    high = "" if rule.high is None else f"<= {rule.high:g}"
-    default = "" if rule.default is None else f"default {rule.default:g}"
-    return ", ".join(part for part in (low, high, default) if part) or "finite"
-
-
 def config_markdown() -> str:
     """One table per section of the machine form, from the rules `machine check` applies."""
-    from hydro_ros.contract.check import CATALOG_KEYS, REFERENCE
+    from hydro_ros.contract.check import CATALOG_KEYS, REFERENCE, accepted
 
     out = []
     for section, rules, what in REFERENCE:
         out += [f"### `{section or '(top level)'}`", "", f"{_escaped(what[:1].upper() + what[1:])}.", "",
                 "| key | unit | accepted | hint |", "|---|---|---|---|"]
-        out += [f"| `{key}` | {rule.unit or '-'} | {_limit(rule)} | {_escaped(rule.hint)} |" for key, rule in rules.items()]
+        out += [f"| `{key}` | {rule.unit or '-'} | {accepted(rule)} | {_escaped(rule.hint)} |" for key, rule in rules.items()]
         out.append("")
     out += ["### `planner.catalog` (optional)", "", f"What `hydro-ros db build` plans by default: {', '.join(f'`{k}`' for k in CATALOG_KEYS)} "
             "(method names, as `dp compare` lists them; a grid as `dp.grid`).", ""]

@@ -405,3 +405,44 @@ def test_every_value_a_field_declares_is_read_into_the_typed_machine() -> None:
             assert getattr(typed(parse_machine(changed, path)), item.name) == pytest.approx(value), (declaration.__name__, item.name)
             read.append(f"{declaration.__name__}.{item.name}")
     assert crossed == ["Cylinder.rod_diameter", "Simulation.end_stop_upper"] and len(read) == 39, (crossed, read)
+
+
+def test_the_units_the_shipped_configs_comment_are_the_ones_their_keys_declare() -> None:
+    """A shipped config's "[unit]" comment beside a key says the unit the key's rule declares (contract.schema, check's
+    tables): a hand-written comment cannot drift from the declaration machine check applies."""
+    import re
+
+    from hydro_ros.contract.check import keyed_lines, rules_for
+    from hydro_ros.contract.config import config_dir
+
+    compared, differ = 0, []
+    for path in sorted(config_dir().glob("*.yaml")):
+        for _, key, comment in keyed_lines(path.read_text()):
+            written = re.match(r"\[([^\]]*)\]", comment)
+            declared = {rule.unit or "-" for rule in rules_for(key)}
+            if written and declared:
+                compared += 1
+                if written.group(1) not in declared:
+                    differ.append(f"{path.name}: {key}: [{written.group(1)}], declared {' or '.join(sorted(declared))}")
+    assert differ == [] and compared >= 50, (compared, differ)
+
+
+def test_machine_new_writes_what_check_accepts_beside_each_declared_value(tmp_path) -> None:
+    """`machine new` comments each value a rule declares with its unit and accepted range, from the declarations (not
+    copied text), keeping the shipped comment's words; the values themselves are the shipped file's."""
+    import yaml
+
+    from hydro_ros.cli import main
+    from hydro_ros.cli.machine import with_accepted_ranges
+    from hydro_ros.contract.config import config_dir
+
+    for path in sorted(config_dir().glob("*.yaml")):
+        text = path.read_text()
+        assert yaml.safe_load(with_accepted_ranges(text)) == yaml.safe_load(text), path.name
+    out = tmp_path / "mine.yaml"
+    assert main(["machine", "new", "--like", "boom_arm", "--out", str(out)]) == 0
+    lines = out.read_text().splitlines()
+    assert any(line.strip().startswith("piston_diameter: 0.100") and line.endswith("# [m; >= 0.005, <= 1] PLACEHOLDER: 100/56 cylinder")
+               for line in lines), lines
+    assert any(line.strip().startswith("substeps:") and "default 10" in line for line in lines) or "substeps" not in out.read_text()
+    assert main(["machine", "check", str(out), "--quiet"]) == 0

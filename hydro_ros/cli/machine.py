@@ -42,7 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_out(threshold, "write a config that extends CONFIG with this threshold", required=False)
     threshold.set_defaults(func=cmd_machine_threshold)
     new = verbs.add_parser("new", help="write a commented starting point for your machine's config",
-                           description="Copy a shipped config with its comments (units, where each value comes from).")
+                           description="Copy a shipped config with its comments (where each value comes from); beside each value its unit "
+                                       "and the range `machine check` accepts, from the declarations.")
     new.add_argument("--like", required=True, choices=("sam", "boom_arm", "k70m"),
                      help="sam: one boom; boom_arm: several joints, each a cylinder; k70m: a redundant crane (the planner's)")
     add_out(new, "the new config file")
@@ -252,9 +253,27 @@ def cmd_machine_new(args: argparse.Namespace) -> int:
     text = text.replace(f"machine: {args.like}\n", f"machine: {out.stem}\n", 1)
     # the shipped machine's threshold is not yours: machine check then says how to derive one
     text = re.sub(r"(?m)^(\s*)threshold_constant:.*$", rf"\1# threshold_constant: yours from `hydro-ros machine threshold {out}`", text)
-    out.write_text(header + text)
+    out.write_text(header + with_accepted_ranges(text))
     print(f"{out}: written from {source.name}; next: hydro-ros machine check {out}")
     return 0
+
+
+def with_accepted_ranges(text: str) -> str:
+    """Each value a rule declares gets what `machine check` accepts beside its unit (``# [m; > 0, <= 20] ...``), from the
+    declarations (``contract.schema``, check's tables); a key whose section's kind decides its rule keeps its comment."""
+    from hydro_ros.contract.check import accepted, keyed_lines, rules_for
+
+    lines = text.splitlines()
+    for index, key, comment in keyed_lines(text):
+        rules = rules_for(key)
+        if len(rules) != 1:
+            continue
+        rule = rules[0]
+        facts = f"[{rule.unit or '-'}; {accepted(rule)}]"
+        code, hash_sign, _ = lines[index].partition("#")
+        rest = re.sub(r"^\[[^\]]*\]\s*", "", comment) if hash_sign else ""
+        lines[index] = f"{code.rstrip():<31} # {facts}" + (f" {rest}" if rest else "")
+    return "\n".join(lines) + ("\n" if text.endswith("\n") else "")
 
 
 def cmd_machine_upgrade(args: argparse.Namespace) -> int:

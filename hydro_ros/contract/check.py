@@ -703,6 +703,30 @@ def keyed_lines(text: str) -> list[tuple[int, str, str]]:
     return out
 
 
+def _reference_patterns() -> list[tuple[re.Pattern[str], dict[str, Rule]]]:
+    out = []
+    for section, rules, _ in REFERENCE:
+        base = section.partition(" (")[0]
+        pattern = "".join(r"[^.\[\]]+" if part == "<name>" else r"\[[^\]]*\]" if part == "[]" else re.escape(part)
+                          for part in re.split(r"(<name>|\[\])", base))
+        out.append((re.compile(rf"^{pattern}\.([^.\[\]]+)$" if base else r"^([^.\[\]]+)$"), rules))
+    return out
+
+
+def rules_for(key_path: str) -> list[Rule]:
+    """The rules REFERENCE declares for a key path as ``keyed_lines`` writes it (``actuators.boom.cylinder.stroke``,
+    ``arm.links[boom_joint].length``): one, or two where a section's kind decides (a linear or a triangle mount)."""
+    return [rules[hit.group(1)] for pattern, rules in _reference_patterns() if (hit := pattern.match(key_path)) and hit.group(1) in rules]
+
+
+def accepted(rule: Rule) -> str:
+    """What a rule accepts, as docs/reference/config.md and `machine new` write it."""
+    low = "" if rule.low is None else f"{'>' if rule.open_low else '>='} {rule.low:g}"
+    high = "" if rule.high is None else f"<= {rule.high:g}"
+    default = "" if rule.default is None else f"default {rule.default:g}"
+    return ", ".join(part for part in (low, high, default) if part) or "finite"
+
+
 def annotated_values(path: str | Path) -> list[str]:
     """``key.path: comment`` for every value whose comment in the file says PLACEHOLDER or INFERRED (this file only,
     not the one it extends)."""

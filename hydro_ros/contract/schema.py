@@ -124,7 +124,7 @@ class Valve:
     """mobile valves: regulated drop over the metering notch"""
     pilot_pressure_max: float = field(default=0.0, metadata=ruled(Rule("Pa", 1.0e4, 1.0e7), group="mobile"))
     """mobile valves: pilot pressure at full command"""
-    deadzone: float = field(default=0.0, metadata=ruled(Rule("of travel", 0.0, 0.9), group="mobile"))
+    deadzone: float = field(default=0.0, metadata=ruled(Rule("", 0.0, 0.9, hint="a fraction of the spool's travel"), group="mobile"))
     """main-spool overlap as a fraction of travel"""
 
     @property
