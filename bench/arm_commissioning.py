@@ -33,8 +33,8 @@ from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E40
 from hydro_ros.fdi.monitor import FdiMonitor  # noqa: E402
 from hydro_ros.fdi.offline import run_monitor  # noqa: E402
 from hydro_ros.studies import independent_arm as plant  # noqa: E402
-from hydro_ros.studies.commissioning import FaultFreeRecording, commission  # noqa: E402
 from hydro_ros.studies.fdi_evaluation import parallel_map  # noqa: E402
+from hydro_ros.workflows.commissioning import FaultFreeRecording, commission  # noqa: E402
 
 TRAINING = {"2 min": (2, 60.0), "4 min": (2, 120.0), "8 min": (4, 120.0)}  # recordings x seconds
 SHIPPED = "shipped"  # the config as it comes, not commissioned

@@ -33,8 +33,8 @@ from hydro_ros.contract.samples import Samples  # noqa: E402
 from hydro_ros.fdi.monitor import FdiMonitor  # noqa: E402
 from hydro_ros.fdi.offline import run_monitor  # noqa: E402
 from hydro_ros.sim.scenario import Scenario, simulate  # noqa: E402
-from hydro_ros.studies.commissioning import FaultFreeRecording, commission  # noqa: E402
 from hydro_ros.studies.fdi_evaluation import mismatched_config  # noqa: E402
+from hydro_ros.workflows.commissioning import FaultFreeRecording, commission  # noqa: E402
 
 LEAKS = ("external_leakage_a", "external_leakage_b", "external_leakage_ab", "internal_leakage")
 SIZES = (0.1, 0.2, 0.3, 0.5)

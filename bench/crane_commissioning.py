@@ -2,7 +2,7 @@
 
 Each plant is a crane that differs from config/k70m.yaml by fdi_evaluation's mismatch (every notch
 +-5 %, bulk moduli +-25 %, centre leakage, friction and noise +-30 %, drawn per plant). It is
-commissioned (`hydro_ros.studies.commissioning.commission`, as `hydro-ros commission` on its bags) on
+commissioned (`hydro_ros.workflows.commissioning.commission`, as `hydro-ros commission` on its bags) on
 its own fault-free work: the operator twice for 2 min and each P-VI path's cycle for 1 min, 300 kg
 gripped and released in each (`crane_monitoring.commissioning_recordings`). Then, on runs no fit has
 seen, of the same plant:
@@ -33,7 +33,6 @@ from hydro_ros.contract.machine import load_machine_config  # noqa: E402
 from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS  # noqa: E402
 from hydro_ros.fdi.settings import FdiSettings  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
-from hydro_ros.studies.commissioning import commission  # noqa: E402
 from hydro_ros.studies.crane_monitoring import (  # noqa: E402
     commissioning_recordings,
     fault_cases,
@@ -44,6 +43,7 @@ from hydro_ros.studies.crane_monitoring import (  # noqa: E402
     work_cases,
 )
 from hydro_ros.studies.fdi_evaluation import mismatched_config  # noqa: E402
+from hydro_ros.workflows.commissioning import commission  # noqa: E402
 
 SIZES = (0.25, 0.5)
 BIN_FLOWS = (0.5, 1.5, 3.0, 6.0, 12.0, 30.0)  # [L/min] one operating point inside each of FLOW_EDGES' bins

@@ -28,7 +28,7 @@ from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import Injection
 from hydro_ros.sim.scenario import MachineRun
 from hydro_ros.studies.fdi_evaluation import mismatched_config
-from hydro_ros.studies.fleet import analyse
+from hydro_ros.workflows.fleet import analyse
 
 RECORDING_S = 300.0
 RECORDINGS = 4

@@ -170,7 +170,7 @@ def fdi_evaluation(config: Machine, out_dir: Path, name: str = "fdi_eval") -> di
     from tqdm import tqdm
 
     from hydro_ros.studies.fdi_evaluation import evaluate, markdown_table
-    from hydro_ros.studies.plots import plot_fdi_evaluation
+    from hydro_ros.workflows.plots import plot_fdi_evaluation
 
     with tqdm(unit="run", desc="fdi-eval") as bar:
         summary = evaluate(config, progress=bar.update)

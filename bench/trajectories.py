@@ -25,7 +25,7 @@ from hydro_ros.planning.catalog import build, plan_units  # noqa: E402
 from hydro_ros.planning.database import TrajectoryDatabase  # noqa: E402
 from hydro_ros.planning.problem import CONTRACT_METHODS  # noqa: E402
 from hydro_ros.planning.serving import path_start_state  # noqa: E402
-from hydro_ros.studies.execution import execute  # noqa: E402
+from hydro_ros.workflows.execution import execute  # noqa: E402
 
 METHODS = ("dp_cp", "dp_ls", "pinv_actuator", "pinv_joint")  # of the throughput builds
 THROUGHPUT_GRID = (178, 51, 76)  # half the P-VI grid per axis: three builds stay within minutes

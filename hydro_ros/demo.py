@@ -181,10 +181,10 @@ def run_demo(out: Path, *, config_path: str | None = None, duration: float = 60.
 
 def _energy_against_pseudo_inverse(crane_config: str, database: Path) -> None:
     """The served DP-CP trajectory and the joint pseudo-inverse from the same start, each in closed loop on P-VI's
-    simulated crane (``studies.execution``: the controller of Appendix A, the CP pump)."""
+    simulated crane (``workflows.execution``: the controller of Appendix A, the CP pump)."""
     from hydro_ros.models.crane import load_crane
     from hydro_ros.planning.serving import executable_trajectory
-    from hydro_ros.studies.execution import execute
+    from hydro_ros.workflows.execution import execute
 
     _, config = load_crane(crane_config)
     runs = {method: execute(config, executable_trajectory(config, CRANE_PATH, method, database=str(database),

@@ -23,9 +23,9 @@ from hydro_ros.models.sam import AREA_A, AREA_B, SamModel, simulate_segments
 from hydro_ros.models.serial_arm import SerialArm
 from hydro_ros.planning.serving import executable_trajectory
 from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun
-from hydro_ros.studies.commissioning import LEAK_LIMIT, commission
 from hydro_ros.studies.crane_monitoring import CraneCase, commissioning_recordings, path_trajectories, run_crane_cases
 from hydro_ros.studies.fdi_evaluation import mismatched_config
+from hydro_ros.workflows.commissioning import LEAK_LIMIT, commission
 from test.conftest import K70M
 
 # studies of minutes of simulated data each: make test runs them, make test-fast does not

@@ -24,7 +24,8 @@ from hydro_ros.models.identification import flow_regression
 from hydro_ros.models.sam import SamModel
 from hydro_ros.sim.scenario import Scenario, simulate
 from hydro_ros.studies import independent_arm
-from hydro_ros.studies.commissioning import (
+from hydro_ros.studies.fdi_evaluation import calibrate_threshold_constant, mismatched_config
+from hydro_ros.workflows.commissioning import (
     PARITY_FLOOR,
     PARITY_FLOOR_L_MIN,
     PARITY_MARGIN,
@@ -34,7 +35,6 @@ from hydro_ros.studies.commissioning import (
     identify,
     threshold_excess,
 )
-from hydro_ros.studies.fdi_evaluation import calibrate_threshold_constant, mismatched_config
 from test.conftest import REPO
 
 RIG = 2  # the SAM as built: config/sam.yaml's data sheet, each notch's table, moduli, friction and centre leakage drawn off
@@ -224,7 +224,7 @@ def test_live_commissioned_monitor_names_a_leak_of_the_machine_built_apart(sam_c
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import JointState
 
-    from hydro_ros.studies.commissioning import write_config
+    from hydro_ros.workflows.commissioning import write_config
     from test.ros_graph import node_process, probe_node, spin_until
 
     _, block, _, _ = commissioned

@@ -46,7 +46,7 @@ def test_the_plants_own_model_fits_its_own_validation_data(sam_config, tmp_path,
     needs what no sensor gives: the commands a valve delay still applies from before the validation part,
     and the friction's bristle state (with neither, these gaps were 1.4-2.2)."""
     from hydro_ros.bags.reader import read_bag
-    from hydro_ros.studies.discrepancy import FIT_SHARE, Recording, gap, simulate_recording
+    from hydro_ros.workflows.discrepancy import FIT_SHARE, Recording, gap, simulate_recording
 
     rec = Recording.from_bag(read_bag(hidden_effect_bag(sam_config, tmp_path / "bag", effect, value)), sam_config)
     validation = rec.part(slice(int(FIT_SHARE * len(rec.times)), None))
@@ -63,7 +63,7 @@ def test_discrepancy_refuses_a_bag_without_the_actuator(tmp_path):
 def test_load_independent_localisation_separates_hydraulic_from_load_side_effects(sam_config, effect, value, shows):
     import numpy as np
 
-    from hydro_ros.studies.discrepancy import Recording, load_independent_error, localise
+    from hydro_ros.workflows.discrepancy import Recording, load_independent_error, localise
 
     plant = hidden_effect_plant(sam_config, effect, value)
     blocks = [(m.times, m.joint_position, m.joint_velocity, m.pressure_a, m.pressure_b, m.valve_command, m.supply_pressure)
@@ -79,7 +79,7 @@ def test_joint_refinement_recovers_what_calibration_absorbed(sam_config, tmp_pat
     """Entrained air lowers the effective bulk modulus, which calibration fits first: fitted alone the air
     fraction comes out at about half; refined jointly with the calibration it is recovered."""
     from hydro_ros.bags.reader import read_bag
-    from hydro_ros.studies.discrepancy import run
+    from hydro_ros.workflows.discrepancy import run
 
     bag = hidden_effect_bag(sam_config, tmp_path / "bag", "entrained_air", 0.03, duration=60.0)
     report = run(read_bag(bag), load_machine_config(SAM_CONFIG), tmp_path / "out")
@@ -95,7 +95,7 @@ def test_joint_refinement_recovers_what_calibration_absorbed(sam_config, tmp_pat
 def test_discrepancy_names_variant_forms_and_pairs_by_family(sam_config, tmp_path, effects, forms):
     from hydro_ros.bags.reader import read_bag
     from hydro_ros.contract.names import first_form
-    from hydro_ros.studies.discrepancy import run
+    from hydro_ros.workflows.discrepancy import run
 
     bag = hidden_effect_bag(sam_config, tmp_path / "bag", duration=60.0, forms=forms, also=effects)
     report = run(read_bag(bag), load_machine_config(SAM_CONFIG), tmp_path / "out")
@@ -145,8 +145,8 @@ def test_an_independent_plants_plain_overlap_is_named_near_its_size_and_closes_t
     boom was held with the spool inside it the model drifted, for any overlap above that resting command: the
     refit, which sees every rest, fell below them. Screening and refit now agree and the overlap is named."""
     from hydro_ros.bags.reader import read_bag
-    from hydro_ros.studies.discrepancy import run
     from hydro_ros.studies.independent_plant import independent_plant_bag
+    from hydro_ros.workflows.discrepancy import run
 
     bag = independent_plant_bag(sam_config, tmp_path / "bag", {"valve_deadzone": 0.06}, duration=40.0)
     report = run(read_bag(bag), sam_config, tmp_path / "out")

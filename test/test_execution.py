@@ -15,7 +15,7 @@ from hydro_ros.planning.controller import MotionController
 from hydro_ros.planning.problem import Problem, run_method
 from hydro_ros.planning.trajectory import joint_trajectory
 from hydro_ros.sim.closed_loop_crane import CranePlant
-from hydro_ros.studies.execution import execute, iso9283_path_accuracy
+from hydro_ros.workflows.execution import execute, iso9283_path_accuracy
 from test.conftest import K70M
 
 GRID = (120, 41, 41)

@@ -18,8 +18,8 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.sim.scenario import MachineRun
 from hydro_ros.studies import independent_arm
-from hydro_ros.studies.commissioning import commission, load_recordings, write_config
-from hydro_ros.studies.fleet import analyse
+from hydro_ros.workflows.commissioning import commission, load_recordings, write_config
+from hydro_ros.workflows.fleet import analyse
 from test.conftest import REPO, built_once
 
 pytestmark = pytest.mark.slow
@@ -115,7 +115,7 @@ def test_a_trend_needs_a_day_of_recordings_and_a_foreign_recording_is_listed_not
     import shutil
 
     from hydro_ros.sim.scenario import Scenario
-    from hydro_ros.studies.fleet import trend
+    from hydro_ros.workflows.fleet import trend
 
     short = trend([(1.7e9, 0.1), (1.7e9 + 0.001, 0.3), (1.7e9 + 0.002, 0.6)], limit=0.5)
     assert short["slope_l_min_per_day"] is None and not short["growing"] and "too short to trend" in short["too_short"]

@@ -14,7 +14,7 @@ from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import run_monitor
 from hydro_ros.models.crane import load_crane
 from hydro_ros.studies import independent_arm as plant
-from hydro_ros.studies.commissioning import FaultFreeRecording, commission
+from hydro_ros.workflows.commissioning import FaultFreeRecording, commission
 from test.conftest import REPO
 
 RIG = 1  # one built machine
@@ -137,7 +137,7 @@ def test_each_main_spools_overlap_is_identified_on_the_crane_built_apart(k70m, r
     Measured: within 0.004 on rig 2; on rig 3 the lift 0.012 and the tilt 0.008 off, where the data's own optimum lies
     (the model's other form errors bias it), the lift further from its build than the sheet's 0.15. Where a build is
     more than 0.015 from the sheet (rig 2's lift and tilt), the identified overlap halves the sheet's error at least."""
-    from hydro_ros.studies.commissioning import fitted_overlap
+    from hydro_ros.workflows.commissioning import fitted_overlap
 
     machine, _ = k70m
     samples = plant.recording(machine, rig, plant.ArmWork(90.0, 1, payload_steps=((30.0, 300.0), (60.0, 0.0)), lever_limit=0.5))

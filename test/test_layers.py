@@ -19,16 +19,17 @@ LAYER = {
     "can": 2,
     "models": 3,
     "sim": 4, "fdi": 4, "planning": 4,
-    "studies": 5, "hmi": 5,
-    "nodes": 6,
-    "demo": 7,
-    "processes": 7,  # node processes as the tests, benches and demo start them
-    "cli": 8,
-    "benchresults": 8,  # bench/results: the benches write it, docgen reads it
-    "reproduction": 9,  # the papers' claims against bench/results
-    "docgen": 10,  # documents the nodes' tables and the CLI's parser
+    "workflows": 5, "hmi": 5,  # what ships: commissioning, the fleet view, the discrepancy workflow, execution, plots
+    "studies": 6,  # the thesis's studies, which use the workflows
+    "nodes": 7,
+    "demo": 8,
+    "processes": 8,  # node processes as the tests, benches and demo start them
+    "cli": 9,
+    "benchresults": 9,  # bench/results: the benches write it, docgen reads it
+    "reproduction": 10,  # the papers' claims against bench/results
+    "docgen": 11,  # documents the nodes' tables and the CLI's parser
 }
-SCIENCE = {"contract", "safety", "bags", "can", "models", "sim", "fdi", "planning", "studies", "hmi"}
+SCIENCE = {"contract", "safety", "bags", "can", "models", "sim", "fdi", "planning", "workflows", "studies", "hmi"}
 ROS_MODULES = ("rclpy", "rosidl", "rmw", "std_msgs", "sensor_msgs", "diagnostic_msgs", "trajectory_msgs", "std_srvs",
                "geometry_msgs", "rosgraph_msgs", "builtin_interfaces", "control_msgs")
 

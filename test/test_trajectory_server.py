@@ -22,7 +22,7 @@ from hydro_ros.planning.catalog import build, plan_units
 from hydro_ros.planning.database import TrajectoryDatabase
 from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import LIMIT_TOLERANCE
-from hydro_ros.studies.execution import iso9283_path_accuracy
+from hydro_ros.workflows.execution import iso9283_path_accuracy
 from test.conftest import K70M
 from test.ros_graph import change_state, lifecycle_state, node_output, node_process, probe_node, spin_until
 

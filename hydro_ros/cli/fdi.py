@@ -66,7 +66,7 @@ def cmd_fdi_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.fdi.offline import prepare, run_monitor
-    from hydro_ros.studies.plots import plot_fdi
+    from hydro_ros.workflows.plots import plot_fdi
 
     machine = load_machine_config(args.config)
     out = output_file(args.out)
@@ -90,7 +90,7 @@ def cmd_fdi_eval(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.studies.fdi_evaluation import evaluate, markdown_table
-    from hydro_ros.studies.plots import plot_fdi_evaluation
+    from hydro_ros.workflows.plots import plot_fdi_evaluation
 
     machine = load_machine_config(args.config)
     at_least_one(args, "seeds", "calibration_seeds", "workers")
@@ -168,8 +168,8 @@ def fdi_fit_crane(args: argparse.Namespace, machine) -> int:
 def cmd_commission(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hydro_ros.studies.commissioning import commission, load_recordings, write_config
-    from hydro_ros.studies.plots import plot_commissioning, plot_coverage
+    from hydro_ros.workflows.commissioning import commission, load_recordings, write_config
+    from hydro_ros.workflows.plots import plot_commissioning, plot_coverage
 
     config, out = Path(args.config), Path(args.out)
     if out.resolve() == config.resolve():

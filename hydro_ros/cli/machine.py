@@ -145,7 +145,7 @@ def cmd_machine_check(args: argparse.Namespace) -> int:
         for warning in [*reach_warnings(machine), *corners]:
             print(f"{args.config}: warning: {warning}")
         if args.plot:
-            from hydro_ros.studies.plots import plot_machine
+            from hydro_ros.workflows.plots import plot_machine
 
             print(f"{args.config}: picture {plot_machine(machine, args.plot)}")
     notes = annotated_values(args.config)

@@ -48,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_fleet_analyse(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hydro_ros.studies.fleet import analyse
+    from hydro_ros.workflows.fleet import analyse
 
     if not args.service_limit > 0:
         raise InputError(f"--service-limit {args.service_limit}: must be > 0 L/min")

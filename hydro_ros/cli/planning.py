@@ -143,7 +143,7 @@ def cmd_dp_compare(args: argparse.Namespace) -> int:
 
     from hydro_ros.planning.problem import CONTRACT_METHODS, METHODS
     from hydro_ros.studies.dp_compare import compare, markdown_table
-    from hydro_ros.studies.plots import plot_dp_compare
+    from hydro_ros.workflows.plots import plot_dp_compare
 
     problem, out = dp_problem(args)
     methods = tuple(METHODS) if args.all_methods else CONTRACT_METHODS
@@ -165,7 +165,7 @@ def cmd_dp_compare(args: argparse.Namespace) -> int:
 def cmd_dp_execute(args: argparse.Namespace) -> int:
     from hydro_ros.models.crane import load_crane
     from hydro_ros.planning.serving import executable_trajectory
-    from hydro_ros.studies.execution import execute, write_bag
+    from hydro_ros.workflows.execution import execute, write_bag
 
     out = new_output(args.out)
     summary_out = output_file(args.summary, "--summary") if args.summary else None  # refused before the run, not after it

@@ -79,7 +79,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from hydro_ros.bags.reader import read_bag
     from hydro_ros.bags.writer import ContractBagWriter
     from hydro_ros.sim.scenario import MachineRun
-    from hydro_ros.studies.plots import plot_bag
+    from hydro_ros.workflows.plots import plot_bag
 
     machine = load_machine_config(args.config)
     if args.duration <= 0:
@@ -120,7 +120,7 @@ def sim_crane(args: argparse.Namespace, machine) -> int:
     from hydro_ros.models.crane import load_crane
     from hydro_ros.models.serial_arm import SerialArm
     from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun
-    from hydro_ros.studies.plots import plot_bag
+    from hydro_ros.workflows.plots import plot_bag
 
     # a crane's payload hangs at its tip, on no one cylinder
     faults, payload, truth = actuatorinjections(args, machine, {"payload_mass": "at the tip"})

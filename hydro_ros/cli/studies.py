@@ -36,7 +36,7 @@ def cmd_gsa(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.studies.gsa import LEAKS, PARAMETERS, interaction, ranking, sobol_indices
-    from hydro_ros.studies.plots import plot_gsa
+    from hydro_ros.workflows.plots import plot_gsa
 
     machine = one_actuator(load_machine_config(args.config), args.actuator, "gsa")
     if args.samples < 2 or args.samples & (args.samples - 1):
@@ -64,7 +64,7 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.bags.reader import read_bag
-    from hydro_ros.studies.discrepancy import progress_steps, run
+    from hydro_ros.workflows.discrepancy import progress_steps, run
 
     machine = one_actuator(load_machine_config(args.config), args.actuator, "discrepancy")
     data = read_bag(args.bag)

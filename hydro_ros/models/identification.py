@@ -17,7 +17,7 @@ relaxation after each stop identifies it. Samples near the end stops or with a c
 cavitation are left out: the model's laws change there. Turbulent leak columns of chamber A,
 chamber B and across the piston let a fit tell a leak from the valve.
 
-Two users, one set of rows: commissioning (``hydro_ros.studies.commissioning``) fits every column;
+Two users, one set of rows: commissioning (``hydro_ros.workflows.commissioning``) fits every column;
 the discrepancy workflow's calibration fits one gain per notch group and the oil's bulk modulus
 within their tolerance (``group_calibration``), so an effect is left for the effect to explain.
 """

@@ -1,5 +1,5 @@
 """crane_sim: a planned machine (a config with a ``planner:`` section) as a simulated machine, the closed-loop crane of
-``hydro_ros.studies.execution`` (plant + P-VI Appendix A controller) in scaled real time.
+``hydro_ros.workflows.execution`` (plant + P-VI Appendix A controller) in scaled real time.
 
 The crane starts at rest with its tip at the start of ``initial_path`` (extension
 ``initial_extension``, or the smallest feasible one when negative). A JointTrajectory on
@@ -42,7 +42,7 @@ from hydro_ros.planning.controller import CylinderReference
 from hydro_ros.planning.serving import path_start_state
 from hydro_ros.planning.trajectory import JointTrajectoryData
 from hydro_ros.safety.motion import ValveDeadman
-from hydro_ros.studies.execution import ClosedLoop, execution_from_rows, log_row, measures
+from hydro_ros.workflows.execution import ClosedLoop, execution_from_rows, log_row, measures
 
 MAX_CATCH_UP_S = 0.25
 

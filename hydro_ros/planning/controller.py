@@ -7,7 +7,7 @@ eps_p the controller regulates; inside it, a desired velocity below eps_v leaves
 so that numerically small references do not move the cylinder and raise the LS pressure. K_p,
 eps_p, eps_v and the rate are NOT GIVEN: ``planner.controller`` in the machine config holds our choices.
 
-The simulated closed loop (``hydro_ros.studies.execution``) and the ``trajectory_executor`` node of a
+The simulated closed loop (``hydro_ros.workflows.execution``) and the ``trajectory_executor`` node of a
 real crane run this same code.
 """
 

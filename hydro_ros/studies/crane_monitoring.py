@@ -37,8 +37,8 @@ from hydro_ros.fdi.monitor import FdiMonitor, crossing_episodes
 from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS, ParityThresholds
 from hydro_ros.models.serial_arm import SerialArm
 from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun, simulate_arm
-from hydro_ros.studies.commissioning import FaultFreeRecording
 from hydro_ros.studies.fdi_evaluation import mismatched_config, parallel_map
+from hydro_ros.workflows.commissioning import FaultFreeRecording
 
 FLOW_FRACTION = 0.1  # k: the notch coefficients' tolerance the allowance covers: twice MISMATCH's +-5 % (INFERRED; see docs/crane_monitoring.md)
 MARGIN = 1.5  # c = margin x the largest held-out factor of the bin (the evaluation's plants are others again)

@@ -27,7 +27,7 @@ from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds, closed_statistics, passes_nothing
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.sim.scenario import MachineRun, simulate_machine
-from hydro_ros.studies.commissioning import evaluated_maximum, threshold_excess
+from hydro_ros.workflows.commissioning import evaluated_maximum, threshold_excess
 
 # Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order
 # fit RMSE is 1-2 % of K_v, an identified valve on another day/temperature is worse: 5 %.

@@ -43,7 +43,7 @@ from hydro_ros.models.chamber import leak_coefficient
 from hydro_ros.models.identification import COLUMNS, LEAKS, flow_regression, nominal_coefficients
 from hydro_ros.models.sam import SamModel
 from hydro_ros.planning.catalog import work_executor
-from hydro_ros.studies.commissioning import MIN_OPEN_S
+from hydro_ros.workflows.commissioning import MIN_OPEN_S
 
 CORRELATION_S = 0.5  # [s] rows closer than this are one observation (the rows are low-passed at 8 Hz; INFERRED)
 SHORT = {"external_leakage_a": "a", "external_leakage_b": "b", "internal_leakage": "internal"}

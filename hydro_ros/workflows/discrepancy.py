@@ -71,7 +71,7 @@ from hydro_ros.models.sam import (
     simulate_segments,
 )
 from hydro_ros.models.valve import spool_opening, spool_positions
-from hydro_ros.studies.plots import plot_discrepancy, plot_gap_localisation
+from hydro_ros.workflows.plots import plot_discrepancy, plot_gap_localisation
 
 SEGMENT_S = 2.0
 # RK4 step of the workflow's simulations: 0.25 ms, where a machine config asks for 0.1 ms (10 per 1 kHz
