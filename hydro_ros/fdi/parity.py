@@ -66,24 +66,18 @@ from numba import njit
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.fdi.isolation import JUDGED_A, JUDGED_B, NO_CLOSED_CODE, crossing_code
-from hydro_ros.models.chamber import effective_bulk_modulus
 from hydro_ros.models.sam import (
     AREA_A,
     AREA_B,
     DEADZONE,
-    HOSE_MODULUS,
-    HOSE_VOLUME,
     LAMINAR_BAND,
-    OIL_MODULUS,
     PILOT_MAX,
     SPOOL_DAMPING,
     SPOOL_OMEGA,
-    STROKE,
     TANK,
-    V0_A,
-    V0_B,
     VALVE_OVERLAP,
     SamModel,
+    chambers,
 )
 from hydro_ros.models.valve import chamber_valve_flows, pilot_drive, spool_opening, spool_track
 
@@ -103,10 +97,7 @@ def flow_balance(s, neutral, piston, velocity, p_a, p_b, rate_a, rate_b, orifice
     valve.chamber_valve_flows; chambers at ``orifice_a``, ``orifice_b``, fed at ``metering_supply``) minus what motion
     and compression (at ``p_a``, ``p_b``) take; and the two valve flows [L/min]."""
     q_a, q_b = chamber_valve_flows(s, neutral, orifice_a, orifice_b, metering_supply, p[TANK], poly, centre, p[LAMINAR_BAND], 1.0)
-    volume_a = p[V0_A] + p[AREA_A] * piston
-    volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - piston)
-    bulk_a = effective_bulk_modulus(p_a, volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
-    bulk_b = effective_bulk_modulus(p_b, volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
+    volume_a, volume_b, bulk_a, bulk_b = chambers(p, piston, p_a, p_b, 0.0)  # no entrained air in the monitor's model
     return ((q_a - p[AREA_A] * velocity - volume_a / bulk_a * rate_a) / FLOW_UNIT,
             (q_b + p[AREA_B] * velocity - volume_b / bulk_b * rate_b) / FLOW_UNIT, q_a / FLOW_UNIT, q_b / FLOW_UNIT)
 

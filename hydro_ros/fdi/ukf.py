@@ -24,21 +24,15 @@ import numpy as np
 from numba import njit
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.models.chamber import effective_bulk_modulus
 from hydro_ros.models.sam import (
     AREA_A,
     AREA_B,
-    HOSE_MODULUS,
-    HOSE_VOLUME,
     LAMINAR_BAND,
-    OIL_MODULUS,
     SPOOL_DAMPING,
     SPOOL_OMEGA,
-    STROKE,
     TANK,
-    V0_A,
-    V0_B,
     SamModel,
+    chambers,
 )
 from hydro_ros.models.valve import chamber_valve_flows, spool_acceleration
 
@@ -56,11 +50,7 @@ def reduced_model_step(x: np.ndarray, u: np.ndarray, p: np.ndarray, poly: np.nda
     piston = u[0]
     velocity = u[1]
     q_a, q_b = chamber_valve_flows(x[2], x[2], p_a, p_b, u[3], p[TANK], poly, centre, p[LAMINAR_BAND], 1.0)  # no overlap: one opening
-    volume_a = p[V0_A] + p[AREA_A] * piston
-    volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - piston)
-    # P-II eq. (19): hose compliance only (no entrained air in the monitor's model)
-    bulk_a = effective_bulk_modulus(p_a, volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
-    bulk_b = effective_bulk_modulus(p_b, volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
+    volume_a, volume_b, bulk_a, bulk_b = chambers(p, piston, p_a, p_b, 0.0)  # P-II eq. (19): no entrained air in the monitor's model
     out[0] = x[0] + dt * bulk_a / volume_a * (q_a - velocity * p[AREA_A]) / PRESSURE_UNIT
     out[1] = x[1] + dt * bulk_b / volume_b * (q_b + velocity * p[AREA_B]) / PRESSURE_UNIT
     out[2] = x[2] + dt * x[3]

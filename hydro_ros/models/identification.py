@@ -49,12 +49,10 @@ from hydro_ros.models.sam import (
     SPOOL_OMEGA,
     STOP_LOWER,
     STOP_UPPER,
-    STROKE,
     TANK,
-    V0_A,
-    V0_B,
     VALVE_OVERLAP,
     SamModel,
+    chamber_volumes,
 )
 from hydro_ros.models.valve import CENTRE_BAND, pilot_drive, spool_openings, spool_positions
 
@@ -150,8 +148,7 @@ def _block_rows(model: SamModel, signals: np.ndarray, inner: slice, first: int) 
     at_notch = -powers * (retracting * opening * _signed_root(p_a - p[TANK]))[:, None]
     pb_notch = powers * (retracting * opening * _signed_root(supply - p_b))[:, None]
     bt_notch = -powers * (extending * opening * _signed_root(p_b - p[TANK]))[:, None]
-    volume_a = p[V0_A] + p[AREA_A] * x
-    volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - x)
+    volume_a, volume_b = chamber_volumes(p, x)
     across = _signed_root(p_a - p_b)
     centre = (np.abs(spool_openings(position, p[VALVE_OVERLAP], True)) < CENTRE_BAND).astype(float)  # valve.chamber_valve_flows
     nothing = np.zeros_like(x)

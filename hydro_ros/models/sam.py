@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numba import njit, prange
@@ -74,6 +75,23 @@ DELAY_BUFFER = 4096  # samples of valve-command history kept for the valve_delay
 
 
 @njit(cache=True)
+def chamber_volumes(p: np.ndarray, piston: Any) -> tuple[Any, Any]:
+    """The two chambers' oil volumes at piston position ``piston`` (a number or an array), P-I eqs. (8)-(9) (B's with A_B)."""
+    return p[V0_A] + p[AREA_A] * piston, p[V0_B] + p[AREA_B] * (p[STROKE] - piston)
+
+
+@njit(cache=True)
+def chambers(p: np.ndarray, piston: float, p_a: float, p_b: float, air_fraction: float) -> tuple[float, float, float, float]:
+    """The continuity equations' coefficients, one kernel for the plant, the UKF, the parity equations and the steady
+    state: each chamber's volume and effective bulk modulus (P-II eq. 19; ``air_fraction``: entrained free air, an
+    effect the plant may carry and the monitor's model has not, 0 there)."""
+    volume_a, volume_b = chamber_volumes(p, piston)
+    return (volume_a, volume_b,
+            effective_bulk_modulus(p_a, volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], air_fraction),
+            effective_bulk_modulus(p_b, volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], air_fraction))
+
+
+@njit(cache=True)
 def metering_supply(s: float, p_a: float, p_b: float, p: np.ndarray) -> float:
     """Pressure feeding the metering notches: supply, or the compensator's for a mobile valve."""
     if p[VALVE_MOBILE] > 0.5:
@@ -107,10 +125,7 @@ def hydraulic_rates(y: np.ndarray, reference: float, p: np.ndarray, poly: np.nda
     q_ext_a = leak_flow(p[K_EXTERNAL_A], p_a - p[TANK], band, p[LAMINAR_EXTERNAL_A] > 0.5)
     q_ext_b = leak_flow(p[K_EXTERNAL_B], p_b - p[TANK], band, p[LAMINAR_EXTERNAL_B] > 0.5)
     # chambers (eqs. 8-9 with P-II eq. 19)
-    volume_a = p[V0_A] + p[AREA_A] * x
-    volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - x)
-    bulk_a = effective_bulk_modulus(p_a, volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], p[AIR_FRACTION])
-    bulk_b = effective_bulk_modulus(p_b, volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], p[AIR_FRACTION])
+    volume_a, volume_b, bulk_a, bulk_b = chambers(p, x, p_a, p_b, p[AIR_FRACTION])
     dy[0] = bulk_a / volume_a * (q_a - q_int - q_ext_a - p[AREA_A] * v)
     dy[1] = bulk_b / volume_b * (q_b + q_int - q_ext_b + p[AREA_B] * v)
     # spool (eq. 15)

@@ -4,19 +4,13 @@ from __future__ import annotations
 
 import math
 
-from hydro_ros.models.chamber import effective_bulk_modulus
 from hydro_ros.models.sam import (
     AREA_A,
     AREA_B,
-    HOSE_MODULUS,
-    HOSE_VOLUME,
-    OIL_MODULUS,
-    STROKE,
     SUPPLY,
     TANK,
-    V0_A,
-    V0_B,
     SamModel,
+    chambers,
 )
 from hydro_ros.models.valve import BT, PA, flow_coefficient
 
@@ -43,10 +37,7 @@ def hydraulic_natural_frequency(model: SamModel, x: float, p_a: float = 0.0, p_b
     formula; Merritt's two-chamber hydraulic spring against the boom's reduced mass).
     """
     p = model.base
-    volume_a = p[V0_A] + p[AREA_A] * x
-    volume_b = p[V0_B] + p[AREA_B] * (p[STROKE] - x)
-    bulk_a = effective_bulk_modulus(p_a, volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
-    bulk_b = effective_bulk_modulus(p_b, volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
+    volume_a, volume_b, bulk_a, bulk_b = chambers(p, x, p_a, p_b, 0.0)
     stiffness = bulk_a * p[AREA_A] ** 2 / volume_a + bulk_b * p[AREA_B] ** 2 / volume_b
     reduced_mass = model.inertia() / model.torque_arm_at(x) ** 2
     return math.sqrt(stiffness / reduced_mass) / (2.0 * math.pi)
