@@ -430,6 +430,72 @@ CLAIMS: list[Claim] = [
 ]
 
 
+@dataclass(frozen=True)
+class ResearchProblem:
+    """One of the thesis's research problems (its §1.1; answered in its §5) and what hydro_ros does about it."""
+
+    name: str
+    thesis: str  # how the thesis answers it, by publication
+    package: str  # what of it hydro_ros does, and where
+    tests: tuple[str, ...]  # <file in test/>::<function> that show it here
+    real_machine: str  # what only a real machine can show
+
+
+RESEARCH_PROBLEMS = (
+    ResearchProblem("RP1 load-independency: no knowledge of the payload", "P-II-P-IV: the cylinders' motion from joint "
+                    "sensors replaces their motion dynamics (§5.1)", "the UKF and the parity equations take piston position and "
+                    "velocity from `/joint_states`; no load enters `fdi/` (a machine's `load` and `arm` masses are the "
+                    "simulator's only)", ("test_commissioning.py::test_after_commissioning_payload_steps_raise_no_alarm_and_each_fault_is_named",),
+                    "payloads of real work and the joint sensors' own errors"),
+    ResearchProblem("RP2 general applicability of the monitoring: multi-actuator, proportional and mobile valves",
+                    "P-II (proportional valves), P-III (a MEMS sensor for the encoder), P-IV (mobile valves) (§5.2)",
+                    "any number of cylinders from one machine description; the UKF for proportional valves, the parity equations "
+                    "for mobile ones, a MEMS motion sensor; a maker's own machine and bus (DBC)",
+                    ("test_arm_cylinders.py::test_a_leak_is_isolated_to_its_cylinder_while_the_crane_works_its_path",
+                     "test_commissioning.py::test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_and_p_iv_thresholds",
+                     "test_own_machine.py::test_own_bus_commissioning_and_a_leak_named_on_its_second_cylinder",
+                     "test_mems.py::test_p3_tables_the_mems_residuals_exceed_the_encoders_and_both_find_the_leaks"),
+                    "a real mobile valve's hydro-mechanics against the reduced model; which pressures a given machine measures"),
+    ResearchProblem("RP3 high FDI performance, experimentally evaluated", "P-II-P-IV: leaks down to 0.17 L/min, sensor biases "
+                    "below 0.5 MPa, isolation by residual patterns, on the test bench (§5.3)", "detection, the isolation tables "
+                    "and adaptive thresholds, commissioning on a machine's own recordings, evaluated in simulation on plants "
+                    "written apart from the model (rows above); not experimentally",
+                    ("test_fdi.py::test_an_internal_leak_from_b_to_a_is_isolated_by_table_3_row_4",
+                     "test_independent_arm.py::test_commissioned_from_the_minimum_the_arm_is_quiet_at_work_it_never_did_and_names_its_leaks"),
+                    "the experimental evaluation RP3 asks for: false-alarm rates and detection limits of real machines"),
+    ResearchProblem("RP4 energy-optimal redundancy resolution for LS and CP systems", "P-V, P-VI: optimal control problems solved "
+                    "globally by DP over the redundant cylinder, CP and LS cost functions (§5.4)", "the DP with the CP, LS and "
+                    "actuator-energy costs, checked against the direct method and the pseudo-inverses; its grid convergence "
+                    "measured on every K70M path (rows above; not certified where the optimum rides a moving limit edge)",
+                    ("test_dp.py::test_cp_optimum_is_load_independent_and_ls_optimum_is_not",
+                     "test_dp.py::test_direct_collocation_converges_near_the_dp_optimum"),
+                    "nothing for the optimisation itself (a claim about the model); the energies of a real crane's geometry, "
+                    "whose mount constants the thesis does not give"),
+    ResearchProblem("RP5 general applicability of the redundancy resolution: 3-DOF and 4-DOF (RRP, RRRP)", "P-V (a 3-DOF "
+                    "crane), P-VI (the 4-DOF K70M) (§5.5)", "any chain of three planar joints redundant in one of them, a slewing "
+                    "base under it: the K70M, crane3dof and an excavator's boom, arm and bucket (RRR)",
+                    ("test_redundant_arm.py::test_dp_plans_the_excavators_paths_within_its_limits_on_one_branch_and_beats_the_pseudo_inverses_in_ls",),
+                    "nothing for the kinematics; a real machine's geometry"),
+    ResearchProblem("RP6 high performance within the actuators' limits, experimentally against conventional methods",
+                    "P-V in simulation, P-VI on the K70M: 15-30 % less energy than the pseudo-inverses within every limit (§5.6)",
+                    "every method's position, velocity and acceleration limits checked; the trajectories executed on a "
+                    "simulated closed loop with the valves' dead zones, delays and a payload, and ranked as planned",
+                    ("test_execution.py::test_executed_energies_rank_like_the_planned_ones",
+                     "test_dp.py::test_forward_pass_keeps_every_limit_and_the_path_and_matches_the_predicted_cost"),
+                    "P-VI's experiment itself: energies measured on a real crane"),
+)
+
+
+def research_problems_markdown() -> str:
+    lines = ["| research problem (thesis §1.1) | the thesis's answer | hydro_ros | shown by | needs a real machine for |",
+             "|---|---|---|---|---|"]
+    for problem in RESEARCH_PROBLEMS:
+        cells = (problem.name, problem.thesis, problem.package, "; ".join(f"`{test}`" for test in problem.tests), problem.real_machine)
+        escaped = (cell.replace("|", "\\|") for cell in cells)
+        lines.append(f"| {' | '.join(escaped)} |")
+    return "\n".join(lines)
+
+
 def _ours(claim: Claim, results: dict[str, Any]) -> str:
     if isinstance(claim.ours, str):
         return claim.ours
@@ -453,4 +519,6 @@ def reproduction_markdown() -> str:
                    + ([f"typed by hand: {claim.by_hand}"] if claim.by_hand else []))
         cells = (cell.replace("|", "\\|") for cell in (claim.claim, claim.status, _ours(claim, results), "; ".join(sources)))
         lines.append(f"| {' | '.join(cells)} |")
+    lines += ["", "The thesis's research problems (RP1-RP6), how it answers each (its §5), and what of each hydro_ros answers "
+              "without a real machine:", "", research_problems_markdown()]
     return "\n".join(lines)

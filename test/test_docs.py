@@ -85,8 +85,8 @@ def test_a_reproduction_row_says_what_a_run_did_not_write(tmp_path, monkeypatch)
 
 
 def test_every_test_the_reproduction_page_names_exists():
-    from hydro_ros.reproduction import CLAIMS
+    from hydro_ros.reproduction import CLAIMS, RESEARCH_PROBLEMS
 
-    for test in (test for claim in CLAIMS for test in claim.tests):
+    for test in (test for entry in (*CLAIMS, *RESEARCH_PROBLEMS) for test in entry.tests):
         path, _, function = test.partition("::")
         assert f"def {function}(" in (REPO / "test" / path).read_text(), f"docs/reproduction.md names {test}, which does not exist"
