@@ -33,14 +33,27 @@ DP_SMALLEST_START = ("dp_compare_k70m_horizontal", "dp_compare_k70m_half_cycle",
 DP_MIDDLE_START = ("dp_compare_k70m_horizontal_middle", "dp_compare_k70m_half_cycle_middle", "dp_compare_k70m_vertical_middle")
 
 
+# what a row's status starts with: the paper's claim reproduced, in part, not, contradicted, not attempted; OURS: a claim
+# of the package's own that no paper makes (the thesis asks for it or it is the package's workflow)
+VERDICTS = ("REPRODUCED", "PARTLY", "NOT ATTEMPTED", "NOT", "CONTRADICTED", "OURS")
+
+
 @dataclass(frozen=True)
 class Claim:
     claim: str  # the paper's claim with its figures
-    status: str
+    status: str  # a verdict, then why: "PARTLY: in kind, not in time"
     ours: str | Callable[..., str]  # text where tests are the evidence, else a reader of ``files`` in their order
     files: tuple[str, ...] = ()  # bench/results/<name>.json
     tests: tuple[str, ...] = ()  # <file in test/>::<function>
     by_hand: str = ""  # where a figure of ours comes from that no result file holds
+
+    def __post_init__(self) -> None:
+        if not self.status.startswith(VERDICTS):
+            raise ValueError(f"claim {self.claim!r}: status {self.status!r} starts with none of {', '.join(VERDICTS)}")
+
+    @property
+    def verdict(self) -> str:
+        return next(verdict for verdict in VERDICTS if self.status.startswith(verdict))
 
 
 def _count(share: float, runs: int) -> str:
@@ -359,74 +372,74 @@ def _savings_map(savings: dict) -> str:
 
 
 CLAIMS: list[Claim] = [
-    Claim("5.27e-9 m³/(s·Pa^½) = 1 L/min at 10 MPa (P-I)", "reproduced (test)", "the model's leak coefficient",
+    Claim("5.27e-9 m³/(s·Pa^½) = 1 L/min at 10 MPa (P-I)", "REPRODUCED (test)", "the model's leak coefficient",
           tests=("test_sam_model.py::test_leak_coefficient_matches_p1_calibration",)),
-    Claim("B_eff inside P-I's 300-1200 MPa", "reproduced (test)",
+    Claim("B_eff inside P-I's 300-1200 MPa", "REPRODUCED (test)",
           "~0.42 GPa retracted, ~1.2 GPa extended with the SAM config's INFERRED hose values",
           tests=("test_sam_model.py::test_bulk_modulus_grows_with_extension",)),
-    Claim("steady pressures of eqs. (39)-(40), p_A ~7-8 MPa holding the load (P-I)", "reproduced (test)",
+    Claim("steady pressures of eqs. (39)-(40), p_A ~7-8 MPa holding the load (P-I)", "REPRODUCED (test)",
           "the model settles at the equations' p_A and p_B",
           tests=("test_sam_model.py::test_step_extension_reaches_analytic_steady_pressures",)),
-    Claim(f"≤ {P_I_NATURAL_FREQUENCY_HZ:g} Hz maximum hydraulic natural frequency (P-I Fig. 4)", "**partly**", _natural_frequency,
+    Claim(f"≤ {P_I_NATURAL_FREQUENCY_HZ:g} Hz maximum hydraulic natural frequency (P-I Fig. 4)", "PARTLY", _natural_frequency,
           tests=("test_sam_model.py::test_natural_frequency_within_seed_maximum_over_the_upper_stroke",)),
-    Claim("UKF configuration α = 0.001, β = 2, κ = 0: Wm0 ≈ −1e6, Wi = 1.25e5 (P-II eq. 21)", "reproduced (test)",  # noqa: RUF001 (the paper's symbols)
+    Claim("UKF configuration α = 0.001, β = 2, κ = 0: Wm0 ≈ −1e6, Wi = 1.25e5 (P-II eq. 21)", "REPRODUCED (test)",  # noqa: RUF001 (the paper's symbols)
           "the same weights", tests=("test_fdi.py::test_unscented_weights_are_those_of_p2_eq21",)),
     Claim("adaptive threshold ±(0.012 + 4e-4 µ_p²) MPa per chamber (P-II eq. 25); P-III 0.015 / 0.023",
-          "implemented as configuration", _threshold, files=("commissioning",)),
+          "REPRODUCED: implemented as configuration", _threshold, files=("commissioning",)),
     Claim("fault-pattern signs of P-II Table 3 (ext A: r_pA↓; ext B: r_pB↓; internal: r_pA↓ r_pB↑; too small with u_c > 0: "
-          "r_pA↓ r_pB↑; too large: reversed)", "reproduced", "on simulated data: the shipped bags and Table 3's procedure",
+          "r_pA↓ r_pB↑; too large: reversed)", "REPRODUCED", "on simulated data: the shipped bags and Table 3's procedure",
           tests=("test_fdi.py::test_isolation_follows_table_3_and_its_procedure",
                  "test_fdi.py::test_shipped_bags_are_isolated_after_onset_and_silent_before")),
-    Claim("r_pB crosses before r_pA for an internal leak (P-II: by ~3 s)", "order reproduced, lead shorter",
+    Claim("r_pB crosses before r_pA for an internal leak (P-II: by ~3 s)", "PARTLY: the order reproduced, the lead shorter",
           "`bags/internal_leakage`, paper c0: r_pB crosses at 11.8 s, r_pA first at 12.5 s and for good at 13.9 s (the "
           "isolation at 14.9 s adds the 1 s settle): a lead of 0.7-2.1 s", by_hand="the crossing times, read from `bags/internal_leakage`"),
     Claim("too-small opening isolated only after a command sign change; too-large at once; stuck closed by magnitude "
-          "(P-II §4.2)", "reproduced in kind", _valve_faults, files=("fdi_eval",),
+          "(P-II §4.2)", "PARTLY: in kind, not in time", _valve_faults, files=("fdi_eval",),
           tests=("test_fdi.py::test_isolation_follows_table_3_and_its_procedure",
                  "test_fdi.py::test_shipped_bags_are_isolated_after_onset_and_silent_before")),
     Claim("smallest detectable leaks 0.17-0.40 L/min external, < 0.5 L/min internal",
-          "**not** uncommissioned; reproduced after commissioning", _smallest_leaks, files=("fdi_eval", "commissioning")),
-    Claim("MEMS angle within ±0.05° (P-III)", "reproduced (test)", "for the INFERRED noise levels",
+          "PARTLY: not uncommissioned; after commissioning", _smallest_leaks, files=("fdi_eval", "commissioning")),
+    Claim("MEMS angle within ±0.05° (P-III)", "REPRODUCED (test)", "for the INFERRED noise levels",
           tests=("test_mems.py::test_complementary_filter_removes_gyro_bias_and_follows_motion",)),
     Claim('P-IV: pressure-sensor biases of 0.3-0.5 MPa detectable "in some cases"; positive biases isolated with high accuracy',
-          "reproduced in kind", _sensor_biases, files=("fdi_parity_eval",)),
-    Claim("P-IV: only a subset of the fault list is detectable (P-IV's claim is about detection)", "reproduced", _detectable,
+          "PARTLY: in kind, not in time", _sensor_biases, files=("fdi_parity_eval",)),
+    Claim("P-IV: only a subset of the fault list is detectable (P-IV's claim is about detection)", "REPRODUCED", _detectable,
           files=("fdi_parity_eval",)),
-    Claim("P-I GSA rankings and interaction sums", "mostly", _gsa, files=("gsa", "gsa_convergence")),
+    Claim("P-I GSA rankings and interaction sums", "PARTLY: not the parameter rankings of p_A and p_B", _gsa, files=("gsa", "gsa_convergence")),
     Claim("DP: IK/FK exact, CP optimum load-independent, acceleration limits cost energy, a new start needs only a forward "
-          "pass (the planner's claims of P-V and P-VI)", "reproduced (tests)", "one test each",
+          "pass (the planner's claims of P-V and P-VI)", "REPRODUCED (tests)", "one test each",
           tests=("test_planning_models.py::test_inverse_kinematics_inverts_forward_kinematics_at_all_levels",
                  "test_dp.py::test_cp_optimum_is_load_independent_and_ls_optimum_is_not",
                  "test_dp.py::test_acceleration_limits_cost_energy",
                  "test_dp.py::test_policy_runs_forward_from_another_start_without_a_new_backward_pass")),
-    Claim("DP vs conventional methods +15-30 % (P-V, P-VI)", "reproduced, but not on the vertical placeholder from the smallest start",
+    Claim("DP vs conventional methods +15-30 % (P-V, P-VI)", "PARTLY: not on the vertical placeholder from the smallest start",
           _dp_vs_conventional, files=DP_SMALLEST_START + DP_MIDDLE_START),
-    Claim("P-V Figs. 8/10: the DP's energy converges as its grid is refined", "measured on every K70M path (placeholder "
-          "geometry)", _grid_convergence, files=("dp",)),
-    Claim("P-V Table 2/3 shape: DP(CP) best CP, DP(LS) best LS, DIDO within 0.3 %", "partly", _table_shape,
+    Claim("P-V Figs. 8/10: the DP's energy converges as its grid is refined", "PARTLY: not where the LS optimum rides the vertical "
+          "path's moving limit edge (placeholder geometry)", _grid_convergence, files=("dp",)),
+    Claim("P-V Table 2/3 shape: DP(CP) best CP, DP(LS) best LS, DIDO within 0.3 %", "PARTLY", _table_shape,
           files=DP_SMALLEST_START, by_hand="the 2x-grid vertical run, which writes no result file"),
-    Claim(f"P-VI Table 4 tracking errors ({P_VI_TRACKING_M[0]}-{P_VI_TRACKING_M[1]} m, CP better than LS)", "in scale", _tracking,
+    Claim(f"P-VI Table 4 tracking errors ({P_VI_TRACKING_M[0]}-{P_VI_TRACKING_M[1]} m, CP better than LS)", "PARTLY: in scale", _tracking,
           files=("trajectories",)),
-    Claim("P-VI: the DP's energy saving survives closed-loop execution", "reproduced on the simulated crane", _closed_loop,
+    Claim("P-VI: the DP's energy saving survives closed-loop execution", "REPRODUCED: on the simulated crane", _closed_loop,
           files=("trajectories",)),
     Claim("RP2: fault detection and isolation on a multi-actuator machine (the papers test it on the 1-DOF SAM)",
-          "shown in simulation", _multi_actuator, files=("crane_monitoring", "crane_commissioning")),
+          "PARTLY: in simulation, on the model's own equations with its numbers drawn off", _multi_actuator, files=("crane_monitoring", "crane_commissioning")),
     Claim("commissioning makes the monitor quiet on a machine unlike its model (not a paper result: P-II and P-III tune "
-          "c0 on their own rig)", "shown in simulation, on a plant written apart", _arm_commissioning, files=("arm_commissioning",),
+          "c0 on their own rig)", "OURS: shown in simulation, on a plant written apart", _arm_commissioning, files=("arm_commissioning",),
           tests=("test_independent_arm.py::test_commissioned_from_the_minimum_the_arm_is_quiet_at_work_it_never_did_and_names_its_leaks",)),
-    Claim("the same for the SAM: P-II's rig built apart from its model (its load as one link)", "shown in simulation, on a plant "
-          "written apart", _arm_commissioning, files=("sam_commissioning_apart",),
+    Claim("the same for the SAM: P-II's rig built apart from its model (its load as one link)", "OURS: shown in simulation, on a "
+          "plant written apart", _arm_commissioning, files=("sam_commissioning_apart",),
           tests=("test_commissioning.py::test_after_commissioning_payload_steps_raise_no_alarm_and_each_fault_is_named",)),
-    Claim("model-discrepancy workflow (not a paper result; thesis §6.4 asks for it)", "shown in simulation", _discrepancy,
+    Claim("model-discrepancy workflow (not a paper result; thesis §6.4 asks for it)", "OURS: shown in simulation", _discrepancy,
           files=("discrepancy_suite",)),
     Claim("P-III Table I (fault-free residual RMS, MEMS above the encoder: +6 % p_A, +59 % p_B), Table II (the fault "
-          "experiments' RMS) and its delays (MEMS 6 s later on the B leak, 0.3 s on the internal leak)", "**partly**", _mems,
+          "experiments' RMS) and its delays (MEMS 6 s later on the B leak, 0.3 s on the internal leak)", "PARTLY", _mems,
           files=("mems",), tests=("test_mems.py::test_p3_tables_the_mems_residuals_exceed_the_encoders_and_both_find_the_leaks",)),
-    Claim("P-VI: on the half cycle the LS methods are similar", "**contradicted**", _half_cycle, files=("trajectories",)),
-    Claim(f"P-VI Table 4 tracking error span {P_VI_TRACKING_M[0]}-{P_VI_TRACKING_M[1]} m", "partly", _tracking_span,
+    Claim("P-VI: on the half cycle the LS methods are similar", "CONTRADICTED", _half_cycle, files=("trajectories",)),
+    Claim(f"P-VI Table 4 tracking error span {P_VI_TRACKING_M[0]}-{P_VI_TRACKING_M[1]} m", "PARTLY", _tracking_span,
           files=("trajectories",)),
     Claim('P-VI: "almost twice" the LS energy of the pseudo-inverses on its vertical path; where the telescope\'s redundancy pays',
-          "**not reproduced**", _savings_map, files=("savings_map",)),
+          "NOT", _savings_map, files=("savings_map",)),
 ]
 
 
@@ -510,14 +523,17 @@ def _ours(claim: Claim, results: dict[str, Any]) -> str:
 
 def reproduction_markdown() -> str:
     results = read_results()
-    lines = ["| claim (the paper's figures) | status | ours | from (commit) |", "|---|---|---|---|"]
+    lines = ["Status: **REPRODUCED**, **PARTLY** (and where not), **NOT**, **CONTRADICTED** or **NOT ATTEMPTED**; **OURS** is a "
+             "claim of the package's own that no paper makes.", "",
+             "| claim (the paper's figures) | status | ours | from (commit) |", "|---|---|---|---|"]
     for claim in CLAIMS:
         by_commit: dict[str, list[str]] = {}
         for name in claim.files:
             by_commit.setdefault(commit_of(results.get(name)), []).append(f"`{name}.json`")
         sources = ([f"{', '.join(names)} ({commit})" for commit, names in by_commit.items()] + [f"`{test}`" for test in claim.tests]
                    + ([f"typed by hand: {claim.by_hand}"] if claim.by_hand else []))
-        cells = (cell.replace("|", "\\|") for cell in (claim.claim, claim.status, _ours(claim, results), "; ".join(sources)))
+        status = f"**{claim.verdict}**{claim.status[len(claim.verdict):]}"
+        cells = (cell.replace("|", "\\|") for cell in (claim.claim, status, _ours(claim, results), "; ".join(sources)))
         lines.append(f"| {' | '.join(cells)} |")
     lines += ["", "The thesis's research problems (RP1-RP6), how it answers each (its §5), and what of each hydro_ros answers "
               "without a real machine:", "", research_problems_markdown()]
