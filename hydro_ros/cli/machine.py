@@ -260,19 +260,23 @@ def cmd_machine_new(args: argparse.Namespace) -> int:
 
 def with_accepted_ranges(text: str) -> str:
     """Each value a rule declares gets what `machine check` accepts beside its unit (``# [m; > 0, <= 20] ...``), from the
-    declarations (``contract.schema``, check's tables); a key whose section's kind decides its rule keeps its comment."""
+    declarations (``contract.schema``, check's tables). Left as written: a key whose section's kind decides its rule (a
+    mount's theta_offset), the slew's rate limits (in its drive's units, not a cylinder's), and a line whose value holds
+    a quote or a '#' (a YAML string the comment must not cut)."""
+    import yaml
+
     from hydro_ros.contract.check import accepted, keyed_lines, rules_for
 
+    slew = ((yaml.safe_load(text) or {}).get("arm") or {}).get("slew") or {}
     lines = text.splitlines()
     for index, key, comment in keyed_lines(text):
         rules = rules_for(key)
-        if len(rules) != 1:
-            continue
-        rule = rules[0]
-        facts = f"[{rule.unit or '-'}; {accepted(rule)}]"
         code, hash_sign, _ = lines[index].partition("#")
+        if (len(rules) != 1 or key.startswith(f"planner.actuators.{slew.get('joint')}.") or "'" in code or '"' in code
+                or (hash_sign and not code.endswith((" ", "\t")))):
+            continue
         rest = re.sub(r"^\[[^\]]*\]\s*", "", comment) if hash_sign else ""
-        lines[index] = f"{code.rstrip():<31} # {facts}" + (f" {rest}" if rest else "")
+        lines[index] = f"{code.rstrip():<31} # [{rules[0].unit or '-'}; {accepted(rules[0])}]" + (f" {rest}" if rest else "")
     return "\n".join(lines) + ("\n" if text.endswith("\n") else "")
 
 
