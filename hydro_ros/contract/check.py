@@ -13,6 +13,7 @@ from __future__ import annotations
 import difflib
 import math
 import re
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -703,6 +704,7 @@ def keyed_lines(text: str) -> list[tuple[int, str, str]]:
     return out
 
 
+@cache  # REFERENCE is fixed: compiled once, not for every key a file holds
 def _reference_patterns() -> list[tuple[re.Pattern[str], dict[str, Rule]]]:
     out = []
     for section, rules, _ in REFERENCE:
