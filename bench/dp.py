@@ -1,6 +1,7 @@
 """DP benchmarks (make bench): fast solver against the NumPy reference in the same run, grid convergence,
-and `dp compare` on every placeholder path. Writes bench/results/dp.json, bench/results/dp_convergence.png and
-bench/results/dp_compare_<machine>_<path>.{json,md,png}.
+`dp compare` on every placeholder path, and the direct method from many seeds against the DP (``multistart``: does the
+problem have the local minima P-V's case for a global method rests on?). Writes bench/results/dp.json,
+bench/results/dp_convergence.png, bench/results/dp_multistart.png and bench/results/dp_compare_<machine>_<path>.{json,md,png}.
 
 Time and peak memory are measured in a fresh process per solver (ru_maxrss of that child), so one
 solver's allocations do not hide the other's; the time after one solve on a tiny grid, which loads
@@ -229,22 +230,122 @@ def replanning() -> dict:
     return out
 
 
+MULTISTART_SHARES = (0.0, 0.25, 0.5, 0.75, 1.0)  # of the extension window: where the blended seeds take the extension
+DISTINCT = 0.005  # two local optima whose energies differ by more than this share are distinct (issue 55)
+
+
+def _distinct(energies: list[float]) -> int:
+    """How many optima ``energies`` hold: sorted, a new one wherever an energy exceeds the last new one's by over DISTINCT."""
+    count, first = 0, -float("inf")
+    for energy in sorted(energies):
+        if energy > first * (1.0 + DISTINCT):
+            count, first = count + 1, energy
+    return count
+
+
+def multistart(out_dir: Path) -> dict:
+    """P-V's case for a global method: local optimisation ends in local minima. The direct method (IPOPT) on every K70M
+    path and both starts, seeded with the joint-space pseudo-inverse, the DP (CP)'s own trajectory and blends to and via
+    shares of the extension window (``multistart_seeds``), each scored as ``run_method`` scores it. Twice: bootstrapped over
+    node counts as ``direct_cp`` runs (the coarse first solve may smooth a seed's differences away), and at the finest node
+    count alone. A local optimum is a seed whose finest solve converged and whose trajectory keeps every limit and the path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from tqdm import tqdm
+
+    from hydro_ros.contract.config import default_config_path
+    from hydro_ros.models.crane import load_crane
+    from hydro_ros.planning.baselines import BOOTSTRAP_NODES, direct_collocation, multistart_seeds, pseudo_inverse
+    from hydro_ros.planning.problem import Problem, run_method
+    from hydro_ros.planning.trajectory import evaluate
+
+    crane, config = load_crane(default_config_path("k70m"))
+    variants = {"bootstrapped": BOOTSTRAP_NODES, "finest_only": BOOTSTRAP_NODES[-1:]}
+    paths, starts = ("horizontal", "vertical", "half_cycle"), ("smallest", "middle")
+    cases: dict[str, dict] = {}
+    for path in paths:
+        for start in starts:
+            problem = Problem.build(crane, config, path, start=start)
+            dp = run_method(problem, "dp_cp")
+            dp_energy = dp.evaluation["cp_energy_J"]  # [J]
+            seeds = {"pinv_joint": pseudo_inverse(crane, problem.samples, problem.start, space="joint")[0], "dp_cp": dp.trajectory,
+                     **multistart_seeds(crane, problem.samples, problem.start, MULTISTART_SHARES)}
+            case = cases[f"{path}/{start}"] = {"start_position_m": problem.start,
+                                               "dp_cp": {"cp_energy_J": dp_energy, "limits": dp.evaluation["limits"]}}
+            for variant, nodes in variants.items():
+                rows = {}
+                for label, seed in tqdm(seeds.items(), desc=f"multistart {path}/{start} {variant}", unit="seed"):
+                    began = time.perf_counter()
+                    trajectory, info = direct_collocation(crane, problem.path, problem.samples, problem.start, seed, nodes=nodes)
+                    evaluation = evaluate(crane, problem.samples, trajectory)
+                    rows[label] = {"seed_cp_energy_J": evaluate(crane, problem.samples, seed)["cp_energy_J"],
+                                   "converged": info["converged"], "finest_status": info["ipopt"][-1]["status"],
+                                   "limits": evaluation["limits"], "tip_error_max_m": evaluation["tip_error_max_m"],
+                                   "cp_energy_J": evaluation["cp_energy_J"], "relative_to_dp": evaluation["cp_energy_J"] / dp_energy,
+                                   "seconds": round(time.perf_counter() - began, 3)}
+                optima = [r["cp_energy_J"] for r in rows.values() if r["finest_status"] == "Solve_Succeeded"
+                          and all(r["limits"].values()) and r["tip_error_max_m"] < 1e-6]
+                result = case[variant] = {"seeds": rows, "local_optima": len(optima)}
+                if optima:
+                    best, median, worst = min(optima), float(np.median(optima)), max(optima)
+                    result.update({"cp_energy_J": {"min": best, "median": median, "max": worst}, "distinct_optima": _distinct(optima),
+                                   "dp_over_best": dp_energy / best - 1.0, "dp_within_best": dp_energy <= best * (1.0 + DISTINCT),
+                                   "dp_beats_median": dp_energy < median * (1.0 - DISTINCT),
+                                   "dp_beats_worst": dp_energy < worst * (1.0 - DISTINCT)})
+                print(f"multistart {path}/{start} {variant}: DP (CP) {dp_energy / 1e3:.2f} kJ, {len(optima)}/{len(rows)} local optima, "
+                      f"{result.get('distinct_optima', 0)} distinct", flush=True)
+    measured = [case[variant] for case in cases.values() for variant in variants if case[variant]["local_optima"]]
+    summary = {"window_shares": list(MULTISTART_SHARES), "distinct_share": DISTINCT,
+               "variants": {variant: list(nodes) for variant, nodes in variants.items()}, "cases": cases,
+               "seeds_per_case": {name: len(case["bootstrapped"]["seeds"]) for name, case in cases.items()},
+               "distinct_optima_max": max((m["distinct_optima"] for m in measured), default=0),
+               "dp_over_best": {"min": min(m["dp_over_best"] for m in measured), "max": max(m["dp_over_best"] for m in measured)}
+               if measured else None}
+    fig, axes = plt.subplots(1, len(paths), figsize=(13, 3.8), sharey=True)
+    for ax, path in zip(axes, paths):
+        for start, colour in zip(starts, ("C0", "C1")):
+            for variant, marker, offset in (("bootstrapped", "o", -0.15), ("finest_only", "s", 0.15)):
+                rows = cases[f"{path}/{start}"][variant]["seeds"]
+                kept = [r["finest_status"] == "Solve_Succeeded" and all(r["limits"].values()) for r in rows.values()]
+                x = np.arange(len(rows)) + offset + (0.05 if start == "middle" else -0.05)
+                y = [100.0 * (r["relative_to_dp"] - 1.0) for r in rows.values()]
+                ax.scatter(x, y, marker=marker, edgecolors=colour, facecolors=[colour if k else "none" for k in kept],
+                           label=f"{start} start, {variant.replace('_', ' ')}")
+                ax.set_xticks(np.arange(len(rows)), list(rows), rotation=60, fontsize=7)
+        ax.axhline(0.0, color="k", lw=0.8)
+        for bound in (-100.0 * DISTINCT, 100.0 * DISTINCT):
+            ax.axhline(bound, color="k", lw=0.8, ls=":")
+        ax.set_title(f"k70m {path}")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("direct method's CP energy vs DP (CP) [%]")
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"The direct method from each seed (hollow: not a local optimum within limits); dotted: ±{DISTINCT:.1%}")
+    fig.tight_layout()
+    fig.savefig(out_dir / "dp_multistart.png", dpi=100)
+    plt.close(fig)
+    return summary
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", default="bench/results/dp.json")
-    parser.add_argument("--parts", default="solver,convergence,compare,window,replanning",
+    parser.add_argument("--parts", default="solver,convergence,compare,window,replanning,multistart",
                         help="comma-separated parts to run; the others are kept from an existing --out")
     parser.add_argument("--machines", default="k70m,crane3dof,excavator",
                         help="comma-separated machines the compare part runs; the others' comparisons are kept from --out")
     args = parser.parse_args()
     out = Path(args.out)
-    unknown = set(args.parts.split(",")) - {"solver", "convergence", "compare", "window", "replanning"}
+    known = ("solver", "convergence", "compare", "window", "replanning", "multistart")
+    unknown = set(args.parts.split(",")) - set(known)
     if unknown:
-        parser.error(f"--parts: unknown {', '.join(sorted(unknown))} (known: solver, convergence, compare, window, replanning)")
+        parser.error(f"--parts: unknown {', '.join(sorted(unknown))} (known: {', '.join(known)})")
     results = json.loads(out.read_text()) if out.exists() else {}
     parts = {"solver": solver_speed, "convergence": lambda: convergence(out.parent),
              "compare": lambda: comparisons(out.parent, set(args.machines.split(",")), results.get("compare", {})),
-             "window": window_study, "replanning": replanning}
+             "window": window_study, "replanning": replanning, "multistart": lambda: multistart(out.parent)}
     chosen = args.parts.split(",")
     results.update({name: run() for name, run in parts.items() if name in chosen})
     # a part kept from an earlier run keeps the commit it ran on

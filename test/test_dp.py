@@ -12,7 +12,9 @@ from hypothesis import strategies as st
 
 from hydro_ros.cli import main
 from hydro_ros.contract.config import default_config_path
+from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane, load_crane
+from hydro_ros.planning.baselines import multistart_seeds
 from hydro_ros.planning.costs import Cost
 from hydro_ros.planning.dp import DpGrid, InfeasibleStart, extension_windows, solve, start_position
 from hydro_ros.planning.paths import path_from_config
@@ -192,6 +194,37 @@ def test_direct_collocation_converges_near_the_dp_optimum() -> None:
     assert all(step["status"] == "Solve_Succeeded" for step in direct.info["ipopt"])
     assert all(direct.evaluation["limits"].values()) and direct.evaluation["tip_error_max_m"] < 1e-9
     assert direct.evaluation["cp_energy_J"] == pytest.approx(dp.evaluation["cp_energy_J"], rel=0.01)
+
+
+@pytest.mark.parametrize("start", ["smallest", "middle"])
+def test_multistart_seeds_leave_the_start_at_rest_keep_the_position_limits_and_end_apart(start: str) -> None:
+    crane, _, samples, grid = _setup("k70m", "vertical")
+    position = start_position(crane, samples, grid, start)
+    shares = (0.0, 0.5, 1.0)
+    seeds = multistart_seeds(crane, samples, position, shares)
+    window = extension_windows(crane, samples)
+    start_share = (position - window[0, 0]) / (window[0, 1] - window[0, 0])
+    via = [share for share in shares if abs(share - start_share) > 0.05]
+    expected = []
+    for share in shares:
+        expected += [f"to {share:g}"] + ([f"via {share:g}"] if share in via else [])
+    assert list(seeds) == expected
+    for label, seed in seeds.items():
+        assert seed.position[0] == position and seed.velocity[-1] == 0.0
+        assert np.all(seed.position >= window[:, 0] - 1e-9) and np.all(seed.position <= window[:, 1] + 1e-9), label
+        assert evaluate(crane, samples, seed)["limits"]["position"], label
+    ends = [seeds[f"to {share:g}"].position[-1] for share in shares]
+    np.testing.assert_allclose(ends, window[-1, 0] + np.array(shares) * (window[-1, 1] - window[-1, 0]))
+    assert np.all(np.diff(ends) > 0.05 * (window[-1, 1] - window[-1, 0]))  # the seeds end apart, not on one extension
+    for share in via:
+        seed = seeds[f"via {share:g}"]
+        middle = samples.stages // 2
+        assert seed.position[middle] == pytest.approx(window[middle, 0] + share * (window[middle, 1] - window[middle, 0]))
+        assert seed.position[-1] == pytest.approx(window[-1, 0] + start_share * (window[-1, 1] - window[-1, 0]))
+    with pytest.raises(InputError, match="each in"):
+        multistart_seeds(crane, samples, position, (0.5, 1.2))
+    with pytest.raises(InputError, match="outside the path start's window"):
+        multistart_seeds(crane, samples, window[0, 0] - 0.1, shares)
 
 
 @pytest.mark.slow

@@ -15,6 +15,8 @@
   each solution seeding the next; the first is seeded with the joint-space pseudo-inverse. The
   pump flow's Heaviside steps are written with a smooth |v| (sum (A_ext + A_ret)/2 |v| +
   (A_ext - A_ret)/2 v, identical to eq. 27 away from v = 0).
+- ``multistart_seeds``: initial guesses for the direct method that take the extension to different parts of its
+  feasible window, to test P-V's reading that the problem has local minima a global method escapes.
 """
 
 from __future__ import annotations
@@ -28,11 +30,13 @@ from scipy.interpolate import CubicHermiteSpline
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.extras import optional_module
 from hydro_ros.models.crane import Crane
+from hydro_ros.planning.dp import extension_windows
 from hydro_ros.planning.paths import PathSamples, TipPath
 from hydro_ros.planning.trajectory import ExtensionTrajectory
 
 BOOTSTRAP_NODES = (20, 30, 60, 90)
 SMOOTH_ABS = 1e-4  # m/s: |v| ~ sqrt(v^2 + SMOOTH_ABS^2) in the direct method's pump flow
+REPEATS_TO = 0.05  # of the extension window: a multistart seed via a share this close to the start's repeats one to it
 
 
 def _least_norm_within(offset: np.ndarray, slope: np.ndarray, scale: np.ndarray, weights: np.ndarray,
@@ -172,3 +176,38 @@ def direct_collocation(
     trajectory = ExtensionTrajectory.from_positions(reconstruction(samples.time), float(samples.time[1]), final_velocity=0.0)
     stats["converged"] = all(entry["status"] == "Solve_Succeeded" for entry in stats["ipopt"])
     return trajectory, stats
+
+
+def multistart_seeds(
+    crane: Crane, samples: PathSamples, start_position: float, shares: tuple[float, ...]
+) -> dict[str, ExtensionTrajectory]:
+    """Initial guesses for ``direct_collocation`` from rest at ``start_position`` that differ in where they take the extension.
+
+    Each is written as a share of the extension window (``extension_windows``: 0 its least, 1 its greatest stroke at which
+    every joint keeps its position limits), so every seed keeps the position limits though the window moves along the path.
+    For each share s: ``to s`` blends (half a cosine) from the start's share to s at the end; ``via s`` reaches s halfway
+    and blends back to the start's share, unless s is within ``REPEATS_TO`` of the start's share (it would nearly repeat
+    ``to s``). The blends start and end at rest in share; the window's own motion is not.
+    """
+    if not shares or any(not 0.0 <= share <= 1.0 for share in shares):
+        raise InputError(f"multistart shares {shares}: each in [0, 1] of the extension window")
+    window = extension_windows(crane, samples)
+    low, width = window[:, 0], window[:, 1] - window[:, 0]
+    if not low[0] <= start_position <= window[0, 1]:
+        raise InputError(f"multistart start {start_position:.4f} m: outside the path start's window "
+                         f"[{low[0]:.4f}, {window[0, 1]:.4f}] m")
+    start_share = (start_position - low[0]) / width[0] if width[0] > 0.0 else 0.0
+    phase = samples.time / samples.time[-1]
+    rise = 0.5 * (1.0 - np.cos(np.pi * phase))  # 0 -> 1 at rest at both ends
+    rise_and_fall = 0.5 * (1.0 - np.cos(2.0 * np.pi * phase))  # 0 -> 1 at mid-path -> 0
+    ts = float(samples.time[1] - samples.time[0])
+    seeds = {}
+    for share in shares:
+        blends = [(f"to {share:g}", rise)]
+        if abs(share - start_share) > REPEATS_TO:
+            blends.append((f"via {share:g}", rise_and_fall))
+        for label, blend in blends:
+            profile = low + (start_share + (share - start_share) * blend) * width
+            profile[0] = start_position  # the window's share of it is exact only to rounding
+            seeds[label] = ExtensionTrajectory.from_positions(profile, ts, final_velocity=0.0)
+    return seeds
