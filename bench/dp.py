@@ -304,17 +304,19 @@ def multistart(out_dir: Path) -> dict:
                "distinct_optima_max": max((m["distinct_optima"] for m in measured), default=0),
                "dp_over_best": {"min": min(m["dp_over_best"] for m in measured), "max": max(m["dp_over_best"] for m in measured)}
                if measured else None}
+    # the starts' seeds differ (no seed via the start's own share), so each seed's column is its label's
+    labels = list(dict.fromkeys(label for case in cases.values() for label in case["bootstrapped"]["seeds"]))
     fig, axes = plt.subplots(1, len(paths), figsize=(13, 3.8), sharey=True)
     for ax, path in zip(axes, paths):
         for start, colour in zip(starts, ("C0", "C1")):
             for variant, marker, offset in (("bootstrapped", "o", -0.15), ("finest_only", "s", 0.15)):
                 rows = cases[f"{path}/{start}"][variant]["seeds"]
                 kept = [r["finest_status"] == "Solve_Succeeded" and all(r["limits"].values()) for r in rows.values()]
-                x = np.arange(len(rows)) + offset + (0.05 if start == "middle" else -0.05)
+                x = np.array([labels.index(label) for label in rows]) + offset + (0.05 if start == "middle" else -0.05)
                 y = [100.0 * (r["relative_to_dp"] - 1.0) for r in rows.values()]
                 ax.scatter(x, y, marker=marker, edgecolors=colour, facecolors=[colour if k else "none" for k in kept],
                            label=f"{start} start, {variant.replace('_', ' ')}")
-                ax.set_xticks(np.arange(len(rows)), list(rows), rotation=60, fontsize=7)
+        ax.set_xticks(np.arange(len(labels)), labels, rotation=60, fontsize=7)
         ax.axhline(0.0, color="k", lw=0.8)
         for bound in (-100.0 * DISTINCT, 100.0 * DISTINCT):
             ax.axhline(bound, color="k", lw=0.8, ls=":")
