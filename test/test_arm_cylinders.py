@@ -17,16 +17,17 @@ from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import run_monitor
 from hydro_ros.fdi.parity import ParityThresholds
-from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.models.crane import Crane, load_crane
 from hydro_ros.models.sam import AREA_A, AREA_B, SamModel, simulate_segments
 from hydro_ros.models.serial_arm import SerialArm
 from hydro_ros.planning.serving import executable_trajectory
 from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun
-from hydro_ros.studies.crane_monitoring import CraneCase, commissioning_recordings, path_trajectories, run_crane_cases
-from hydro_ros.studies.fdi_evaluation import mismatched_config
-from hydro_ros.workflows.commissioning import LEAK_LIMIT, commission
+from hydro_ros.studies import independent_arm
+from hydro_ros.studies.crane_monitoring import CraneCase, path_trajectories, run_crane_cases
+from hydro_ros.workflows.commissioning import LEAK_LIMIT, FaultFreeRecording, above_shipped, commission
 from test.conftest import K70M
+
+CRANE_RIG = 2  # one built crane; its overlaps 0.14-0.18 against the sheet's 0.15
 
 # studies of minutes of simulated data each: make test runs them, make test-fast does not
 pytestmark = pytest.mark.slow
@@ -140,33 +141,38 @@ def test_a_leak_is_isolated_to_its_cylinder_while_the_crane_works_its_path(crane
         assert outcome.detection is not None and named and named[0]["fault"] == case.fault, (case, outcome.alarms)
 
 
-def test_commissioning_on_the_cranes_own_work_lowers_its_thresholds_and_names_half_a_litre(crane_machine):
-    """A crane that differs from its config is commissioned on its own fault-free work (operator and the three paths,
-    payload gripped and released): every notch's gain is recovered, no leak is read into the fault-free
-    recordings, the thresholds at rest drop below the shipped ones, and on runs of that crane no fit has
-    seen it stays quiet at work and names a 0.5 L/min leak on the telescope (rates per cylinder and size over several
-    plants: bench/results/crane_commissioning.json)."""
+def test_the_crane_built_apart_commissioned_on_its_own_work_is_quiet_and_names_two_litres_but_not_below_the_shipped(crane_machine):
+    """The K70M built apart from the model (studies/independent_arm, rig CRANE_RIG: its hoses, tabulated notches, drawn
+    overlaps, warming oil) commissioned on its own fault-free work (the operator twice, each path's cycle, a payload
+    gripped and released): no leak is read into the healthy crane, each main spool's overlap is found near its build, and
+    the commissioned thresholds come out above the shipped ones, which commissioning refuses without --force (the
+    model's form errors against this crane: its held-out 5 s means reach ~4 sigma). Forced, the monitor stays quiet
+    on fresh work of that crane and names a 2 L/min leak on the telescope's B; smaller leaks are not claimed."""
     machine, config = crane_machine
     trajectories = path_trajectories(config)
-    plant = mismatched_config(machine, 905)
-    block, report = commission(machine, commissioning_recordings(plant, trajectories, 1))
+    rig = independent_arm.build_rig(machine, CRANE_RIG)
+    day = [(f"operator{k}", independent_arm.ArmWork(120.0, 10 + k, payload_steps=((30.0, 300.0), (80.0, 0.0)), lever_limit=0.5))
+           for k in range(2)]
+    day += [(path, independent_arm.ArmWork(60.0, 20, payload_steps=((20.0, 300.0), (45.0, 0.0)), path=trajectory))
+            for path, trajectory in trajectories.items()]
+    recordings = [FaultFreeRecording(name, independent_arm.measure(rig, independent_arm.simulate(rig, work), work.seed))
+                  for name, work in day]
+    block, report = commission(machine, recordings, force=True)
     for ident in report["identification"]:
-        # the model's own equations leave no leak to fit: far below what refuses a recording on a machine unlike it
-        assert max(ident["leaks_l_min"].values()) < 0.15 < LEAK_LIMIT, ident["actuator"]
-        for notch, gain in ident["notch_gain"].items():
-            drawn, nominal = (np.asarray(m.actuator(ident["actuator"]).valve.kv_poly[notch]) for m in (plant, machine))
-            truth = drawn[np.argmax(np.abs(nominal))] / nominal[np.argmax(np.abs(nominal))]  # the plant's notch is the nominal scaled
-            assert gain == pytest.approx(truth, abs=0.03), (ident["actuator"], notch)
-    for name in machine.actuator_names:  # each main spool's overlap identified where the plant has it
-        assert block["model"]["actuators"][name]["valve"]["deadzone"] == pytest.approx(plant.actuator(name).valve.deadzone, abs=0.006), name
+        assert max(ident["leaks_l_min"].values()) < LEAK_LIMIT, ident["actuator"]
+    built = rig.cylinder[:, independent_arm._C_OVERLAP]
+    for index, name in enumerate(machine.actuator_names):
+        assert block["model"]["actuators"][name]["valve"]["deadzone"] == pytest.approx(built[index], abs=0.015), name
+    assert block["threshold"]["forced"] and above_shipped(report["threshold"]), report["threshold"]["mean_threshold_l_min"]
     commissioned = machine.with_overrides(block["model"])
-    at_rest = np.array([[0.0, 0.5, 0.5, 0.0, 0.0]])
-    shipped_rest, commissioned_rest = (FdiSettings.from_machine(m).parity_thresholds(at_rest) for m in (machine, commissioned))
-    assert np.all(commissioned_rest < shipped_rest), (commissioned_rest, shipped_rest)
-    quiet = [CraneCase(51, 60.0), CraneCase(52, 60.0, "horizontal")]
-    leaks = [CraneCase(54, 60.0, "horizontal", actuator="extension", fault="external_leakage_b", value=0.5, onset_s=20.0)]
-    for outcome in run_crane_cases(commissioned, trajectories, quiet + leaks, plant=plant, workers=2):
-        case = outcome.case
-        assert outcome.false_alarms == [], (case, outcome.alarms)
-        if case.fault:
-            assert outcome.named == case.fault, (case, outcome.alarms)
+    work = [independent_arm.ArmWork(90.0, 50, payload_steps=((30.0, 300.0), (60.0, 0.0)), lever_limit=0.5),
+            independent_arm.ArmWork(60.0, 51, payload_steps=((20.0, 300.0),), path=trajectories["horizontal"]),
+            independent_arm.ArmWork(60.0, 52, path=trajectories["half_cycle"]),
+            independent_arm.ArmWork(60.0, 53, path=trajectories["half_cycle"], faults=(("extension", "external_leakage_b", 2.0, 20.0),))]
+    for run in work:
+        alarms = run_monitor(FdiMonitor(commissioned), independent_arm.measure(rig, independent_arm.simulate(rig, run), run.seed)).alarms
+        if not run.faults:
+            assert alarms == [], (run.seed, alarms)
+        else:
+            assert alarms and all(a.actuator == "extension" and a.time_s > 20.0 for a in alarms), alarms
+            assert alarms[-1].fault.value == "external_leakage_b", alarms

@@ -24,6 +24,7 @@ within their tolerance (``group_calibration``), so an effect is left for the eff
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -35,6 +36,7 @@ from scipy.signal import butter, filtfilt
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES
 from hydro_ros.contract.samples import Samples
+from hydro_ros.models.chamber import leak_coefficient
 from hydro_ros.models.sam import (
     AREA_A,
     AREA_B,
@@ -70,6 +72,7 @@ OPEN = 0.1  # a notch counts as open beyond this opening
 ROW_RATE_HZ = 50.0
 BLOCK_S = 60.0
 EDGE_S = 2.0
+CORRELATION_S = 0.5  # [s] rows closer than this are one observation (the rows are low-passed at FILTER_HZ; INFERRED)
 LEAKS = ("external_leakage_a", "external_leakage_b", "internal_leakage")
 COLUMNS = ([f"{notch}_c{3 - k}" for notch in NOTCHES for k in range(4)] + ["oil_compliance", "hose_capacitance"]
            + [f"{notch}_centre" for notch in NOTCHES] + list(LEAKS))
@@ -210,6 +213,42 @@ def nominal_coefficients(model: SamModel) -> np.ndarray:
 def rms_flow_error(regression: FlowRegression, coefficients: np.ndarray) -> float:
     """RMS equation error [L/min] of the rows with these coefficients."""
     return float(np.sqrt(np.mean((regression.flows - regression.regressors @ coefficients) ** 2)) * 60000.0)
+
+
+@dataclass(frozen=True)
+class LeakFit:
+    """The three leak terms [L/min at 10 MPa] fitted to what some coefficients leave unexplained, with standard errors."""
+
+    leaks: dict[str, float]
+    errors: dict[str, float]
+
+    def worst(self) -> tuple[str, float, float]:
+        """(name, value, standard error) of the largest leak."""
+        name = max(self.leaks, key=lambda n: self.leaks[n])
+        return name, self.leaks[name], self.errors[name]
+
+
+def leak_fit(regression: FlowRegression, coefficients: np.ndarray) -> LeakFit:
+    """The leak columns fitted to the rows' flow that ``coefficients`` (valve and fluid) leave unexplained.
+
+    The standard errors are the ordinary least-squares ones widened by how many rows make one independent observation
+    (one per CORRELATION_S of recording): what a short recording or a model's form errors leave uncertain."""
+    columns = [COLUMNS.index(name) for name in LEAKS]
+    design = regression.regressors[:, columns]
+    unexplained = regression.flows - regression.regressors @ np.asarray(coefficients)
+    rows = len(unexplained)
+    if rows < len(LEAKS) + 1:
+        return LeakFit(dict.fromkeys(LEAKS, math.nan), dict.fromkeys(LEAKS, math.nan))
+    scale = np.abs(design).max(axis=0)
+    scale[scale == 0.0] = 1.0
+    solution, *_ = np.linalg.lstsq(design / scale, unexplained, rcond=None)
+    residual = unexplained - (design / scale) @ solution
+    independent = max(regression.seconds / CORRELATION_S, len(LEAKS) + 1.0)
+    covariance = np.linalg.pinv((design / scale).T @ (design / scale)) * float(residual @ residual) / (rows - len(LEAKS))
+    covariance *= max(rows / independent, 1.0)
+    unit = leak_coefficient(1.0)
+    return LeakFit({name: float(solution[k] / scale[k] / unit) for k, name in enumerate(LEAKS)},
+                   {name: float(math.sqrt(max(covariance[k, k], 0.0)) / scale[k] / unit) for k, name in enumerate(LEAKS)})
 
 
 def least_squares(regression: FlowRegression, columns: list[int]) -> tuple[np.ndarray, float]:

@@ -26,7 +26,9 @@ a machine maker's own simulation would pick where the papers leave a choice:
   encoder quantised to its
   resolution, its rate the differenced angle through a second-order Butterworth low-pass at the config's cut-off;
 * **operator**: its own: each joint moves to random targets within 80 % of its range along a ramp of a drawn speed,
-  the lever proportional to the error with a drawn gain (so some moves run at full opening), joints at once.
+  the lever proportional to the error with a drawn gain (so some moves run at full opening), joints at once; the gain
+  at most what closes the error in ``OPERATOR_RESPONSE`` at the data sheet's lever per joint speed (a heavier hand
+  made the K70M's lift hunt at 2.5 Hz through cavitation, an operator no crane has).
 
 Its numbers start from the config's (a machine described by its data sheet), each drawn off by ``RigSpread`` for a
 ``rig`` seed: a given machine is one rig seed; a given day's work on it is one run seed (the operator's moves, the
@@ -92,7 +94,10 @@ LINE_ITERATIONS = 4
 SAMPLE_SUBSTEP_MAX = 4  # the first step into a sample (its command just changed) is at most a quarter of its period
 SMALLEST_STEP = 1.0e-9  # [s] a step this small means the integration has failed
 OPERATOR_SPEED = (0.05, 0.35)  # [rad/s] the reference's ramp per move
-OPERATOR_GAIN = (3.0, 9.0)  # [1/rad] lever per joint error, per move
+OPERATOR_GAIN = (3.0, 9.0)  # [1/rad] lever per joint error, per move ...
+# ... at most what closes the error in this time at the data sheet's lever per joint speed: 7.3 (0.33 s) made the K70M's
+# lift cycle at 2.5 Hz through cavitation on the half-cycle path, 4.0 (0.6 s) still hunted, 3.2 (0.75 s) never did
+OPERATOR_RESPONSE = 0.75  # [s]
 OPERATOR_REST = (0.5, 4.0)  # [s] between moves
 OPERATOR_SPAN = 0.8  # targets within this share of each joint's range, about its middle
 PILOT_LAG = 0.03  # [s] a mobile valve's pilot stage: its pressure follows the command as a first-order lag
@@ -570,12 +575,13 @@ def _operator(rig: ArmRig, work: ArmWork, n: int, rate: float, start: np.ndarray
     """Per sample and joint: the target, the ramp speed and the lever's gain of the move under way."""
     rng = np.random.default_rng([work.seed, rig.seed])
     a = len(start)
+    lever = [_lever_per_speed(rig, i, start[i]) for i in range(a)]
     targets, speeds, gains = np.empty((n, a)), np.empty((n, a)), np.empty((n, a))
     for i in range(a):
         k, current = 0, start[i]
         while k < n:
             target = current if k == 0 else rng.uniform(*rig.targets[i])  # a rest before the first move
-            speed, gain = rng.uniform(*OPERATOR_SPEED), rng.uniform(*OPERATOR_GAIN)
+            speed, gain = rng.uniform(*OPERATOR_SPEED), min(rng.uniform(*OPERATOR_GAIN), lever[i] / OPERATOR_RESPONSE)
             length = max(int((abs(target - current) / speed + rng.uniform(*OPERATOR_REST)) * rate), 1)
             targets[k:k + length, i], speeds[k:k + length, i], gains[k:k + length, i] = target, speed, gain
             k, current = k + length, target
@@ -604,15 +610,26 @@ def _path_operator(rig: ArmRig, work: ArmWork, n: int, rate: float) -> tuple[np.
     targets = np.concatenate(cycle)[:n]
     velocity = np.gradient(targets, 1.0 / rate, axis=0)
     feedforward = np.empty_like(targets)
-    for i, actuator in enumerate(rig.machine.actuators):
-        row = rig.cylinder[i]
-        piston = velocity[:, i] * np.array([_piston(row, q)[1] for q in targets[:, i]])
-        v = actuator.valve
-        full = {notch: abs(float(np.polyval(v.kv_poly[notch], side)))
-                * math.sqrt(v.compensator_pressure_drop if v.mobile else 0.5 * (rig.supply - rig.tank)) for notch, side in (("PA", 1.0), ("PB", -1.0))}
-        feedforward[:, i] = np.where(piston > 0.0, piston * row[_C_AREA_A] / full["PA"], piston * row[_C_AREA_B] / full["PB"])
-    gains = np.repeat(rng.uniform(*OPERATOR_GAIN, (1, len(joints))), n, axis=0)
+    for i in range(len(joints)):
+        piston = velocity[:, i] * np.array([_piston(rig.cylinder[i], q)[1] for q in targets[:, i]])
+        extend, retract = _full_lever_speeds(rig, i)
+        feedforward[:, i] = np.where(piston > 0.0, piston / extend, piston / retract)
+    lever = np.array([_lever_per_speed(rig, i, targets[0, i]) for i in range(len(joints))])
+    gains = np.repeat(np.minimum(rng.uniform(*OPERATOR_GAIN, (1, len(joints))), lever[None, :] / OPERATOR_RESPONSE), n, axis=0)
     return targets, gains, feedforward, targets[0]
+
+
+def _full_lever_speeds(rig: ArmRig, i: int) -> tuple[float, float]:
+    """[m/s] actuator ``i``'s piston speed extending and retracting at full lever on the data sheet's valve."""
+    v, row = rig.machine.actuators[i].valve, rig.cylinder[i]
+    drop = math.sqrt(v.compensator_pressure_drop if v.mobile else 0.5 * (rig.supply - rig.tank))
+    return (abs(float(np.polyval(v.kv_poly["PA"], 1.0))) * drop / row[_C_AREA_A],
+            abs(float(np.polyval(v.kv_poly["PB"], -1.0))) * drop / row[_C_AREA_B])
+
+
+def _lever_per_speed(rig: ArmRig, i: int, q: float) -> float:
+    """[-/(rad/s) or -/(m/s)] the lever that moves joint ``i`` at unit speed about ``q`` (extending), by the data sheet."""
+    return abs(_piston(rig.cylinder[i], q)[1]) / _full_lever_speeds(rig, i)[0]
 
 
 def _resting_state(rig: ArmRig, joints: np.ndarray, payload: float) -> np.ndarray:

@@ -11,7 +11,7 @@ The leak flows come from the identification core of commissioning (``models.iden
 continuity rows of the recording, with the valve and fluid of the machine's config (its commissioned model where it
 has one), leave unexplained flow; the three leak terms are fitted to it, in L/min at 10 MPa (the quoting of every leak
 here), with a standard error from the fit's residual over the recording's effective number of independent rows
-(one per CORRELATION_S of motion, INFERRED from the 8 Hz low-pass of the rows). A notch is covered when the recording
+(one per `identification.CORRELATION_S` of motion, INFERRED from the 8 Hz low-pass of the rows). A notch is covered when the recording
 held it open long enough to separate the leaks from the valve (commissioning's MIN_OPEN_S).
 """
 
@@ -39,13 +39,11 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import run_monitor
-from hydro_ros.models.chamber import leak_coefficient
-from hydro_ros.models.identification import COLUMNS, LEAKS, flow_regression, nominal_coefficients
+from hydro_ros.models.identification import LeakFit, flow_regression, leak_fit, nominal_coefficients
 from hydro_ros.models.sam import SamModel
 from hydro_ros.planning.catalog import work_executor
 from hydro_ros.workflows.commissioning import MIN_OPEN_S
 
-CORRELATION_S = 0.5  # [s] rows closer than this are one observation (the rows are low-passed at 8 Hz; INFERRED)
 SHORT = {"external_leakage_a": "a", "external_leakage_b": "b", "internal_leakage": "internal"}
 SERVICE_LIMIT_L_MIN = 0.5  # [L/min at 10 MPa] default: the smallest leak P-II names on its test bed is 0.17-0.4
 MIN_TREND_POINTS = 3
@@ -90,27 +88,10 @@ def discover(root: Path) -> list[Unit]:
     return units
 
 
-def leak_estimate(model: SamModel, samples: Any, column: int) -> tuple[dict[str, float], dict[str, float], dict[str, float]]:
-    """(leaks, their standard errors [L/min at 10 MPa], seconds each notch was open) of one actuator of a recording."""
+def leak_estimate(model: SamModel, samples: Any, column: int) -> tuple[LeakFit, dict[str, float]]:
+    """(the leaks and their standard errors [L/min at 10 MPa], seconds each notch was open) of one actuator of a recording."""
     regression = flow_regression(model, samples, column)
-    if len(regression.flows) < len(LEAKS) + 1:
-        return {name: math.nan for name in LEAKS}, {name: math.nan for name in LEAKS}, dict(regression.open_s)
-    columns = [COLUMNS.index(name) for name in LEAKS]
-    design = regression.regressors[:, columns]
-    unexplained = regression.flows - regression.regressors @ nominal_coefficients(model)
-    scale = np.abs(design).max(axis=0)
-    scale[scale == 0.0] = 1.0
-    solution, *_ = np.linalg.lstsq(design / scale, unexplained, rcond=None)
-    residual = unexplained - (design / scale) @ solution
-    rows = len(regression.flows)
-    independent = max(regression.seconds / CORRELATION_S, len(LEAKS) + 1.0)
-    # the ordinary least-squares covariance, widened by how many rows make one independent observation
-    covariance = np.linalg.pinv((design / scale).T @ (design / scale)) * float(residual @ residual) / (rows - len(LEAKS))
-    covariance *= max(rows / independent, 1.0)
-    unit = leak_coefficient(1.0)
-    leaks = {name: float(solution[k] / scale[k] / unit) for k, name in enumerate(LEAKS)}
-    errors = {name: float(math.sqrt(max(covariance[k, k], 0.0)) / scale[k] / unit) for k, name in enumerate(LEAKS)}
-    return leaks, errors, dict(regression.open_s)
+    return leak_fit(regression, nominal_coefficients(model)), dict(regression.open_s)
 
 
 def analyse_recording(unit: Unit) -> dict[str, Any]:
@@ -134,10 +115,10 @@ def analyse_recording(unit: Unit) -> dict[str, Any]:
     for column, actuator in enumerate(machine.actuator_names):
         first = next((a for a in run.alarms if a.actuator == actuator), None)
         named = next((a for a in run.alarms if a.actuator == actuator and a.fault.value != "unisolated"), first)
-        leaks, errors, open_s = leak_estimate(SamModel(machine, actuator), samples, column)
+        fit, open_s = leak_estimate(SamModel(machine, actuator), samples, column)
         rows.append({"actuator": actuator, "start_unix_s": start, "duration_s": float(data.times[-1]) if len(data.times) else 0.0,
                      "alarm": None if first is None else {"fault": named.fault.value, "first_s": first.time_s},
-                     "leak_l_min": {SHORT[k]: v for k, v in leaks.items()}, "leak_sigma_l_min": {SHORT[k]: v for k, v in errors.items()},
+                     "leak_l_min": {SHORT[k]: v for k, v in fit.leaks.items()}, "leak_sigma_l_min": {SHORT[k]: v for k, v in fit.errors.items()},
                      "coverage": {n: s >= MIN_OPEN_S for n, s in open_s.items()}, "errors": data.errors[:3]})
     return {"unit": unit.__dict__, "rows": rows}
 
