@@ -3,6 +3,7 @@
 import math
 from itertools import pairwise
 
+import numpy as np
 import pytest
 from scipy.stats import chi2
 
@@ -45,3 +46,7 @@ def test_the_printed_bounds_round_away_from_the_rate():
     assert false_alarm_text(0, 0.801) == "0 false alarms in 0.80 h (<= 4.7 per hour, 95 % exact Poisson interval)"
     assert false_alarm_text(6, 0.534) == "6 false alarms in 0.53 h (11 per hour, 4.1-25, 95 % exact Poisson interval)"
     assert false_alarm_text(1, 1.0, "alarm").startswith("1 alarm in 1.00 h (1.0 per hour, 0.025-5.6,")
+
+
+def test_counts_and_hours_summed_with_numpy_are_taken():
+    assert false_alarm_rate(np.int64(4), np.float64(0.25)) == pytest.approx(false_alarm_rate(4, 0.25))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from numbers import Integral, Real
 
 from scipy.stats import chi2
 
@@ -21,14 +22,14 @@ INTERVAL = "95 % exact Poisson interval"  # how a rate's interval is named where
 def false_alarm_rate(events: int, hours: float) -> tuple[float, float, float]:
     """[1/h] the rate of ``events`` in ``hours`` of monitoring and the ends of its exact Poisson (Garwood) two-sided
     CONFIDENCE interval: ``(rate, low, high)``, ``low`` 0 for no event."""
-    if isinstance(events, bool) or not isinstance(events, int) or events < 0:
+    if isinstance(events, bool) or not isinstance(events, Integral) or events < 0:
         raise InputError(f"false_alarm_rate: events must be a count (an int >= 0), got {events!r}")
-    if not isinstance(hours, (int, float)) or not math.isfinite(hours) or hours <= 0.0:
+    if not isinstance(hours, Real) or not math.isfinite(hours) or hours <= 0.0:
         raise InputError(f"false_alarm_rate: hours must be finite and > 0, got {hours!r}")
     tail = (1.0 - CONFIDENCE) / 2.0
     low = float(chi2.ppf(tail, 2 * events)) / (2.0 * hours) if events else 0.0
     high = float(chi2.ppf(1.0 - tail, 2 * events + 2)) / (2.0 * hours)
-    return events / hours, low, high
+    return float(events / hours), low, high
 
 
 def _two_digits(value: float, outward: Callable[[float], float] = round) -> str:
