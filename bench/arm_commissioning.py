@@ -6,7 +6,7 @@ notches each drawn off, lines, Stribeck friction, warming oil, a drooping supply
 commissioned (`commission`, as `hydro-ros commission` on its bags) from its fault-free work of 2 minutes (2 x 60 s), 4
 minutes (2 x 120 s, the documented minimum) and 8 minutes (4 x 120 s), payload picked up and set down in every
 other recording. Then, on runs of that rig no fit has seen (other moves, speeds, payloads and oil temperatures):
-- fault-free work: false alarms per hour with a one-sided 95 % upper bound (Poisson), and the share of the time each
+- fault-free work: false alarms per hour with the upper end of their 95 % exact Poisson interval (two-sided), and the share of the time each
   actuator is held outside the commissioned valve commands; the same for the config as shipped, not commissioned;
 - a leak from 20 s of each kind on each cylinder (external A, external B, internal; 0.25, 0.5, 1, 2 L/min at 10 MPa):
   the smallest size named on its cylinder with its name, nothing on the other cylinder, nothing before onset; and the
@@ -22,7 +22,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import chi2
 from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
@@ -32,6 +31,7 @@ from hydro_ros.contract.errors import InputError  # noqa: E402
 from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E402
 from hydro_ros.fdi.monitor import FdiMonitor  # noqa: E402
 from hydro_ros.fdi.offline import run_monitor  # noqa: E402
+from hydro_ros.fdi.rates import CONFIDENCE, false_alarm_rate  # noqa: E402
 from hydro_ros.studies import independent_arm as plant  # noqa: E402
 from hydro_ros.studies.fdi_evaluation import parallel_map  # noqa: E402
 from hydro_ros.workflows.commissioning import FaultFreeRecording, commission  # noqa: E402
@@ -40,7 +40,6 @@ TRAINING = {"2 min": (2, 60.0), "4 min": (2, 120.0), "8 min": (4, 120.0)}  # rec
 SHIPPED = "shipped"  # the config as it comes, not commissioned
 SIZES = (0.25, 0.5, 1.0, 2.0)  # [L/min at 10 MPa]
 ONSET_S, RUN_S = 20.0, 60.0
-CONFIDENCE = 0.95
 
 
 def _commission(job: tuple[Machine, int, str]) -> tuple[str, dict | str]:
@@ -66,11 +65,6 @@ def _evaluate(job: tuple[Machine, int, plant.ArmWork, dict[str, Machine]]) -> di
         out["levels"][level] = {"alarms": [a.to_json() for a in run.alarms], "held": monitor.outside_held_samples.tolist(),
                                 "evaluated": int(monitor.evaluated_samples)}
     return out
-
-
-def upper_rate(events: int, hours: float) -> float:
-    """[1/h] the one-sided CONFIDENCE upper bound of a Poisson rate after ``events`` in ``hours``."""
-    return float(chi2.ppf(CONFIDENCE, 2 * (events + 1)) / 2.0 / hours)
 
 
 def summarise(machine: Machine, runs: list[dict], levels: list[str]) -> dict:
@@ -100,7 +94,7 @@ def summarise(machine: Machine, runs: list[dict], levels: list[str]) -> dict:
                 smallest[f"{actuator}/{fault}"] = {"size_l_min": size, "delay_s": delay,
                                                    "detected_l_min": min(detected) if detected else None}
         out[level] = {"fault_free_hours": round(hours, 3), "false_alarms": len(alarms),
-                      "per_hour_upper": round(upper_rate(len(alarms), hours), 2), "alarms": alarms,
+                      "per_hour_upper": round(false_alarm_rate(len(alarms), hours)[2], 2), "alarms": alarms,
                       "held_share": {a: round(float(h) / max(evaluated, 1), 4) for a, h in zip(actuators, held)},
                       "smallest_named_l_min": smallest}
     return out
@@ -140,7 +134,7 @@ def main() -> int:
         pooled[level] = {
             "rigs": len(done), "refused": sum(level in r["refused"] for r in rigs),
             **({"threshold_c0_mpa": machine.fdi.get("threshold_constant")} if level == SHIPPED else {}), "fault_free_hours": round(hours, 3),
-            "false_alarms": alarms, "per_hour_upper": round(upper_rate(alarms, hours), 2) if hours else None,
+            "false_alarms": alarms, "per_hour_upper": round(false_alarm_rate(alarms, hours)[2], 2) if hours else None,
             "held_share_max": max((max(d["held_share"].values()) for d in done), default=None),
             "held_share_mean": round(float(np.mean([v for d in done for v in d["held_share"].values()])), 4) if done else None,
             "held_share_by_actuator": {a: round(float(np.mean([d["held_share"][a] for d in done])), 4)
@@ -171,7 +165,7 @@ def plot(summary: dict, out: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
     x = np.arange(len(levels))
     axes[0].bar(x - 0.2, [pooled[level]["per_hour_upper"] for level in levels], width=0.4, color="tab:red",
-                label=f"false alarms per hour, {summary['confidence']:.0%} upper bound")
+                label=f"false alarms per hour, upper end of the {summary['confidence']:.0%} exact Poisson interval")
     twin = axes[0].twinx()
     twin.bar(x + 0.2, [100 * pooled[level]["held_share_max"] for level in levels], width=0.4, color="0.6",
              label="held outside the commissioned commands, worst actuator [%]")

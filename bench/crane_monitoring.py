@@ -28,6 +28,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.machine import load_machine_config  # noqa: E402
+from hydro_ros.fdi.rates import false_alarm_text  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
 from hydro_ros.studies.crane_monitoring import (  # noqa: E402
     fault_cases,
@@ -44,8 +45,8 @@ SIZES = (0.5, 1.0, 2.0)
 def markdown(summary: dict) -> str:
     free = summary["fault_free"]
     doubled = summary["fault_free_doubled_mismatch"]
-    lines = [f"Fault-free: {free['alarms']} alarms in {free['hours']:.2f} h of work ({free['false_alarms_per_hour']:.2f} per hour); "
-             f"with twice the mismatch {doubled['alarms']} alarms in {doubled['hours']:.2f} h.", "",
+    lines = [f"Fault-free: {false_alarm_text(free['alarms'], free['hours'], 'alarm')} of work; with twice the mismatch "
+             f"{false_alarm_text(doubled['alarms'], doubled['hours'], 'alarm')}.", "",
              "| cylinder | fault | L/min at 10 MPa | detected | isolated (cylinder and fault) | other cylinder alarmed | median delay [s] | "
              "named at the end |",
              "|---|---|---|---|---|---|---|---|"]

@@ -25,6 +25,7 @@ from hydro_ros.contract.names import Injection
 from hydro_ros.fdi.isolation import A_DOWN, A_UP, B_DOWN, B_UP, NO_CLOSED_CODE, closed_parts, code_string
 from hydro_ros.fdi.monitor import FdiMonitor, crossing_code, crossing_episodes
 from hydro_ros.fdi.parity import ParityThresholds, closed_statistics, passes_nothing
+from hydro_ros.fdi.rates import false_alarm_text
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.sim.scenario import MachineRun, simulate_machine
 from hydro_ros.workflows.commissioning import evaluated_maximum, threshold_excess
@@ -347,8 +348,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
         how = (f"with the calibrated c0 = {threshold['calibrated_constant_mpa']:.3f} MPa; the paper's c0 = "
                f"{threshold['paper_constant_mpa']:.3f} MPa gives {threshold['paper_threshold_false_alarms_per_hour']:.0f} "
                "per hour on the same plants.")
-    lines.append(f"Fault-free: {free['hours']:.2f} h monitored, {free['crossing_episodes']} threshold-crossing episodes "
-                 f"({free['false_alarms_per_hour']:.2f} per hour) {how}")
+    lines.append(f"Fault-free: {false_alarm_text(free['crossing_episodes'], free['hours'], 'threshold-crossing episode')} {how}")
     return "\n".join(lines) + "\n"
 
 
