@@ -38,7 +38,7 @@ def build_fleet(root: Path) -> Path:
     config = REPO / "config" / "boom_arm.yaml"
     machine = load_machine_config(config)
     commissioning = root / "commissioning"
-    for index, name in enumerate(("m1", "m2", "m3")):
+    for index, name in enumerate(("m2", "m3"), start=1):  # two builds: one whose arm leaks more each time, one healthy
         folder = root / "fleet" / name
         (folder / "2026-11").mkdir(parents=True)
         rig = 40 + index
@@ -70,7 +70,7 @@ def test_a_growing_leak_is_flagged_on_its_cylinder_and_dated_and_a_rerun_analyse
                            "--quiet"], capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout)
-    assert summary["analysed"] == 13 and summary["unreadable"] == 1 and summary["flagged"] == ["m2/arm"], summary
+    assert summary["analysed"] == 9 and summary["unreadable"] == 1 and summary["flagged"] == ["m2/arm"], summary
     report = json.loads((out / "fleet.json").read_text())
     arm = report["machines"]["m2"]["actuators"]["arm"]
     assert arm["flagged"] == ["b"] and arm["trend"]["b"]["growing"]
@@ -80,10 +80,9 @@ def test_a_growing_leak_is_flagged_on_its_cylinder_and_dated_and_a_rerun_analyse
     per_day = arm["trend"]["b"]["slope_l_min_per_day"]
     assert per_day == pytest.approx(0.02, abs=0.01)  # 0.2 L/min every ten days
     assert arm["service_by_unix_s"] is not None and arm["service_by_unix_s"] <= latest["start_unix_s"] + 1.0  # already above 0.5
-    for name in ("m1", "m3"):
-        assert report["machines"][name]["flagged"] == []
+    assert report["machines"]["m3"]["flagged"] == [] and report["machines"]["m2"]["actuators"]["boom"]["flagged"] == []
     assert "broken.mcap" in report["unreadable"][0]["bag"] and report["unreadable"][0]["error"]
-    assert (out / "fleet.csv").read_text().count("\n") == 1 + 12 * 2
+    assert (out / "fleet.csv").read_text().count("\n") == 1 + 8 * 2
     assert "m2: arm" in (out / "fleet.html").read_text()
 
     again = subprocess.run([sys.executable, "-m", "hydro_ros.cli", "fleet", "analyse", str(fleet), "--out", str(out), "--quiet"],
@@ -98,7 +97,7 @@ def test_the_same_results_on_a_dask_cluster(fleet, tmp_path):
     local = analyse(fleet, tmp_path / "local", workers=1)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         dask = analyse(fleet, tmp_path / "dask", scheduler=cluster.scheduler_address)
-    assert dask["ran_on"].startswith("Dask") and dask["analysed"] == 13
+    assert dask["ran_on"].startswith("Dask") and dask["analysed"] == 9
     for name, machine in local["machines"].items():
         assert dask["machines"][name]["flagged"] == machine["flagged"]
         for actuator, entry in machine["actuators"].items():
