@@ -119,8 +119,9 @@ def test_discrepancy_names_variant_forms_and_pairs_by_family(sam_config, tmp_pat
 
 
 def test_the_independent_plant_follows_the_model_where_their_physics_agree(sam_config):
-    """The plant written apart from the model (joint-space boom, smooth orifice law, LSODA), given the config's own
-    numbers and no effect, follows SamPlant under the same operator: what it differs in is chosen, not a slip."""
+    """The plant written apart from the model (joint-space boom, tabulated notches, smooth orifice law, LSODA), given
+    the config's own numbers and no effect, follows SamPlant under the same operator: what it differs in is chosen, not
+    a slip (its notch tables are within 0.6 % of the cubics they are read from; the pressures within 2 sensor sigmas)."""
     import numpy as np
 
     from hydro_ros.models.sam import SamPlant
@@ -133,9 +134,9 @@ def test_the_independent_plant_follows_the_model_where_their_physics_agree(sam_c
     model = SamModel(sam_config)
     _, reference_states, reference_commands = SamPlant(model, max_command=sam_config.excitation.max_command).advance(
         10_000, references=references)
-    assert np.abs(states[:, :2] - reference_states[:, :2]).max() < 1.5e5  # [Pa]: the sensor noise is 1e5
-    assert np.abs(states[:, 4] - model.joint_from_piston(reference_states[:, 4])).max() < 2e-4  # [rad]
-    assert np.abs(commands - reference_commands).max() < 1e-3
+    assert np.abs(states[:, :2] - reference_states[:, :2]).max() < 2e5  # [Pa]: the sensor noise is 1e5
+    assert np.abs(states[:, 4] - model.joint_from_piston(reference_states[:, 4])).max() < 3e-4  # [rad]
+    assert np.abs(commands - reference_commands).max() < 1.5e-3  # the lever is the gain times the joint difference
 
 
 def test_an_independent_plants_plain_overlap_is_named_near_its_size_and_closes_the_held_out_gap(sam_config, tmp_path):
@@ -143,7 +144,9 @@ def test_an_independent_plants_plain_overlap_is_named_near_its_size_and_closes_t
     at that opening, the valve sealed inside it): screened first at 0.054, the refit on all segments returned
     0.029 and named valve_flow_gain. The model's centre leakage acted across the whole overlap, so wherever the
     boom was held with the spool inside it the model drifted, for any overlap above that resting command: the
-    refit, which sees every rest, fell below them. Screening and refit now agree and the overlap is named."""
+    refit, which sees every rest, fell below them. Screening and refit now agree and the overlap is named. Its form is
+    not claimed: on 40 s the dead zone's two forms explain 0.81 and 0.83 of the gap, and the plant's notch tables (not
+    P-II's cubics) tipped the choice to "rescaled"."""
     from hydro_ros.bags.reader import read_bag
     from hydro_ros.studies.independent_plant import independent_plant_bag
     from hydro_ros.workflows.discrepancy import run
@@ -153,7 +156,7 @@ def test_an_independent_plants_plain_overlap_is_named_near_its_size_and_closes_t
     named = {e["name"]: e["parameters"] for e in report["effects"]}
     assert list(named) == ["valve_deadzone"], report["selection"]["steps"]
     assert named["valve_deadzone"]["value"] == pytest.approx(0.06, abs=0.006)
-    assert named["valve_deadzone"]["form"] == "overlap"
+    assert named["valve_deadzone"]["form"] in ("overlap", "rescaled")
     assert report["validation_gap"]["after"] <= 0.4 * report["validation_gap"]["before"]
     first = report["selection"]["steps"][0]
     screened = {row["form"]: row["value"] for row in first["screened"] if row["name"] == "valve_deadzone"}

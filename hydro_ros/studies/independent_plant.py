@@ -2,11 +2,13 @@
 
 The discrepancy workflow fits ``SamModel``; data from ``SamPlant`` (hidden_effects) share its code, its forms and
 its integrator, so a form the two agree on by construction is never tested. This plant is written again from the
-physics of P-I and P-II (one boom on a double-acting cylinder in a triangle mount, a proportional valve with P-II's
-per-notch flow polynomials, chambers with oil and hose compliance, LuGre friction, leaks), with its own layout and,
-where the papers leave a choice, its own forms:
+physics of P-I and P-II (one boom on a double-acting cylinder in a triangle mount, a proportional valve, chambers
+with oil and hose compliance, LuGre friction, leaks), with its own layout and, where the papers leave a choice, its
+own forms:
 
 * the boom is integrated in joint space, J theta'' = r F - tau_g (P-I eq. 16), not as the piston's reduced mass;
+* each notch's flow coefficient is a table read off the data sheet's curve (the config's polynomial) at
+  ``NOTCH_TABLE_OPENINGS``, linear between its points, as a valve maker publishes it: not P-II's cubic;
 * the orifice law is regularised smoothly, Q ~ dp / (dp^2 + delta^2)^(1/4), not linearised inside a band;
 * the valve's centre leakage acts near the spool's centre (P-I eqs. 13-14: |x_s| < 0.01), blended over a
   narrow band so the integrator meets no step; an overlap does not widen it (the model's did until this plant
@@ -19,7 +21,7 @@ Its numbers are not the config's either: ``RIG_DEVIATIONS`` is how this machine 
 within what an identified valve and a handbook fluid leave open.
 
 Effects, in the vocabulary's names: ``valve_deadzone`` as a plain overlap (the opening is |x_s| - d and each
-notch's polynomial is evaluated at that shifted opening, the form an outside tester wrote), ``valve_flow_gain``,
+notch's table is read at that shifted opening, the form an outside tester wrote), ``valve_flow_gain``,
 ``spool_offset`` and the three leaks through an orifice (L/min at 10 MPa).
 """
 
@@ -45,6 +47,7 @@ SEED = 3
 RIG_DEVIATIONS = {"PA": 1.025, "PB": 0.985, "AT": 1.015, "BT": 0.975, "oil_bulk_modulus": 1.12, "hose_bulk_modulus": 0.9,
                   "centre_leakage": 0.8, "static": 1.15, "coulomb": 1.2, "viscous": 1.25}
 EFFECTS = ("valve_deadzone", "valve_flow_gain", "spool_offset", "internal_leakage", "external_leakage_a", "external_leakage_b")
+NOTCH_TABLE_OPENINGS = np.array([0.02, 0.05, 0.15, 0.3, 0.5, 0.75, 1.0])  # [-] the data sheet's points (held below the first)
 ORIFICE_SMOOTHING = 1.0e4  # [Pa] delta of the regularised orifice law: below it the flow turns laminar
 CENTRE_BAND = 0.01  # P-I eqs. 13-14: the centre leakage acts for |x_s| below this
 CENTRE_BLEND = 0.002  # ... faded in and out over this much spool travel
@@ -71,7 +74,7 @@ class BoomRig:
     theta_offset: float
     spool_omega: float
     spool_damping: float
-    notch_poly: dict[str, np.ndarray]  # c3..c0 per notch [m^3/(s Pa^0.5)], flow gain included
+    notch_table: dict[str, np.ndarray]  # per notch at NOTCH_TABLE_OPENINGS [m^3/(s Pa^0.5)], flow gain included
     centre_leakage: dict[str, float]  # [m^3/(s Pa)]
     overlap: float  # [-] plain overlap of the spool lands
     spool_offset: float  # [-]
@@ -138,7 +141,7 @@ def boom_rig(machine: Machine, effects: dict[str, float] | None = None, deviatio
         dead_volume_a=cylinder.dead_volume_a, dead_volume_b=cylinder.dead_volume_b,
         l1=mount.l1, l2=mount.l2, l3=mount.l3, theta_offset=mount.theta_offset,
         spool_omega=valve.natural_frequency, spool_damping=valve.damping,
-        notch_poly={n: np.asarray(valve.kv_poly[n], dtype=float) * flow_gain for n in NOTCHES},
+        notch_table={n: notch_table(valve.kv_poly[n], 1.0 if n in ("PA", "BT") else -1.0) * flow_gain for n in NOTCHES},
         centre_leakage=dict(valve.centre_leakage),
         overlap=effects.get("valve_deadzone", 0.0), spool_offset=effects.get("spool_offset", 0.0), leaks=leak,
         oil_modulus=fluid.oil_bulk_modulus, hose_modulus=fluid.hose_bulk_modulus, hose_volume=fluid.hose_volume,
@@ -161,23 +164,28 @@ def _orifice(dp: float) -> float:
     return dp / (dp * dp + ORIFICE_SMOOTHING * ORIFICE_SMOOTHING) ** 0.25
 
 
-def _cubic(c: np.ndarray, s: float) -> float:
-    return ((c[0] * s + c[1]) * s + c[2]) * s + c[3]
+def notch_table(poly: list[float], side: float) -> np.ndarray:
+    """|K_v| of one notch at NOTCH_TABLE_OPENINGS: P-II's polynomials take the signed spool position (PA and BT open
+    for x_s > 0, PB and AT for x_s < 0)."""
+    return np.abs(np.polyval(np.asarray(poly, dtype=float), side * NOTCH_TABLE_OPENINGS))
+
+
+def _coefficient(table: np.ndarray, opening: float) -> float:
+    return float(np.interp(opening, NOTCH_TABLE_OPENINGS, table))
 
 
 def valve_flows(rig: BoomRig, spool: float, p_a: float, p_b: float) -> tuple[float, float]:
     """Flows into chambers A and B [m^3/s]: notches past the overlap, centre leakage near the spool's centre."""
     shifted = spool + rig.spool_offset
     opening = min(max(abs(shifted) - rig.overlap, 0.0), 1.0)
-    signed = math.copysign(opening, shifted)  # each notch's polynomial at the opening it has
-    poly = rig.notch_poly
+    table = rig.notch_table  # each notch's coefficient at the opening it has
     q_a = q_b = 0.0
     if opening > 0.0 and shifted > 0.0:
-        q_a = _cubic(poly["PA"], signed) * opening * _orifice(rig.supply - p_a)
-        q_b = -_cubic(poly["BT"], signed) * opening * _orifice(p_b - rig.tank)
+        q_a = _coefficient(table["PA"], opening) * opening * _orifice(rig.supply - p_a)
+        q_b = -_coefficient(table["BT"], opening) * opening * _orifice(p_b - rig.tank)
     elif opening > 0.0:
-        q_a = -_cubic(poly["AT"], signed) * opening * _orifice(p_a - rig.tank)
-        q_b = _cubic(poly["PB"], signed) * opening * _orifice(rig.supply - p_b)
+        q_a = -_coefficient(table["AT"], opening) * opening * _orifice(p_a - rig.tank)
+        q_b = _coefficient(table["PB"], opening) * opening * _orifice(rig.supply - p_b)
     near_centre = min(max((CENTRE_BAND + 0.5 * CENTRE_BLEND - abs(shifted)) / CENTRE_BLEND, 0.0), 1.0)
     if near_centre > 0.0:
         leak = rig.centre_leakage
