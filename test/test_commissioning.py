@@ -34,6 +34,7 @@ from hydro_ros.workflows.commissioning import (
     evaluated_maximum,
     identify,
     threshold_excess,
+    threshold_refusal,
 )
 from test.conftest import REPO
 
@@ -176,6 +177,17 @@ def test_mobile_valve_commissioning_fits_the_notches_from_the_pilot_pressures_an
     run = run_monitor(FdiMonitor(machine), _samples(plant, 21, 60.0, [Injection("external_leakage_a", 0.4, 20.0)]))
     named = [a for a in run.alarms if a.fault is not None and a.fault.value != "unisolated"]
     assert run.alarms and run.alarms[0].time_s > 20.0 and named and named[0].fault.value == "external_leakage_a"
+
+
+def test_a_threshold_above_the_configs_is_refused_with_what_the_configs_own_thresholds_did():
+    """A commissioned threshold above the config's is refused either way; the advice differs: where the config's own
+    thresholds also alarm on the held-out parts the machine is unlike its model (force, if the recordings are healthy),
+    where they stay quiet the recordings are suspect."""
+    unlike = threshold_refusal("c0 0.2 MPa is above the config's 0.075 MPa", ["lift unisolated at 61.0 s of operator0", "tilt x"])
+    assert unlike.startswith("commission: c0 0.2 MPa") and "(2 alarms, first lift unisolated at 61.0 s of operator0)" in unlike
+    assert "do not fit this machine either" in unlike and "--force" in unlike
+    suspect = threshold_refusal("c0 0.2 MPa is above the config's 0.075 MPa", [])
+    assert "stay quiet" in suspect and "may hold a fault" in suspect and "do not fit" not in suspect
 
 
 @pytest.mark.slow  # ~20 s of simulated recordings

@@ -384,6 +384,27 @@ def parity_threshold(machine: Machine, fitted: Sequence[Samples], held_out: Sequ
             "margin": PARITY_MARGIN, "budget": "no crossing on the held-out data"}
 
 
+def config_alarms(machine: Machine, held_out: Sequence[tuple[str, Samples]]) -> list[str]:
+    """The alarms the config as it is (not commissioned) raises on the held-out parts of the named recordings: whether
+    its thresholds, which a commissioned threshold above them is judged against, fit this machine at all."""
+    alarms = []
+    for name, samples in held_out:
+        for _, result in monitor_blocks(FdiMonitor(machine), samples):
+            alarms += [f"{alarm.actuator} {alarm.fault.value} at {alarm.time_s:.1f} s of {name}" for alarm in result.alarms]
+    return alarms
+
+
+def threshold_refusal(above: str, config_alarms: Sequence[str]) -> str:
+    """Why a commissioned threshold above the config's own is refused, and what to do: the config's alarms on the same
+    held-out parts tell a machine unlike its model (its recordings fault-free) from recordings that hold a fault."""
+    if config_alarms:
+        return (f"commission: {above}; the config's own thresholds alarm on the same held-out parts ({len(config_alarms)} alarms, "
+                f"first {config_alarms[0]}), so they do not fit this machine either: if the recordings are fault-free, the "
+                "commissioned ones are the honest ones, accept them with --force")
+    return (f"commission: {above}; the config's own thresholds stay quiet on the same held-out parts: the recordings may hold a "
+            "fault or be noisier than this machine should be; check them, or accept it with --force")
+
+
 def above_shipped(threshold: dict[str, Any]) -> str:
     """Why a commissioned threshold is above the config's own (the safe one it replaces), or ''."""
     if "mean_threshold_l_min" in threshold:  # parity: the thresholds themselves, where the held-out machine was at rest
@@ -501,9 +522,11 @@ def commission(machine: Machine, recordings: Sequence[FaultFreeRecording], progr
     else:
         threshold = adaptive_threshold(model_only, fitted_parts, held_out, progress, left_out_models(machine, recordings, fitted_rows))
     above = above_shipped(threshold)
+    if above:
+        alarms = config_alarms(machine, [(r.name, part) for r, part in zip(recordings, held_out)])
+        threshold["config_alarms_on_held_out"] = {"count": len(alarms), "first": alarms[:5]}
     if above and not force:
-        raise InputError(f"commission: {above}: the recordings may hold a fault or be noisier than this machine should be; "
-                         "check them, or accept it with --force")
+        raise InputError(threshold_refusal(above, alarms))
     threshold["forced"] = bool(above)
     overrides["fdi"] = threshold.pop("fdi")
     coverage = Coverage.seen(machine.actuator_names, [r.samples for r in recordings])
