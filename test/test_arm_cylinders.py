@@ -18,7 +18,7 @@ from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.offline import run_monitor
 from hydro_ros.fdi.parity import ParityThresholds
 from hydro_ros.models.crane import Crane, load_crane
-from hydro_ros.models.sam import AREA_A, AREA_B, SamModel, simulate_segments
+from hydro_ros.models.sam import Param, SamModel, simulate_segments
 from hydro_ros.models.serial_arm import SerialArm
 from hydro_ros.planning.serving import executable_trajectory
 from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun
@@ -49,7 +49,7 @@ def test_one_k70m_config_gives_the_planner_and_the_monitor_the_same_cylinders(cr
         assert np.allclose(model.piston_from_joint(q), cylinder.stroke(q), atol=1e-5), cylinder.name
         assert np.allclose(model.piston_velocity(q, 0.1), cylinder.arm(q)[0] * 0.1, rtol=1e-6), cylinder.name
         assert np.allclose(model.joint_from_piston(cylinder.stroke(q)), q, atol=1e-6), cylinder.name
-        assert model.base[[AREA_A, AREA_B]] == pytest.approx([cylinder.area_a, cylinder.area_b], rel=1e-4), cylinder.name
+        assert model.base[[Param.AREA_A, Param.AREA_B]] == pytest.approx([cylinder.area_a, cylinder.area_b], rel=1e-4), cylinder.name
     # one cylinder, one description: a mount changed for the monitor is the planner's mount too (its rod-end pin 4 cm
     # further out, the retracted length where the range starts)
     mount = machine.actuator("tilt").mount

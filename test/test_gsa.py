@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
+from hydro_ros.models.sam import Param, SamModel
 from hydro_ros.studies.gsa import (
     CAUSES,
     LEAKS,
@@ -103,7 +103,7 @@ def test_the_sample_at_n_is_the_first_rows_of_the_sample_at_a_larger_n():
 
 def test_the_solved_steady_state_is_eqs_39_40_and_its_pressures_share_their_indices(sam_config):
     model = SamModel(sam_config)
-    a, b = model.base[AREA_A], model.base[AREA_B]
+    a, b = model.base[Param.AREA_A], model.base[Param.AREA_B]
     rows = saltelli_sample(PARAMETERS, 512)
     values = dict(zip(PARAMETERS, rows.T))
     force = 30e3

@@ -9,7 +9,7 @@ from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.fdi.monitor import FdiMonitor
 from hydro_ros.fdi.parity import ParityGenerator
 from hydro_ros.fdi.residuals import LastSamplesMean
-from hydro_ros.models.sam import AREA_A, AREA_B, PILOT_MAX, SamModel
+from hydro_ros.models.sam import Param, SamModel
 from hydro_ros.models.valve import pilot_drive
 from hydro_ros.studies.fdi_evaluation import Case, _blocks, run_case
 from test.conftest import REPO
@@ -92,7 +92,7 @@ def test_closed_valve_evidence_follows_the_physics_of_each_fault(mobile):
     velocity = _closed_mean_change(mobile, "velocity_sensor_bias", 0.02)
     model = SamModel(mobile)
     assert velocity[0] < -0.3 and velocity[1] > 0.3
-    assert -velocity[0] / velocity[1] == pytest.approx(model.base[AREA_A] / model.base[AREA_B], rel=0.2)
+    assert -velocity[0] / velocity[1] == pytest.approx(model.base[Param.AREA_A] / model.base[Param.AREA_B], rel=0.2)
     for fault, value in ((None, 0.0), ("compensator_pressure_sensor_bias", 5e5), ("main_spool_erosion", 0.3)):
         assert np.all(np.abs(_closed_mean_change(mobile, fault, value)) < 0.15), fault
 
@@ -126,7 +126,7 @@ def test_a_pilot_at_tank_read_by_a_transmitter_clipped_at_zero_does_not_shrink_t
     Read as p_1 - p_2 that is a closing bias of 0.4 sigma on every opening; the drive takes such a reading as tank, while a
     real back pressure on both pilot lines still cancels."""
     model = SamModel(mobile)
-    sigma, pilot_max = mobile.sensors.pilot_pressure_noise_std, model.base[PILOT_MAX]
+    sigma, pilot_max = mobile.sensors.pilot_pressure_noise_std, model.base[Param.PILOT_MAX]
     rng = np.random.default_rng(3)
     acting = 0.4 * pilot_max + rng.normal(0.0, sigma, 100_000)
     at_tank = np.clip(rng.normal(0.0, sigma, 100_000), 0.0, None)
@@ -152,7 +152,7 @@ def test_the_roots_noise_bias_bounds_a_stalled_notchs_misreading(mobile):
         supply = 10.0e6
         residual, _, _, bias, _ = generator.run(
             0.3 * column, 0.0 * column, supply - drop + rng.normal(0.0, sigma, (n, 1)), 1.0e6 + rng.normal(0.0, sigma, (n, 1)),
-            0.8 * model.base[PILOT_MAX] * column, 0.0 * column, supply + rng.normal(0.0, sigma, (n, 1)), column.astype(bool))
+            0.8 * model.base[Param.PILOT_MAX] * column, 0.0 * column, supply + rng.normal(0.0, sigma, (n, 1)), column.astype(bool))
         return float(np.mean(residual[1000:, 0, 0])), float(np.mean(bias[1000:, 0, 0]))
 
     stalled = [window(0.0) for _ in range(8)]

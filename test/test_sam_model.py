@@ -8,20 +8,7 @@ import pytest
 from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient
-from hydro_ros.models.sam import (
-    AREA_A,
-    AREA_B,
-    BRISTLE,
-    HOSE_MODULUS,
-    HOSE_VOLUME,
-    OIL_MODULUS,
-    STROKE,
-    V0_A,
-    V0_B,
-    SamModel,
-    SamPlant,
-    valve_and_leak_flows,
-)
+from hydro_ros.models.sam import Param, SamModel, SamPlant, valve_and_leak_flows
 from hydro_ros.models.steady_state import extension_steady_pressures, hydraulic_natural_frequency
 
 RETRACTED_JOINT = 0.728 - 1.6 + 0.005  # just off the retracted end stop (P-I GSA start, L4842)
@@ -46,8 +33,9 @@ def test_leak_coefficient_matches_p1_calibration():
 def test_bulk_modulus_grows_with_extension(sam_config):
     model = SamModel(sam_config)
     p = model.base
-    retracted = effective_bulk_modulus(0.0, p[V0_A], p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
-    extended = effective_bulk_modulus(0.0, p[V0_A] + p[AREA_A] * p[STROKE], p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0)
+    fluid = (p[Param.OIL_MODULUS], p[Param.HOSE_MODULUS], p[Param.HOSE_VOLUME], 0.0)
+    retracted = effective_bulk_modulus(0.0, p[Param.V0_A], *fluid)
+    extended = effective_bulk_modulus(0.0, p[Param.V0_A] + p[Param.AREA_A] * p[Param.STROKE], *fluid)
     # sam_nominal.yaml: ~0.42 GPa retracted, ~1.2 GPa extended, inside P-I's 300-1200 MPa
     assert 0.38e9 < retracted < 0.46e9
     assert 1.1e9 < extended < 1.25e9
@@ -94,7 +82,7 @@ def test_closed_spool_without_leakage_holds_pressure(sam_config):
     assert np.ptp(states[:, 4]) < 1e-6
     # the held pressures carry the load within the static friction band
     p = model.base
-    force = states[-1, 0] * p[AREA_A] - states[-1, 1] * p[AREA_B]
+    force = states[-1, 0] * p[Param.AREA_A] - states[-1, 1] * p[Param.AREA_B]
     static = sam_config.actuator("boom").friction.static
     assert abs(force - model.load_force(states[-1, 4])) <= static
 
@@ -107,9 +95,9 @@ def test_bristle_state_carries_what_static_friction_holds(sam_config, off_balanc
     p = model.base
     x = model.piston_from_joint(0.2)
     p_b = 2.0e6
-    p_a = (model.load_force(x) + off_balance + p_b * p[AREA_B]) / p[AREA_A]
+    p_a = (model.load_force(x) + off_balance + p_b * p[Param.AREA_B]) / p[Param.AREA_A]
     z = model.bristle_state(x, 0.0, p_a, p_b)
-    assert z * p[BRISTLE] == pytest.approx(off_balance)
+    assert z * p[Param.BRISTLE] == pytest.approx(off_balance)
     travel = {}
     for start in (z, 0.0):
         plant = SamPlant(model, initial_joint=0.2)
@@ -120,7 +108,7 @@ def test_bristle_state_carries_what_static_friction_holds(sam_config, off_balanc
     # beyond the static friction the bristles slip: the state saturates at F_S
     static = sam_config.actuator("boom").friction.static
     far = model.bristle_state(x, 0.0, p_a + np.sign(off_balance) * 1e7, p_b)
-    assert far * p[BRISTLE] == pytest.approx(np.sign(off_balance) * static)
+    assert far * p[Param.BRISTLE] == pytest.approx(np.sign(off_balance) * static)
 
 
 def test_chamber_mass_balance(sam_config):
@@ -137,10 +125,10 @@ def test_chamber_mass_balance(sam_config):
     net_a = flows[:, 0] - flows[:, 2] - flows[:, 3]
     net_b = flows[:, 1] + flows[:, 2] - flows[:, 4]
     x, p_a, p_b = states[:, 4], states[:, 0], states[:, 1]
-    vol_a = p[V0_A] + p[AREA_A] * x
-    vol_b = p[V0_B] + p[AREA_B] * (p[STROKE] - x)
-    bulk_a = np.array([effective_bulk_modulus(pa, va, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0) for pa, va in zip(p_a, vol_a)])
-    bulk_b = np.array([effective_bulk_modulus(pb, vb, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], 0.0) for pb, vb in zip(p_b, vol_b)])
+    vol_a = p[Param.V0_A] + p[Param.AREA_A] * x
+    vol_b = p[Param.V0_B] + p[Param.AREA_B] * (p[Param.STROKE] - x)
+    bulk_a = np.array([effective_bulk_modulus(pa, va, p[Param.OIL_MODULUS], p[Param.HOSE_MODULUS], p[Param.HOSE_VOLUME], 0.0) for pa, va in zip(p_a, vol_a)])
+    bulk_b = np.array([effective_bulk_modulus(pb, vb, p[Param.OIL_MODULUS], p[Param.HOSE_MODULUS], p[Param.HOSE_VOLUME], 0.0) for pb, vb in zip(p_b, vol_b)])
     for net, vol, bulk, pressure in ((net_a, vol_a, bulk_a, p_a), (net_b, vol_b, bulk_b, p_b)):
         inflow = np.trapezoid(net, dx=dt)
         stored = (vol[-1] - vol[0]) + np.trapezoid((vol / bulk)[1:] * np.diff(pressure) / dt, dx=dt)
@@ -178,7 +166,6 @@ def test_each_effect_form_acts_as_its_physics_says(sam_config):
     """names.EFFECT_FORMS in the model: a laminar leak flows as much as an orifice at 10 MPa and in proportion
     below it; a plain overlap opens 1 - overlap at full travel; a lag reaches 63 % after its time constant;
     Stribeck friction raises the breakaway level only."""
-    from hydro_ros.models.sam import COULOMB, STATIC
     from hydro_ros.models.valve import spool_opening
 
     def model(effect, value, form=None):
@@ -211,8 +198,8 @@ def test_each_effect_form_acts_as_its_physics_says(sam_config):
     assert grown_flows[1][4] == pytest.approx(2.0 * (1.0e7 - tank) / 1.0e7, rel=1e-9)
 
     nominal, stribeck, coulomb = SamModel(sam_config), model("coulomb_friction", 500.0, "stribeck"), model("coulomb_friction", 500.0)
-    assert stribeck.base[STATIC] == nominal.base[STATIC] + 500.0 and stribeck.base[COULOMB] == nominal.base[COULOMB]
-    assert coulomb.base[COULOMB] == nominal.base[COULOMB] + 500.0
+    assert stribeck.base[Param.STATIC] == nominal.base[Param.STATIC] + 500.0 and stribeck.base[Param.COULOMB] == nominal.base[Param.COULOMB]
+    assert coulomb.base[Param.COULOMB] == nominal.base[Param.COULOMB] + 500.0
 
 
 @pytest.mark.parametrize(("forms", "message"), [({"valve_deadzone": "sticky"}, "effect_forms.valve_deadzone 'sticky': expected rescaled or overlap"),

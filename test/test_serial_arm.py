@@ -15,7 +15,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import load_machine_config, parse_machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.models.crane import load_crane
-from hydro_ros.models.sam import AREA_A, AREA_B, SamModel
+from hydro_ros.models.sam import Param, SamModel
 from hydro_ros.models.serial_arm import SerialArm, arm_problems, equivalent_load, holding
 from hydro_ros.sim.scenario import MachineRun
 
@@ -77,7 +77,7 @@ def test_the_boom_cylinder_carries_the_arm_as_it_moves():
     commands[500:2000, 1], commands[2000:3500, 1] = 0.5, -0.5  # the boom's valve stays closed
     states, samples = run.advance(4000, commands)
     boom = SamModel(machine, "boom")
-    force = states[0][:, 0] * boom.base[AREA_A] - states[0][:, 1] * boom.base[AREA_B]
+    force = states[0][:, 0] * boom.base[Param.AREA_A] - states[0][:, 1] * boom.base[Param.AREA_B]
     pose = samples.joint_position
     static = np.array([run.arm.arm.inertia_gravity(list(q))[1][0] / float(boom.piston_velocity(q[0], 1.0)) for q in pose])
     # 0.2 s means while the arm swings at a steady rate, once the oil column's ringing after the valve's switching has died
@@ -155,7 +155,7 @@ def test_faults_set_while_an_arm_runs_act_or_are_refused():
 
     def boom_force() -> float:
         states, _ = run.advance(1000, np.zeros((1000, 2)))
-        return float(np.mean(states[0][-200:, 0] * boom.base[AREA_A] - states[0][-200:, 1] * boom.base[AREA_B]))
+        return float(np.mean(states[0][-200:, 0] * boom.base[Param.AREA_A] - states[0][-200:, 1] * boom.base[Param.AREA_B]))
 
     before = boom_force()
     run.set_fault("arm", "payload_mass", 300.0, run.time)

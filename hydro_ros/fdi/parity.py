@@ -66,19 +66,7 @@ from numba import njit
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.fdi.isolation import JUDGED_A, JUDGED_B, NO_CLOSED_CODE, crossing_code
-from hydro_ros.models.sam import (
-    AREA_A,
-    AREA_B,
-    DEADZONE,
-    LAMINAR_BAND,
-    PILOT_MAX,
-    SPOOL_DAMPING,
-    SPOOL_OMEGA,
-    TANK,
-    VALVE_OVERLAP,
-    SamModel,
-    chambers,
-)
+from hydro_ros.models.sam import Param, SamModel, chambers
 from hydro_ros.models.valve import chamber_valve_flows, pilot_drive, spool_opening, spool_track
 
 CLOSED_SHARE = 0.5  # a sample is "closed" where the modelled spool is within this share of its dead zone (INFERRED: P-IV gives no
@@ -96,10 +84,10 @@ def flow_balance(s, neutral, piston, velocity, p_a, p_b, rate_a, rate_b, orifice
     """Equation error per chamber [L/min]: valve flow at opening s (``neutral``: the opening the valve's own lands leave,
     valve.chamber_valve_flows; chambers at ``orifice_a``, ``orifice_b``, fed at ``metering_supply``) minus what motion
     and compression (at ``p_a``, ``p_b``) take; and the two valve flows [L/min]."""
-    q_a, q_b = chamber_valve_flows(s, neutral, orifice_a, orifice_b, metering_supply, p[TANK], poly, centre, p[LAMINAR_BAND], 1.0)
+    q_a, q_b = chamber_valve_flows(s, neutral, orifice_a, orifice_b, metering_supply, p[Param.TANK], poly, centre, p[Param.LAMINAR_BAND], 1.0)
     volume_a, volume_b, bulk_a, bulk_b = chambers(p, piston, p_a, p_b, 0.0)  # no entrained air in the monitor's model
-    return ((q_a - p[AREA_A] * velocity - volume_a / bulk_a * rate_a) / FLOW_UNIT,
-            (q_b + p[AREA_B] * velocity - volume_b / bulk_b * rate_b) / FLOW_UNIT, q_a / FLOW_UNIT, q_b / FLOW_UNIT)
+    return ((q_a - p[Param.AREA_A] * velocity - volume_a / bulk_a * rate_a) / FLOW_UNIT,
+            (q_b + p[Param.AREA_B] * velocity - volume_b / bulk_b * rate_b) / FLOW_UNIT, q_a / FLOW_UNIT, q_b / FLOW_UNIT)
 
 
 @njit(cache=True)
@@ -119,8 +107,8 @@ def parity_residuals(piston, velocity, p_a, p_b, drive, compensator, orifice, va
                 bias_out[k, a, 0] = 0.0
                 bias_out[k, a, 1] = 0.0
                 continue
-            s = spool_opening(drive[k, a], 0.0, p[DEADZONE], 1.0, False)
-            neutral = spool_opening(drive[k, a], 0.0, p[VALVE_OVERLAP], 1.0, False)
+            s = spool_opening(drive[k, a], 0.0, p[Param.DEADZONE], 1.0, False)
+            neutral = spool_opening(drive[k, a], 0.0, p[Param.VALVE_OVERLAP], 1.0, False)
             rate_a = (p_a[k, a] - previous[a, 0]) / dt if previous[a, 2] > 0.5 else 0.0
             rate_b = (p_b[k, a] - previous[a, 1]) / dt if previous[a, 2] > 0.5 else 0.0
             previous[a, 0] = p_a[k, a]
@@ -135,9 +123,9 @@ def parity_residuals(piston, velocity, p_a, p_b, drive, compensator, orifice, va
             flow_out[k, a, 1] = abs(q_b)
             opening_out[k, a] = abs(s)
             up_a, up_b = chamber_valve_flows(s, neutral, orifice[k, a, 0] + noise, orifice[k, a, 1] + noise, orifice[k, a, 2],
-                                             p[TANK], poly[a], centre[a], p[LAMINAR_BAND], 1.0)
+                                             p[Param.TANK], poly[a], centre[a], p[Param.LAMINAR_BAND], 1.0)
             down_a, down_b = chamber_valve_flows(s, neutral, orifice[k, a, 0] - noise, orifice[k, a, 1] - noise, orifice[k, a, 2],
-                                                 p[TANK], poly[a], centre[a], p[LAMINAR_BAND], 1.0)
+                                                 p[Param.TANK], poly[a], centre[a], p[Param.LAMINAR_BAND], 1.0)
             bias_out[k, a, 0] = abs((up_a + down_a) / FLOW_UNIT - 2.0 * q_a) / 2.0
             bias_out[k, a, 1] = abs((up_b + down_b) / FLOW_UNIT - 2.0 * q_b) / 2.0
 
@@ -170,7 +158,7 @@ class ParityGenerator:
         self.params = np.stack([m.base for m in models])
         self.poly = np.stack([m.poly for m in models])
         self.centre = np.stack([m.centre_leakage for m in models])
-        self.pilot_max = self.params[:, PILOT_MAX]
+        self.pilot_max = self.params[:, Param.PILOT_MAX]
         self.tank_band = models[0].pilot_tank_band
         self.dt = 1.0 / models[0].sample_rate
         self.substeps = models[0].substeps
@@ -202,13 +190,13 @@ class ParityGenerator:
             if n and self.spool[a, 2] < 0.5:
                 self.spool[a] = (drive[0, a], 0.0, 1.0)
             p = self.params[a]
-            drive[:, a] = spool_track(np.ascontiguousarray(drive[:, a]), p[SPOOL_OMEGA], p[SPOOL_DAMPING], self.dt, self.substeps,
+            drive[:, a] = spool_track(np.ascontiguousarray(drive[:, a]), p[Param.SPOOL_OMEGA], p[Param.SPOOL_DAMPING], self.dt, self.substeps,
                                       self.spool[a, :2])
         arrays = [np.ascontiguousarray(np.nan_to_num(v), dtype=float) for v in (piston, velocity, p_a, p_b, drive, compensator)]
         orifice = first_order_lag(np.stack(arrays[2:4] + arrays[5:6], axis=2), self.orifice_smoothing, self.orifice)
         parity_residuals(*arrays, orifice, np.ascontiguousarray(valid), self.previous, self.params, self.poly, self.centre, self.dt,
                          self.drop_noise, residual, opening, flow, bias)
-        closed = valid & (np.abs(drive) < CLOSED_SHARE * self.params[:, DEADZONE])
+        closed = valid & (np.abs(drive) < CLOSED_SHARE * self.params[:, Param.DEADZONE])
         return residual, opening, flow, bias, closed
 
 

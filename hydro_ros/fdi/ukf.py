@@ -24,16 +24,7 @@ import numpy as np
 from numba import njit
 
 from hydro_ros.contract.errors import InputError
-from hydro_ros.models.sam import (
-    AREA_A,
-    AREA_B,
-    LAMINAR_BAND,
-    SPOOL_DAMPING,
-    SPOOL_OMEGA,
-    TANK,
-    SamModel,
-    chambers,
-)
+from hydro_ros.models.sam import Param, SamModel, chambers
 from hydro_ros.models.valve import chamber_valve_flows, spool_acceleration
 
 N_X = 4
@@ -49,12 +40,12 @@ def reduced_model_step(x: np.ndarray, u: np.ndarray, p: np.ndarray, poly: np.nda
     p_b = x[1] * PRESSURE_UNIT
     piston = u[0]
     velocity = u[1]
-    q_a, q_b = chamber_valve_flows(x[2], x[2], p_a, p_b, u[3], p[TANK], poly, centre, p[LAMINAR_BAND], 1.0)  # no overlap: one opening
+    q_a, q_b = chamber_valve_flows(x[2], x[2], p_a, p_b, u[3], p[Param.TANK], poly, centre, p[Param.LAMINAR_BAND], 1.0)  # no overlap: one opening
     volume_a, volume_b, bulk_a, bulk_b = chambers(p, piston, p_a, p_b, 0.0)  # P-II eq. (19): no entrained air in the monitor's model
-    out[0] = x[0] + dt * bulk_a / volume_a * (q_a - velocity * p[AREA_A]) / PRESSURE_UNIT
-    out[1] = x[1] + dt * bulk_b / volume_b * (q_b + velocity * p[AREA_B]) / PRESSURE_UNIT
+    out[0] = x[0] + dt * bulk_a / volume_a * (q_a - velocity * p[Param.AREA_A]) / PRESSURE_UNIT
+    out[1] = x[1] + dt * bulk_b / volume_b * (q_b + velocity * p[Param.AREA_B]) / PRESSURE_UNIT
     out[2] = x[2] + dt * x[3]
-    out[3] = x[3] + dt * spool_acceleration(x[2], x[3], u[2], p[SPOOL_OMEGA], p[SPOOL_DAMPING])
+    out[3] = x[3] + dt * spool_acceleration(x[2], x[3], u[2], p[Param.SPOOL_OMEGA], p[Param.SPOOL_DAMPING])
 
 
 @njit(cache=True)
@@ -245,7 +236,7 @@ class UkfBank:
         self.dt = 1.0 / models[0].sample_rate
         self.params = np.stack([m.base.copy() for m in models])
         if settings.laminar_band is not None:
-            self.params[:, LAMINAR_BAND] = settings.laminar_band
+            self.params[:, Param.LAMINAR_BAND] = settings.laminar_band
         self.poly = np.stack([m.poly for m in models])
         self.centre = np.stack([m.centre_leakage for m in models])
         n = len(models)

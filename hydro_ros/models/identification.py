@@ -37,25 +37,7 @@ from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.machine import NOTCHES
 from hydro_ros.contract.samples import Samples
 from hydro_ros.models.chamber import leak_coefficient
-from hydro_ros.models.sam import (
-    AREA_A,
-    AREA_B,
-    CAVITATION,
-    DEADZONE,
-    DEADZONE_PLAIN,
-    HOSE_MODULUS,
-    HOSE_VOLUME,
-    OIL_MODULUS,
-    PILOT_MAX,
-    SPOOL_DAMPING,
-    SPOOL_OMEGA,
-    STOP_LOWER,
-    STOP_UPPER,
-    TANK,
-    VALVE_OVERLAP,
-    SamModel,
-    chamber_volumes,
-)
+from hydro_ros.models.sam import Param, SamModel, chamber_volumes
 from hydro_ros.models.valve import CENTRE_BAND, pilot_drive, spool_openings, spool_positions
 
 FILTER_HZ = 8.0  # zero-phase low-pass of motion, pressures and regressors: far below the 1 kHz noise, above the boom's motion
@@ -141,28 +123,28 @@ def _block_rows(model: SamModel, signals: np.ndarray, inner: slice, first: int) 
     velocity = np.gradient(x, dt)
     p_a, p_b, supply = low_pass(p_a), low_pass(p_b), low_pass(feed)
     rate_a, rate_b = np.gradient(p_a, dt), np.gradient(p_b, dt)
-    position = spool_positions(np.ascontiguousarray(drive), p[SPOOL_OMEGA], p[SPOOL_DAMPING], dt, model.substeps)
-    spool = spool_openings(position, p[DEADZONE], p[DEADZONE_PLAIN] < 0.5)
+    position = spool_positions(np.ascontiguousarray(drive), p[Param.SPOOL_OMEGA], p[Param.SPOOL_DAMPING], dt, model.substeps)
+    spool = spool_openings(position, p[Param.DEADZONE], p[Param.DEADZONE_PLAIN] < 0.5)
     opening = np.abs(spool)
     powers = np.stack([spool ** 3, spool ** 2, spool, np.ones_like(spool)], axis=1)
     extending, retracting = spool > 0.0, spool < 0.0
     zero = np.zeros_like(powers)
     pa_notch = powers * (extending * opening * _signed_root(supply - p_a))[:, None]
-    at_notch = -powers * (retracting * opening * _signed_root(p_a - p[TANK]))[:, None]
+    at_notch = -powers * (retracting * opening * _signed_root(p_a - p[Param.TANK]))[:, None]
     pb_notch = powers * (retracting * opening * _signed_root(supply - p_b))[:, None]
-    bt_notch = -powers * (extending * opening * _signed_root(p_b - p[TANK]))[:, None]
+    bt_notch = -powers * (extending * opening * _signed_root(p_b - p[Param.TANK]))[:, None]
     volume_a, volume_b = chamber_volumes(p, x)
     across = _signed_root(p_a - p_b)
-    centre = (np.abs(spool_openings(position, p[VALVE_OVERLAP], True)) < CENTRE_BAND).astype(float)  # valve.chamber_valve_flows
+    centre = (np.abs(spool_openings(position, p[Param.VALVE_OVERLAP], True)) < CENTRE_BAND).astype(float)  # valve.chamber_valve_flows
     nothing = np.zeros_like(x)
     chamber_a = np.hstack([pa_notch, zero, at_notch, zero, np.stack(
-        [-volume_a * rate_a, -rate_a, centre * (supply - p_a), nothing, -centre * (p_a - p[TANK]), nothing,
+        [-volume_a * rate_a, -rate_a, centre * (supply - p_a), nothing, -centre * (p_a - p[Param.TANK]), nothing,
          -_signed_root(p_a), nothing, -across], axis=1)])
     chamber_b = np.hstack([zero, pb_notch, zero, bt_notch, np.stack(
-        [-volume_b * rate_b, -rate_b, nothing, centre * (supply - p_b), nothing, -centre * (p_b - p[TANK]),
+        [-volume_b * rate_b, -rate_b, nothing, centre * (supply - p_b), nothing, -centre * (p_b - p[Param.TANK]),
          nothing, -_signed_root(p_b), across], axis=1)])
-    keep = ((np.minimum(p_a, p_b) > PRESSURE_FLOOR + max(p[CAVITATION], 0.0))
-            & (x > p[STOP_LOWER] + STOP_MARGIN) & (x < p[STOP_UPPER] - STOP_MARGIN))
+    keep = ((np.minimum(p_a, p_b) > PRESSURE_FLOOR + max(p[Param.CAVITATION], 0.0))
+            & (x > p[Param.STOP_LOWER] + STOP_MARGIN) & (x < p[Param.STOP_UPPER] - STOP_MARGIN))
     guard = int(EXCLUSION_GUARD_S * model.sample_rate)
     keep = binary_erosion(keep, np.ones(2 * guard + 1, dtype=bool), border_value=1)
     keep[:inner.start] = False  # the edges only let the filter and the spool settle
@@ -171,7 +153,7 @@ def _block_rows(model: SamModel, signals: np.ndarray, inner: slice, first: int) 
     row = keep & ((first - inner.start + np.arange(len(x))) % every == 0)
     seen = {"PA": extending, "BT": extending, "PB": retracting, "AT": retracting}
     return FlowRegression(np.vstack([low_pass(chamber_a)[row], low_pass(chamber_b)[row]]),
-                          np.concatenate([low_pass(p[AREA_A] * velocity)[row], low_pass(-p[AREA_B] * velocity)[row]]),
+                          np.concatenate([low_pass(p[Param.AREA_A] * velocity)[row], low_pass(-p[Param.AREA_B] * velocity)[row]]),
                           {n: float(np.count_nonzero(keep & seen[n] & (opening > OPEN))) * dt for n in NOTCHES},
                           {n: float(opening[keep & seen[n]].max(initial=0.0)) for n in NOTCHES}, (inner.stop - inner.start) * dt)
 
@@ -188,7 +170,7 @@ def flow_regression(model: SamModel, samples: Samples, column: int = 0) -> FlowR
             raise InputError(f"actuator {model.actuator}: a mobile valve is identified from its pilot and compensator "
                              "pressures, and the recording has none")
         # the pilot pressures are what drives the main spool, the compensator's pressure is what feeds its notches
-        drive = pilot_drive(channel(samples.pilot_pressure_1), channel(samples.pilot_pressure_2), p[PILOT_MAX], model.pilot_tank_band)
+        drive = pilot_drive(channel(samples.pilot_pressure_1), channel(samples.pilot_pressure_2), p[Param.PILOT_MAX], model.pilot_tank_band)
         feed = channel(samples.compensator_pressure)
     else:
         drive = channel(samples.valve_command)
@@ -204,8 +186,8 @@ def nominal_coefficients(model: SamModel) -> np.ndarray:
     p = model.base
     coefficients = np.zeros(len(COLUMNS))
     coefficients[:4 * len(NOTCHES)] = model.poly.reshape(-1)
-    coefficients[OIL_COMPLIANCE] = 1.0 / p[OIL_MODULUS]
-    coefficients[HOSE_CAPACITANCE] = p[HOSE_VOLUME] / p[HOSE_MODULUS]
+    coefficients[OIL_COMPLIANCE] = 1.0 / p[Param.OIL_MODULUS]
+    coefficients[HOSE_CAPACITANCE] = p[Param.HOSE_VOLUME] / p[Param.HOSE_MODULUS]
     coefficients[CENTRE] = model.centre_leakage
     return coefficients
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from enum import IntEnum
 from typing import Any
 
 import numpy as np
@@ -56,28 +57,78 @@ STATE_NAMES = ("p_a", "p_b", "spool", "spool_rate", "piston", "piston_velocity",
 N_STATES = len(STATE_NAMES)
 DELAY_BUFFER = 4096  # samples of valve-command history kept for the valve_delay effect
 
-# Parameter vector layout; numba reads these module globals as compile-time constants.
-(
-    AREA_A, AREA_B, STROKE, V0_A, V0_B, MOUNT_L1, MOUNT_L2, MOUNT_L3, THETA_OFFSET,
-    SPOOL_OMEGA, SPOOL_DAMPING, LAMINAR_BAND,
-    OIL_MODULUS, HOSE_MODULUS, HOSE_VOLUME, AIR_FRACTION,
-    VISCOUS, STATIC, COULOMB, STRIBECK, BRISTLE,
-    BOOM_MASS, BOOM_LENGTH, BOOM_COG, LEFT_MASS, RIGHT_MASS, LOAD_DISTANCE, PAYLOAD,
-    SUPPLY, TANK,
-    K_INTERNAL, K_EXTERNAL_A, K_EXTERNAL_B,
-    OFFSET, OPENING_GAIN, FLOW_GAIN, STUCK, DEADZONE, DELAY_SAMPLES,
-    STOP_LOWER, STOP_UPPER, STOP_STIFFNESS, STOP_DAMPING, CAVITATION, GRAVITY,
-    VALVE_MOBILE, COMP_DROP, COMP_LOCKED, PILOT_MAX,
-    DEADZONE_PLAIN, LAMINAR_INTERNAL, LAMINAR_EXTERNAL_A, LAMINAR_EXTERNAL_B, LAG_SAMPLES,
-    MOUNT_KIND, MOUNT_SIGN, MOUNT_RATIO, VALVE_OVERLAP,
-    N_PARAMS,
-) = range(59)
+class Param(IntEnum):
+    """The layout of a cylinder's parameter vector (``SamModel.base``, one row per actuator in the arm's models).
+
+    numba reads the members as compile-time constants, so ``p[Param.AREA_A]`` costs what a literal index does."""
+
+    AREA_A = 0
+    AREA_B = 1
+    STROKE = 2
+    V0_A = 3
+    V0_B = 4
+    MOUNT_L1 = 5
+    MOUNT_L2 = 6
+    MOUNT_L3 = 7
+    THETA_OFFSET = 8
+    SPOOL_OMEGA = 9
+    SPOOL_DAMPING = 10
+    LAMINAR_BAND = 11
+    OIL_MODULUS = 12
+    HOSE_MODULUS = 13
+    HOSE_VOLUME = 14
+    AIR_FRACTION = 15
+    VISCOUS = 16
+    STATIC = 17
+    COULOMB = 18
+    STRIBECK = 19
+    BRISTLE = 20
+    BOOM_MASS = 21
+    BOOM_LENGTH = 22
+    BOOM_COG = 23
+    LEFT_MASS = 24
+    RIGHT_MASS = 25
+    LOAD_DISTANCE = 26
+    PAYLOAD = 27
+    SUPPLY = 28
+    TANK = 29
+    K_INTERNAL = 30
+    K_EXTERNAL_A = 31
+    K_EXTERNAL_B = 32
+    OFFSET = 33
+    OPENING_GAIN = 34
+    FLOW_GAIN = 35
+    STUCK = 36
+    DEADZONE = 37
+    DELAY_SAMPLES = 38
+    STOP_LOWER = 39
+    STOP_UPPER = 40
+    STOP_STIFFNESS = 41
+    STOP_DAMPING = 42
+    CAVITATION = 43
+    GRAVITY = 44
+    VALVE_MOBILE = 45
+    COMP_DROP = 46
+    COMP_LOCKED = 47
+    PILOT_MAX = 48
+    DEADZONE_PLAIN = 49
+    LAMINAR_INTERNAL = 50
+    LAMINAR_EXTERNAL_A = 51
+    LAMINAR_EXTERNAL_B = 52
+    LAG_SAMPLES = 53
+    MOUNT_KIND = 54
+    MOUNT_SIGN = 55
+    MOUNT_RATIO = 56
+    VALVE_OVERLAP = 57
+
+
+N_PARAMS = len(Param)
 
 
 @njit(cache=True)
 def chamber_volumes(p: np.ndarray, piston: Any) -> tuple[Any, Any]:
     """The two chambers' oil volumes at piston position ``piston`` (a number or an array), P-I eqs. (8)-(9) (B's with A_B)."""
-    return p[V0_A] + p[AREA_A] * piston, p[V0_B] + p[AREA_B] * (p[STROKE] - piston)
+    return p[Param.V0_A] + p[Param.AREA_A] * piston, p[Param.V0_B] + p[Param.AREA_B] * (p[Param.STROKE] - piston)
 
 
 @njit(cache=True)
@@ -87,25 +138,25 @@ def chambers(p: np.ndarray, piston: float, p_a: float, p_b: float, air_fraction:
     effect the plant may carry and the monitor's model has not, 0 there)."""
     volume_a, volume_b = chamber_volumes(p, piston)
     return (volume_a, volume_b,
-            effective_bulk_modulus(p_a, volume_a, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], air_fraction),
-            effective_bulk_modulus(p_b, volume_b, p[OIL_MODULUS], p[HOSE_MODULUS], p[HOSE_VOLUME], air_fraction))
+            effective_bulk_modulus(p_a, volume_a, p[Param.OIL_MODULUS], p[Param.HOSE_MODULUS], p[Param.HOSE_VOLUME], air_fraction),
+            effective_bulk_modulus(p_b, volume_b, p[Param.OIL_MODULUS], p[Param.HOSE_MODULUS], p[Param.HOSE_VOLUME], air_fraction))
 
 
 @njit(cache=True)
 def metering_supply(s: float, p_a: float, p_b: float, p: np.ndarray) -> float:
     """Pressure feeding the metering notches: supply, or the compensator's for a mobile valve."""
-    if p[VALVE_MOBILE] > 0.5:
-        return compensator_pressure(s, p_a, p_b, p[SUPPLY], p[COMP_DROP], p[COMP_LOCKED] > 0.5)
-    return p[SUPPLY]
+    if p[Param.VALVE_MOBILE] > 0.5:
+        return compensator_pressure(s, p_a, p_b, p[Param.SUPPLY], p[Param.COMP_DROP], p[Param.COMP_LOCKED] > 0.5)
+    return p[Param.SUPPLY]
 
 
 @njit(cache=True)
 def valve_openings(spool: float, p: np.ndarray) -> tuple[float, float]:
     """The opening the notches see (every overlap, the offset, spool faults) and the one the valve's own lands leave
     (its configured overlap only), where its centre leakage is decided (valve.chamber_valve_flows)."""
-    stuck = p[STUCK] > 0.5
-    return (spool_opening(spool, p[OFFSET], p[DEADZONE], p[OPENING_GAIN], stuck, p[DEADZONE_PLAIN] < 0.5),
-            spool_opening(spool, p[OFFSET], p[VALVE_OVERLAP], p[OPENING_GAIN], stuck))
+    stuck = p[Param.STUCK] > 0.5
+    return (spool_opening(spool, p[Param.OFFSET], p[Param.DEADZONE], p[Param.OPENING_GAIN], stuck, p[Param.DEADZONE_PLAIN] < 0.5),
+            spool_opening(spool, p[Param.OFFSET], p[Param.VALVE_OVERLAP], p[Param.OPENING_GAIN], stuck))
 
 
 @njit(cache=True)
@@ -117,29 +168,29 @@ def hydraulic_rates(y: np.ndarray, reference: float, p: np.ndarray, poly: np.nda
     v = y[5]
     # valve (eqs. 10-15)
     s, neutral = valve_openings(y[2], p)
-    q_a, q_b = chamber_valve_flows(s, neutral, p_a, p_b, metering_supply(s, p_a, p_b, p), p[TANK], poly, centre, p[LAMINAR_BAND],
-                                   p[FLOW_GAIN])
+    q_a, q_b = chamber_valve_flows(s, neutral, p_a, p_b, metering_supply(s, p_a, p_b, p), p[Param.TANK], poly, centre, p[Param.LAMINAR_BAND],
+                                   p[Param.FLOW_GAIN])
     # cylinder leakages (eqs. 41-43)
-    band = p[LAMINAR_BAND]
-    q_int = leak_flow(p[K_INTERNAL], p_a - p_b, band, p[LAMINAR_INTERNAL] > 0.5)
-    q_ext_a = leak_flow(p[K_EXTERNAL_A], p_a - p[TANK], band, p[LAMINAR_EXTERNAL_A] > 0.5)
-    q_ext_b = leak_flow(p[K_EXTERNAL_B], p_b - p[TANK], band, p[LAMINAR_EXTERNAL_B] > 0.5)
+    band = p[Param.LAMINAR_BAND]
+    q_int = leak_flow(p[Param.K_INTERNAL], p_a - p_b, band, p[Param.LAMINAR_INTERNAL] > 0.5)
+    q_ext_a = leak_flow(p[Param.K_EXTERNAL_A], p_a - p[Param.TANK], band, p[Param.LAMINAR_EXTERNAL_A] > 0.5)
+    q_ext_b = leak_flow(p[Param.K_EXTERNAL_B], p_b - p[Param.TANK], band, p[Param.LAMINAR_EXTERNAL_B] > 0.5)
     # chambers (eqs. 8-9 with P-II eq. 19)
-    volume_a, volume_b, bulk_a, bulk_b = chambers(p, x, p_a, p_b, p[AIR_FRACTION])
-    dy[0] = bulk_a / volume_a * (q_a - q_int - q_ext_a - p[AREA_A] * v)
-    dy[1] = bulk_b / volume_b * (q_b + q_int - q_ext_b + p[AREA_B] * v)
+    volume_a, volume_b, bulk_a, bulk_b = chambers(p, x, p_a, p_b, p[Param.AIR_FRACTION])
+    dy[0] = bulk_a / volume_a * (q_a - q_int - q_ext_a - p[Param.AREA_A] * v)
+    dy[1] = bulk_b / volume_b * (q_b + q_int - q_ext_b + p[Param.AREA_B] * v)
     # spool (eq. 15)
     dy[2] = y[3]
-    dy[3] = spool_acceleration(y[2], y[3], reference, p[SPOOL_OMEGA], p[SPOOL_DAMPING])
+    dy[3] = spool_acceleration(y[2], y[3], reference, p[Param.SPOOL_OMEGA], p[Param.SPOOL_DAMPING])
 
 
 @njit(cache=True)
 def end_stop_force(x: float, v: float, p: np.ndarray) -> float:
     """Penalty force of the end stops on the piston [N]."""
-    if x < p[STOP_LOWER]:
-        return max(p[STOP_STIFFNESS] * (p[STOP_LOWER] - x) - p[STOP_DAMPING] * v, 0.0)
-    if x > p[STOP_UPPER]:
-        return min(p[STOP_STIFFNESS] * (p[STOP_UPPER] - x) - p[STOP_DAMPING] * v, 0.0)
+    if x < p[Param.STOP_LOWER]:
+        return max(p[Param.STOP_STIFFNESS] * (p[Param.STOP_LOWER] - x) - p[Param.STOP_DAMPING] * v, 0.0)
+    if x > p[Param.STOP_UPPER]:
+        return min(p[Param.STOP_STIFFNESS] * (p[Param.STOP_UPPER] - x) - p[Param.STOP_DAMPING] * v, 0.0)
     return 0.0
 
 
@@ -152,23 +203,23 @@ def _rhs(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centr
     v = y[5]
     z = y[6]
     # boom (eqs. 7, 16, 20, 21)
-    theta = triangle_angle(x, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
-    arm = torque_arm(theta, p[MOUNT_L1], p[MOUNT_L2])
-    arm_rate = torque_arm_derivative(theta, p[MOUNT_L1], p[MOUNT_L2])
-    left = p[LEFT_MASS] + p[PAYLOAD]
+    theta = triangle_angle(x, p[Param.MOUNT_L1], p[Param.MOUNT_L2], p[Param.MOUNT_L3])
+    arm = torque_arm(theta, p[Param.MOUNT_L1], p[Param.MOUNT_L2])
+    arm_rate = torque_arm_derivative(theta, p[Param.MOUNT_L1], p[Param.MOUNT_L2])
+    left = p[Param.LEFT_MASS] + p[Param.PAYLOAD]
     inertia = (
-        p[BOOM_MASS] * (p[BOOM_LENGTH] ** 2 / 12.0 + p[BOOM_COG] ** 2)
-        + (left + p[RIGHT_MASS]) * p[LOAD_DISTANCE] ** 2
+        p[Param.BOOM_MASS] * (p[Param.BOOM_LENGTH] ** 2 / 12.0 + p[Param.BOOM_COG] ** 2)
+        + (left + p[Param.RIGHT_MASS]) * p[Param.LOAD_DISTANCE] ** 2
     )
-    gravity_torque = p[GRAVITY] * math.cos(theta - p[THETA_OFFSET]) * (
-        (left - p[RIGHT_MASS]) * p[LOAD_DISTANCE] + p[BOOM_MASS] * p[BOOM_COG]
+    gravity_torque = p[Param.GRAVITY] * math.cos(theta - p[Param.THETA_OFFSET]) * (
+        (left - p[Param.RIGHT_MASS]) * p[Param.LOAD_DISTANCE] + p[Param.BOOM_MASS] * p[Param.BOOM_COG]
     )
     reduced_mass = inertia / (arm * arm)
-    g = stribeck_curve(v, p[COULOMB], p[STATIC], p[STRIBECK])
-    z_rate = bristle_rate(v, z, p[BRISTLE], g)
-    bristle_damping = 2.0 * math.sqrt(p[BRISTLE] * reduced_mass)
-    friction = friction_force(v, z, z_rate, p[BRISTLE], bristle_damping, p[VISCOUS])
-    force = p_a * p[AREA_A] - p_b * p[AREA_B] - friction + end_stop_force(x, v, p)
+    g = stribeck_curve(v, p[Param.COULOMB], p[Param.STATIC], p[Param.STRIBECK])
+    z_rate = bristle_rate(v, z, p[Param.BRISTLE], g)
+    bristle_damping = 2.0 * math.sqrt(p[Param.BRISTLE] * reduced_mass)
+    friction = friction_force(v, z, z_rate, p[Param.BRISTLE], bristle_damping, p[Param.VISCOUS])
+    force = p_a * p[Param.AREA_A] - p_b * p[Param.AREA_B] - friction + end_stop_force(x, v, p)
     dy[4] = v
     dy[5] = (force - gravity_torque / arm) / reduced_mass + arm_rate * v * v / (arm * arm)
     dy[6] = z_rate
@@ -193,7 +244,7 @@ def _rk4(y: np.ndarray, reference: float, p: np.ndarray, poly: np.ndarray, centr
     _rhs(tmp, reference, p, poly, centre, k4)
     for i in range(N_STATES):
         y[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-    floor = p[CAVITATION]
+    floor = p[Param.CAVITATION]
     if y[0] < floor:
         y[0] = floor
     if y[1] < floor:
@@ -225,17 +276,17 @@ def _integrate_samples(
     for k in range(params.shape[0]):
         p = params[k]
         if closed_loop:
-            theta = triangle_angle(y[4], p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
-            u = gain * (references[k] - (theta - p[THETA_OFFSET]))
+            theta = triangle_angle(y[4], p[Param.MOUNT_L1], p[Param.MOUNT_L2], p[Param.MOUNT_L3])
+            u = gain * (references[k] - (theta - p[Param.THETA_OFFSET]))
         else:
             u = commands[k]
         u = min(max(u, -max_command), max_command)
         commands_out[k] = u
         delay_buffer[delay_position % size] = u
-        applied = delay_buffer[(delay_position - int(p[DELAY_SAMPLES])) % size]
+        applied = delay_buffer[(delay_position - int(p[Param.DELAY_SAMPLES])) % size]
         delay_position += 1
-        if p[LAG_SAMPLES] > 0.0:
-            lag_state[0] += (applied - lag_state[0]) * (1.0 - math.exp(-1.0 / p[LAG_SAMPLES]))
+        if p[Param.LAG_SAMPLES] > 0.0:
+            lag_state[0] += (applied - lag_state[0]) * (1.0 - math.exp(-1.0 / p[Param.LAG_SAMPLES]))
             applied = lag_state[0]
         else:
             lag_state[0] = applied  # a lag switched on later starts from the command
@@ -281,13 +332,13 @@ def valve_and_leak_flows(states: np.ndarray, params: np.ndarray, poly: np.ndarra
         y = states[k]
         p = params[k]
         s, neutral = valve_openings(y[2], p)
-        q_a, q_b = chamber_valve_flows(s, neutral, y[0], y[1], metering_supply(s, y[0], y[1], p), p[TANK], poly, centre,
-                                       p[LAMINAR_BAND], p[FLOW_GAIN])
+        q_a, q_b = chamber_valve_flows(s, neutral, y[0], y[1], metering_supply(s, y[0], y[1], p), p[Param.TANK], poly, centre,
+                                       p[Param.LAMINAR_BAND], p[Param.FLOW_GAIN])
         out[k, 0] = q_a
         out[k, 1] = q_b
-        out[k, 2] = leak_flow(p[K_INTERNAL], y[0] - y[1], p[LAMINAR_BAND], p[LAMINAR_INTERNAL] > 0.5)
-        out[k, 3] = leak_flow(p[K_EXTERNAL_A], y[0] - p[TANK], p[LAMINAR_BAND], p[LAMINAR_EXTERNAL_A] > 0.5)
-        out[k, 4] = leak_flow(p[K_EXTERNAL_B], y[1] - p[TANK], p[LAMINAR_BAND], p[LAMINAR_EXTERNAL_B] > 0.5)
+        out[k, 2] = leak_flow(p[Param.K_INTERNAL], y[0] - y[1], p[Param.LAMINAR_BAND], p[Param.LAMINAR_INTERNAL] > 0.5)
+        out[k, 3] = leak_flow(p[Param.K_EXTERNAL_A], y[0] - p[Param.TANK], p[Param.LAMINAR_BAND], p[Param.LAMINAR_EXTERNAL_A] > 0.5)
+        out[k, 4] = leak_flow(p[Param.K_EXTERNAL_B], y[1] - p[Param.TANK], p[Param.LAMINAR_BAND], p[Param.LAMINAR_EXTERNAL_B] > 0.5)
     return out
 
 
@@ -307,35 +358,35 @@ def compensator_pressures(states: np.ndarray, params: np.ndarray) -> np.ndarray:
 ADD, GROW, SHRINK, LATCH, DELAY_SAMPLES_OF, LAG_SAMPLES_OF = range(6)
 LITRE_AT_10_MPA = leak_coefficient(1.0)
 INJECTION_SLOTS: dict[str, tuple[tuple[int, int, float], ...]] = {
-    Fault.EXTERNAL_LEAKAGE_A: ((K_EXTERNAL_A, ADD, LITRE_AT_10_MPA),),
-    Fault.EXTERNAL_LEAKAGE_B: ((K_EXTERNAL_B, ADD, LITRE_AT_10_MPA),),
-    Fault.EXTERNAL_LEAKAGE_AB: ((K_EXTERNAL_A, ADD, LITRE_AT_10_MPA), (K_EXTERNAL_B, ADD, LITRE_AT_10_MPA)),
-    Fault.INTERNAL_LEAKAGE: ((K_INTERNAL, ADD, LITRE_AT_10_MPA),),
-    Fault.SPOOL_TOO_SMALL_OPENING: ((OPENING_GAIN, SHRINK, 1.0),),
-    Fault.SPOOL_TOO_LARGE_OPENING: ((OPENING_GAIN, GROW, 1.0),),
-    Fault.SPOOL_STUCK_CLOSED: ((STUCK, LATCH, 1.0),),
-    Effect.SPOOL_OFFSET: ((OFFSET, ADD, 1.0),),
-    Fault.PILOT_PRESSURE_SPOOL_OFFSET: ((OFFSET, ADD, 1.0),),
-    Fault.MAIN_SPOOL_LOCKING: ((STUCK, LATCH, 1.0),),
-    Fault.MAIN_SPOOL_EROSION: ((FLOW_GAIN, GROW, 1.0),),
-    Fault.COMPENSATOR_SPOOL_LOCKING: ((COMP_LOCKED, LATCH, 1.0),),
-    Fault.COMPENSATOR_SPOOL_EROSION: ((COMP_DROP, SHRINK, 1.0),),
-    Effect.VALVE_DEADZONE: ((DEADZONE, ADD, 1.0),),
-    Effect.VALVE_DELAY: ((DELAY_SAMPLES, DELAY_SAMPLES_OF, 1.0),),
-    Effect.VALVE_FLOW_GAIN: ((FLOW_GAIN, GROW, 1.0),),
-    Effect.ENTRAINED_AIR: ((AIR_FRACTION, ADD, 1.0),),
-    Effect.COULOMB_FRICTION: ((STATIC, ADD, 1.0), (COULOMB, ADD, 1.0)),
-    Effect.VISCOUS_FRICTION: ((VISCOUS, ADD, 1.0),),
-    Effect.PAYLOAD_MASS: ((PAYLOAD, ADD, 1.0),),
+    Fault.EXTERNAL_LEAKAGE_A: ((Param.K_EXTERNAL_A, ADD, LITRE_AT_10_MPA),),
+    Fault.EXTERNAL_LEAKAGE_B: ((Param.K_EXTERNAL_B, ADD, LITRE_AT_10_MPA),),
+    Fault.EXTERNAL_LEAKAGE_AB: ((Param.K_EXTERNAL_A, ADD, LITRE_AT_10_MPA), (Param.K_EXTERNAL_B, ADD, LITRE_AT_10_MPA)),
+    Fault.INTERNAL_LEAKAGE: ((Param.K_INTERNAL, ADD, LITRE_AT_10_MPA),),
+    Fault.SPOOL_TOO_SMALL_OPENING: ((Param.OPENING_GAIN, SHRINK, 1.0),),
+    Fault.SPOOL_TOO_LARGE_OPENING: ((Param.OPENING_GAIN, GROW, 1.0),),
+    Fault.SPOOL_STUCK_CLOSED: ((Param.STUCK, LATCH, 1.0),),
+    Effect.SPOOL_OFFSET: ((Param.OFFSET, ADD, 1.0),),
+    Fault.PILOT_PRESSURE_SPOOL_OFFSET: ((Param.OFFSET, ADD, 1.0),),
+    Fault.MAIN_SPOOL_LOCKING: ((Param.STUCK, LATCH, 1.0),),
+    Fault.MAIN_SPOOL_EROSION: ((Param.FLOW_GAIN, GROW, 1.0),),
+    Fault.COMPENSATOR_SPOOL_LOCKING: ((Param.COMP_LOCKED, LATCH, 1.0),),
+    Fault.COMPENSATOR_SPOOL_EROSION: ((Param.COMP_DROP, SHRINK, 1.0),),
+    Effect.VALVE_DEADZONE: ((Param.DEADZONE, ADD, 1.0),),
+    Effect.VALVE_DELAY: ((Param.DELAY_SAMPLES, DELAY_SAMPLES_OF, 1.0),),
+    Effect.VALVE_FLOW_GAIN: ((Param.FLOW_GAIN, GROW, 1.0),),
+    Effect.ENTRAINED_AIR: ((Param.AIR_FRACTION, ADD, 1.0),),
+    Effect.COULOMB_FRICTION: ((Param.STATIC, ADD, 1.0), (Param.COULOMB, ADD, 1.0)),
+    Effect.VISCOUS_FRICTION: ((Param.VISCOUS, ADD, 1.0),),
+    Effect.PAYLOAD_MASS: ((Param.PAYLOAD, ADD, 1.0),),
 }
 # an effect in a form other than its family's first acts on other slots (names.EFFECT_FORMS)
 FORM_SLOTS: dict[tuple[str, str], tuple[tuple[int, int, float], ...]] = {
-    (Effect.VALVE_DELAY, "lag"): ((LAG_SAMPLES, LAG_SAMPLES_OF, 1.0),),
-    (Effect.COULOMB_FRICTION, "stribeck"): ((STATIC, ADD, 1.0),),  # the static level only: the Stribeck curve falls from it
+    (Effect.VALVE_DELAY, "lag"): ((Param.LAG_SAMPLES, LAG_SAMPLES_OF, 1.0),),
+    (Effect.COULOMB_FRICTION, "stribeck"): ((Param.STATIC, ADD, 1.0),),  # the static level only: the Stribeck curve falls from it
 }
 # the form switches: the slot that says which form an effect family has
-FORM_SWITCHES = {Effect.EXTERNAL_LEAKAGE_A: (LAMINAR_EXTERNAL_A, "laminar"), Effect.EXTERNAL_LEAKAGE_B: (LAMINAR_EXTERNAL_B, "laminar"),
-                 Effect.INTERNAL_LEAKAGE: (LAMINAR_INTERNAL, "laminar"), Effect.VALVE_DEADZONE: (DEADZONE_PLAIN, "overlap")}
+FORM_SWITCHES = {Effect.EXTERNAL_LEAKAGE_A: (Param.LAMINAR_EXTERNAL_A, "laminar"), Effect.EXTERNAL_LEAKAGE_B: (Param.LAMINAR_EXTERNAL_B, "laminar"),
+                 Effect.INTERNAL_LEAKAGE: (Param.LAMINAR_INTERNAL, "laminar"), Effect.VALVE_DEADZONE: (Param.DEADZONE_PLAIN, "overlap")}
 
 
 def _apply(params: np.ndarray, name: str, level: np.ndarray, sample_rate: float, form: str | None = None) -> None:
@@ -400,47 +451,47 @@ class SamModel:
         sim = machine.simulation
         p = np.zeros(N_PARAMS)
         area_a = math.pi * cyl.piston_diameter ** 2 / 4.0
-        p[AREA_A] = area_a
-        p[AREA_B] = area_a - math.pi * cyl.rod_diameter ** 2 / 4.0
-        p[STROKE] = cyl.stroke
-        p[V0_A] = cyl.dead_volume_a
-        p[V0_B] = cyl.dead_volume_b
-        p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3] = mount.l1, mount.l2, mount.l3
-        p[THETA_OFFSET] = mount.theta_offset
-        p[MOUNT_KIND], p[MOUNT_SIGN], p[MOUNT_RATIO] = MOUNT_KINDS.index(mount.kind), mount.sign, mount.ratio
-        p[SPOOL_OMEGA] = valve.natural_frequency
-        p[SPOOL_DAMPING] = valve.damping
-        p[LAMINAR_BAND] = valve.laminar_band
-        p[OIL_MODULUS] = fluid.oil_bulk_modulus
-        p[HOSE_MODULUS] = fluid.hose_bulk_modulus
-        p[HOSE_VOLUME] = fluid.hose_volume
-        p[VISCOUS] = fric.viscous
-        p[STATIC] = fric.static
-        p[COULOMB] = fric.coulomb
-        p[STRIBECK] = fric.stribeck_velocity
-        p[BRISTLE] = fric.bristle_stiffness
-        p[BOOM_MASS] = load.boom_mass
-        p[BOOM_LENGTH] = load.boom_length
-        p[BOOM_COG] = load.boom_cog_distance
-        p[LEFT_MASS] = load.left_mass
-        p[RIGHT_MASS] = load.right_mass
-        p[LOAD_DISTANCE] = load.load_distance
-        p[SUPPLY] = machine.supply_pressure
-        p[TANK] = machine.tank_pressure
-        p[OPENING_GAIN] = 1.0
-        p[FLOW_GAIN] = 1.0
-        p[STOP_LOWER] = sim.end_stop_lower
-        p[STOP_UPPER] = cyl.stroke if sim.end_stop_upper is None else min(sim.end_stop_upper, cyl.stroke)
-        p[STOP_STIFFNESS] = sim.end_stop_stiffness
-        p[STOP_DAMPING] = sim.end_stop_damping
-        p[CAVITATION] = sim.cavitation_pressure
-        p[GRAVITY] = sim.gravity
+        p[Param.AREA_A] = area_a
+        p[Param.AREA_B] = area_a - math.pi * cyl.rod_diameter ** 2 / 4.0
+        p[Param.STROKE] = cyl.stroke
+        p[Param.V0_A] = cyl.dead_volume_a
+        p[Param.V0_B] = cyl.dead_volume_b
+        p[Param.MOUNT_L1], p[Param.MOUNT_L2], p[Param.MOUNT_L3] = mount.l1, mount.l2, mount.l3
+        p[Param.THETA_OFFSET] = mount.theta_offset
+        p[Param.MOUNT_KIND], p[Param.MOUNT_SIGN], p[Param.MOUNT_RATIO] = MOUNT_KINDS.index(mount.kind), mount.sign, mount.ratio
+        p[Param.SPOOL_OMEGA] = valve.natural_frequency
+        p[Param.SPOOL_DAMPING] = valve.damping
+        p[Param.LAMINAR_BAND] = valve.laminar_band
+        p[Param.OIL_MODULUS] = fluid.oil_bulk_modulus
+        p[Param.HOSE_MODULUS] = fluid.hose_bulk_modulus
+        p[Param.HOSE_VOLUME] = fluid.hose_volume
+        p[Param.VISCOUS] = fric.viscous
+        p[Param.STATIC] = fric.static
+        p[Param.COULOMB] = fric.coulomb
+        p[Param.STRIBECK] = fric.stribeck_velocity
+        p[Param.BRISTLE] = fric.bristle_stiffness
+        p[Param.BOOM_MASS] = load.boom_mass
+        p[Param.BOOM_LENGTH] = load.boom_length
+        p[Param.BOOM_COG] = load.boom_cog_distance
+        p[Param.LEFT_MASS] = load.left_mass
+        p[Param.RIGHT_MASS] = load.right_mass
+        p[Param.LOAD_DISTANCE] = load.load_distance
+        p[Param.SUPPLY] = machine.supply_pressure
+        p[Param.TANK] = machine.tank_pressure
+        p[Param.OPENING_GAIN] = 1.0
+        p[Param.FLOW_GAIN] = 1.0
+        p[Param.STOP_LOWER] = sim.end_stop_lower
+        p[Param.STOP_UPPER] = cyl.stroke if sim.end_stop_upper is None else min(sim.end_stop_upper, cyl.stroke)
+        p[Param.STOP_STIFFNESS] = sim.end_stop_stiffness
+        p[Param.STOP_DAMPING] = sim.end_stop_damping
+        p[Param.CAVITATION] = sim.cavitation_pressure
+        p[Param.GRAVITY] = sim.gravity
         if valve.mobile:
-            p[VALVE_MOBILE] = 1.0
-            p[COMP_DROP] = valve.compensator_pressure_drop
-            p[PILOT_MAX] = valve.pilot_pressure_max
-            p[DEADZONE] = valve.deadzone
-            p[VALVE_OVERLAP] = valve.deadzone
+            p[Param.VALVE_MOBILE] = 1.0
+            p[Param.COMP_DROP] = valve.compensator_pressure_drop
+            p[Param.PILOT_MAX] = valve.pilot_pressure_max
+            p[Param.DEADZONE] = valve.deadzone
+            p[Param.VALVE_OVERLAP] = valve.deadzone
         self.sample_rate = machine.sample_rate_hz
         # `effects:` of a config (written by hydro-ros discrepancy) are part of the model from t = 0;
         # sensor biases among them belong to the sensors, not to the plant
@@ -458,13 +509,13 @@ class SamModel:
         """Refuse a cylinder this model's boom dynamics (P-I eqs. 20-21: a triangle that opens with its joint) do not move."""
         if self.boom_refusal:
             raise InputError(f"config {self.machine.source}: actuator {self.actuator}: {self.boom_refusal}")
-        if self.base[MOUNT_KIND] != MOUNT_KINDS.index("triangle") or self.base[MOUNT_SIGN] != 1.0:
+        if self.base[Param.MOUNT_KIND] != MOUNT_KINDS.index("triangle") or self.base[Param.MOUNT_SIGN] != 1.0:
             raise InputError(f"config {self.machine.source}: actuator {self.actuator}'s mount is not a triangle opening with its joint: "
                              "the one-cylinder boom model does not move it (its arm's simulator does: hydro_ros.sim.arm_cylinders)")
 
     @property
     def mobile_valve(self) -> bool:
-        return bool(self.base[VALVE_MOBILE] > 0.5)
+        return bool(self.base[Param.VALVE_MOBILE] > 0.5)
 
     @property
     def pilot_tank_band(self) -> float:
@@ -479,9 +530,9 @@ class SamModel:
                 continue
             level = injection_levels(injection, times)
             _apply(params, injection.name, level, self.sample_rate)
-        if np.any(params[:, DELAY_SAMPLES] >= DELAY_BUFFER):
+        if np.any(params[:, Param.DELAY_SAMPLES] >= DELAY_BUFFER):
             raise InputError(f"valve_delay exceeds {DELAY_BUFFER / self.sample_rate:.2f} s")
-        if np.any(params[:, DEADZONE] >= 1.0):
+        if np.any(params[:, Param.DEADZONE] >= 1.0):
             raise InputError("valve_deadzone must be < 1 (fraction of spool travel)")
         return params
 
@@ -489,12 +540,13 @@ class SamModel:
     def mount(self) -> tuple[float, ...]:
         """The mount's parameters in the order of kinematics.mount_piston / mount_arm / mount_joint."""
         p = self.base
-        return (int(p[MOUNT_KIND]), p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3], p[THETA_OFFSET], p[MOUNT_SIGN], p[MOUNT_RATIO])
+        return (int(p[Param.MOUNT_KIND]), p[Param.MOUNT_L1], p[Param.MOUNT_L2], p[Param.MOUNT_L3], p[Param.THETA_OFFSET], p[Param.MOUNT_SIGN],
+                p[Param.MOUNT_RATIO])
 
     @property
     def end_stops(self) -> tuple[float, float]:
         """[m] the piston positions of the retracted and extended end stops."""
-        return float(self.base[STOP_LOWER]), float(self.base[STOP_UPPER])
+        return float(self.base[Param.STOP_LOWER]), float(self.base[Param.STOP_UPPER])
 
     def joint_from_piston(self, x: np.ndarray | float) -> np.ndarray:
         return np.array([mount_joint(v, *self.mount) for v in np.atleast_1d(np.asarray(x, dtype=float))])
@@ -513,18 +565,18 @@ class SamModel:
     def inertia(self, payload: float = 0.0) -> float:
         p = self.base
         return (
-            p[BOOM_MASS] * (p[BOOM_LENGTH] ** 2 / 12.0 + p[BOOM_COG] ** 2)
-            + (p[LEFT_MASS] + payload + p[RIGHT_MASS]) * p[LOAD_DISTANCE] ** 2
+            p[Param.BOOM_MASS] * (p[Param.BOOM_LENGTH] ** 2 / 12.0 + p[Param.BOOM_COG] ** 2)
+            + (p[Param.LEFT_MASS] + payload + p[Param.RIGHT_MASS]) * p[Param.LOAD_DISTANCE] ** 2
         )
 
     def load_force(self, x: float, payload: float = 0.0) -> float:
         """F_ext of eq. (21): the gravity load on the piston [N] at piston position x."""
         p = self.base
-        theta = triangle_angle(x, p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3])
-        torque = p[GRAVITY] * math.cos(theta - p[THETA_OFFSET]) * (
-            (p[LEFT_MASS] + payload - p[RIGHT_MASS]) * p[LOAD_DISTANCE] + p[BOOM_MASS] * p[BOOM_COG]
+        theta = triangle_angle(x, p[Param.MOUNT_L1], p[Param.MOUNT_L2], p[Param.MOUNT_L3])
+        torque = p[Param.GRAVITY] * math.cos(theta - p[Param.THETA_OFFSET]) * (
+            (p[Param.LEFT_MASS] + payload - p[Param.RIGHT_MASS]) * p[Param.LOAD_DISTANCE] + p[Param.BOOM_MASS] * p[Param.BOOM_COG]
         )
-        return torque / torque_arm(theta, p[MOUNT_L1], p[MOUNT_L2])
+        return torque / torque_arm(theta, p[Param.MOUNT_L1], p[Param.MOUNT_L2])
 
     def bristle_state(self, x: float, v: float, p_a: float, p_b: float) -> float:
         """LuGre bristle deflection z that carries the force the pressures leave over after the load and
@@ -534,9 +586,9 @@ class SamModel:
         that holds a boom at rest and sends a pressure transient through every start.
         """
         p = self.base
-        force = p_a * p[AREA_A] - p_b * p[AREA_B] - self.load_force(x, p[PAYLOAD]) - p[VISCOUS] * v
-        g = stribeck_curve(v, p[COULOMB], p[STATIC], p[STRIBECK])
-        return min(max(force, -g), g) / p[BRISTLE]
+        force = p_a * p[Param.AREA_A] - p_b * p[Param.AREA_B] - self.load_force(x, p[Param.PAYLOAD]) - p[Param.VISCOUS] * v
+        g = stribeck_curve(v, p[Param.COULOMB], p[Param.STATIC], p[Param.STRIBECK])
+        return min(max(force, -g), g) / p[Param.BRISTLE]
 
     def resting_state(self, joint: float, p_b: float | None = None) -> np.ndarray:
         """State at rest at ``joint`` with chamber pressures balancing the load.
@@ -548,21 +600,21 @@ class SamModel:
         x = self.piston_from_joint(joint)
         if p_b is None:
             cl = self.centre_leakage
-            p_b = (cl[1] * p[SUPPLY] + cl[3] * p[TANK]) / (cl[1] + cl[3]) if cl[1] + cl[3] > 0.0 else 0.1 * p[SUPPLY]
-        p_a = (self.load_force(x) + p_b * p[AREA_B]) / p[AREA_A]
+            p_b = (cl[1] * p[Param.SUPPLY] + cl[3] * p[Param.TANK]) / (cl[1] + cl[3]) if cl[1] + cl[3] > 0.0 else 0.1 * p[Param.SUPPLY]
+        p_a = (self.load_force(x) + p_b * p[Param.AREA_B]) / p[Param.AREA_A]
         return np.array([p_a, p_b, 0.0, 0.0, x, 0.0, 0.0])
 
 
 def lagged_command(params: np.ndarray, history: np.ndarray) -> float:
     """Where a valve_delay lag has brought the command after ``history`` (oldest first) passed the transport delay."""
-    arrived = history[:len(history) - int(params[DELAY_SAMPLES])]
+    arrived = history[:len(history) - int(params[Param.DELAY_SAMPLES])]
     if not len(arrived):
         return 0.0
-    if params[LAG_SAMPLES] <= 0.0:
+    if params[Param.LAG_SAMPLES] <= 0.0:
         return float(arrived[-1])
     from scipy.signal import lfilter  # here, not at the top: scipy.signal costs every node that loads the model 0.7 s at start
 
-    keep = math.exp(-1.0 / params[LAG_SAMPLES])
+    keep = math.exp(-1.0 / params[Param.LAG_SAMPLES])
     return float(lfilter([1.0 - keep], [1.0, -keep], arrived, zi=[keep * arrived[0]])[0][-1])
 
 

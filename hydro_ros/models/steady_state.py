@@ -4,14 +4,7 @@ from __future__ import annotations
 
 import math
 
-from hydro_ros.models.sam import (
-    AREA_A,
-    AREA_B,
-    SUPPLY,
-    TANK,
-    SamModel,
-    chambers,
-)
+from hydro_ros.models.sam import Param, SamModel, chambers
 from hydro_ros.models.valve import BT, PA, flow_coefficient
 
 
@@ -21,7 +14,7 @@ def extension_steady_pressures(model: SamModel, spool: float, external_force: fl
     Steady extension with PA and BT open by ``spool`` > 0 and friction lumped into F_ext.
     """
     p = model.base
-    a_a, a_b, p_s, p_t = p[AREA_A], p[AREA_B], p[SUPPLY], p[TANK]
+    a_a, a_b, p_s, p_t = p[Param.AREA_A], p[Param.AREA_B], p[Param.SUPPLY], p[Param.TANK]
     k_pa = flow_coefficient(model.poly, PA, spool)
     k_bt = flow_coefficient(model.poly, BT, spool)
     denominator = a_a**3 * k_bt**2 + a_b**3 * k_pa**2
@@ -38,6 +31,6 @@ def hydraulic_natural_frequency(model: SamModel, x: float, p_a: float = 0.0, p_b
     """
     p = model.base
     volume_a, volume_b, bulk_a, bulk_b = chambers(p, x, p_a, p_b, 0.0)
-    stiffness = bulk_a * p[AREA_A] ** 2 / volume_a + bulk_b * p[AREA_B] ** 2 / volume_b
+    stiffness = bulk_a * p[Param.AREA_A] ** 2 / volume_a + bulk_b * p[Param.AREA_B] ** 2 / volume_b
     reduced_mass = model.inertia() / model.torque_arm_at(x) ** 2
     return math.sqrt(stiffness / reduced_mass) / (2.0 * math.pi)

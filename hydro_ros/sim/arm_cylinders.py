@@ -39,25 +39,7 @@ from hydro_ros.contract.names import Injection
 from hydro_ros.contract.samples import PER_ACTUATOR, Samples
 from hydro_ros.models.crane import Crane
 from hydro_ros.models.kinematics import mount_arm, mount_piston
-from hydro_ros.models.sam import (
-    AREA_A,
-    AREA_B,
-    CAVITATION,
-    COULOMB,
-    MOUNT_KIND,
-    MOUNT_L1,
-    MOUNT_L2,
-    MOUNT_L3,
-    MOUNT_RATIO,
-    MOUNT_SIGN,
-    N_STATES,
-    THETA_OFFSET,
-    VISCOUS,
-    SamModel,
-    end_stop_force,
-    hydraulic_rates,
-    injection_levels,
-)
+from hydro_ros.models.sam import N_STATES, Param, SamModel, end_stop_force, hydraulic_rates, injection_levels
 from hydro_ros.models.serial_arm import SerialArm, arm_problems
 from hydro_ros.sim.blocks import in_blocks, replace_injection
 from hydro_ros.sim.excitation import OperatorReference, WorkCycleReference
@@ -74,7 +56,7 @@ JointFriction = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (q, q') -> joi
 
 @njit(cache=True)
 def _mount(p: np.ndarray) -> tuple:
-    return int(p[MOUNT_KIND]), p[MOUNT_L1], p[MOUNT_L2], p[MOUNT_L3], p[THETA_OFFSET], p[MOUNT_SIGN], p[MOUNT_RATIO]
+    return int(p[Param.MOUNT_KIND]), p[Param.MOUNT_L1], p[Param.MOUNT_L2], p[Param.MOUNT_L3], p[Param.THETA_OFFSET], p[Param.MOUNT_SIGN], p[Param.MOUNT_RATIO]
 
 
 @njit(cache=True)
@@ -95,7 +77,7 @@ def _rates(state, commands, params, poly, centre, inverse_mass, bias, rates, y, 
         hydraulic_rates(y, commands[i], p, poly[i], centre[i], dy)
         for j in range(4):
             rates[4 * i + j] = dy[j]
-        force = (y[0] * p[AREA_A] - y[1] * p[AREA_B] - p[VISCOUS] * v - p[COULOMB] * math.tanh(v / FRICTION_VELOCITY)
+        force = (y[0] * p[Param.AREA_A] - y[1] * p[Param.AREA_B] - p[Param.VISCOUS] * v - p[Param.COULOMB] * math.tanh(v / FRICTION_VELOCITY)
                  + end_stop_force(x, v, p))
         torque[i] = arm * force
     for i in range(n):
@@ -124,7 +106,7 @@ def _sample(state, commands, params, poly, centre, inverse_mass, bias, h, subste
         for j in range(size):
             state[j] += h / 6.0 * (k[0, j] + 2.0 * k[1, j] + 2.0 * k[2, j] + k[3, j])
         for i in range(n):
-            floor = params[i, CAVITATION]
+            floor = params[i, Param.CAVITATION]
             for j in (4 * i, 4 * i + 1):
                 if state[j] < floor:
                     state[j] = floor
@@ -232,7 +214,7 @@ class ArmCylinders:
         for i, (model, qi, tau) in enumerate(zip(self.models, q, gravity)):
             force = tau / float(model.piston_velocity(qi, 1.0))
             p = model.base
-            out[i] = (max(force, 0.0) / p[AREA_A] + 1e5, max(-force, 0.0) / p[AREA_B] + 1e5)
+            out[i] = (max(force, 0.0) / p[Param.AREA_A] + 1e5, max(-force, 0.0) / p[Param.AREA_B] + 1e5)
         return out
 
     def _dynamics(self, q: np.ndarray, qd: np.ndarray, payload: float) -> tuple[np.ndarray, np.ndarray]:

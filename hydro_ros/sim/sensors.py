@@ -20,7 +20,7 @@ from hydro_ros.contract.config import ConfigError
 from hydro_ros.contract.names import Injection
 from hydro_ros.contract.samples import Samples
 from hydro_ros.models.complementary import ComplementaryFilter
-from hydro_ros.models.sam import COMP_DROP, PILOT_MAX, SamModel, compensator_pressures, injection_levels
+from hydro_ros.models.sam import Param, SamModel, compensator_pressures, injection_levels
 
 
 class SensorModel:
@@ -87,7 +87,7 @@ class SensorModel:
     def _mobile_valve(self, times: np.ndarray, states: np.ndarray, commands: np.ndarray) -> dict[str, np.ndarray]:
         """Pilot pressures (the pilot stage follows the command) and the compensator pressure."""
         params = self.model.parameter_matrix(times, self.injections)
-        pilot_max = self.model.base[PILOT_MAX]
+        pilot_max = self.model.base[Param.PILOT_MAX]
         compensator = compensator_pressures(states, params)
         if self.pilot_noise_std is None:
             raise ConfigError(f"config {self.model.machine.source}: missing key sensors.pilot_pressure_noise_std (mobile valves)")
@@ -96,7 +96,7 @@ class SensorModel:
             "pilot_pressure_1": self._pressure(pilot_max * np.clip(commands, 0.0, 1.0), self._bias("pilot_pressure_sensor_bias", times), pilot_noise),
             "pilot_pressure_2": self._pressure(pilot_max * np.clip(-commands, 0.0, 1.0), 0.0, pilot_noise),
             "compensator_pressure": self._pressure(compensator, self._bias("compensator_pressure_sensor_bias", times)),
-            "ls_pressure": self._pressure(np.maximum(compensator - params[:, COMP_DROP], 0.0), 0.0),
+            "ls_pressure": self._pressure(np.maximum(compensator - params[:, Param.COMP_DROP], 0.0), 0.0),
         }
 
     def _measurements(self, times, states, commands, joint: np.ndarray, velocity: np.ndarray) -> Samples:

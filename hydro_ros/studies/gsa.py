@@ -31,7 +31,7 @@ from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import Injection
 from hydro_ros.models.chamber import leak_coefficient
 from hydro_ros.models.kinematics import piston_position
-from hydro_ros.models.sam import AREA_A, AREA_B, SUPPLY, TANK, SamModel, SamPlant
+from hydro_ros.models.sam import Param, SamModel, SamPlant
 
 # P-I Table 1 (L3749-L3830); SI units
 PARAMETERS = {
@@ -226,7 +226,7 @@ def held_force(machine: Machine) -> float:
     """[N] the force the chambers carry at 4 s in the nominal run (load and friction): the load a steady state holds."""
     p_a, p_b = run_once(machine, {}).reshape(len(OUTPUTS), len(TIMES))[:2, -1]
     base = SamModel(machine).base
-    return float(p_a * base[AREA_A] - p_b * base[AREA_B])
+    return float(p_a * base[Param.AREA_A] - p_b * base[Param.AREA_B])
 
 
 def steady_state(machine: Machine, values: Mapping[str, np.ndarray], force: float) -> np.ndarray:
@@ -237,7 +237,7 @@ def steady_state(machine: Machine, values: Mapping[str, np.ndarray], force: floa
     p_B from the force, decreasing in p_A, solved by bisection. Without leaks its root is eqs. (39)-(40)."""
     actuator = machine.first
     base = SamModel(machine).base
-    a, b, p_s, p_t = base[AREA_A], base[AREA_B], base[SUPPLY], base[TANK]
+    a, b, p_s, p_t = base[Param.AREA_A], base[Param.AREA_B], base[Param.SUPPLY], base[Param.TANK]
     size = len(next(iter(values.values())))
     q_n, dp_n = actuator.valve.nominal_flow, actuator.valve.nominal_pressure_drop
 

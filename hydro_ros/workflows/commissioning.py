@@ -65,7 +65,7 @@ from hydro_ros.models.identification import (
     nominal_coefficients,
     rms_flow_error,
 )
-from hydro_ros.models.sam import HOSE_VOLUME, SamModel
+from hydro_ros.models.sam import Param, SamModel
 
 MIN_OPEN_S = 3.0  # [s] each notch must be seen open this long, or the recordings cannot identify it ...
 MIN_OPENING = 0.3  # ... and opened at least this far for its polynomial's shape; a notch seen only narrower is fitted as
@@ -197,8 +197,8 @@ def identify(model: SamModel, regression: FlowRegression, source: str) -> Identi
                          f"(oil compliance {fitted[OIL_COMPLIANCE]:.3g}, hose capacitance {fitted[HOSE_CAPACITANCE]:.3g}, centre leakage "
                          f"{', '.join(f'{n} {c:.3g}' for n, c in centre.items())}, notch gains "
                          f"{', '.join(f'{n} {g:.2f}' for n, g in gain.items())}); is this the machine of the config?")
-    return Identification(model.actuator, poly, centre, float(1.0 / fitted[OIL_COMPLIANCE]), float(p[HOSE_VOLUME] / fitted[HOSE_CAPACITANCE]), leaks, gain,
-                          narrow, {"nominal": nominal_error, "commissioned": error}, dict(regression.open_s), regression.seconds,
+    return Identification(model.actuator, poly, centre, float(1.0 / fitted[OIL_COMPLIANCE]), float(p[Param.HOSE_VOLUME] / fitted[HOSE_CAPACITANCE]),
+                          leaks, gain, narrow, {"nominal": nominal_error, "commissioned": error}, dict(regression.open_s), regression.seconds,
                           [float(c) for c in fitted])
 
 

@@ -58,18 +58,7 @@ from hydro_ros.contract.machine import Machine
 from hydro_ros.contract.names import EFFECT_FORMS, Effect, first_form
 from hydro_ros.fdi.parity import flow_balance
 from hydro_ros.models.identification import SEGMENT_MIN_S, FlowRegression, group_calibration, stretch_rows
-from hydro_ros.models.sam import (
-    DEADZONE,
-    DEADZONE_PLAIN,
-    DELAY_BUFFER,
-    N_STATES,
-    SPOOL_DAMPING,
-    SPOOL_OMEGA,
-    SUPPLY,
-    VALVE_OVERLAP,
-    SamModel,
-    simulate_segments,
-)
+from hydro_ros.models.sam import DELAY_BUFFER, N_STATES, Param, SamModel, simulate_segments
 from hydro_ros.models.valve import spool_opening, spool_positions
 from hydro_ros.workflows.plots import plot_discrepancy, plot_gap_localisation
 
@@ -286,8 +275,8 @@ def _bic(error: np.ndarray, parameters: int, sample_rate: float) -> float:
 def _equation_error(piston, velocity, p_a, p_b, spool, supply, params, poly, centre, dt, out):
     """Per sample (Q_A model - A_A x' - V_A/B p_A', same for B) [L/min] at the spool the command drives."""
     for k in range(piston.shape[0]):
-        s = spool_opening(spool[k], 0.0, params[DEADZONE], 1.0, False, params[DEADZONE_PLAIN] < 0.5)
-        neutral = spool_opening(spool[k], 0.0, params[VALVE_OVERLAP], 1.0, False)
+        s = spool_opening(spool[k], 0.0, params[Param.DEADZONE], 1.0, False, params[Param.DEADZONE_PLAIN] < 0.5)
+        neutral = spool_opening(spool[k], 0.0, params[Param.VALVE_OVERLAP], 1.0, False)
         dpa = (p_a[k] - p_a[k - 1]) / dt if k > 0 else 0.0
         dpb = (p_b[k] - p_b[k - 1]) / dt if k > 0 else 0.0
         out[k, 0], out[k, 1], _, _ = flow_balance(s, neutral, piston[k], velocity[k], p_a[k], p_b[k], dpa, dpb, p_a[k], p_b[k],
@@ -303,9 +292,9 @@ def load_independent_error(machine: Machine, rec: Recording) -> np.ndarray:
     piston = model.piston_from_joint(rec.joint)
     velocity = model.piston_velocity(rec.joint, rec.joint_rate)
     out = np.empty((len(rec.times), 2))
-    supply = np.full(len(rec.times), p[SUPPLY])
+    supply = np.full(len(rec.times), p[Param.SUPPLY])
     dt = 1.0 / model.sample_rate
-    spool = spool_positions(np.asarray(rec.command, dtype=float), p[SPOOL_OMEGA], p[SPOOL_DAMPING], dt, 10)
+    spool = spool_positions(np.asarray(rec.command, dtype=float), p[Param.SPOOL_OMEGA], p[Param.SPOOL_DAMPING], dt, 10)
     _equation_error(piston, velocity, rec.pressure_a, rec.pressure_b, spool, supply, p, model.poly, model.centre_leakage, dt, out)
     return out
 

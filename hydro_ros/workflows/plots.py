@@ -14,7 +14,7 @@ import matplotlib.pyplot as plt
 
 from hydro_ros.bags.reader import BagData
 from hydro_ros.contract.machine import Machine
-from hydro_ros.models.sam import BOOM_LENGTH, LOAD_DISTANCE, SamModel
+from hydro_ros.models.sam import Param, SamModel
 
 if TYPE_CHECKING:
     from hydro_ros.fdi.offline import FdiRun
@@ -332,7 +332,7 @@ def plot_machine(machine: Machine, out: str | Path) -> Path:
         model = SamModel(machine, actuator.name)
         kind, l1, l2, _, offset, sign, _ = model.mount
         low, high = joint_reach(model.mount, *model.end_stops)
-        length = model.base[BOOM_LENGTH] if not machine.planned else max(l1, l2) * 2.0
+        length = model.base[Param.BOOM_LENGTH] if not machine.planned else max(l1, l2) * 2.0
         for joint, style in ((low, ":"), (0.5 * (low + high), "-"), (high, "--")):
             if kind == LINEAR:  # a telescope: the joint is its extension
                 ax.plot([0, joint], [0, 0], "k" + style, lw=2, label=f"extended {joint:.2f} m")
@@ -343,7 +343,7 @@ def plot_machine(machine: Machine, out: str | Path) -> Path:
             ax.plot([0, tip[0]], [0, tip[1]], "k" + style, lw=2, label=f"link at {np.degrees(joint):.0f} deg")
             ax.plot([lower[0], upper[0]], [lower[1], upper[1]], "C1" + style, lw=4, alpha=0.8)
             if not machine.planned:
-                load = model.base[LOAD_DISTANCE] * np.array([np.cos(joint), np.sin(joint)])
+                load = model.base[Param.LOAD_DISTANCE] * np.array([np.cos(joint), np.sin(joint)])
                 ax.plot(*load, "C3o", ms=6)
         ax.plot(0, 0, "ks", ms=7)
         ax.set_aspect("equal")
