@@ -168,10 +168,10 @@ def test_the_crane_built_apart_commissioned_on_its_own_work_is_quiet_and_names_t
     # the refusal says why: the config's own thresholds alarm on the same held-out parts of this healthy crane
     assert block["threshold"]["config_alarms_on_held_out"]["count"] > 0
     commissioned = machine.with_overrides(block["model"])
-    work = [independent_arm.ArmWork(90.0, 50, payload_steps=((30.0, 300.0), (60.0, 0.0)), lever_limit=0.5),
+    work = [independent_arm.ArmWork(60.0, 50, payload_steps=((20.0, 300.0), (40.0, 0.0)), lever_limit=0.5),
             independent_arm.ArmWork(60.0, 51, payload_steps=((20.0, 300.0),), path=trajectories["horizontal"]),
             independent_arm.ArmWork(60.0, 52, path=trajectories["half_cycle"]),
-            independent_arm.ArmWork(60.0, 53, path=trajectories["half_cycle"], faults=(("extension", "external_leakage_b", 2.0, 20.0),))]
+            independent_arm.ArmWork(45.0, 53, path=trajectories["half_cycle"], faults=(("extension", "external_leakage_b", 2.0, 20.0),))]
     for run in work:
         alarms = run_monitor(FdiMonitor(commissioned), independent_arm.measure(rig, independent_arm.simulate(rig, run), run.seed)).alarms
         if not run.faults:
