@@ -120,10 +120,11 @@ def horizontal():
     return {"horizontal": executable_trajectory(config, "horizontal", "dp_cp")[0]}
 
 
-def test_the_crane_at_work_raises_no_alarm_on_plants_that_differ_from_its_model(crane_machine, horizontal):
-    """The shipped thresholds on cranes no fit has seen (every notch, bulk modulus, friction and noise drawn per plant):
-    the random operator moving every joint at once, then the energy-optimal horizontal path worked forwards and back
-    at full speed; 300 kg gripped and released in both."""
+def test_the_shipped_crane_thresholds_stay_quiet_on_the_models_own_equations_with_numbers_drawn_off(crane_machine, horizontal):
+    """The shipped thresholds on cranes no fit has seen, of the family they were fitted across (the model's own
+    equations, every notch, bulk modulus, friction and noise drawn per plant): the random operator moving every joint at
+    once, then the energy-optimal horizontal path worked forwards and back at full speed; 300 kg gripped and released
+    in both. A claim about that family only: on the crane built apart they alarm within seconds (the test below)."""
     machine, _ = crane_machine
     cases = [CraneCase(901, 90.0), CraneCase(902, 60.0, "horizontal")]
     for outcome in run_crane_cases(machine, horizontal, cases, workers=2):
