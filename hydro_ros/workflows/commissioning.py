@@ -214,7 +214,7 @@ def held_out_leaks(model: SamModel, regression: FlowRegression, ident: Identific
     move with what the minute did): the limit is judged against that, not against the estimate alone.
     """
     scaled = notch_gain_rows(regression, model, ident.shape_kept)
-    if not len(scaled.flows):
+    if len(scaled.flows) < len(LEAKS) + 1:  # fewer rows than leak terms and a residual: leak_fit says NaN, never a refusal
         raise InputError(f"{source}: actuator {model.actuator}: the held-out part holds no motion to check for leaks")
     fit = leak_fit(scaled, np.asarray(ident.coefficients))
     name, value, error = fit.worst()
@@ -394,12 +394,12 @@ def config_alarms(machine: Machine, held_out: Sequence[tuple[str, Samples]]) -> 
     return alarms
 
 
-def threshold_refusal(above: str, config_alarms: Sequence[str]) -> str:
+def threshold_refusal(above: str, alarms: Sequence[str]) -> str:
     """Why a commissioned threshold above the config's own is refused, and what to do: the config's alarms on the same
     held-out parts tell a machine unlike its model (its recordings fault-free) from recordings that hold a fault."""
-    if config_alarms:
-        return (f"commission: {above}; the config's own thresholds alarm on the same held-out parts ({len(config_alarms)} alarms, "
-                f"first {config_alarms[0]}), so they do not fit this machine either: if the recordings are fault-free, the "
+    if alarms:
+        return (f"commission: {above}; the config's own thresholds alarm on the same held-out parts ({len(alarms)} alarms, "
+                f"first {alarms[0]}), so they do not fit this machine either: if the recordings are fault-free, the "
                 "commissioned ones are the honest ones, accept them with --force")
     return (f"commission: {above}; the config's own thresholds stay quiet on the same held-out parts: the recordings may hold a "
             "fault or be noisier than this machine should be; check them, or accept it with --force")
