@@ -65,6 +65,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/crane_monitoring.py --out bench/results/crane_monitoring.json
 	$(PY) bench/crane_cpu.py --out bench/results/crane_cpu.json
 	$(PY) bench/crane_commissioning.py --out bench/results/crane_commissioning.json
+	$(PY) bench/crane_apart.py --out bench/results/crane_apart.json
 	$(PY) bench/fleet.py --out bench/results/fleet.json
 	$(PY) bench/mems.py --out bench/results/mems.json
 	$(PY) bench/savings_map.py --out bench/results/savings_map.json

@@ -23,7 +23,7 @@ from hydro_ros.models.serial_arm import SerialArm
 from hydro_ros.planning.serving import executable_trajectory
 from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun
 from hydro_ros.studies import independent_arm
-from hydro_ros.studies.crane_monitoring import CraneCase, path_trajectories, run_crane_cases
+from hydro_ros.studies.crane_monitoring import CraneCase, apart_commissioning_work, path_trajectories, run_crane_cases
 from hydro_ros.workflows.commissioning import LEAK_LIMIT, FaultFreeRecording, above_shipped, commission
 from test.conftest import K70M
 
@@ -153,12 +153,8 @@ def test_the_crane_built_apart_commissioned_on_its_own_work_is_quiet_and_names_t
     machine, config = crane_machine
     trajectories = path_trajectories(config)
     rig = independent_arm.build_rig(machine, CRANE_RIG)
-    day = [(f"operator{k}", independent_arm.ArmWork(120.0, 10 + k, payload_steps=((30.0, 300.0), (80.0, 0.0)), lever_limit=0.5))
-           for k in range(2)]
-    day += [(path, independent_arm.ArmWork(60.0, 20, payload_steps=((20.0, 300.0), (45.0, 0.0)), path=trajectory))
-            for path, trajectory in trajectories.items()]
     recordings = [FaultFreeRecording(name, independent_arm.measure(rig, independent_arm.simulate(rig, work), work.seed))
-                  for name, work in day]
+                  for name, work in apart_commissioning_work(trajectories)]
     block, report = commission(machine, recordings, force=True)
     for ident in report["identification"]:
         assert max(ident["leaks_l_min"].values()) < LEAK_LIMIT, ident["actuator"]

@@ -38,6 +38,7 @@ from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS, ParityThresholds
 from hydro_ros.models.serial_arm import SerialArm
 from hydro_ros.sim.arm_cylinders import ArmCylinders, ArmRun, simulate_arm
 from hydro_ros.studies.fdi_evaluation import mismatched_config, parallel_map
+from hydro_ros.studies.independent_arm import ArmWork
 from hydro_ros.workflows.commissioning import FaultFreeRecording
 
 FLOW_FRACTION = 0.1  # k: the notch coefficients' tolerance the allowance covers: twice MISMATCH's +-5 % (INFERRED; see docs/crane_monitoring.md)
@@ -154,6 +155,15 @@ def commissioning_recordings(plant: Machine, trajectories: dict[str, Any], seed:
     runs += [(path, CraneCase(seed, path_s, path)) for path in trajectories]
     return [FaultFreeRecording(f"{name} (seed {case.seed})", simulate_arm(plant, crane_run(case, trajectories)))
             for name, case in runs]
+
+
+def apart_commissioning_work(trajectories: dict[str, Any], payload_kg: float = 300.0) -> list[tuple[str, ArmWork]]:
+    """The fault-free day the crane built apart (``independent_arm``) is commissioned on: the operator twice for 2 min at
+    half lever, each path's cycle for 1 min, ``payload_kg`` gripped and released in each."""
+    day = [(f"operator{k}", ArmWork(120.0, 10 + k, payload_steps=((30.0, payload_kg), (80.0, 0.0)), lever_limit=0.5)) for k in range(2)]
+    day += [(path, ArmWork(60.0, 20, payload_steps=((20.0, payload_kg), (45.0, 0.0)), path=trajectory))
+            for path, trajectory in trajectories.items()]
+    return day
 
 
 def work_cases(seeds: Iterable[int], paths: Iterable[str], duration_s: float, mismatch: float) -> list[CraneCase]:

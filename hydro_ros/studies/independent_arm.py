@@ -102,7 +102,6 @@ OPERATOR_REST = (0.5, 4.0)  # [s] between moves
 OPERATOR_SPAN = 0.8  # targets within this share of each joint's range, about its middle
 PILOT_LAG = 0.03  # [s] a mobile valve's pilot stage: its pressure follows the command as a first-order lag
 COMPENSATOR_RISE = 0.15  # [-] a compensator's spring holds this much more drop at full opening than at none
-OVERLAP_SPREAD = 0.1  # [-] a built main spool's overlap, relative 1-sigma against the data sheet's
 CYCLE_HOLD = (2.0, 6.0)  # [s] a path's work cycle rests this long at either end (the grapple closing or opening)
 
 
@@ -118,6 +117,8 @@ class RigSpread:
     spool_bandwidth: tuple[float, float] = (0.75, 1.0)  # x the data sheet's natural frequency
     friction: tuple[float, float] = (0.7, 1.6)  # x the config's coulomb, static and viscous terms
     oil_warmer: tuple[float, float] = (-6.0, 10.0)  # [K] a day's start against the reference temperature
+    overlap: float = 0.1  # a mobile valve's main spool overlap against the data sheet's
+    line_resistance: float = 1.0  # x the hoses' laminar resistance (0: the valve at the cylinder's ports)
 
 
 @dataclass(frozen=True)
@@ -162,8 +163,8 @@ class ArmRig:
 (_C_AREA_A, _C_AREA_B, _C_STROKE, _C_V0A, _C_V0B, _C_L1, _C_L2, _C_L3, _C_OFFSET, _C_SIGN, _C_OMEGA, _C_ZETA,
  _C_HOSE_VOLUME, _C_HOSE_MODULUS, _C_OIL_MODULUS, _C_COULOMB, _C_STATIC, _C_STRIBECK, _C_VISCOUS, _C_STOP_LOW,
  _C_STOP_HIGH, _C_STOP_K, _C_STOP_D, _C_NOMINAL_FLOW, _C_LINEAR, _C_RATIO, _C_MOBILE, _C_OVERLAP, _C_COMPENSATOR,
- _C_PILOT_GAIN) = range(30)
-_CYLINDER_NUMBERS = 30
+ _C_PILOT_GAIN, _C_LINES) = range(31)
+_CYLINDER_NUMBERS = 31
 _STATES_PER_CYLINDER = 4  # p_A, p_B at the ports, spool, spool rate
 
 
@@ -213,6 +214,7 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) 
         row[_C_OMEGA] = v.natural_frequency * rng.uniform(*spread.spool_bandwidth)
         row[_C_ZETA] = v.damping
         row[_C_HOSE_VOLUME] = f.hose_volume
+        row[_C_LINES] = spread.line_resistance
         row[_C_HOSE_MODULUS] = f.hose_bulk_modulus * max(1.0 + spread.hose_bulk_modulus * rng.standard_normal(), 0.3)
         row[_C_OIL_MODULUS] = f.oil_bulk_modulus * max(1.0 + spread.oil_bulk_modulus * rng.standard_normal(), 0.3)
         row[[_C_COULOMB, _C_STATIC, _C_STRIBECK, _C_VISCOUS]] = friction * (fr.coulomb + pads), friction * (fr.static + 1.2 * pads), \
@@ -220,7 +222,7 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) 
         row[[_C_LINEAR, _C_RATIO]] = m.kind == "linear", m.ratio
         if v.mobile:
             row[[_C_MOBILE, _C_OVERLAP, _C_COMPENSATOR, _C_PILOT_GAIN]] = 1.0, \
-                v.deadzone * max(1.0 + OVERLAP_SPREAD * rng.standard_normal(), 0.5), \
+                v.deadzone * max(1.0 + spread.overlap * rng.standard_normal(), 0.5), \
                 v.compensator_pressure_drop * max(1.0 + spread.notch_gain * rng.standard_normal(), 0.5), \
                 1.0 + 0.5 * spread.notch_gain * rng.standard_normal()
         row[[_C_STOP_LOW, _C_STOP_HIGH, _C_STOP_K, _C_STOP_D]] = sim.end_stop_lower, \
@@ -405,6 +407,8 @@ def _valve_flow(c, table, centre, spool, p_s, tank, side, p_valve, viscosity):
 def _line_flow(c, table, centre, spool, p_s, tank, side, p_port, resistance, viscosity):
     """Flow through the valve and its line into a port: the valve-side pressure settles where the valve's flow equals the
     line's (its RC time, ~50 us, is far below a sample); a fixed point, contracting by R dQ/dp < 0.3."""
+    if resistance == 0.0:
+        return _valve_flow(c, table, centre, spool, p_s, tank, side, p_port, viscosity)
     p_valve = p_port
     for _ in range(LINE_ITERATIONS):
         p_valve = p_port + resistance * _valve_flow(c, table, centre, spool, p_s, tank, side, p_valve, viscosity)
@@ -431,9 +435,10 @@ def _rates(y, u, cyl, table, centre, link, prismatic, mass, payload, gravity, su
         drawn += _table(table[i, side], opening) * opening \
             * _orifice(_inlet_drop(cyl[i], opening, supply, y[_STATES_PER_CYLINDER * i + side])) / cyl[i, _C_NOMINAL_FLOW]
     p_s = supply - SUPPLY_DROOP * drawn
-    resistance = 128.0 * OIL_VISCOSITY * viscosity * HOSE_LENGTH / (math.pi * HOSE_DIAMETER ** 4)
+    hoses = 128.0 * OIL_VISCOSITY * viscosity * HOSE_LENGTH / (math.pi * HOSE_DIAMETER ** 4)
     for i in range(a):
         c = cyl[i]
+        resistance = hoses * c[_C_LINES]
         s0 = _STATES_PER_CYLINDER * i
         pa, pb, spool, spool_rate = y[s0], y[s0 + 1], y[s0 + 2], y[s0 + 3]
         x, arm = _piston(c, q[i])
