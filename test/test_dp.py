@@ -196,6 +196,27 @@ def test_direct_collocation_converges_near_the_dp_optimum() -> None:
     assert direct.evaluation["cp_energy_J"] == pytest.approx(dp.evaluation["cp_energy_J"], rel=0.01)
 
 
+@pytest.mark.parametrize("cost", [Cost.CP, Cost.LS])
+def test_a_coarse_dps_answer_polished_costs_less_keeps_every_limit_its_start_and_its_rest(cost: Cost) -> None:
+    """The coarse grid's DP is 1-4 % above the fine one's here: the polish finds that in the DP's own realised
+    cost, and what it returns keeps every limit, the path, the start and the rest at both ends."""
+    from hydro_ros.planning.polish import polish
+
+    crane, config = load_crane(default_config_path("k70m"))
+    problem = Problem.build(crane, config, "horizontal", grid=COARSE)
+    dp = run_method(problem, f"dp_{cost.value}")
+    polished, info = polish(crane, problem.samples, dp.trajectory, cost, iterations=40)
+    evaluation = evaluate(crane, problem.samples, polished)
+    assert info["improved"] and info["before_J"] == pytest.approx(dp.evaluation[f"{cost.value}_energy_J"], rel=1e-9)
+    assert evaluation[f"{cost.value}_energy_J"] == pytest.approx(info["after_J"], rel=1e-9)
+    assert info["after_J"] < 0.99 * info["before_J"], info
+    assert all(evaluation["limits"].values()) and evaluation["tip_error_max_m"] < 1e-9
+    assert polished.position[0] == dp.trajectory.position[0]
+    # both ends stay at rest as the DP left them
+    assert polished.position[1] == dp.trajectory.position[1] and polished.position[-1] == dp.trajectory.position[-1]
+    assert polished.velocity[0] == dp.trajectory.velocity[0] and polished.velocity[-2] == dp.trajectory.velocity[-2]
+
+
 @pytest.mark.parametrize("start", ["smallest", "middle"])
 def test_multistart_seeds_leave_the_start_at_rest_keep_the_position_limits_and_end_apart(start: str) -> None:
     crane, _, samples, grid = _setup("k70m", "vertical")
