@@ -62,6 +62,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/commissioning_memory.py --out bench/results/commissioning_memory.json
 	$(PY) bench/arm_commissioning.py --out bench/results/arm_commissioning.json
 	$(PY) bench/arm_commissioning.py --config config/sam.yaml --out bench/results/sam_commissioning_apart.json
+	$(PY) bench/roc.py --out bench/results/roc.json
 	$(PY) bench/crane_monitoring.py --out bench/results/crane_monitoring.json
 	$(PY) bench/crane_cpu.py --out bench/results/crane_cpu.json
 	$(PY) bench/crane_commissioning.py --out bench/results/crane_commissioning.json
