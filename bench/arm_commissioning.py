@@ -33,7 +33,7 @@ from hydro_ros.fdi.monitor import FdiMonitor  # noqa: E402
 from hydro_ros.fdi.offline import run_monitor  # noqa: E402
 from hydro_ros.fdi.rates import CONFIDENCE, false_alarm_rate  # noqa: E402
 from hydro_ros.studies import independent_arm as plant  # noqa: E402
-from hydro_ros.studies.fdi_evaluation import parallel_map  # noqa: E402
+from hydro_ros.studies.fdi_evaluation import parallel_map, smallest_leaks  # noqa: E402
 from hydro_ros.workflows.commissioning import FaultFreeRecording, commission  # noqa: E402
 
 TRAINING = {"2 min": (2, 60.0), "4 min": (2, 120.0), "8 min": (4, 120.0)}  # recordings x seconds
@@ -76,23 +76,9 @@ def summarise(machine: Machine, runs: list[dict], levels: list[str]) -> dict:
         alarms = [dict(a, seed=r["seed"]) for r in free for a in r["levels"][level]["alarms"]]
         held = np.sum([r["levels"][level]["held"] for r in free], axis=0)
         evaluated = sum(r["levels"][level]["evaluated"] for r in free)
-        smallest = {}
-        for actuator in actuators:
-            for fault in plant.LEAKS:
-                named, detected = [], []
-                for r in runs:
-                    if not r["faults"] or r["faults"][0][:2] != [actuator, fault]:
-                        continue
-                    found = r["levels"][level]["alarms"]
-                    clean = all(a["actuator"] == actuator and a["time_s"] > ONSET_S for a in found)
-                    names = [a for a in found if a["fault"] != "unisolated"]
-                    if clean and found:
-                        detected.append(r["faults"][0][2])
-                    if clean and names and all(a["fault"] == fault for a in names):  # the right name, and no other first
-                        named.append((r["faults"][0][2], round(names[0]["time_s"] - ONSET_S, 2)))
-                size, delay = min(named) if named else (None, None)
-                smallest[f"{actuator}/{fault}"] = {"size_l_min": size, "delay_s": delay,
-                                                   "detected_l_min": min(detected) if detected else None}
+        smallest = {chamber: {"size_l_min": found["named_l_min"], "delay_s": found["delay_s"], "detected_l_min": found["detected_l_min"]}
+                    for chamber, found in smallest_leaks(runs, actuators, plant.LEAKS, ONSET_S,
+                                                         lambda run, level=level: run["levels"][level]["alarms"]).items()}
         out[level] = {"fault_free_hours": round(hours, 3), "false_alarms": len(alarms),
                       "per_hour_upper": round(false_alarm_rate(len(alarms), hours)[2], 2), "alarms": alarms,
                       "held_share": {a: round(float(h) / max(evaluated, 1), 4) for a, h in zip(actuators, held)},

@@ -39,7 +39,7 @@ from hydro_ros.fdi.rates import CONFIDENCE, false_alarm_rate  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
 from hydro_ros.studies import independent_arm as plant  # noqa: E402
 from hydro_ros.studies.crane_monitoring import apart_commissioning_work, path_trajectories  # noqa: E402
-from hydro_ros.studies.fdi_evaluation import parallel_map  # noqa: E402
+from hydro_ros.studies.fdi_evaluation import parallel_map, smallest_leaks  # noqa: E402
 from hydro_ros.workflows.commissioning import FaultFreeRecording, above_shipped, commission  # noqa: E402
 
 SIZES = (0.5, 1.0, 2.0)  # [L/min at 10 MPa]
@@ -92,26 +92,6 @@ def fault_free_summary(runs: list[dict], config: str) -> dict:
             "alarms": alarms[:20]}
 
 
-def leak_summary(machine: Machine, runs: list[dict], config: str) -> dict:
-    out = {}
-    for actuator in machine.actuator_names:
-        for fault in plant.LEAKS:
-            named, detected = [], []
-            for r in runs:
-                if not r["faults"] or r["faults"][0][:2] != [actuator, fault]:
-                    continue
-                found = r["configs"][config]["alarms"]
-                clean = all(a["actuator"] == actuator and a["time_s"] > ONSET_S for a in found)
-                names = [a for a in found if a["fault"] != "unisolated"]
-                if clean and found:
-                    detected.append(r["faults"][0][2])
-                if clean and names and all(a["fault"] == fault for a in names):
-                    named.append((r["faults"][0][2], round(names[0]["time_s"] - ONSET_S, 1)))
-            size, delay = min(named) if named else (None, None)
-            out[f"{actuator}/{fault}"] = {"named_l_min": size, "delay_s": delay, "detected_l_min": min(detected) if detected else None}
-    return out
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=str(REPO / "config" / "k70m.yaml"))
@@ -149,7 +129,8 @@ def main() -> int:
             "overlap": {a: {"built": round(float(b), 4), "fitted": round(block["model"]["actuators"][a]["valve"]["deadzone"], 4)}
                         for a, b in zip(machine.actuator_names, built)},
             "fault_free": {name: fault_free_summary(runs, name) for name in configs},
-            "leaks": {name: leak_summary(machine, runs, name) for name in configs}})
+            "leaks": {name: smallest_leaks(runs, machine.actuator_names, plant.LEAKS, ONSET_S,
+                                            lambda run, name=name: run["configs"][name]["alarms"]) for name in configs}})
     # which effects the model lacks: the first rig with the three switched, the shipped monitor on its operator and a path
     effects = {}
     for label, on in EFFECTS.items():

@@ -50,3 +50,27 @@ def test_the_printed_bounds_round_away_from_the_rate():
 
 def test_counts_and_hours_summed_with_numpy_are_taken():
     assert false_alarm_rate(np.int64(4), np.float64(0.25)) == pytest.approx(false_alarm_rate(4, 0.25))
+
+
+def test_a_leak_run_is_detected_only_when_every_alarm_is_its_own_and_named_only_when_no_other_name_came():
+    from hydro_ros.studies.fdi_evaluation import leak_run_verdict, smallest_leaks
+
+    def alarm(t: float, actuator: str, fault: str) -> dict:
+        return {"time_s": t, "actuator": actuator, "fault": fault, "code": "1000"}
+
+    onset = 20.0
+    assert leak_run_verdict([alarm(21.0, "lift", "unisolated"), alarm(23.5, "lift", "external_leakage_a")], "lift",
+                            "external_leakage_a", onset) == (1.0, 3.5)
+    assert leak_run_verdict([alarm(21.0, "lift", "external_leakage_b")], "lift", "external_leakage_a", onset) == (1.0, None)
+    assert leak_run_verdict([alarm(21.0, "lift", "external_leakage_b"), alarm(22.0, "lift", "external_leakage_a")], "lift",
+                            "external_leakage_a", onset) == (1.0, None)  # another name came first
+    assert leak_run_verdict([alarm(19.0, "lift", "unisolated"), alarm(22.0, "lift", "external_leakage_a")], "lift",
+                            "external_leakage_a", onset) == (None, None)  # an alarm before onset
+    assert leak_run_verdict([alarm(22.0, "tilt", "unisolated"), alarm(22.0, "lift", "external_leakage_a")], "lift",
+                            "external_leakage_a", onset) == (None, None)  # an alarm on another cylinder
+    assert leak_run_verdict([], "lift", "external_leakage_a", onset) == (None, None)
+    runs = [{"faults": [["lift", "external_leakage_a", size, onset]], "alarms": alarms}
+            for size, alarms in ((0.5, []), (1.0, [alarm(25.0, "lift", "unisolated")]), (2.0, [alarm(22.0, "lift", "external_leakage_a")]))]
+    found = smallest_leaks(runs, ["lift"], ["external_leakage_a", "internal_leakage"], onset, lambda run: run["alarms"])
+    assert found["lift/external_leakage_a"] == {"named_l_min": 2.0, "delay_s": 2.0, "detected_l_min": 1.0}
+    assert found["lift/internal_leakage"] == {"named_l_min": None, "delay_s": None, "detected_l_min": None}

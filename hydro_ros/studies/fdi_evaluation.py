@@ -207,6 +207,33 @@ def run_cases(machine: Machine, cases: list[Case], *, workers: int = 2, progress
     return parallel_map(_run, [(machine, c) for c in cases], workers=workers, progress=progress)
 
 
+def leak_run_verdict(alarms: Sequence[dict[str, Any]], actuator: str, fault: str, onset_s: float) -> tuple[float | None, float | None]:
+    """A leak run's alarms (``Alarm.to_json``) judged: the delay to its detection, where there is an alarm and every one is on
+    the leaking actuator after onset, and the delay to its first name, where that is the leak's and no other name came
+    (None where not)."""
+    if not alarms or any(a["actuator"] != actuator or a["time_s"] <= onset_s for a in alarms):
+        return None, None
+    names = [a for a in alarms if a["fault"] != "unisolated"]
+    named = names and all(a["fault"] == fault for a in names)
+    return round(alarms[0]["time_s"] - onset_s, 2), round(names[0]["time_s"] - onset_s, 2) if named else None
+
+
+def smallest_leaks(runs: Sequence[dict[str, Any]], actuators: Sequence[str], leaks: Sequence[str], onset_s: float,
+                   alarms_of: Callable[[dict[str, Any]], Sequence[dict[str, Any]]]) -> dict[str, dict[str, float | None]]:
+    """Per ``actuator/leak``: the smallest size named right (with its delay) and the smallest detected, over ``runs`` whose
+    ``faults`` hold one ``[actuator, leak, size, onset]`` (``alarms_of(run)``: its alarms as ``Alarm.to_json``)."""
+    out = {}
+    for actuator in actuators:
+        for fault in leaks:
+            verdicts = [(run["faults"][0][2], *leak_run_verdict(alarms_of(run), actuator, fault, onset_s))
+                        for run in runs if run["faults"] and run["faults"][0][:2] == [actuator, fault]]
+            named = [(size, delay) for size, _, delay in verdicts if delay is not None]
+            detected = [size for size, delay, _ in verdicts if delay is not None]
+            size, delay = min(named) if named else (None, None)
+            out[f"{actuator}/{fault}"] = {"named_l_min": size, "delay_s": delay, "detected_l_min": min(detected) if detected else None}
+    return out
+
+
 def parallel_map(function: Callable[[Any], Any], arguments: list[Any], *, workers: int = 2,
                  progress: Callable[[int], None] | None = None) -> list[Any]:
     """``function`` over ``arguments`` in order, on ``workers`` processes (one: in this one), ticking ``progress`` per result."""
