@@ -51,7 +51,7 @@ demo: setup
 
 # every result file stamped with the commit it ran on: refused on a tree with uncommitted code unless ALLOW_DIRTY=1
 bench: setup $(CHROMIUM)
-	@[ "$(ALLOW_DIRTY)" = 1 ] || $(PY) -m hydro_ros.benchresults
+	@[ "$(ALLOW_DIRTY)" = 1 ] || $(PY) -m hydro_ros.tooling.benchresults
 	$(PY) bench/run.py --out bench/results/results.json
 	$(PY) bench/discrepancy_suite.py
 	$(PY) bench/dp.py --out bench/results/dp.json
@@ -76,7 +76,7 @@ bench: setup $(CHROMIUM)
 	$(PY) bench/mutants.py --out bench/results/mutants.json
 
 docs: setup
-	$(PY) -m hydro_ros.docgen docs
+	$(PY) -m hydro_ros.tooling.docgen docs
 
 bags: setup
 	$(PY) scripts/make_sample_bags.py --out bags

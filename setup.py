@@ -7,7 +7,7 @@ package_name = "hydro_ros"
 setup(
     name=package_name,
     version="0.1.0",
-    packages=find_packages(exclude=["test"]),
+    packages=find_packages(exclude=["test", "hydro_ros.tooling"]),  # the tools that write docs/ and bench/results stay in the tree
     package_data={"hydro_ros.hmi": ["static/*"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),

@@ -26,7 +26,6 @@ from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
 
-from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.errors import InputError  # noqa: E402
 from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E402
 from hydro_ros.fdi.monitor import FdiMonitor  # noqa: E402
@@ -34,6 +33,7 @@ from hydro_ros.fdi.offline import run_monitor  # noqa: E402
 from hydro_ros.fdi.rates import CONFIDENCE, false_alarm_rate  # noqa: E402
 from hydro_ros.studies import independent_arm as plant  # noqa: E402
 from hydro_ros.studies.fdi_evaluation import parallel_map, smallest_leaks  # noqa: E402
+from hydro_ros.tooling.benchresults import write_result  # noqa: E402
 from hydro_ros.workflows.commissioning import FaultFreeRecording, commission  # noqa: E402
 
 TRAINING = {"2 min": (2, 60.0), "4 min": (2, 120.0), "8 min": (4, 120.0)}  # recordings x seconds

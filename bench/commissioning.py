@@ -26,7 +26,6 @@ from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
 
-from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.machine import load_machine_config  # noqa: E402
 from hydro_ros.contract.names import Injection  # noqa: E402
 from hydro_ros.contract.samples import Samples  # noqa: E402
@@ -34,6 +33,7 @@ from hydro_ros.fdi.monitor import FdiMonitor  # noqa: E402
 from hydro_ros.fdi.offline import run_monitor  # noqa: E402
 from hydro_ros.sim.scenario import Scenario, simulate  # noqa: E402
 from hydro_ros.studies.fdi_evaluation import mismatched_config  # noqa: E402
+from hydro_ros.tooling.benchresults import write_result  # noqa: E402
 from hydro_ros.workflows.commissioning import FaultFreeRecording, commission  # noqa: E402
 
 LEAKS = ("external_leakage_a", "external_leakage_b", "external_leakage_ab", "internal_leakage")

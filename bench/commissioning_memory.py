@@ -22,7 +22,7 @@ import matplotlib.pyplot as plt
 from tqdm import tqdm
 
 from hydro_ros.bags.reader import bag_info
-from hydro_ros.benchresults import commit, write_result
+from hydro_ros.tooling.benchresults import commit, write_result
 
 REPO = Path(__file__).resolve().parent.parent
 DURATIONS_S = (300, 1200, 7200)

@@ -31,7 +31,6 @@ from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
 
-from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E402
 from hydro_ros.fdi.monitor import FdiMonitor  # noqa: E402
 from hydro_ros.fdi.offline import run_monitor  # noqa: E402
@@ -40,6 +39,7 @@ from hydro_ros.models.crane import load_crane  # noqa: E402
 from hydro_ros.studies import independent_arm as plant  # noqa: E402
 from hydro_ros.studies.crane_monitoring import apart_commissioning_work, path_trajectories  # noqa: E402
 from hydro_ros.studies.fdi_evaluation import parallel_map, smallest_leaks  # noqa: E402
+from hydro_ros.tooling.benchresults import write_result  # noqa: E402
 from hydro_ros.workflows.commissioning import FaultFreeRecording, above_shipped, commission  # noqa: E402
 
 SIZES = (0.5, 1.0, 2.0)  # [L/min at 10 MPa]

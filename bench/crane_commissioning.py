@@ -27,7 +27,6 @@ from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
 
-from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.errors import InputError  # noqa: E402
 from hydro_ros.contract.machine import load_machine_config  # noqa: E402
 from hydro_ros.fdi.parity import FLOW_EDGES, POINT_CHANNELS  # noqa: E402
@@ -43,6 +42,7 @@ from hydro_ros.studies.crane_monitoring import (  # noqa: E402
     work_cases,
 )
 from hydro_ros.studies.fdi_evaluation import mismatched_config  # noqa: E402
+from hydro_ros.tooling.benchresults import write_result  # noqa: E402
 from hydro_ros.workflows.commissioning import commission  # noqa: E402
 
 SIZES = (0.25, 0.5)

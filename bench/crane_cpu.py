@@ -20,8 +20,8 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 
-from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.processes import live_cpu_share  # noqa: E402
+from hydro_ros.tooling.benchresults import write_result  # noqa: E402
 
 K70M = REPO / "config" / "k70m.yaml"
 TOPICS_REAL_TIME_FACTOR = 0.25

@@ -26,7 +26,6 @@ from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
 
-from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.machine import load_machine_config  # noqa: E402
 from hydro_ros.fdi.rates import false_alarm_text  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
@@ -38,6 +37,7 @@ from hydro_ros.studies.crane_monitoring import (  # noqa: E402
     summarise_fault_free,
     work_cases,
 )
+from hydro_ros.tooling.benchresults import write_result  # noqa: E402
 
 SIZES = (0.5, 1.0, 2.0)
 

@@ -30,12 +30,12 @@ import numpy as np
 from tqdm import tqdm
 
 from hydro_ros.bags.reader import BagData, read_bag
-from hydro_ros.benchresults import write_result
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.contract.names import first_form
 from hydro_ros.studies.hidden_effects import hidden_effect_bag, hidden_effect_plant
 from hydro_ros.studies.independent_plant import independent_plant_bag, nearest_model
+from hydro_ros.tooling.benchresults import write_result
 from hydro_ros.workflows.discrepancy import FIT_SHARE, SCREEN_EVERY, Recording, gap, run, simulate_recording
 from hydro_ros.workflows.plots import plot_gap_profiles
 

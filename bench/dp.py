@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from hydro_ros.benchresults import commit, write_result
+from hydro_ros.tooling.benchresults import commit, write_result
 
 _CHILD = """
 import json, resource, sys, time
@@ -342,8 +342,8 @@ def polish_part() -> dict:
     from hydro_ros.planning.costs import Cost
     from hydro_ros.planning.polish import polish
     from hydro_ros.planning.problem import Problem, run_method
-    from hydro_ros.reproduction import CERTIFIED, DP_MIDDLE_START, DP_SMALLEST_START, _dp_excess
     from hydro_ros.studies.savings_map import line_paths
+    from hydro_ros.tooling.reproduction import CERTIFIED, DP_MIDDLE_START, DP_SMALLEST_START, _dp_excess
 
     crane, config = load_crane(default_config_path("k70m"))
     results = Path(__file__).resolve().parent / "results"

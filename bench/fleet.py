@@ -22,12 +22,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from hydro_ros.bags.writer import ContractBagWriter
-from hydro_ros.benchresults import write_result
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.contract.names import Injection
 from hydro_ros.sim.scenario import MachineRun
 from hydro_ros.studies.fdi_evaluation import mismatched_config
+from hydro_ros.tooling.benchresults import write_result
 from hydro_ros.workflows.fleet import analyse
 
 RECORDING_S = 300.0

@@ -24,7 +24,6 @@ import matplotlib.pyplot as plt
 import numpy as np
 from tqdm import tqdm
 
-from hydro_ros.benchresults import write_result
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import load_machine_config
 from hydro_ros.studies.gsa import (
@@ -40,6 +39,7 @@ from hydro_ros.studies.gsa import (
     sobol_indices,
     steady_state_indices,
 )
+from hydro_ros.tooling.benchresults import write_result
 
 REPO = Path(__file__).resolve().parent.parent
 P_I_SAMPLES = 10000

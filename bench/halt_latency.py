@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hydro_ros.benchresults import write_result
 from hydro_ros.processes import node_process, spin_until
+from hydro_ros.tooling.benchresults import write_result
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIG = REPO / "config" / "k70m.yaml"

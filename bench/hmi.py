@@ -21,9 +21,9 @@ import psutil
 
 REPO = Path(__file__).resolve().parent.parent
 
-from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.hmi.headless import CHROMIUM, CHROMIUM_ARGS  # noqa: E402
 from hydro_ros.processes import cpu_seconds, free_port, node_process  # noqa: E402
+from hydro_ros.tooling.benchresults import write_result  # noqa: E402
 
 SAM = str(REPO / "config" / "sam.yaml")
 

@@ -12,8 +12,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from hydro_ros.benchresults import write_result
 from hydro_ros.studies.mems import markdown, tables
+from hydro_ros.tooling.benchresults import write_result
 
 
 def main() -> None:

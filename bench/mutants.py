@@ -18,7 +18,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from hydro_ros.benchresults import write_result
+from hydro_ros.tooling.benchresults import write_result
 
 REPO = Path(__file__).resolve().parents[1]
 SAM = "hydro_ros/models/sam.py"

@@ -26,13 +26,13 @@ from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
 
-from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.machine import Machine, load_machine_config  # noqa: E402
 from hydro_ros.fdi.monitor import FdiMonitor  # noqa: E402
 from hydro_ros.fdi.offline import run_monitor  # noqa: E402
 from hydro_ros.fdi.rates import CONFIDENCE, false_alarm_rate  # noqa: E402
 from hydro_ros.studies import independent_arm as plant  # noqa: E402
 from hydro_ros.studies.fdi_evaluation import parallel_map  # noqa: E402
+from hydro_ros.tooling.benchresults import write_result  # noqa: E402
 from hydro_ros.workflows.commissioning import FaultFreeRecording, commission  # noqa: E402
 
 SCALES = (0.5, 0.7, 0.85, 1.0, 1.25, 1.5, 2.0)  # x the commissioned c0

@@ -18,12 +18,12 @@ import numpy as np
 
 from hydro_ros.bags.reader import mcap_files, read_bag
 from hydro_ros.bags.writer import ContractBagWriter
-from hydro_ros.benchresults import write_result
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.models.sam import SamModel, SamPlant
 from hydro_ros.processes import live_cpu_share
 from hydro_ros.sim.scenario import Scenario, run_blocks
+from hydro_ros.tooling.benchresults import write_result
 
 
 def model_speed(config: Machine, seconds: float = 60.0) -> dict:

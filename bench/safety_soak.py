@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hydro_ros.benchresults import write_result
+from hydro_ros.tooling.benchresults import write_result
 
 REPO = Path(__file__).resolve().parent.parent
 

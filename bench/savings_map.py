@@ -13,10 +13,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from tqdm import tqdm
 
-from hydro_ros.benchresults import write_result
 from hydro_ros.contract.config import default_config_path
 from hydro_ros.models.crane import load_crane
 from hydro_ros.studies.savings_map import line_paths, savings
+from hydro_ros.tooling.benchresults import write_result
 
 VERTICAL_X = (3.5, 4.5, 5.5, 6.5, 7.5)
 VERTICAL_Y0 = (-1.5, -0.5, 0.5)

@@ -18,13 +18,13 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
 
-from hydro_ros.benchresults import write_result  # noqa: E402
 from hydro_ros.contract.config import default_config_path  # noqa: E402
 from hydro_ros.models.crane import load_crane  # noqa: E402
 from hydro_ros.planning.catalog import build, plan_units  # noqa: E402
 from hydro_ros.planning.database import TrajectoryDatabase  # noqa: E402
 from hydro_ros.planning.problem import CONTRACT_METHODS  # noqa: E402
 from hydro_ros.planning.serving import path_start_state  # noqa: E402
+from hydro_ros.tooling.benchresults import write_result  # noqa: E402
 from hydro_ros.workflows.execution import execute  # noqa: E402
 
 METHODS = ("dp_cp", "dp_ls", "pinv_actuator", "pinv_joint")  # of the throughput builds

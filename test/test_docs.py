@@ -8,7 +8,7 @@ import re
 
 import pytest
 
-from hydro_ros.docgen import PAGES, rendered
+from hydro_ros.tooling.docgen import PAGES, rendered
 from test.conftest import REPO
 
 
@@ -51,18 +51,18 @@ def test_nothing_cites_files_the_repository_does_not_ship():
 
 
 def test_make_bench_refuses_a_tree_whose_code_differs_from_its_commit(monkeypatch):
-    from hydro_ros import benchresults
+    from hydro_ros.tooling import benchresults
 
     monkeypatch.setattr(benchresults, "commit", lambda: "abc1234+changes")
     with pytest.raises(SystemExit, match=r"uncommitted changes outside bench/results .*ALLOW_DIRTY=1"):
         benchresults.require_clean_tree()
     monkeypatch.setattr(benchresults, "commit", lambda: "abc1234")
     benchresults.require_clean_tree()
-    assert "$(PY) -m hydro_ros.benchresults" in (REPO / "Makefile").read_text().split("\nbench:")[1].split("\n\n")[0]
+    assert "$(PY) -m hydro_ros.tooling.benchresults" in (REPO / "Makefile").read_text().split("\nbench:")[1].split("\n\n")[0]
 
 
 def test_a_benchmark_result_carries_its_commit_and_the_page_says_what_a_run_did_not_write(tmp_path, monkeypatch):
-    from hydro_ros import benchresults
+    from hydro_ros.tooling import benchresults
 
     written = json.loads(benchresults.write_result(tmp_path / "crane_cpu.json", {"commit": "typed", "cylinders": 3}).read_text())
     assert written["commit"] == benchresults.commit() != "typed" and written["cylinders"] == 3
@@ -72,8 +72,8 @@ def test_a_benchmark_result_carries_its_commit_and_the_page_says_what_a_run_did_
 
 
 def test_a_reproduction_row_says_what_a_run_did_not_write(tmp_path, monkeypatch):
-    from hydro_ros import benchresults
-    from hydro_ros.reproduction import reproduction_markdown
+    from hydro_ros.tooling import benchresults
+    from hydro_ros.tooling.reproduction import reproduction_markdown
 
     (tmp_path / "commissioning.json").write_text(json.dumps({"commit": "abc1234", "plants": 6}))
     monkeypatch.setattr(benchresults, "RESULTS", tmp_path)
@@ -85,7 +85,7 @@ def test_a_reproduction_row_says_what_a_run_did_not_write(tmp_path, monkeypatch)
 
 
 def test_every_test_the_reproduction_page_names_exists():
-    from hydro_ros.reproduction import CLAIMS, RESEARCH_PROBLEMS
+    from hydro_ros.tooling.reproduction import CLAIMS, RESEARCH_PROBLEMS
 
     for test in (test for entry in (*CLAIMS, *RESEARCH_PROBLEMS) for test in entry.tests):
         path, _, function = test.partition("::")

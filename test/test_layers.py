@@ -25,9 +25,7 @@ LAYER = {
     "demo": 8,
     "processes": 8,  # node processes as the tests, benches and demo start them
     "cli": 9,
-    "benchresults": 9,  # bench/results: the benches write it, docgen reads it
-    "reproduction": 10,  # the papers' claims against bench/results
-    "docgen": 11,  # documents the nodes' tables and the CLI's parser
+    "tooling": 10,  # not installed: the result files' writer, the papers' claims against them, the generated docs
 }
 SCIENCE = {"contract", "safety", "bags", "can", "models", "sim", "fdi", "planning", "workflows", "studies", "hmi"}
 ROS_MODULES = ("rclpy", "rosidl", "rmw", "std_msgs", "sensor_msgs", "diagnostic_msgs", "trajectory_msgs", "std_srvs",

@@ -138,7 +138,7 @@ TOP_KEYS = set(TOP) | {"machine", "actuators", "sensors", "simulation", "excitat
                        "planner"}
 
 # Every numeric rule of the machine form by the section it checks, with what the section is: `hydro-ros machine check`
-# applies them, docs/reference/config.md is generated from them (hydro_ros.docgen).
+# applies them, docs/reference/config.md is generated from them (hydro_ros.tooling.docgen).
 REFERENCE: tuple[tuple[str, dict[str, Rule], str], ...] = (
     ("", TOP, "the machine: its sample rate and supply"),
     ("actuators.<name>.cylinder", CYLINDER, "the cylinder's data sheet"),

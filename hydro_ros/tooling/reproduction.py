@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from hydro_ros.benchresults import MISSING, commit_of, read_results, span
 from hydro_ros.contract.names import first_form
 from hydro_ros.fdi.rates import INTERVAL, false_alarm_text
+from hydro_ros.tooling.benchresults import MISSING, commit_of, read_results, span
 
 LEAK = {"external_leakage_a": "A", "external_leakage_b": "B", "internal_leakage": "internal"}
 P_I_NATURAL_FREQUENCY_HZ = 4.5  # P-I Fig. 4's maximum
