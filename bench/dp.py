@@ -127,15 +127,25 @@ def convergence(out_dir: Path) -> dict:
         ax.axhline(1.0 + CONVERGED, color="k", lw=0.8, ls=":")
         ax.set_xscale("log")
         ax.set_xlabel("grid points N_c N_v N_u")
+    _finish_paths_figure(fig, axes, ("horizontal", "vertical", "half_cycle"), "energy / finest grid's",
+                         f"DP grid convergence (full grid {full[0]} x {full[1]} x {full[2]} at scale 1; dotted: +{CONVERGED:.1%})",
+                         out_dir / "dp_convergence.png")
+    return summary
+
+
+def _finish_paths_figure(fig, axes, paths, ylabel: str, title: str, out: Path) -> None:
+    """One panel per K70M path: titled and gridded, the first labelled, the figure titled and written."""
+    import matplotlib.pyplot as plt
+
+    for ax, path in zip(axes, paths):
         ax.set_title(f"k70m {path}")
         ax.grid(alpha=0.3)
-    axes[0].set_ylabel("energy / finest grid's")
+    axes[0].set_ylabel(ylabel)
     axes[0].legend(fontsize=7)
-    fig.suptitle(f"DP grid convergence (full grid {full[0]} x {full[1]} x {full[2]} at scale 1; dotted: +{CONVERGED:.1%})")
+    fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(out_dir / "dp_convergence.png", dpi=100)
+    fig.savefig(out, dpi=100)
     plt.close(fig)
-    return summary
 
 
 def comparisons(out_dir: Path, machines: set[str], earlier: dict) -> dict:
@@ -320,14 +330,9 @@ def multistart(out_dir: Path) -> dict:
         ax.axhline(0.0, color="k", lw=0.8)
         for bound in (-100.0 * DISTINCT, 100.0 * DISTINCT):
             ax.axhline(bound, color="k", lw=0.8, ls=":")
-        ax.set_title(f"k70m {path}")
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("direct method's CP energy vs DP (CP) [%]")
-    axes[0].legend(fontsize=7)
-    fig.suptitle(f"The direct method from each seed (hollow: not a local optimum within limits); dotted: ±{DISTINCT:.1%}")
-    fig.tight_layout()
-    fig.savefig(out_dir / "dp_multistart.png", dpi=100)
-    plt.close(fig)
+    _finish_paths_figure(fig, axes, paths, "direct method's CP energy vs DP (CP) [%]",
+                         f"The direct method from each seed (hollow: not a local optimum within limits); dotted: ±{DISTINCT:.1%}",
+                         out_dir / "dp_multistart.png")
     return summary
 
 
