@@ -64,6 +64,8 @@ def test_make_bench_refuses_a_tree_whose_code_differs_from_its_commit(monkeypatc
 def test_a_benchmark_result_carries_its_commit_and_the_page_says_what_a_run_did_not_write(tmp_path, monkeypatch):
     from hydro_ros.tooling import benchresults
 
+    assert benchresults.RESULTS == REPO / "bench" / "results" and len(benchresults.read_results()) >= 20  # the pages read these
+
     written = json.loads(benchresults.write_result(tmp_path / "crane_cpu.json", {"commit": "typed", "cylinders": 3}).read_text())
     assert written["commit"] == benchresults.commit() != "typed" and written["cylinders"] == 3
     monkeypatch.setattr(benchresults, "RESULTS", tmp_path)
