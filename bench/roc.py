@@ -189,6 +189,7 @@ def plot(summary: dict, out: Path) -> None:
                          label=fault.replace("external_leakage_", "external ").replace("_", " "))
     axes[1].set_xscale("log")
     axes[1].set_xticks(sizes, [f"{s:g}" for s in sizes])
+    axes[1].xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     axes[1].set_xlabel("leak size [L/min at 10 MPa]")
     axes[1].set_ylabel("detection delay [s], median with bootstrap 95 % band")
     axes[1].set_title("at the commissioned threshold", fontsize=9)

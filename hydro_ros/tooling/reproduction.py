@@ -386,7 +386,7 @@ def _roc(roc: dict) -> str:
         return sum(r["detected"] for r in rows), sum(r["runs"] for r in rows)
 
     nominal = by_scale["1"]
-    curve = "; ".join(f"x{scale}: {by_scale[scale]['false_alarms']} false alarms, "
+    curve = "; ".join(f"x{scale}: {by_scale[scale]['false_alarms']} false alarm{'' if by_scale[scale]['false_alarms'] == 1 else 's'}, "
                       + ", ".join(f"{size:g} L/min {pooled(scale, size)[0]}/{pooled(scale, size)[1]}" for size in sizes)
                       for scale in by_scale)
     delays = "; ".join(f"{LEAK[kind]} " + ", ".join(
