@@ -89,7 +89,7 @@ def summarise(runs: list[dict], scales: list[float], sizes: list[float], seed: i
     out = {}
     for scale in (f"{s:g}" for s in scales):
         alarms = sum(len(r["alarms"][scale]) for r in free)
-        low, rate, high = false_alarm_rate(alarms, hours)
+        rate, low, high = false_alarm_rate(alarms, hours)
         row = {"false_alarms": alarms, "hours": round(hours, 3), "per_hour": round(rate, 3), "per_hour_interval": [round(low, 3), round(high, 2)],
                "leaks": {}}
         for fault in plant.LEAKS:
