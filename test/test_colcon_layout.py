@@ -36,6 +36,8 @@ def test_colcon_build_installs_executables_in_the_ament_index(tmp_path):
     assert (prefix / "share" / "hydro_ros" / "launch" / "machine.launch.py").is_file()
     pages = list(prefix.glob("lib/python3*/site-packages/hydro_ros/hmi/static/index.html"))
     assert pages and (pages[0].parent / "hmi.js").is_file()  # the HMI's page travels with the package
+    installed = pages[0].parents[2]
+    assert (installed / "planning" / "polish.py").is_file() and not (installed / "tooling").exists()  # the docs' tools stay behind
     assert (prefix / "share" / "hydro_ros" / "package.xml").is_file()
     assert (prefix / "share" / "hydro_ros" / "launch" / "crane_motion.launch.py").is_file()
 

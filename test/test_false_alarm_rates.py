@@ -64,6 +64,8 @@ def test_a_leak_run_is_detected_only_when_every_alarm_is_its_own_and_named_only_
     assert leak_run_verdict([alarm(21.0, "lift", "external_leakage_b")], "lift", "external_leakage_a", onset) == (1.0, None)
     assert leak_run_verdict([alarm(21.0, "lift", "external_leakage_b"), alarm(22.0, "lift", "external_leakage_a")], "lift",
                             "external_leakage_a", onset) == (1.0, None)  # another name came first
+    assert leak_run_verdict([alarm(21.0, "lift", "external_leakage_a"), alarm(22.0, "lift", "internal_leakage")], "lift",
+                            "external_leakage_a", onset) == (1.0, None)  # another name came after
     assert leak_run_verdict([alarm(19.0, "lift", "unisolated"), alarm(22.0, "lift", "external_leakage_a")], "lift",
                             "external_leakage_a", onset) == (None, None)  # an alarm before onset
     assert leak_run_verdict([alarm(22.0, "tilt", "unisolated"), alarm(22.0, "lift", "external_leakage_a")], "lift",

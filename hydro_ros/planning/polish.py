@@ -79,8 +79,11 @@ def polish(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory, 
                       constraints={"type": "ineq", "fun": lambda w: scored(w)[1]}, options={"maxiter": iterations, "ftol": 1e-7})
     candidate = moved(result.x)
     evaluation = evaluate(crane, samples, candidate)
-    after = scored(result.x)[0]
-    kept = all(evaluation["limits"].values()) and evaluation["tip_error_max_m"] < 1e-6
+    after, margins = scored(result.x)
+    # every limit kept as evaluate checks it, and none used further than the DP's own trajectory used it (whatever SLSQP's
+    # status: it may stop on constraints it calls incompatible at a point that keeps them all)
+    kept = all(evaluation["limits"].values()) and evaluation["tip_error_max_m"] < 1e-6 \
+        and margins.min() >= min(scored(np.zeros(basis.shape[1]))[1].min(), 0.0)
     info = {"before_J": before, "after_J": after, "iterations": int(result.nit), "status": result.message,
             "improved": bool(kept and after < before)}
     return (candidate if info["improved"] else trajectory), info

@@ -117,8 +117,8 @@ class RigSpread:
     spool_bandwidth: tuple[float, float] = (0.75, 1.0)  # x the data sheet's natural frequency
     friction: tuple[float, float] = (0.7, 1.6)  # x the config's coulomb, static and viscous terms
     oil_warmer: tuple[float, float] = (-6.0, 10.0)  # [K] a day's start against the reference temperature
-    overlap: float = 0.1  # a mobile valve's main spool overlap against the data sheet's
-    line_resistance: float = 1.0  # x the hoses' laminar resistance (0: the valve at the cylinder's ports)
+    overlap_spread: float = 0.1  # a mobile valve's main spool overlap against the data sheet's
+    line_resistance_scale: float = 1.0  # not a spread: x the hoses' laminar resistance (0: the valve at the cylinder's ports)
 
 
 @dataclass(frozen=True)
@@ -214,7 +214,7 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) 
         row[_C_OMEGA] = v.natural_frequency * rng.uniform(*spread.spool_bandwidth)
         row[_C_ZETA] = v.damping
         row[_C_HOSE_VOLUME] = f.hose_volume
-        row[_C_LINES] = spread.line_resistance
+        row[_C_LINES] = spread.line_resistance_scale
         row[_C_HOSE_MODULUS] = f.hose_bulk_modulus * max(1.0 + spread.hose_bulk_modulus * rng.standard_normal(), 0.3)
         row[_C_OIL_MODULUS] = f.oil_bulk_modulus * max(1.0 + spread.oil_bulk_modulus * rng.standard_normal(), 0.3)
         row[[_C_COULOMB, _C_STATIC, _C_STRIBECK, _C_VISCOUS]] = friction * (fr.coulomb + pads), friction * (fr.static + 1.2 * pads), \
@@ -222,7 +222,7 @@ def build_rig(machine: Machine, rig_seed: int, spread: RigSpread | None = None) 
         row[[_C_LINEAR, _C_RATIO]] = m.kind == "linear", m.ratio
         if v.mobile:
             row[[_C_MOBILE, _C_OVERLAP, _C_COMPENSATOR, _C_PILOT_GAIN]] = 1.0, \
-                v.deadzone * max(1.0 + spread.overlap * rng.standard_normal(), 0.5), \
+                v.deadzone * max(1.0 + spread.overlap_spread * rng.standard_normal(), 0.5), \
                 v.compensator_pressure_drop * max(1.0 + spread.notch_gain * rng.standard_normal(), 0.5), \
                 1.0 + 0.5 * spread.notch_gain * rng.standard_normal()
         row[[_C_STOP_LOW, _C_STOP_HIGH, _C_STOP_K, _C_STOP_D]] = sim.end_stop_lower, \
