@@ -24,6 +24,7 @@ from hydro_ros.planning.trajectory import ExtensionTrajectory, crane_motion, eva
 
 POLISH_KNOTS = 24  # interior knots of the correction: a knot per 0.25-0.4 s on the K70M's paths
 POLISH_ITERATIONS = 150
+MARGIN_SLACK = 1e-6  # of a limit: what SLSQP's constraint tolerance leaves past a limit the DP rides
 UNREACHABLE = -1.0  # a constraint value for a state the IK cannot reach (its motion is NaN)
 
 
@@ -83,7 +84,8 @@ def polish(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory, 
     # every limit kept as evaluate checks it, and none used further than the DP's own trajectory used it (whatever SLSQP's
     # status: it may stop on constraints it calls incompatible at a point that keeps them all)
     kept = all(evaluation["limits"].values()) and evaluation["tip_error_max_m"] < 1e-6 \
-        and margins.min() >= min(scored(np.zeros(basis.shape[1]))[1].min(), 0.0)
+        and margins.min() >= min(scored(np.zeros(basis.shape[1]))[1].min(), 0.0) - MARGIN_SLACK
     info = {"before_J": before, "after_J": after, "iterations": int(result.nit), "status": result.message,
+            "margin_min": float(margins.min()),
             "improved": bool(kept and after < before)}
     return (candidate if info["improved"] else trajectory), info
