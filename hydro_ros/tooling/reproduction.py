@@ -554,8 +554,8 @@ CLAIMS: list[Claim] = [
           "path's moving limit edge (placeholder geometry)", _grid_convergence, files=("dp",), part="convergence"),
     Claim("P-V, P-VI: the DP's answer is the global optimum of its cost (issue 55's certificate: never above a feasible "
           "baseline in its own cost by more than 0.5 %)", "PARTLY: not on vertical lines, where the optimum rides a moving limit "
-          "edge or needs a finer velocity and control grid; polished, LS still not on some vertical lines far out (the row "
-          "names them), where the polish ends in a local minimum above the pseudo-inverses", _certificate,
+          "edge or needs a finer velocity and control grid; polished, still not on some vertical lines (the row names them): "
+          "in LS the polish ends in a local minimum above the pseudo-inverses, in CP once on a limit it may not pass", _certificate,
           files=(*DP_SMALLEST_START, *DP_MIDDLE_START, "savings_map", "dp"), part="polish"),
     Claim("P-V: a global method beats local optimisation, the problem having local minima (the case for DP)",
           "NOT: on the K70M placeholder paths the CP problem looks unimodal; every seed the direct method converges from ends "
