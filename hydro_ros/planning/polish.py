@@ -74,18 +74,16 @@ def polish(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory, 
             seen[key] = float(ts * stage_power(cost, crane, motion)[stages].sum()), _limit_margins(crane, motion)
         return seen[key]
 
-    before = scored(np.zeros(basis.shape[1]))[0]
+    before, start_margins = scored(np.zeros(basis.shape[1]))
+    floor = min(start_margins.min(), 0.0) - MARGIN_SLACK  # no limit used further than the DP's own trajectory used it
     scale = abs(before) if before else 1.0
     result = minimize(lambda w: scored(w)[0] / scale, np.zeros(basis.shape[1]), method="SLSQP",
                       constraints={"type": "ineq", "fun": lambda w: scored(w)[1]}, options={"maxiter": iterations, "ftol": 1e-7})
     candidate = moved(result.x)
     evaluation = evaluate(crane, samples, candidate)
     after, margins = scored(result.x)
-    # every limit kept as evaluate checks it, and none used further than the DP's own trajectory used it (whatever SLSQP's
-    # status: it may stop on constraints it calls incompatible at a point that keeps them all)
-    kept = all(evaluation["limits"].values()) and evaluation["tip_error_max_m"] < 1e-6 \
-        and margins.min() >= min(scored(np.zeros(basis.shape[1]))[1].min(), 0.0) - MARGIN_SLACK
+    # judged here whatever SLSQP's status: it may stop on constraints it calls incompatible at a point that keeps them all
+    kept = all(evaluation["limits"].values()) and evaluation["tip_error_max_m"] < 1e-6 and margins.min() >= floor
     info = {"before_J": before, "after_J": after, "iterations": int(result.nit), "status": result.message,
-            "margin_min": float(margins.min()),
-            "improved": bool(kept and after < before)}
+            "margin_min": float(margins.min()), "improved": bool(kept and after < before)}
     return (candidate if info["improved"] else trajectory), info
