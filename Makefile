@@ -49,31 +49,11 @@ test-fast: lint
 demo: setup
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-42} $(VENV)/bin/hydro-ros demo --out out/demo --linger $(HMI_LINGER)
 
-# every result file stamped with the commit it ran on: refused on a tree with uncommitted code unless ALLOW_DIRTY=1
+# every benchmark (hydro_ros/tooling/benchrun.py), each result file stamped with the commit and the code it ran on; a step whose files
+# already hold the code as it is is skipped, so an interrupted run goes on where it stopped. Refused on uncommitted code
+# unless ALLOW_DIRTY=1. BENCH_ARGS: --force (rerun all), --only NAME, --list, --dask local or --dask tcp://HOST:8786
 bench: setup $(CHROMIUM)
-	@[ "$(ALLOW_DIRTY)" = 1 ] || $(PY) -m hydro_ros.tooling.benchresults
-	$(PY) bench/run.py --out bench/results/results.json
-	$(PY) bench/discrepancy_suite.py
-	$(PY) bench/dp.py --out bench/results/dp.json
-	$(PY) bench/trajectories.py --out bench/results/trajectories.json
-	$(PY) bench/hmi.py --out bench/results/hmi.json
-	$(PY) bench/commissioning.py --out bench/results/commissioning.json
-	$(PY) bench/commissioning.py --config config/sam_mobile.yaml --out bench/results/commissioning_mobile.json
-	$(PY) bench/commissioning_memory.py --out bench/results/commissioning_memory.json
-	$(PY) bench/arm_commissioning.py --out bench/results/arm_commissioning.json
-	$(PY) bench/arm_commissioning.py --config config/sam.yaml --out bench/results/sam_commissioning_apart.json
-	$(PY) bench/roc.py --out bench/results/roc.json
-	$(PY) bench/crane_monitoring.py --out bench/results/crane_monitoring.json
-	$(PY) bench/crane_cpu.py --out bench/results/crane_cpu.json
-	$(PY) bench/crane_commissioning.py --out bench/results/crane_commissioning.json
-	$(PY) bench/crane_apart.py --out bench/results/crane_apart.json
-	$(PY) bench/fleet.py --out bench/results/fleet.json
-	$(PY) bench/mems.py --out bench/results/mems.json
-	$(PY) bench/savings_map.py --out bench/results/savings_map.json
-	$(PY) bench/gsa_convergence.py --out bench/results/gsa_convergence.json
-	$(PY) bench/safety_soak.py --duration 1800 --out bench/results/safety_soak.json
-	$(PY) bench/halt_latency.py --trials 40 --out bench/results/halt_latency.json
-	$(PY) bench/mutants.py --out bench/results/mutants.json
+	$(PY) -m hydro_ros.tooling.benchrun $(if $(filter 1,$(ALLOW_DIRTY)),--allow-dirty) $(BENCH_ARGS)
 
 docs: setup
 	$(PY) -m hydro_ros.tooling.docgen docs

@@ -19,9 +19,9 @@ these). Its floor is the model with the rig's numbers (``nearest_model``).
 
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -76,7 +76,7 @@ def _form(name: str, forms: dict[str, str]) -> str | None:
 EXAMPLE = ({"valve_delay": 0.1, "valve_deadzone": 0.08}, {})  # its report.html is kept as bench/results/discrepancy_example.html
 
 
-def run_row(config: Machine, effects: dict[str, float], forms: dict[str, str]) -> dict:
+def run_row(config: Machine, effects: dict[str, float], forms: dict[str, str], out_dir: Path) -> dict:
     """One row: the bag, the workflow on it, and the plant's own floor."""
     with tempfile.TemporaryDirectory() as tmp:
         data = read_bag(hidden_effect_bag(config, Path(tmp) / "bag", duration=60.0, forms=forms, also=effects))
@@ -85,7 +85,7 @@ def run_row(config: Machine, effects: dict[str, float], forms: dict[str, str]) -
         wall = time.perf_counter() - start
         best = floor(hidden_effect_plant(config, forms=forms, also=effects), config, data)
         if (effects, forms) == EXAMPLE:
-            shutil.copy(Path(tmp) / "out" / "report.html", RESULTS / "discrepancy_example.html")
+            shutil.copy(Path(tmp) / "out" / "report.html", out_dir / "discrepancy_example.html")
     return row(report, effects, forms, best, wall)
 
 
@@ -130,32 +130,37 @@ def independent_row(config: Machine, overlap: float) -> dict:
                     "all": [fit_gap(v, 1) for v in PROFILE_VALUES]}}
 
 
-def independent(config: Machine) -> list[dict]:
+def independent(config: Machine, out_dir: Path) -> list[dict]:
     rows = [independent_row(config, overlap) for overlap in tqdm(INDEPENDENT_OVERLAPS, desc="independent plant", unit="bag")]
-    write_result(RESULTS / "discrepancy_independent.json", {"plant": "hydro_ros.studies.independent_plant", "rows": rows})
+    write_result(out_dir / "discrepancy_independent.json", {"plant": "hydro_ros.studies.independent_plant", "rows": rows})
     plot_gap_profiles([r["profile"] | {"title": f"plain overlap {r['hidden']['valve_deadzone']:g}", "truth": r["hidden"]["valve_deadzone"],
                                        "named": r["named"].get("valve_deadzone", {}).get("value")} for r in rows],
-                      RESULTS / "discrepancy_independent.png")
+                      out_dir / "discrepancy_independent.png")
     print(table(rows))
     return rows
 
 
 def main() -> int:
-    if "--table" in sys.argv:
-        for name in ("discrepancy_suite", "discrepancy_independent"):
-            print(table(json.loads((RESULTS / f"{name}.json").read_text())["rows"]))
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, default=RESULTS / "discrepancy_suite.json",
+                        help="the suite's file; discrepancy_independent.{json,png} and discrepancy_example.html are written beside it")
+    parser.add_argument("--table", action="store_true", help="print the tables from the files, run nothing")
+    parser.add_argument("--independent", action="store_true", help="the independent plant's rows only")
+    args = parser.parse_args()
+    out_dir = args.out.parent
+    if args.table:
+        for path in (args.out, out_dir / "discrepancy_independent.json"):
+            print(table(json.loads(path.read_text())["rows"]))
         return 0
     config = load_machine_config(default_config_path("sam"))
-    if "--independent" in sys.argv:
-        independent(config)
-        return 0
-    rows = []
-    for effects, forms in tqdm(SUITE, desc="discrepancy suite", unit="bag"):
-        rows.append(run_row(config, effects, forms))
-        tqdm.write(json.dumps(rows[-1]))
-    write_result(RESULTS / "discrepancy_suite.json", {"rows": rows})
-    print(table(rows))
-    independent(config)
+    if not args.independent:
+        rows = []
+        for effects, forms in tqdm(SUITE, desc="discrepancy suite", unit="bag"):
+            rows.append(run_row(config, effects, forms, out_dir))
+            tqdm.write(json.dumps(rows[-1]))
+        write_result(args.out, {"rows": rows})
+        print(table(rows))
+    independent(config, out_dir)
     return 0
 
 

@@ -51,14 +51,15 @@ def test_nothing_cites_files_the_repository_does_not_ship():
 
 
 def test_make_bench_refuses_a_tree_whose_code_differs_from_its_commit(monkeypatch):
-    from hydro_ros.tooling import benchresults
+    from hydro_ros.tooling import benchresults, benchrun
 
     monkeypatch.setattr(benchresults, "commit", lambda: "abc1234+changes")
     with pytest.raises(SystemExit, match=r"uncommitted changes outside bench/results .*ALLOW_DIRTY=1"):
-        benchresults.require_clean_tree()
+        benchrun.main(["--only", "mems"])
     monkeypatch.setattr(benchresults, "commit", lambda: "abc1234")
     benchresults.require_clean_tree()
-    assert "$(PY) -m hydro_ros.tooling.benchresults" in (REPO / "Makefile").read_text().split("\nbench:")[1].split("\n\n")[0]
+    recipe = (REPO / "Makefile").read_text().split("\nbench:")[1].split("\n\n")[0]
+    assert "$(PY) -m hydro_ros.tooling.benchrun $(if $(filter 1,$(ALLOW_DIRTY)),--allow-dirty)" in recipe
 
 
 def test_a_benchmark_result_carries_its_commit_and_the_page_says_what_a_run_did_not_write(tmp_path, monkeypatch):

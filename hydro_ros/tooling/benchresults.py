@@ -2,36 +2,53 @@
 table written from those files (no figure typed by hand).
 
 Each row reads one measurement and the reference it is compared with in the same run; a file or a key a run did not
-write shows as "not in bench/results". Each file's commit is the one its run recorded (older runs recorded none).
+write shows as "not in bench/results". Each file's commit is the one its run recorded (older runs recorded none), and
+its ``code`` the hash of the code that ran (:func:`code_hash`), which ``make bench`` (:mod:`hydro_ros.tooling.benchrun`) compares to resume a run.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-RESULTS = Path(__file__).resolve().parents[2] / "bench" / "results"
+ROOT = Path(__file__).resolve().parents[2]  # the checkout
+RESULTS = ROOT / "bench" / "results"
 MISSING = "not in bench/results"
+# what is written from the results, so not what ran: regenerating the docs after a run leaves its results current
+NOT_CODE = ("bench/results", "docs", "README.md")
+
+
+def _git(*args: str, root: Path = ROOT, env: dict[str, str] | None = None) -> str:
+    return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, env=env).stdout.strip()
+
+
+def code_hash(root: Path = ROOT) -> str:
+    """The git tree hash of the working tree as it is (uncommitted and new files included, ignored ones not) without
+    bench/results, docs/ and README.md: the code a result ran on, equal for equal code whatever the commit."""
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, "GIT_INDEX_FILE": str(Path(tmp) / "index")}
+        _git("add", "--all", "--", ".", *(f":(exclude){path}" for path in NOT_CODE), root=root, env=env)
+        return _git("write-tree", root=root, env=env) or "unknown"
 
 
 def commit() -> str:
-    """The checked-out commit, ``+changes`` when the tree differs from it, a new file not yet committed included (results
-    written since do not count): what a result ran on."""
-    def git(*args: str) -> str:
-        return subprocess.run(["git", *args], cwd=RESULTS.parent.parent, capture_output=True, text=True).stdout.strip()
-
-    head = git("rev-parse", "--short", "HEAD")
-    changed = git("status", "--porcelain", "--untracked-files=normal", "--", ".", f":(exclude){RESULTS.relative_to(RESULTS.parent.parent)}")
+    """The checked-out commit, ``+changes`` when the code differs from it, a new file not yet committed included (results
+    and the docs written from them do not count): what a result ran on."""
+    head = _git("rev-parse", "--short", "HEAD")
+    changed = _git("status", "--porcelain", "--untracked-files=normal", "--", ".", *(f":(exclude){path}" for path in NOT_CODE))
     return (head + ("+changes" if changed else "")) if head else "unknown"
 
 
 def write_result(path: str | Path, result: dict[str, Any]) -> Path:
-    """``result`` as JSON at ``path``, with the commit it ran on first."""
+    """``result`` as JSON at ``path``, with the commit and the code it ran on first."""
     path = Path(path)
-    path.write_text(json.dumps({"commit": commit(), **{k: v for k, v in result.items() if k != "commit"}}, indent=2) + "\n")
+    stamps = {"commit": commit(), "code": code_hash()}
+    path.write_text(json.dumps({**stamps, **{k: v for k, v in result.items() if k not in stamps}}, indent=2) + "\n")
     return path
 
 
@@ -247,6 +264,3 @@ def require_clean_tree() -> None:
         raise SystemExit(f"make bench: the tree has uncommitted changes outside bench/results (commit {ran_on}): commit them first, "
                          "or run make bench ALLOW_DIRTY=1 (the results will say +changes)")
 
-
-if __name__ == "__main__":
-    require_clean_tree()

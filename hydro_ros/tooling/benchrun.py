@@ -1,0 +1,144 @@
+"""`make bench` (``python -m hydro_ros.tooling.benchrun``): every benchmark, each skipped when its result files already hold the code as it is (resumable).
+
+A step is done when every file it writes in bench/results carries ``code`` equal to :func:`code_hash` of the tree now
+(the code without bench/results and the docs written from them); an interrupted ``make bench`` therefore goes on where
+it stopped, and a change of code reruns everything. ``--force`` reruns every step; ``--only NAME`` picks steps.
+
+``--dask ADDRESS`` (a ``dask.distributed`` scheduler, ``local`` for a cluster of this machine's cores) runs the
+evaluations on its workers, which must share this checkout (the same path); the steps whose speeds or latencies the
+benchmark page reads run here, one at a time, before them, so no other work skews what they time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from hydro_ros.tooling.benchresults import RESULTS, ROOT, code_hash, require_clean_tree
+
+
+@dataclass(frozen=True)
+class Step:
+    name: str  # its main file, bench/results/<name>.json
+    script: str  # bench/<script>.py
+    args: tuple[str, ...] = ()
+    also: tuple[str, ...] = ()  # the other stamped files it writes in bench/results
+    timed: bool = False  # the benchmark page reads a speed or a latency from it: run alone
+
+    @property
+    def writes(self) -> tuple[str, ...]:
+        return (self.name, *self.also)
+
+    def command(self) -> list[str]:
+        return [sys.executable, str(ROOT / "bench" / f"{self.script}.py"), *self.args, "--out", f"bench/results/{self.name}.json"]
+
+
+def _step(name: str, *args: str, script: str | None = None, also: tuple[str, ...] = (), timed: bool = False) -> Step:
+    return Step(name, script or name, args, also, timed)
+
+
+STEPS = (
+    _step("results", script="run", also=("fdi_eval", "fdi_parity_eval", "gsa"), timed=True),
+    _step("discrepancy_suite", also=("discrepancy_independent",)),
+    _step("dp", timed=True, also=tuple(f"dp_compare_{case}" for case in (  # bench/dp.py's comparisons
+        "k70m_horizontal", "k70m_vertical", "k70m_half_cycle", "k70m_horizontal_middle", "k70m_vertical_middle",
+        "k70m_half_cycle_middle", "crane3dof_triangle", "excavator_level_cut", "excavator_lift_out"))),
+    _step("trajectories", timed=True),
+    _step("hmi", timed=True),
+    _step("commissioning"),
+    _step("commissioning_mobile", "--config", "config/sam_mobile.yaml", script="commissioning"),
+    _step("commissioning_memory", timed=True),
+    _step("arm_commissioning"),
+    _step("sam_commissioning_apart", "--config", "config/sam.yaml", script="arm_commissioning"),
+    _step("roc"),
+    _step("crane_monitoring"),
+    _step("crane_cpu", timed=True),
+    _step("crane_commissioning"),
+    _step("crane_apart"),
+    _step("fleet", timed=True),
+    _step("mems"),
+    _step("savings_map"),
+    _step("gsa_convergence"),
+    _step("safety_soak", "--duration", "1800", timed=True),
+    _step("halt_latency", "--trials", "40", timed=True),
+    _step("mutants"),
+)
+
+
+def stamped_code(name: str, results: Path = RESULTS) -> str | None:
+    """The code hash a result file records (None: no file, unreadable, or written before files recorded it)."""
+    try:
+        data = json.loads((results / f"{name}.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return data.get("code") if isinstance(data, dict) else None
+
+
+def pending(steps: tuple[Step, ...], code: str, results: Path = RESULTS) -> list[Step]:
+    """The steps some of whose files do not hold ``code``."""
+    return [step for step in steps if any(stamped_code(name, results) != code for name in step.writes)]
+
+
+def run_step(step: Step) -> tuple[str, int, float]:
+    """Runs one step from the checkout's root: (name, exit status, seconds)."""
+    start = time.monotonic()
+    status = subprocess.run(step.command(), cwd=ROOT, check=False).returncode
+    return step.name, status, time.monotonic() - start
+
+
+def _on_dask(steps: list[Step], address: str) -> list[tuple[str, int, float]]:
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise SystemExit("make bench --dask: dask.distributed is not installed (pip install 'dask[distributed]')") from None
+    cluster = LocalCluster(threads_per_worker=1) if address == "local" else None
+    with Client(cluster or address) as client:
+        futures = [client.submit(run_step, step, key=f"bench-{step.name}", pure=False) for step in steps]
+        done = []
+        for future in as_completed(futures):
+            done.append(future.result())
+            print(f"bench: {done[-1][0]} finished on dask (status {done[-1][1]}, {done[-1][2] / 60:.1f} min)", flush=True)
+    if cluster is not None:
+        cluster.close()
+    return done
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--force", action="store_true", help="rerun every step, current or not")
+    parser.add_argument("--only", action="append", choices=[s.name for s in STEPS], help="these steps only (repeatable)")
+    parser.add_argument("--dask", metavar="ADDRESS", help="run the untimed steps on this dask.distributed scheduler ('local': here)")
+    parser.add_argument("--allow-dirty", action="store_true", help="run on uncommitted code (its results say +changes)")
+    parser.add_argument("--list", action="store_true", help="print each step and whether it is current, run nothing")
+    args = parser.parse_args(argv)
+    if not (args.allow_dirty or args.list):
+        require_clean_tree()
+    code = code_hash()
+    chosen = tuple(s for s in STEPS if not args.only or s.name in args.only)
+    todo = list(chosen) if args.force else pending(chosen, code, RESULTS)
+    if args.list:
+        for step in chosen:
+            print(f"{step.name:28s} {'to run' if step in todo else 'current'}  ({', '.join(step.writes)})")
+        return 0
+    print(f"bench: {len(todo)} of {len(chosen)} steps to run on code {code[:12]}"
+          + (f"; current, skipped: {', '.join(s.name for s in chosen if s not in todo)}" if len(todo) < len(chosen) else ""), flush=True)
+    alone = [s for s in todo if s.timed or not args.dask]
+    results = []
+    for step in alone:
+        print(f"bench: {step.name}: {' '.join(step.command()[1:])}", flush=True)
+        results.append(run_step(step))
+    if args.dask and len(alone) < len(todo):
+        results += _on_dask([s for s in todo if s not in alone], args.dask)
+    failed = [name for name, status, _ in results if status != 0]
+    if failed:
+        print(f"bench: failed: {', '.join(failed)} (their files are not current; make bench reruns only what is not)", file=sys.stderr)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,104 @@
+"""make bench's stamps and its resuming: the code hash follows the code and nothing written from the results, a step
+runs again exactly when one of its files does not hold the code as it is, and --dask runs the untimed steps on a
+cluster after the timed ones ran here alone."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from hydro_ros.tooling import benchrun
+from hydro_ros.tooling.benchresults import code_hash, write_result
+
+
+def _git(root: Path, *args: str) -> None:
+    subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args], cwd=root, check=True, capture_output=True)
+
+
+@pytest.fixture()
+def checkout(tmp_path) -> Path:
+    for name, text in {"hydro_ros/model.py": "K = 1\n", "docs/model.md": "K is 1\n", "README.md": "read me\n",
+                       "bench/results/r.json": "{}\n", ".gitignore": "out/\n"}.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    _git(tmp_path, "init", "-q")
+    _git(tmp_path, "add", "-A")
+    _git(tmp_path, "commit", "-qm", "c")
+    return tmp_path
+
+
+def test_the_code_hash_follows_the_code_committed_or_not_and_nothing_written_from_the_results(checkout):
+    committed = code_hash(checkout)
+    assert len(committed) == 40
+    (checkout / "docs" / "model.md").write_text("K is 2\n")
+    (checkout / "README.md").write_text("new figures\n")
+    (checkout / "bench" / "results" / "r.json").write_text('{"x": 1}\n')
+    (checkout / "out").mkdir()
+    (checkout / "out" / "scratch.txt").write_text("ignored\n")
+    assert code_hash(checkout) == committed
+    (checkout / "hydro_ros" / "model.py").write_text("K = 2\n")
+    changed = code_hash(checkout)
+    assert changed != committed
+    (checkout / "hydro_ros" / "new.py").write_text("")  # a file not yet added counts: it ran
+    assert code_hash(checkout) not in (committed, changed)
+    (checkout / "hydro_ros" / "new.py").unlink()
+    (checkout / "hydro_ros" / "model.py").write_text("K = 1\n")
+    assert code_hash(checkout) == committed
+
+
+def test_a_step_is_pending_until_every_file_it_writes_holds_the_code(tmp_path):
+    steps = (benchrun.Step("a", "a"), benchrun.Step("b", "b", also=("b_more",)), benchrun.Step("c", "c"))
+    (tmp_path / "a.json").write_text(json.dumps({"commit": "x", "code": "new"}))
+    (tmp_path / "b.json").write_text(json.dumps({"commit": "x", "code": "new"}))
+    (tmp_path / "b_more.json").write_text(json.dumps({"commit": "x", "code": "old"}))  # half of b from an older run
+    (tmp_path / "c.json").write_text("{not json")  # an interrupted write
+    assert [s.name for s in benchrun.pending(steps, "new", tmp_path)] == ["b", "c"]
+    assert [s.name for s in benchrun.pending(steps, "old", tmp_path)] == ["a", "b", "c"]
+    (tmp_path / "b_more.json").write_text(json.dumps({"commit": "x"}))  # written before files recorded their code
+    assert [s.name for s in benchrun.pending(steps, "new", tmp_path)] == ["b", "c"]
+
+
+def test_a_result_file_records_the_code_that_wrote_it(tmp_path):
+    written = json.loads(write_result(tmp_path / "r.json", {"code": "forged", "value": 1}).read_text())
+    assert written["code"] == code_hash() and written["value"] == 1 and list(written)[:2] == ["commit", "code"]
+
+
+def test_every_result_file_is_written_by_one_step_and_the_timed_steps_are_those_the_benchmark_page_reads():
+    from hydro_ros.tooling.benchresults import RESULTS, ROWS
+
+    written = {name for step in benchrun.STEPS for name in step.writes}
+    assert {path.stem for path in RESULTS.glob("*.json")} == written
+    assert len(written) == sum(len(step.writes) for step in benchrun.STEPS)  # no file written by two steps
+    for step in benchrun.STEPS:
+        assert (benchrun.ROOT / "bench" / f"{step.script}.py").is_file(), step.script
+    assert {s.name for s in benchrun.STEPS if s.timed} <= {name for name, _, _ in ROWS}
+
+
+def test_resuming_runs_only_the_pending_steps_timed_ones_here_first_the_rest_on_dask(tmp_path, monkeypatch):
+    from dask.distributed import LocalCluster
+
+    steps = (benchrun.Step("speed", "s", timed=True), benchrun.Step("eval", "e"), benchrun.Step("done", "d"),
+             benchrun.Step("eval2", "e2"))
+    (tmp_path / "done.json").write_text(json.dumps({"code": "now"}))
+    log = tmp_path / "ran.log"  # a file, not a list: dask hands its workers a copy of the function
+
+    def run_step(step: benchrun.Step) -> tuple[str, int, float]:
+        import threading
+
+        with log.open("a") as f:
+            f.write(f"{step.name} {threading.current_thread().name}\n")
+        return step.name, 1 if step.name == "eval2" else 0, 0.0
+
+    monkeypatch.setattr(benchrun, "STEPS", steps)
+    monkeypatch.setattr(benchrun, "RESULTS", tmp_path)
+    monkeypatch.setattr(benchrun, "code_hash", lambda: "now")
+    monkeypatch.setattr(benchrun, "run_step", run_step)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        status = benchrun.main(["--allow-dirty", "--dask", cluster.scheduler_address])
+    assert status == 1  # eval2 failed
+    ran = [line.split() for line in log.read_text().splitlines()]
+    assert ran[0] == ["speed", "MainThread"]  # first, and here
+    assert sorted(name for name, thread in ran[1:] if thread != "MainThread") == ["eval", "eval2"]
