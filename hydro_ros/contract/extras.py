@@ -11,7 +11,7 @@ from hydro_ros.contract.errors import InputError
 OPTIONAL = {
     "SALib": ("SALib", "hydro-ros gsa (Sobol indices)"),
     "casadi": ("casadi", "hydro-ros dp compare (the direct-collocation baseline)"),
-    "distributed": ("distributed", "hydro-ros db build --scheduler (a Dask cluster)"),
+    "distributed": ("distributed", "hydro-ros db build and fleet analyse --scheduler, make bench --dask (a Dask cluster)"),
     "mcap": ("mcap", "reading bags with the mcap library"),
     "foxglove": ("foxglove-sdk", "the live Foxglove server"),
 }

@@ -19,6 +19,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from hydro_ros.contract.errors import InputError
+from hydro_ros.contract.extras import optional_module
 from hydro_ros.tooling.benchresults import RESULTS, ROOT, code_hash, require_clean_tree
 
 
@@ -93,14 +95,14 @@ def run_step(step: Step) -> tuple[str, int, float]:
 
 def _on_dask(steps: list[Step], address: str) -> list[tuple[str, int, float]]:
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
-    except ImportError:
-        raise SystemExit("make bench --dask: dask.distributed is not installed (pip install 'dask[distributed]')") from None
-    cluster = LocalCluster(threads_per_worker=1) if address == "local" else None
-    with Client(cluster or address) as client:
+        distributed = optional_module("distributed")
+    except InputError as exc:
+        raise SystemExit(f"make bench --dask: {exc}") from None
+    cluster = distributed.LocalCluster(threads_per_worker=1) if address == "local" else None
+    with distributed.Client(cluster or address) as client:
         futures = [client.submit(run_step, step, key=f"bench-{step.name}", pure=False) for step in steps]
         done = []
-        for future in as_completed(futures):
+        for future in distributed.as_completed(futures):
             done.append(future.result())
             print(f"bench: {done[-1][0]} finished on dask (status {done[-1][1]}, {done[-1][2] / 60:.1f} min)", flush=True)
     if cluster is not None:
