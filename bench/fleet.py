@@ -55,7 +55,7 @@ def timed(root: Path, out: Path, **where) -> dict:
     wall = time.perf_counter() - began
     cores = where.get("workers") or 1
     hours = RECORDINGS * RECORDING_S / 3600.0
-    return {"ran_on": report["ran_on"], "wall_s": wall, "cores": cores, "recording_hours": hours,
+    return {"ran_on": report.ran_on, "wall_s": wall, "cores": cores, "recording_hours": hours,
             "one_hour_recordings_per_core_hour": hours / (wall * cores / 3600.0)}
 
 

@@ -97,15 +97,16 @@ def test_the_same_results_on_a_dask_cluster(fleet, tmp_path):
     local = analyse(fleet, tmp_path / "local", workers=1)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         dask = analyse(fleet, tmp_path / "dask", scheduler=cluster.scheduler_address)
-    assert dask["ran_on"].startswith("Dask") and dask["analysed"] == 9
-    for name, machine in local["machines"].items():
-        assert dask["machines"][name]["flagged"] == machine["flagged"]
-        for actuator, entry in machine["actuators"].items():
-            other = dask["machines"][name]["actuators"][actuator]
-            for mine, theirs in zip(entry["recordings"], other["recordings"]):
-                assert mine["alarm"] == theirs["alarm"] and mine["start_unix_s"] == theirs["start_unix_s"]
-                for leak, value in mine["leak_l_min"].items():  # another process's BLAS may round the last digits otherwise
-                    assert theirs["leak_l_min"][leak] == pytest.approx(value, abs=1e-9)
+    assert dask.ran_on.startswith("Dask") and dask.analysed == 9
+    for name, machine in local.machines.items():
+        assert dask.machines[name].flagged == machine.flagged
+        for actuator, history in machine.actuators.items():
+            other = dask.machines[name].actuators[actuator]
+            assert len(other.recordings) == len(history.recordings) > 0
+            for mine, theirs in zip(history.recordings, other.recordings):
+                assert mine.alarm == theirs.alarm and mine.start_unix_s == theirs.start_unix_s
+                for leak, value in mine.leak_l_min.items():  # another process's BLAS may round the last digits otherwise
+                    assert theirs.leak_l_min[leak] == pytest.approx(value, abs=1e-9)
 
 
 def test_a_trend_needs_a_day_of_recordings_and_a_foreign_recording_is_listed_not_analysed(tmp_path):
@@ -117,9 +118,9 @@ def test_a_trend_needs_a_day_of_recordings_and_a_foreign_recording_is_listed_not
     from hydro_ros.workflows.fleet import trend
 
     short = trend([(1.7e9, 0.1), (1.7e9 + 0.001, 0.3), (1.7e9 + 0.002, 0.6)], limit=0.5)
-    assert short["slope_l_min_per_day"] is None and not short["growing"] and "too short to trend" in short["too_short"]
+    assert short.slope_l_min_per_day is None and not short.growing and "too short to trend" in short.too_short
     long = trend([(1.7e9, 0.1), (1.7e9 + DAY_S, 0.3), (1.7e9 + 2 * DAY_S, 0.6)], limit=5.0)
-    assert long["slope_l_min_per_day"] == pytest.approx(0.25) and not long["too_short"]
+    assert long.slope_l_min_per_day == pytest.approx(0.25) and not long.too_short
 
     folder = tmp_path / "fleet" / "sam1"
     folder.mkdir(parents=True)
@@ -131,6 +132,6 @@ def test_a_trend_needs_a_day_of_recordings_and_a_foreign_recording_is_listed_not
             writer.write_machine_block(block)
     shutil.copytree(folder / "foreign", folder / "copy_of_foreign")
     report = analyse(tmp_path / "fleet", tmp_path / "out")
-    assert report["recordings"] == 1 and report["analysed"] == 1 and len(report["duplicates"]) == 1
-    assert len(report["foreign"]) == 1 and "recorded on machine 'boom_arm'" in report["foreign"][0]["error"]
-    assert report["machines"] == {} and report["unreadable"] == []
+    assert report.recordings == 1 and report.analysed == 1 and len(report.duplicates) == 1
+    assert len(report.foreign) == 1 and "recorded on machine 'boom_arm'" in report.foreign[0].error
+    assert report.machines == {} and report.unreadable == []

@@ -57,11 +57,11 @@ def cmd_fleet_analyse(args: argparse.Namespace) -> int:
     with tqdm(unit="recording", desc="fleet", disable=args.quiet) as bar:
         report = analyse(Path(args.dir), Path(args.out), scheduler=args.scheduler, workers=args.workers, limit=args.service_limit,
                          progress=lambda _: bar.update())
-    flagged = [f"{name}/{actuator}" for name, machine in report["machines"].items() for actuator in machine["flagged"]]
-    print(json.dumps({"fleet": str(Path(args.out) / "fleet.json"), "recordings": report["recordings"], "analysed": report["analysed"],
-                      "already_analysed": report["already_analysed"], "duplicates": len(report["duplicates"]),
-                      "unreadable": len(report["unreadable"]), "foreign": len(report["foreign"]), "flagged": flagged,
-                      "ran_on": report["ran_on"]}))
+    flagged = [f"{name}/{actuator}" for name, machine in report.machines.items() for actuator in machine.flagged]
+    print(json.dumps({"fleet": str(Path(args.out) / "fleet.json"), "recordings": report.recordings, "analysed": report.analysed,
+                      "already_analysed": report.already_analysed, "duplicates": len(report.duplicates),
+                      "unreadable": len(report.unreadable), "foreign": len(report.foreign), "flagged": flagged,
+                      "ran_on": report.ran_on}))
     return 0
 
 

@@ -65,6 +65,7 @@ STEPS = (
     _step("fleet", timed=True),
     _step("mems"),
     _step("savings_map"),
+    _step("mount_sweep"),
     _step("gsa_convergence"),
     _step("safety_soak", "--duration", "1800", timed=True),
     _step("halt_latency", "--trials", "40", timed=True),

@@ -24,10 +24,10 @@ import io
 import json
 import math
 import sqlite3
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, as_completed
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -53,12 +53,104 @@ GROWTH_MIN_L_MIN = 0.1  # [L/min at 10 MPa] growth over the recordings' span bel
 # P-II names (0.17), and within what a changing payload and temperature move an estimate (INFERRED)
 
 
-@dataclass
+@dataclass(frozen=True)
 class Unit:
     machine: str
     config: str
     bag: str
     content_hash: str
+
+
+@dataclass(frozen=True)
+class FirstAlarm:
+    fault: str  # the first isolated fault, else the first alarm's (unisolated)
+    first_s: float  # [s from the recording's start] the first alarm
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One recording of one actuator: the monitor's first alarm and the leaks [L/min at 10 MPa] the recording holds."""
+
+    bag: str
+    actuator: str
+    start_unix_s: float
+    duration_s: float
+    alarm: FirstAlarm | None
+    leak_l_min: dict[str, float]  # by SHORT name
+    leak_sigma_l_min: dict[str, float]
+    coverage: dict[str, bool]  # per notch: open long enough to tell the leaks from the valve
+    errors: list[str]  # what the reader reported (a recording with errors is kept out of the trend)
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> Verdict:
+        alarm = data["alarm"]
+        return cls(**{**data, "alarm": None if alarm is None else FirstAlarm(**alarm)})
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """What one unit of work returns: its verdicts, or why the recording was not analysed."""
+
+    unit: Unit
+    verdicts: list[Verdict] = field(default_factory=list)
+    error: str | None = None
+
+    @property
+    def foreign(self) -> bool:
+        return self.error is not None and self.error.startswith("foreign:")
+
+
+@dataclass(frozen=True)
+class Failure:
+    machine: str
+    bag: str
+    error: str
+
+
+@dataclass(frozen=True)
+class Trend:
+    """One leak of one cylinder over the recordings (:func:`trend`)."""
+
+    points: int
+    latest_l_min: float
+    slope_l_min_per_day: float | None = None
+    slope_95: list[float] | None = None
+    growing: bool = False
+    above_limit: bool = False
+    projected_unix_s: float | None = None  # where the line reaches the service limit (not before the latest recording)
+    too_short: str = ""  # why there is no slope
+
+
+@dataclass
+class CylinderHistory:
+    recordings: list[Verdict]  # by start time
+    trend: dict[str, Trend]  # by SHORT leak name
+    flagged: list[str]  # leaks growing or above the limit
+    service_by_unix_s: float | None
+
+
+@dataclass
+class MachineHistory:
+    actuators: dict[str, CylinderHistory]
+    flagged: list[str]  # its cylinders with a flagged leak
+
+
+@dataclass
+class FleetReport:
+    """What ``fleet analyse`` found (written as OUT/fleet.json, docs/fleet.md)."""
+
+    service_limit_l_min: float
+    machines: dict[str, MachineHistory]
+    unreadable: list[Failure]
+    foreign: list[Failure]  # recordings of another machine in a machine's folder
+    recordings: int = 0  # unique ones
+    analysed: int = 0  # this run
+    already_analysed: int = 0
+    duplicates: list[str] = field(default_factory=list)  # copies of a recording, listed not analysed
+    ran_on: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
 
 
 def content_hash(path: Path) -> str:
@@ -94,7 +186,7 @@ def leak_estimate(model: SamModel, samples: Any, column: int) -> tuple[LeakFit, 
     return leak_fit(regression, nominal_coefficients(model)), dict(regression.open_s)
 
 
-def analyse_recording(unit: Unit) -> dict[str, Any]:
+def analyse_recording(unit: Unit) -> Analysis:
     """One recording: per actuator the first alarm and the leak estimates; or the reason it could not be read."""
     try:
         machine = load_machine_config(unit.config)
@@ -105,22 +197,23 @@ def analyse_recording(unit: Unit) -> dict[str, Any]:
             raise InputError(f"{unit.bag}: no samples")
         recorded_on = (data.truth or {}).get("machine")
         if recorded_on not in (None, machine.name):  # a recording of another machine placed in this machine's folder
-            return {"unit": unit.__dict__, "error": f"foreign: recorded on machine {recorded_on!r} (its metadata), this folder's "
-                                                    f"config is {machine.name!r}: not analysed as this machine"}
+            return Analysis(unit, error=f"foreign: recorded on machine {recorded_on!r} (its metadata), this folder's config is "
+                                        f"{machine.name!r}: not analysed as this machine")
         run = run_monitor(FdiMonitor(machine), samples)
     except (InputError, OSError, ValueError) as exc:
-        return {"unit": unit.__dict__, "error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
-    rows = []
+        return Analysis(unit, error=f"{type(exc).__name__}: {exc}".splitlines()[0])
+    verdicts = []
     start = float(data.stamps_ns[0]) * 1e-9
     for column, actuator in enumerate(machine.actuator_names):
         first = next((a for a in run.alarms if a.actuator == actuator), None)
         named = next((a for a in run.alarms if a.actuator == actuator and a.fault.value != "unisolated"), first)
         fit, open_s = leak_estimate(SamModel(machine, actuator), samples, column)
-        rows.append({"actuator": actuator, "start_unix_s": start, "duration_s": float(data.times[-1]) if len(data.times) else 0.0,
-                     "alarm": None if first is None else {"fault": named.fault.value, "first_s": first.time_s},
-                     "leak_l_min": {SHORT[k]: v for k, v in fit.leaks.items()}, "leak_sigma_l_min": {SHORT[k]: v for k, v in fit.errors.items()},
-                     "coverage": {n: s >= MIN_OPEN_S for n, s in open_s.items()}, "errors": data.errors[:3]})
-    return {"unit": unit.__dict__, "rows": rows}
+        verdicts.append(Verdict(
+            unit.bag, actuator, start, float(data.times[-1]) if len(data.times) else 0.0,
+            None if first is None or named is None else FirstAlarm(named.fault.value, first.time_s),
+            {SHORT[k]: v for k, v in fit.leaks.items()}, {SHORT[k]: v for k, v in fit.errors.items()},
+            {n: s >= MIN_OPEN_S for n, s in open_s.items()}, data.errors[:3]))
+    return Analysis(unit, verdicts)
 
 
 class Store:
@@ -136,28 +229,28 @@ class Store:
     def done(self) -> set[str]:
         return {h for (h,) in self.db.execute("SELECT hash FROM results UNION SELECT hash FROM failures")}
 
-    def put(self, result: dict[str, Any]) -> None:
-        unit = result["unit"]
+    def put(self, result: Analysis) -> None:
+        unit = result.unit
         with self.db:
-            if "error" in result:
-                self.db.execute("INSERT OR REPLACE INTO failures VALUES (?, ?, ?, ?)", (unit["content_hash"], unit["machine"], unit["bag"],
-                                                                                       result["error"]))
-            for row in result.get("rows", []):
+            if result.error is not None:
+                self.db.execute("INSERT OR REPLACE INTO failures VALUES (?, ?, ?, ?)", (unit.content_hash, unit.machine, unit.bag, result.error))
+            for verdict in result.verdicts:
                 self.db.execute("INSERT OR REPLACE INTO results VALUES (?, ?, ?, ?, ?)",
-                                (unit["content_hash"], row["actuator"], unit["machine"], unit["bag"], json.dumps(row)))
+                                (unit.content_hash, verdict.actuator, unit.machine, unit.bag, json.dumps(asdict(verdict))))
 
-    def rows(self) -> list[dict[str, Any]]:
-        return [{"machine": m, "bag": b, "hash": h, **json.loads(r)} for h, m, b, r in
-                self.db.execute("SELECT hash, machine, bag, row FROM results ORDER BY machine, actuator")]
+    def verdicts(self) -> list[tuple[str, Verdict]]:
+        """(machine, verdict) of every recording and actuator, by machine and actuator."""
+        return [(m, Verdict.from_json({"bag": b, **json.loads(r)})) for m, b, r in  # a store's older rows kept the bag apart
+                self.db.execute("SELECT machine, bag, row FROM results ORDER BY machine, actuator")]
 
-    def failures(self) -> list[dict[str, str]]:
-        return [{"machine": m, "bag": b, "error": e} for m, b, e in self.db.execute("SELECT machine, bag, error FROM failures ORDER BY bag")]
+    def failures(self) -> list[Failure]:
+        return [Failure(m, b, e) for m, b, e in self.db.execute("SELECT machine, bag, error FROM failures ORDER BY bag")]
 
     def close(self) -> None:
         self.db.close()
 
 
-def trend(points: list[tuple[float, float]], limit: float) -> dict[str, Any]:
+def trend(points: list[tuple[float, float]], limit: float) -> Trend:
     """Theil-Sen slope of one leak over time (robust to an outlying recording) with its 95 % interval, whether it grows
     significantly or exceeds ``limit``, and when its line reaches ``limit``."""
     from scipy.stats import theilslopes
@@ -165,47 +258,44 @@ def trend(points: list[tuple[float, float]], limit: float) -> dict[str, Any]:
     points = sorted((t, v) for t, v in points if math.isfinite(v))
     latest = points[-1][1] if points else math.nan
     span = points[-1][0] - points[0][0] if points else 0.0
-    out: dict[str, Any] = {"points": len(points), "latest_l_min": latest, "slope_l_min_per_day": None, "slope_95": None,
-                           "growing": False, "above_limit": bool(latest > limit), "projected_unix_s": None, "too_short": ""}
+    above = bool(latest > limit)
     if len(points) < MIN_TREND_POINTS or span < MIN_TREND_SPAN_S:
-        out["too_short"] = (f"too short to trend: {len(points)} recording(s) over {span / 3600.0:.3g} h (needs {MIN_TREND_POINTS} "
-                            f"over {MIN_TREND_SPAN_S / 3600.0:g} h)")
-    else:
-        t = np.array([p[0] for p in points]) / 86400.0
-        v = np.array([p[1] for p in points])
-        slope, intercept, low, high = theilslopes(v, t)
-        # significant (the slope's interval above zero) and worth a visit (it grew by more than GROWTH_MIN over the span)
-        growing = low > 0.0 and slope * (t[-1] - t[0]) > GROWTH_MIN_L_MIN
-        out.update(slope_l_min_per_day=float(slope), slope_95=[float(low), float(high)], growing=bool(growing))
-        if slope > 0.0:
-            reach = (limit - intercept) / slope
-            out["projected_unix_s"] = float(max(reach, t[-1]) * 86400.0)
-    return out
+        return Trend(len(points), latest, above_limit=above, too_short=f"too short to trend: {len(points)} recording(s) over "
+                     f"{span / 3600.0:.3g} h (needs {MIN_TREND_POINTS} over {MIN_TREND_SPAN_S / 3600.0:g} h)")
+    t = np.array([p[0] for p in points]) / 86400.0
+    v = np.array([p[1] for p in points])
+    slope, intercept, low, high = theilslopes(v, t)
+    # significant (the slope's interval above zero) and worth a visit (it grew by more than GROWTH_MIN over the span)
+    growing = low > 0.0 and slope * (t[-1] - t[0]) > GROWTH_MIN_L_MIN
+    projected = float(max((limit - intercept) / slope, t[-1]) * 86400.0) if slope > 0.0 else None
+    return Trend(len(points), latest, float(slope), [float(low), float(high)], bool(growing), above, projected)
 
 
-def summarise(rows: list[dict[str, Any]], failures: list[dict[str, str]], limit: float) -> dict[str, Any]:
-    machines: dict[str, Any] = {}
-    for row in rows:
-        entry = machines.setdefault(row["machine"], {"actuators": {}})["actuators"].setdefault(row["actuator"], {"recordings": []})
-        entry["recordings"].append({k: row[k] for k in ("bag", "start_unix_s", "duration_s", "alarm", "leak_l_min", "leak_sigma_l_min",
-                                                        "coverage", "errors")})
-    for machine in machines.values():
-        for entry in machine["actuators"].values():
-            entry["recordings"].sort(key=lambda r: r["start_unix_s"])
-            # a recording read with errors is listed, and kept out of the trend: part of it is missing
-            whole = [r for r in entry["recordings"] if not r["errors"]]
-            entry["trend"] = {leak: trend([(r["start_unix_s"], r["leak_l_min"][leak]) for r in whole], limit)
-                              for leak in SHORT.values()}
-            entry["flagged"] = sorted(leak for leak, t in entry["trend"].items() if t["growing"] or t["above_limit"])
-            dates = [t["projected_unix_s"] for leak, t in entry["trend"].items() if leak in entry["flagged"] and t["projected_unix_s"]]
-            entry["service_by_unix_s"] = min(dates) if dates else None
-        machine["flagged"] = sorted(a for a, e in machine["actuators"].items() if e["flagged"])
-    return {"service_limit_l_min": limit, "machines": machines, "unreadable": [f for f in failures if not f["error"].startswith("foreign:")],
-            "foreign": [f for f in failures if f["error"].startswith("foreign:")]}
+def cylinder_history(verdicts: list[Verdict], limit: float) -> CylinderHistory:
+    """One cylinder's recordings by start time, each leak's trend, what is flagged and the service date."""
+    recordings = sorted(verdicts, key=lambda v: v.start_unix_s)
+    # a recording read with errors is listed, and kept out of the trend: part of it is missing
+    whole = [r for r in recordings if not r.errors]
+    trends = {leak: trend([(r.start_unix_s, r.leak_l_min[leak]) for r in whole], limit) for leak in SHORT.values()}
+    flagged = sorted(leak for leak, t in trends.items() if t.growing or t.above_limit)
+    dates = [date for leak in flagged if (date := trends[leak].projected_unix_s)]
+    return CylinderHistory(recordings, trends, flagged, min(dates) if dates else None)
+
+
+def summarise(verdicts: list[tuple[str, Verdict]], failures: list[Failure], limit: float) -> FleetReport:
+    grouped: dict[str, dict[str, list[Verdict]]] = {}
+    for machine, verdict in verdicts:
+        grouped.setdefault(machine, {}).setdefault(verdict.actuator, []).append(verdict)
+    machines = {}
+    for name, actuators in grouped.items():
+        histories = {actuator: cylinder_history(rows, limit) for actuator, rows in actuators.items()}
+        machines[name] = MachineHistory(histories, sorted(a for a, h in histories.items() if h.flagged))
+    foreign = [f for f in failures if f.error.startswith("foreign:")]
+    return FleetReport(limit, machines, [f for f in failures if f not in foreign], foreign)
 
 
 def analyse(root: Path, out: Path, *, scheduler: str | None = None, workers: int | None = None, limit: float = SERVICE_LIMIT_L_MIN,
-            progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+            progress: Callable[[str], None] | None = None) -> FleetReport:
     """Analyse the recordings not yet in OUT's store, then write fleet.json, fleet.csv and fleet.html from all of it."""
     out.mkdir(parents=True, exist_ok=True)
     units = discover(root)
@@ -222,43 +312,44 @@ def analyse(root: Path, out: Path, *, scheduler: str | None = None, workers: int
             for result in results:
                 store.put(result)
                 if progress:
-                    progress(result["unit"]["bag"])
-        report = summarise(store.rows(), store.failures(), limit)
+                    progress(result.unit.bag)
+        report = summarise(store.verdicts(), store.failures(), limit)
     finally:
         store.close()
-    report.update(recordings=len(unique), analysed=len(todo), already_analysed=len(unique) - len(todo), duplicates=duplicates, ran_on=where)
-    (out / "fleet.json").write_text(json.dumps(report, indent=2) + "\n")
+    report.recordings, report.analysed, report.already_analysed = len(unique), len(todo), len(unique) - len(todo)
+    report.duplicates, report.ran_on = duplicates, where
+    (out / "fleet.json").write_text(json.dumps(report.to_json(), indent=2) + "\n")
     _write_csv(report, out / "fleet.csv")
     (out / "fleet.html").write_text(fleet_page(report))
     return report
 
 
-def _as_completed(executor: Any, todo: list[Unit]):
-    futures: list[Future] = [executor.submit(analyse_recording, unit) for unit in todo]
+def _as_completed(executor: Any, todo: list[Unit]) -> Iterator[Analysis]:
+    futures: list[Future[Analysis]] = [executor.submit(analyse_recording, unit) for unit in todo]
     for future in as_completed(futures):
         yield future.result()
 
 
-def _write_csv(report: dict[str, Any], path: Path) -> None:
+def _write_csv(report: FleetReport, path: Path) -> None:
     import csv
 
     with path.open("w", newline="") as stream:
         writer = csv.writer(stream)
         writer.writerow(["machine", "actuator", "bag", "start_unix_s", "alarm", *(f"leak_{k}_l_min" for k in SHORT.values()),
                          *(f"leak_{k}_sigma" for k in SHORT.values())])
-        for name, machine in report["machines"].items():
-            for actuator, entry in machine["actuators"].items():
-                for r in entry["recordings"]:
-                    writer.writerow([name, actuator, r["bag"], f"{r['start_unix_s']:.3f}", (r["alarm"] or {}).get("fault", ""),
-                                     *(f"{r['leak_l_min'][k]:.4f}" for k in SHORT.values()),
-                                     *(f"{r['leak_sigma_l_min'][k]:.4f}" for k in SHORT.values())])
+        for name, machine in report.machines.items():
+            for actuator, history in machine.actuators.items():
+                for r in history.recordings:
+                    writer.writerow([name, actuator, r.bag, f"{r.start_unix_s:.3f}", r.alarm.fault if r.alarm else "",
+                                     *(f"{r.leak_l_min[k]:.4f}" for k in SHORT.values()),
+                                     *(f"{r.leak_sigma_l_min[k]:.4f}" for k in SHORT.values())])
 
 
 def _date(unix_s: float | None) -> str:
     return "" if unix_s is None else datetime.datetime.fromtimestamp(unix_s, datetime.UTC).strftime("%Y-%m-%d")
 
 
-def fleet_page(report: dict[str, Any]) -> str:
+def fleet_page(report: FleetReport) -> str:
     """One page a fleet manager reads: machines ranked by urgency, each flagged cylinder's leaks over time with the
     projection to the service limit, plots inline."""
     import html
@@ -268,28 +359,28 @@ def fleet_page(report: dict[str, Any]) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    limit = report["service_limit_l_min"]
-    ranked = sorted(report["machines"].items(), key=lambda item: (
-        min([e["service_by_unix_s"] or math.inf for e in item[1]["actuators"].values()] + [math.inf]), -len(item[1]["flagged"])))
+    limit = report.service_limit_l_min
+    ranked = sorted(report.machines.items(), key=lambda item: (
+        min([h.service_by_unix_s or math.inf for h in item[1].actuators.values()] + [math.inf]), -len(item[1].flagged)))
     parts = [f"<!doctype html><meta charset='utf-8'><title>hydro_ros fleet</title><h1>Fleet: {len(ranked)} machines</h1>",
              f"<p>Leaks in L/min at 10 MPa; service limit {limit:g} L/min. Flagged: a leak that grows significantly (Theil-Sen "
              "slope, its 95 % interval above zero) or is above the limit.</p><table border=1 cellpadding=4>"
              "<tr><th>machine</th><th>flagged cylinders</th><th>service by</th></tr>"]
     for name, machine in ranked:
-        dates = [e["service_by_unix_s"] for e in machine["actuators"].values() if e["service_by_unix_s"]]
-        parts.append(f"<tr><td>{html.escape(name)}</td><td>{html.escape(', '.join(machine['flagged']) or 'none')}</td>"
+        dates = [h.service_by_unix_s for h in machine.actuators.values() if h.service_by_unix_s]
+        parts.append(f"<tr><td>{html.escape(name)}</td><td>{html.escape(', '.join(machine.flagged) or 'none')}</td>"
                      f"<td>{_date(min(dates)) if dates else ''}</td></tr>")
     parts.append("</table>")
     for name, machine in ranked:
-        for actuator in machine["flagged"]:
-            entry = machine["actuators"][actuator]
+        for actuator in machine.flagged:
+            history = machine.actuators[actuator]
             fig, ax = plt.subplots(figsize=(7, 3))
-            for leak in entry["flagged"]:
-                t = [datetime.datetime.fromtimestamp(r["start_unix_s"], datetime.UTC) for r in entry["recordings"]]
-                v = [r["leak_l_min"][leak] for r in entry["recordings"]]
-                e = [r["leak_sigma_l_min"][leak] for r in entry["recordings"]]
+            for leak in history.flagged:
+                t = [datetime.datetime.fromtimestamp(r.start_unix_s, datetime.UTC) for r in history.recordings]
+                v = [r.leak_l_min[leak] for r in history.recordings]
+                e = [r.leak_sigma_l_min[leak] for r in history.recordings]
                 ax.errorbar(t, v, yerr=e, marker="o", capsize=3, label=f"{leak} leak")
-                projected = entry["trend"][leak]["projected_unix_s"]
+                projected = history.trend[leak].projected_unix_s
                 if projected:
                     ax.plot([t[-1], datetime.datetime.fromtimestamp(projected, datetime.UTC)], [v[-1], limit], "--", color="grey")
             ax.axhline(limit, color="red", lw=1, label="service limit")
@@ -300,9 +391,9 @@ def fleet_page(report: dict[str, Any]) -> str:
             png = io.BytesIO()
             fig.savefig(png, format="png", dpi=90)
             plt.close(fig)
-            parts.append(f"<h2>{html.escape(name)}: {html.escape(actuator)} (service by {_date(entry['service_by_unix_s']) or 'not projected'})"
+            parts.append(f"<h2>{html.escape(name)}: {html.escape(actuator)} (service by {_date(history.service_by_unix_s) or 'not projected'})"
                          f"</h2><img src='data:image/png;base64,{base64.b64encode(png.getvalue()).decode()}'>")
-    if report["unreadable"]:
+    if report.unreadable:
         parts.append("<h2>Recordings that could not be read</h2><ul>" + "".join(
-            f"<li>{html.escape(f['machine'])}: {html.escape(f['bag'])}: {html.escape(f['error'])}</li>" for f in report["unreadable"]) + "</ul>")
+            f"<li>{html.escape(f.machine)}: {html.escape(f.bag)}: {html.escape(f.error)}</li>" for f in report.unreadable) + "</ul>")
     return "\n".join(parts) + "\n"
