@@ -36,7 +36,7 @@ from hydro_ros.contract.names import first_form
 from hydro_ros.studies.hidden_effects import hidden_effect_bag, hidden_effect_plant
 from hydro_ros.studies.independent_plant import independent_plant_bag, nearest_model
 from hydro_ros.tooling.benchresults import write_result
-from hydro_ros.workflows.discrepancy import FIT_SHARE, SCREEN_EVERY, Recording, gap, run, simulate_recording
+from hydro_ros.workflows.discrepancy import FIT_SHARE, SCREEN_EVERY, DiscrepancyReport, Recording, gap, run, simulate_recording
 from hydro_ros.workflows.plots import plot_gap_profiles
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -89,14 +89,14 @@ def run_row(config: Machine, effects: dict[str, float], forms: dict[str, str], o
     return row(report, effects, forms, best, wall)
 
 
-def row(report: dict, effects: dict[str, float], forms: dict[str, str], plant_model_gap: float, wall: float) -> dict:
+def row(report: DiscrepancyReport, effects: dict[str, float], forms: dict[str, str], plant_model_gap: float, wall: float) -> dict:
     """What a run on a bag with ``effects`` (in ``forms``) found, against the plant model's floor."""
-    named = {e["name"]: e["parameters"] for e in report["effects"]}
+    named = {e.name: e.to_json()["parameters"] for e in report.effects}
     return {"hidden": effects, "forms": {name: _form(name, forms) for name in effects if _form(name, forms)},
             "named": named, "right": set(named) == set(effects),
             "form_right": all(named[n].get("form") == _form(n, forms) for n in effects if n in named),
-            "steps": [step.get("added") for step in report["selection"]["steps"] if step.get("kept")],
-            "validation_gap_before": report["validation_gap"]["before"], "validation_gap_after": report["validation_gap"]["after"],
+            "steps": [step.get("added") for step in report.selection.steps if step.get("kept")],
+            "validation_gap_before": report.validation_gap.before, "validation_gap_after": report.validation_gap.after,
             "plant_model_gap": plant_model_gap, "wall_s": wall}
 
 
@@ -121,11 +121,11 @@ def independent_row(config: Machine, overlap: float) -> dict:
         model = fitted.with_overrides({"effects": {**fitted.effects, "valve_deadzone": float(value)}, "effect_forms": forms})
         return gap(simulate_recording(model, fit, every))
 
-    first = report["selection"]["steps"][0]
+    first = report.selection.steps[0]
     return row(report, effects, forms, floor(nearest_model(config, effects), config, data), wall) | {
         "screened": [r for r in first["screened"] if r["name"] == "valve_deadzone"],
         "refitted": [{k: c[k] for k in ("form", "value", "bic_gain")} for c in first["candidates"] if c["name"] == "valve_deadzone"],
-        "calibration": report["calibration"], "joint_calibration": report["joint_fit"]["calibration"],
+        "calibration": report.calibration, "joint_calibration": report.selection.calibration,
         "profile": {"values": PROFILE_VALUES.tolist(), "screened": [fit_gap(v, SCREEN_EVERY) for v in PROFILE_VALUES],
                     "all": [fit_gap(v, 1) for v in PROFILE_VALUES]}}
 

@@ -83,10 +83,10 @@ def test_joint_refinement_recovers_what_calibration_absorbed(sam_config, tmp_pat
 
     bag = hidden_effect_bag(sam_config, tmp_path / "bag", "entrained_air", 0.03, duration=60.0)
     report = run(read_bag(bag), load_machine_config(SAM_CONFIG), tmp_path / "out")
-    assert [e["name"] for e in report["effects"]] == ["entrained_air"]
-    separate, joint = report["joint_fit"]["separate_effects"]["entrained_air"], report["effects"][0]["parameters"]["value"]
+    assert [e.name for e in report.effects] == ["entrained_air"]
+    separate, joint = report.separate_effects["entrained_air"], report.effects[0].value
     assert abs(joint - 0.03) < 0.5 * abs(separate - 0.03) and joint == pytest.approx(0.03, rel=0.15)
-    assert report["validation_gap"]["after"] < 0.85 * report["validation_gap"]["before"]
+    assert report.validation_gap.after < 0.85 * report.validation_gap.before
 
 
 @pytest.mark.parametrize(("effects", "forms"), [
@@ -99,17 +99,17 @@ def test_discrepancy_names_variant_forms_and_pairs_by_family(sam_config, tmp_pat
 
     bag = hidden_effect_bag(sam_config, tmp_path / "bag", duration=60.0, forms=forms, also=effects)
     report = run(read_bag(bag), load_machine_config(SAM_CONFIG), tmp_path / "out")
-    named = {e["name"]: e["parameters"] for e in report["effects"]}
-    assert set(named) == set(effects), report["selection"]["steps"]
+    named = {e.name: e for e in report.effects}
+    assert set(named) == set(effects), report.selection.steps
     for name, value in effects.items():
-        assert named[name]["value"] == pytest.approx(value, rel=0.25)
-        assert named[name].get("form") == forms.get(name, first_form(name))
-    assert report["validation_gap"]["after"] <= 0.5 * report["validation_gap"]["before"]
-    steps = report["selection"]["steps"]
+        assert named[name].value == pytest.approx(value, rel=0.25)
+        assert named[name].form == forms.get(name, first_form(name))
+    assert report.validation_gap.after <= 0.5 * report.validation_gap.before
+    steps = report.selection.steps
     assert [s["added"] for s in steps if s.get("kept")] == list(named)
     assert all(s["held_out_gap_after"] < s["held_out_gap_before"] for s in steps if s.get("kept"))
     model = load_machine_config(tmp_path / "out" / "model.yaml")
-    assert dict(model.effect_forms) == {n: p["form"] for n, p in named.items() if "form" in p}
+    assert dict(model.effect_forms) == {n: e.form for n, e in named.items() if e.form}
     page = (tmp_path / "out" / "report.html").read_text()
     # one self-contained page: both plots inlined, nothing fetched from elsewhere, every named effect on it
     text = re.sub(r'src="data:image/png;base64,[A-Za-z0-9+/=]*"', "", page)  # base64 may spell "http" by chance
@@ -153,12 +153,12 @@ def test_an_independent_plants_plain_overlap_is_named_near_its_size_and_closes_t
 
     bag = independent_plant_bag(sam_config, tmp_path / "bag", {"valve_deadzone": 0.06}, duration=40.0)
     report = run(read_bag(bag), sam_config, tmp_path / "out")
-    named = {e["name"]: e["parameters"] for e in report["effects"]}
-    assert list(named) == ["valve_deadzone"], report["selection"]["steps"]
-    assert named["valve_deadzone"]["value"] == pytest.approx(0.06, abs=0.006)
-    assert named["valve_deadzone"]["form"] in ("overlap", "rescaled")
-    assert report["validation_gap"]["after"] <= 0.4 * report["validation_gap"]["before"]
-    first = report["selection"]["steps"][0]
+    named = {e.name: e for e in report.effects}
+    assert list(named) == ["valve_deadzone"], report.selection.steps
+    assert named["valve_deadzone"].value == pytest.approx(0.06, abs=0.006)
+    assert named["valve_deadzone"].form in ("overlap", "rescaled")
+    assert report.validation_gap.after <= 0.4 * report.validation_gap.before
+    first = report.selection.steps[0]
     screened = {row["form"]: row["value"] for row in first["screened"] if row["name"] == "valve_deadzone"}
     refitted = {c["form"]: c["value"] for c in first["candidates"] if c["name"] == "valve_deadzone"}
     assert refitted.keys() == screened.keys() and all(refitted[f] == pytest.approx(screened[f], rel=0.25) for f in screened)

@@ -77,7 +77,7 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     with tqdm(total=progress_steps(), unit="fit", desc="discrepancy", disable=args.quiet) as bar:
         report = run(data, machine, out, progress=bar.update)
         bar.update(bar.total - bar.n)
-    write_json(out / "report.json", report)
-    names = ", ".join(e["name"] for e in report["effects"]) or "none"
-    print(f"named effect(s): {names}; validation gap {report['validation_gap']['before']:.2f} -> {report['validation_gap']['after']:.2f}")
+    write_json(out / "report.json", report.to_json())
+    names = ", ".join(e.name for e in report.effects) or "none"
+    print(f"named effect(s): {names}; validation gap {report.validation_gap.before:.2f} -> {report.validation_gap.after:.2f}")
     return 0

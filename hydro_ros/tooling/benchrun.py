@@ -58,6 +58,7 @@ STEPS = (
     _step("arm_commissioning"),
     _step("sam_commissioning_apart", "--config", "config/sam.yaml", script="arm_commissioning"),
     _step("roc"),
+    _step("fault_free_hours", "--budget-min", "600"),
     _step("crane_monitoring"),
     _step("crane_cpu", timed=True),
     _step("crane_commissioning"),

@@ -429,8 +429,75 @@ def backward_check(machine: Machine, calibration: dict[str, float], named: dict[
     return rows
 
 
+@dataclass(frozen=True)
+class Selection:
+    """What forward selection and the backward check kept (:func:`select`); each step as report.json records it."""
+
+    named: dict[str, float]  # effect -> its value, fitted jointly
+    forms: dict[str, str]  # effect -> its form, for families with several
+    calibration: dict[str, float]  # the calibration fitted jointly with them
+    steps: list[dict[str, Any]]
+    backward: list[dict[str, Any]]
+    dropped: list[str]
+
+
+@dataclass(frozen=True)
+class NamedEffect:
+    name: str
+    value: float
+    form: str | None = None  # None: the family has one form
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "parameters": {"value": self.value} | ({"form": self.form} if self.form else {})}
+
+
+@dataclass(frozen=True)
+class Gap:
+    """A gap of the model before and after the named effects (``GAP_METRIC``)."""
+
+    before: float
+    after: float
+
+
+GAP_METRIC = "rms of the 0.1 s mean error of 2 s segment simulations; p_A, p_B per 0.1 MPa, position per 1 mm"
+
+
+@dataclass
+class DiscrepancyReport:
+    """What ``hydro-ros discrepancy`` found; :meth:`to_json` is DIR/report.json (the contract's fields first)."""
+
+    effects: list[NamedEffect]  # empty: the data show no significant missing effect
+    fit_gap: Gap
+    validation_gap: Gap  # on the held-out part, no value fitted on it
+    uncalibrated_validation_gap: float
+    calibration: dict[str, float]
+    selection: Selection
+    separate_effects: dict[str, float]  # each effect's value fitted alone, when it was added
+    localisation: dict[str, Any]  # localise() of the fit part (forward and load-independent) and the validation part
+    fit_s: float
+    validation_s: float
+    plots: list[str]  # validation.png, localisation.png
+    bag_errors: list[str]
+    partial: bool  # computed on what could be read, not on the whole recording
+    html: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "effects": [effect.to_json() for effect in self.effects],
+            "gap": {"metric": GAP_METRIC, "before": self.fit_gap.before, "after": self.fit_gap.after},
+            "validation_gap": {"before": self.validation_gap.before, "after": self.validation_gap.after},
+            "uncalibrated_validation_gap": self.uncalibrated_validation_gap,
+            "calibration": self.calibration,
+            "joint_fit": {"calibration": self.selection.calibration, "effects": self.selection.named,
+                          "separate_effects": self.separate_effects},
+            "selection": {"steps": self.selection.steps, "backward": self.selection.backward, "dropped": self.selection.dropped},
+            "localisation": self.localisation, "fit_s": self.fit_s, "validation_s": self.validation_s, "plots": self.plots,
+            "bag_errors": self.bag_errors, "partial": self.partial, "html": self.html,
+        }
+
+
 def select(machine: Machine, calibration: dict[str, float], fit: Recording, held_out: Recording,
-           progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+           progress: Callable[[int], None] | None = None) -> Selection:
     """Forward selection with re-fitting, then a backward check.
 
     Each step fits every candidate on top of the effects named so far, adds the most significant one, and
@@ -479,10 +546,10 @@ def select(machine: Machine, calibration: dict[str, float], fit: Recording, held
         joint, named = refine(machine, joint, {n: v for n, v in named.items() if n not in dropped},
                               {n: f for n, f in forms.items() if n not in dropped}, fit)
         forms = {n: f for n, f in forms.items() if n in named}
-    return {"named": named, "forms": forms, "calibration": joint, "steps": steps, "backward": backward, "dropped": dropped}
+    return Selection(named, forms, joint, steps, backward, dropped)
 
 
-def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], None] | None = None) -> DiscrepancyReport:
     rec = Recording.from_bag(data, machine)
     split = int(FIT_SHARE * len(rec.times))
     fit, validation = rec.part(slice(0, split)), rec.part(slice(split, None))
@@ -490,8 +557,8 @@ def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], No
     if progress:
         progress(1)
     selection = select(machine, calibration, fit, validation, progress)
-    named, forms, joint_calibration = selection["named"], selection["forms"], selection["calibration"]
-    separate = {step["added"]: step["separate_value"] for step in selection["steps"] if step.get("kept")}
+    named, forms, joint_calibration = selection.named, selection.forms, selection.calibration
+    separate = {step["added"]: step["separate_value"] for step in selection.steps if step.get("kept")}
     before_fit = simulate_recording(_with(machine, {}, calibration), fit)
     after_fit = simulate_recording(_with(machine, named, joint_calibration, forms), fit)
     raw_validation = simulate_recording(machine, validation)
@@ -508,30 +575,20 @@ def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], No
                             out=out / "validation.png", scales=SCALES)
     validation_localisation = {"before": localise(validation, before_validation), "after": localise(validation, after_validation)}
     where = plot_gap_localisation(validation_localisation["before"], validation_localisation["after"], out / "localisation.png")
-    report = {
-        "effects": [{"name": name, "parameters": {"value": value} | ({"form": forms[name]} if name in forms else {})}
-                    for name, value in named.items()],
-        "gap": {"metric": "rms of the 0.1 s mean error of 2 s segment simulations; p_A, p_B per 0.1 MPa, position per 1 mm",
-                "before": gap(before_fit), "after": gap(after_fit)},
-        "validation_gap": {"before": gap(before_validation), "after": gap(after_validation)},
-        "uncalibrated_validation_gap": gap(raw_validation),
-        "calibration": calibration,
-        "joint_fit": {"calibration": joint_calibration, "effects": named, "separate_effects": separate},
-        "selection": {"steps": selection["steps"], "backward": selection["backward"], "dropped": selection["dropped"]},
-        "localisation": {"forward": localise(fit, before_fit),
-                         "load_independent_l_min": localise(fit, load_independent_error(_with(machine, {}, calibration), fit),
-                                                            ("q_a", "q_b")),
-                         "validation": validation_localisation},
-        "fit_s": float(fit.times[-1] - fit.times[0]), "validation_s": float(validation.times[-1] - validation.times[0]),
-        "plots": [str(plot), str(where)],
-        "bag_errors": list(data.errors),
-        "partial": not data.complete,  # computed on what could be read, not on the whole recording
-    }
-    report["html"] = str(write_html(report, data.path, out / "report.html"))
+    report = DiscrepancyReport(
+        effects=[NamedEffect(name, value, forms.get(name)) for name, value in named.items()],
+        fit_gap=Gap(gap(before_fit), gap(after_fit)), validation_gap=Gap(gap(before_validation), gap(after_validation)),
+        uncalibrated_validation_gap=gap(raw_validation), calibration=calibration, selection=selection, separate_effects=separate,
+        localisation={"forward": localise(fit, before_fit),
+                      "load_independent_l_min": localise(fit, load_independent_error(_with(machine, {}, calibration), fit), ("q_a", "q_b")),
+                      "validation": validation_localisation},
+        fit_s=float(fit.times[-1] - fit.times[0]), validation_s=float(validation.times[-1] - validation.times[0]),
+        plots=[str(plot), str(where)], bag_errors=list(data.errors), partial=not data.complete)
+    report.html = str(write_html(report, data.path, out / "report.html"))
     return report
 
 
-def write_html(report: dict[str, Any], bag: Path | str, out: Path) -> Path:
+def write_html(report: DiscrepancyReport, bag: Path | str, out: Path) -> Path:
     """One self-contained page (plots inlined) of what the workflow found, for a person rather than a program."""
 
     def cell(value: Any) -> str:
@@ -548,33 +605,33 @@ def write_html(report: dict[str, Any], bag: Path | str, out: Path) -> Path:
         encoded = base64.b64encode(Path(path).read_bytes()).decode()
         return f'<img alt="{html.escape(Path(path).name)}" src="data:image/png;base64,{encoded}">'
 
-    effects = [[e["name"], e["parameters"].get("form"), e["parameters"]["value"]] for e in report["effects"]]
+    effects = [[e.name, e.form, e.value] for e in report.effects]
     steps = []
-    for number, step in enumerate(report["selection"]["steps"], start=1):
+    for number, step in enumerate(report.selection.steps, start=1):
         tried = ", ".join(f"{c['name']}{' (' + c['form'] + ')' if c['form'] else ''}: BIC {-c['bic_gain']:+.0f}, gap² {-c['reduction']:+.0%}"
                           for c in step["candidates"])
         steps.append([number, step.get("added", "none significant"), step.get("form"), step.get("separate_value"),
                       (step.get("joint_values") or {}).get(step.get("added")), step["held_out_gap_before"], step.get("held_out_gap_after"),
                       step.get("kept"), tried])
-    local = report["localisation"]["validation"]
+    local = report.localisation["validation"]
     regimes = [[name, *(local[when]["by_regime"][name].get(channel) for when in ("before", "after") for channel in ("p_a", "p_b", "position"))]
                for name in local["before"]["by_regime"]]
-    gap = report["validation_gap"]
+    gap = report.validation_gap
     page = f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>hydro-ros discrepancy: {html.escape(str(bag))}</title>
 <style>body{{font-family:sans-serif;max-width:1200px;margin:auto}}table{{border-collapse:collapse;margin:1em 0}}
 td,th{{border:1px solid #999;padding:3px 6px;font-size:13px;vertical-align:top}}img{{max-width:100%}}</style></head><body>
 <h1>Model discrepancy of {html.escape(str(bag))}</h1>
-<p>Validation gap (last {report['validation_s']:.0f} s, no value fitted on it) {gap['before']:.3g} &rarr; {gap['after']:.3g}
-(uncalibrated {report['uncalibrated_validation_gap']:.3g}); fitted on the first {report['fit_s']:.0f} s.
-{html.escape(report['gap']['metric'])}.</p>
+<p>Validation gap (last {report.validation_s:.0f} s, no value fitted on it) {gap.before:.3g} &rarr; {gap.after:.3g}
+(uncalibrated {report.uncalibrated_validation_gap:.3g}); fitted on the first {report.fit_s:.0f} s.
+{html.escape(GAP_METRIC)}.</p>
 <h2>Named effects</h2>{table(["effect (family)", "form", "value"], effects) if effects else "<p>none: the data show no significant missing effect</p>"}
 <h2>Selection path</h2>{table(["step", "added", "form", "fitted alone", "fitted jointly", "held-out gap before", "after", "kept",
                               "candidates re-fitted on all segments"], steps)}
 <p>Backward check: {html.escape(", ".join(f"{r['effect']} (BIC +{r['bic_gain']:.0f} without it: {'kept' if r['kept'] else 'dropped'})"
-                                         for r in report["selection"]["backward"]) or "one effect or none, nothing to check")}.</p>
-<h2>Where the gap sits (validation part)</h2>{image(report["plots"][1])}
+                                         for r in report.selection.backward) or "one effect or none, nothing to check")}.</p>
+<h2>Where the gap sits (validation part)</h2>{image(report.plots[1])}
 {table(["regime", "p_A before", "p_B before", "position before", "p_A after", "p_B after", "position after"], regimes)}
-<h2>Measured and simulated</h2>{image(report["plots"][0])}
+<h2>Measured and simulated</h2>{image(report.plots[0])}
 </body></html>"""
     out.write_text(page)
     return out
