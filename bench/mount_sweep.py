@@ -73,9 +73,10 @@ def main() -> None:
               "ratio": "better pseudo-inverse energy / DP energy (P-VI: almost 2 on vertical)",
               "almost_twice_at": ALMOST_TWICE, "rules": {"min_dead_length_m": MIN_DEAD_LENGTH, "min_arm_m": MIN_ARM},
               "family_sizes": {name: len(f) for name, f in family.items()}, "summary": summary,
+              "geometries_almost_twice": sum(any(ratio(row, cost) >= ALMOST_TWICE for row in entry["rows"] for cost in ("cp", "ls"))
+                                             for entry in swept),
               "configured": configured, "geometries": swept}
     out = Path(args.out)
-    write_result(out, result)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
     for ax, name in zip(axes, family, strict=True):
         alone = [e for e in swept if list(e["mounts"]) == [name]]
@@ -90,6 +91,7 @@ def main() -> None:
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out.with_suffix(".png"), dpi=100)
+    write_result(out, result)  # last: a stamped file stands for a finished step
     for key, row in summary.items():
         print(f"{key}: configured {row['configured']:.3f}, swept {row['least']:.3f}-{row['greatest']:.3f} over {row['geometries']} "
               f"geometries ({row['infeasible']} infeasible), >= {ALMOST_TWICE}: {row['almost_twice']}")

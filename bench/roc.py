@@ -32,22 +32,14 @@ from hydro_ros.fdi.monitor import FdiMonitor  # noqa: E402
 from hydro_ros.fdi.offline import run_monitor  # noqa: E402
 from hydro_ros.fdi.rates import CONFIDENCE, false_alarm_rate  # noqa: E402
 from hydro_ros.studies import independent_arm as plant  # noqa: E402
-from hydro_ros.studies.fdi_evaluation import leak_run_verdict, parallel_map  # noqa: E402
+from hydro_ros.studies.fdi_evaluation import commissioned_apart, leak_run_verdict, parallel_map  # noqa: E402
 from hydro_ros.tooling.benchresults import write_result  # noqa: E402
-from hydro_ros.workflows.commissioning import FaultFreeRecording, commission  # noqa: E402
 
 SCALES = (0.5, 0.7, 0.85, 1.0, 1.25, 1.5, 2.0)  # x the commissioned c0
 SIZES = (0.25, 0.5, 1.0, 2.0)  # [L/min at 10 MPa]
 ONSET_S, RUN_S = 20.0, 60.0
 BOOTSTRAP = 2000
 MIN_BAND = 5  # delays below this many get no band
-
-
-def _commissioned(job: tuple[Machine, int]) -> dict:
-    machine, rig = job
-    recordings = [FaultFreeRecording(f"rig{rig}/{w.seed}", plant.recording(machine, rig, w))
-                  for w in plant.work_day(machine, range(101, 103), 120.0)]
-    return commission(machine, recordings)[0]["model"]
 
 
 def _evaluate(job: tuple[Machine, int, plant.ArmWork, dict, list[float]]) -> dict:
@@ -144,7 +136,7 @@ def main() -> int:
     actuator = machine.actuator_names[0]
     start = time.perf_counter()
     rigs = list(range(1, 1 + args.rigs))
-    models = dict(zip(rigs, parallel_map(_commissioned, [(machine, rig) for rig in rigs], workers=args.workers)))
+    models = dict(zip(rigs, parallel_map(commissioned_apart, [(machine, rig) for rig in rigs], workers=args.workers)))
     jobs = []
     for rig in rigs:
         work = plant.work_day(machine, range(201, 201 + args.fault_free), RUN_S)
@@ -160,8 +152,8 @@ def main() -> int:
                "bootstrap": BOOTSTRAP, "by_scale": summarise(runs, actuator, list(SCALES), list(SIZES)),
                "wall_s": round(time.perf_counter() - start, 1)}
     out = Path(args.out)
-    write_result(out, summary)
     plot(summary, out.with_suffix(".png"))
+    write_result(out, summary)  # last: a stamped file stands for a finished step
     print(json.dumps({k: v for k, v in summary.items() if k != "by_scale"}, indent=2))
     return 0
 

@@ -59,14 +59,20 @@ def test_a_step_is_pending_until_every_file_it_writes_holds_the_code(tmp_path):
     assert [s.name for s in benchrun.pending(steps, "old", tmp_path)] == ["a", "b", "c"]
     (tmp_path / "b_more.json").write_text(json.dumps({"commit": "x"}))  # written before files recorded their code
     assert [s.name for s in benchrun.pending(steps, "new", tmp_path)] == ["b", "c"]
+    (tmp_path / "b_more.json").write_text(json.dumps({"code": "new"}))
+    (tmp_path / "a.json").write_text(json.dumps({"code": "new", "complete": False}))  # stopped by its own budget: goes on
+    assert [s.name for s in benchrun.pending(steps, "new", tmp_path)] == ["a", "c"]
 
 
-def test_a_result_file_records_the_code_that_wrote_it(tmp_path):
+def test_a_result_file_records_the_code_that_wrote_it(tmp_path, monkeypatch):
+    monkeypatch.delenv(benchrun.CODE_ENV, raising=False)  # as outside make bench (bench/mutants.py runs this test inside it)
     written = json.loads(write_result(tmp_path / "r.json", {"code": "forged", "value": 1}).read_text())
     assert written["code"] == code_hash() and written["value"] == 1 and list(written)[:2] == ["commit", "code"]
+    monkeypatch.setenv(benchrun.CODE_ENV, "started-on")  # make bench's run: the code it started on, not the tree at the end
+    assert json.loads(write_result(tmp_path / "r.json", {}).read_text())["code"] == "started-on"
 
 
-def test_every_result_file_is_written_by_one_step_and_the_timed_steps_are_those_the_benchmark_page_reads():
+def test_every_result_file_is_written_by_one_step_and_what_the_benchmark_page_times_runs_alone():
     from hydro_ros.tooling.benchresults import RESULTS, ROWS
 
     written = {name for step in benchrun.STEPS for name in step.writes}
@@ -74,7 +80,8 @@ def test_every_result_file_is_written_by_one_step_and_the_timed_steps_are_those_
     assert len(written) == sum(len(step.writes) for step in benchrun.STEPS)  # no file written by two steps
     for step in benchrun.STEPS:
         assert (benchrun.ROOT / "bench" / f"{step.script}.py").is_file(), step.script
-    assert {s.name for s in benchrun.STEPS if s.timed} <= {name for name, _, _ in ROWS}
+    # the page reads a speed, a latency or a memory from each of its files but the mutation run's: those run alone
+    assert {name for name, _, _ in ROWS} - {s.name for s in benchrun.STEPS if s.timed} == {"mutants"}
 
 
 def test_resuming_runs_only_the_pending_steps_timed_ones_here_first_the_rest_on_dask(tmp_path, monkeypatch):
@@ -96,9 +103,10 @@ def test_resuming_runs_only_the_pending_steps_timed_ones_here_first_the_rest_on_
     monkeypatch.setattr(benchrun, "RESULTS", tmp_path)
     monkeypatch.setattr(benchrun, "code_hash", lambda: "now")
     monkeypatch.setattr(benchrun, "run_step", run_step)
+    monkeypatch.setenv(benchrun.CODE_ENV, "restored after the test")
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         status = benchrun.main(["--allow-dirty", "--dask", cluster.scheduler_address])
     assert status == 1  # eval2 failed
     ran = [line.split() for line in log.read_text().splitlines()]
-    assert ran[0] == ["speed", "MainThread"]  # first, and here
+    assert len(ran) == 3 and ran[0] == ["speed", "MainThread"]  # "done" not rerun; the timed step first, and here
     assert sorted(name for name, thread in ran[1:] if thread != "MainThread") == ["eval", "eval2"]

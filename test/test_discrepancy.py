@@ -162,3 +162,21 @@ def test_an_independent_plants_plain_overlap_is_named_near_its_size_and_closes_t
     screened = {row["form"]: row["value"] for row in first["screened"] if row["name"] == "valve_deadzone"}
     refitted = {c["form"]: c["value"] for c in first["candidates"] if c["name"] == "valve_deadzone"}
     assert refitted.keys() == screened.keys() and all(refitted[f] == pytest.approx(screened[f], rel=0.25) for f in screened)
+
+
+def test_the_report_json_keeps_the_contracts_layout_and_a_form_only_where_the_family_has_one():
+    from hydro_ros.workflows.discrepancy import DiscrepancyReport, Gap, NamedEffect, Selection
+
+    selection = Selection({"valve_deadzone": 0.06, "entrained_air": 0.02}, {"valve_deadzone": "overlap"}, {"flow_gain": 1.1},
+                          [{"added": "valve_deadzone", "kept": True}], [], [])
+    report = DiscrepancyReport([NamedEffect("valve_deadzone", 0.06, "overlap"), NamedEffect("entrained_air", 0.02)], Gap(2.0, 1.0),
+                               Gap(3.0, 1.5), 4.0, {"flow_gain": 1.0}, selection, {"valve_deadzone": 0.05}, {}, 40.0, 20.0,
+                               ["v.png", "l.png"], [], False, "report.html")
+    data = json.loads(json.dumps(report.to_json()))
+    assert list(data)[:3] == ["effects", "gap", "validation_gap"]  # docs/contract: effects[].name, parameters; gap; validation_gap
+    assert data["effects"] == [{"name": "valve_deadzone", "parameters": {"value": 0.06, "form": "overlap"}},
+                               {"name": "entrained_air", "parameters": {"value": 0.02}}]
+    assert data["gap"]["before"] == 2.0 and data["gap"]["after"] == 1.0 and data["gap"]["metric"]
+    assert data["validation_gap"] == {"before": 3.0, "after": 1.5}
+    assert data["joint_fit"] == {"calibration": {"flow_gain": 1.1}, "effects": selection.named, "separate_effects": {"valve_deadzone": 0.05}}
+    assert data["selection"]["steps"] == selection.steps and data["partial"] is False

@@ -135,3 +135,19 @@ def test_a_trend_needs_a_day_of_recordings_and_a_foreign_recording_is_listed_not
     assert report.recordings == 1 and report.analysed == 1 and len(report.duplicates) == 1
     assert len(report.foreign) == 1 and "recorded on machine 'boom_arm'" in report.foreign[0].error
     assert report.machines == {} and report.unreadable == []
+
+
+def test_a_store_written_before_each_verdict_carried_its_bag_still_reads(tmp_path):
+    """fleet.sqlite of an earlier version kept a row's bag in its own column only: a rerun over it reads it whole."""
+    from hydro_ros.workflows.fleet import FirstAlarm, Store
+
+    store = Store(tmp_path / "fleet.sqlite")
+    row = {"actuator": "arm", "start_unix_s": 1.7e9, "duration_s": 45.0, "alarm": {"fault": "external_leakage_b", "first_s": 30.0},
+           "leak_l_min": {"a": 0.0, "b": 0.5, "internal": 0.0}, "leak_sigma_l_min": {"a": 0.01, "b": 0.01, "internal": 0.01},
+           "coverage": {"PA": True}, "errors": []}
+    with store.db:
+        store.db.execute("INSERT INTO results VALUES (?, ?, ?, ?, ?)", ("h1", "arm", "m2", "m2/run0", json.dumps(row)))
+    [(machine, verdict)] = store.verdicts()
+    store.close()
+    assert machine == "m2" and verdict.bag == "m2/run0" and verdict.alarm == FirstAlarm("external_leakage_b", 30.0)
+    assert verdict.leak_l_min["b"] == 0.5

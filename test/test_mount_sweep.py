@@ -1,5 +1,5 @@
-"""The mount family of the K70M's sweep: it holds the config's own placeholders, every member spans its stroke over its
-joint's range in the model's own kinematics, and what cannot be built is refused with its reason."""
+"""The mount family of the K70M's sweep: the config's own placeholders pass its rules, every member spans its stroke over
+its joint's range in the model's own kinematics, and what cannot be built is refused with its reason."""
 
 from __future__ import annotations
 

@@ -346,8 +346,11 @@ def _cylinder(joint: CraneJoint) -> CraneCylinder:
     return cylinder
 
 
-def load_crane(path: str | Path) -> tuple[Crane, CraneConfig]:
-    """The planner's machine of a config and its typed config (one-line ConfigError on bad input)."""
+def load_crane(path: str | Path, actuators: dict[str, dict[str, Any]] | None = None) -> tuple[Crane, CraneConfig]:
+    """The planner's machine of a config and its typed config (one-line ConfigError on bad input); ``actuators``: sections
+    of ``actuators.<name>`` replaced in part (a study's other mount)."""
     config = read_config(path, required=("machine",), nonempty="machine")
+    if actuators:
+        config["actuators"] = {**config["actuators"], **{name: {**config["actuators"][name], **section} for name, section in actuators.items()}}
     crane_config = parse_planning(config, Path(path).resolve())
     return Crane(crane_config), crane_config

@@ -28,7 +28,8 @@ from hydro_ros.fdi.parity import ParityThresholds, closed_statistics, passes_not
 from hydro_ros.fdi.rates import false_alarm_text
 from hydro_ros.fdi.settings import FdiSettings
 from hydro_ros.sim.scenario import MachineRun, simulate_machine
-from hydro_ros.workflows.commissioning import evaluated_maximum, threshold_excess
+from hydro_ros.studies import independent_arm
+from hydro_ros.workflows.commissioning import FaultFreeRecording, commission, evaluated_maximum, threshold_excess
 
 # Half-widths of the uniform mismatch draws (relative). Flow coefficients: P-II Table 2's 3rd-order
 # fit RMSE is 1-2 % of K_v, an identified valve on another day/temperature is worse: 5 %.
@@ -205,6 +206,16 @@ def _run(args: tuple[Machine, Case]) -> Outcome:
 
 def run_cases(machine: Machine, cases: list[Case], *, workers: int = 2, progress: Callable[[int], None] | None = None) -> list[Outcome]:
     return parallel_map(_run, [(machine, c) for c in cases], workers=workers, progress=progress)
+
+
+def commissioned_apart(job: tuple[Machine, int]) -> dict[str, Any]:
+    """The model block ``hydro-ros commission`` fits to rig ``job[1]`` of ``job[0]`` built apart (``independent_arm``) from
+    4 minutes of its own fault-free work (2 x 120 s, the documented minimum); a job for :func:`parallel_map`."""
+    machine, rig = job
+    recordings = [FaultFreeRecording(f"rig{rig}/{w.seed}", independent_arm.recording(machine, rig, w))
+                  for w in independent_arm.work_day(machine, range(101, 103), 120.0)]
+    model: dict[str, Any] = commission(machine, recordings)[0]["model"]
+    return model
 
 
 def leak_run_verdict(alarms: Sequence[dict[str, Any]], actuator: str, fault: str, onset_s: float) -> tuple[float | None, float | None]:

@@ -8,7 +8,9 @@ shorter one could not reach it). What is left is swept: the triangle's angle at 
 ratio of its sides, ``l2 / l1``; l1 then follows from the stroke and l3 is the closed length. Kept are mounts a cylinder
 could be built for (INFERRED bounds, a mount the paper's Fig. 9 drawing does not contradict): the triangle inside
 (0, pi) over the whole range (no toggle), a closed length at least the stroke plus MIN_DEAD_LENGTH (the cylinder's head,
-piston and gland), sides at most the lift link's length, and a torque arm of at least MIN_ARM over the range.
+piston and gland), sides at most the lift link's length, and a torque arm of at least MIN_ARM over the range; the force
+the cylinder must give is not checked (MIN_ARM). The config's own placeholders satisfy these rules (a test rebuilds them);
+a sweep's grid of angles and ratios need not pass through them.
 
 P-VI's tilt is a four-bar (its eq. 14), not a triangle: the tilt's 2.5 rad of range on a 0.725 m stroke is what a
 triangle reaches only with a small arm near its ends; the sweep says what the triangle family gives, not the four-bar.
@@ -25,15 +27,15 @@ from typing import Any
 
 import numpy as np
 
-from hydro_ros.contract.config import read_config
-from hydro_ros.contract.crane import CraneConfig, parse_planning
-from hydro_ros.models.crane import Crane
+from hydro_ros.contract.crane import CraneConfig
+from hydro_ros.models.crane import Crane, load_crane
 from hydro_ros.studies.savings_map import savings
 
 MIN_DEAD_LENGTH = 0.15  # [m] closed length beyond the stroke: head, piston and gland (INFERRED, lenient: the config's own tilt
 # placeholder has 0.175 m)
-MIN_ARM = 0.05  # [m] the smallest torque arm over the range: below it the cylinder force for the boom's own weight
-# exceeds what 20 MPa on the lift's bore gives (INFERRED: ~25 kNm of gravity torque / (20 MPa x 0.0113 m^2))
+MIN_ARM = 0.05  # [m] the smallest torque arm over the range (INFERRED): a floor against triangles near their toggle.
+# Whether the cylinder can hold the boom at the supply pressure everywhere in its range is not checked: the sweep asks what
+# the mounts do to the energy of a motion, and the boom's weight at the range's ends depends on the other joints
 MAX_SIDE = 3.5  # [m] the lift link's length (P-VI Table 2): no mount side longer than the boom it sits on
 
 
@@ -97,10 +99,7 @@ def mount_family(joint_range: tuple[float, float], stroke: float, sign: int, clo
 
 def crane_with_mounts(config_path: str | Path, mounts: dict[str, TriangleMount]) -> tuple[Crane, CraneConfig]:
     """The planner's crane of ``config_path`` with these actuators' mounts replaced."""
-    mapping = read_config(config_path, required=("machine",), nonempty="machine")
-    actuators = {**mapping["actuators"], **{name: {**mapping["actuators"][name], "mount": mount.config()} for name, mount in mounts.items()}}
-    crane_config = parse_planning({**mapping, "actuators": actuators}, Path(config_path).resolve())
-    return Crane(crane_config), crane_config
+    return load_crane(config_path, {name: {"mount": mount.config()} for name, mount in mounts.items()})
 
 
 def sweep(config_path: str | Path, geometries: Iterable[dict[str, TriangleMount]], paths: dict[str, dict[str, Any]], *,

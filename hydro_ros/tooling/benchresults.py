@@ -21,6 +21,7 @@ RESULTS = ROOT / "bench" / "results"
 MISSING = "not in bench/results"
 # what is written from the results, so not what ran: regenerating the docs after a run leaves its results current
 NOT_CODE = ("bench/results", "docs", "README.md")
+CODE_ENV = "HYDRO_ROS_BENCH_CODE"  # set by make bench: the code hash taken when the run started, which its results carry
 
 
 def _git(*args: str, root: Path = ROOT, env: dict[str, str] | None = None) -> str:
@@ -47,7 +48,7 @@ def commit() -> str:
 def write_result(path: str | Path, result: dict[str, Any]) -> Path:
     """``result`` as JSON at ``path``, with the commit and the code it ran on first."""
     path = Path(path)
-    stamps = {"commit": commit(), "code": code_hash()}
+    stamps = {"commit": commit(), "code": os.environ.get(CODE_ENV) or code_hash()}
     path.write_text(json.dumps({**stamps, **{k: v for k, v in result.items() if k not in stamps}}, indent=2) + "\n")
     return path
 
@@ -261,6 +262,7 @@ def require_clean_tree() -> None:
     not what ran. ``make bench ALLOW_DIRTY=1`` runs anyway, and the results say ``+changes``."""
     ran_on = commit()
     if ran_on.endswith("+changes"):
-        raise SystemExit(f"make bench: the tree has uncommitted changes outside bench/results (commit {ran_on}): commit them first, "
+        raise SystemExit(f"make bench: the tree has uncommitted changes outside bench/results, docs/ and README.md (commit {ran_on}): "
+                         "commit them first, "
                          "or run make bench ALLOW_DIRTY=1 (the results will say +changes)")
 

@@ -1,8 +1,10 @@
 """`make bench` (``python -m hydro_ros.tooling.benchrun``): every benchmark, each skipped when its result files already hold the code as it is (resumable).
 
 A step is done when every file it writes in bench/results carries ``code`` equal to :func:`code_hash` of the tree now
-(the code without bench/results and the docs written from them); an interrupted ``make bench`` therefore goes on where
-it stopped, and a change of code reruns everything. ``--force`` reruns every step; ``--only NAME`` picks steps.
+(the code without bench/results and the docs written from them) and none says ``"complete": false`` (a step stopped by its
+own budget, which goes on when run again); an interrupted ``make bench`` therefore goes on where it stopped, and a change
+of code reruns everything. Results carry the hash taken when the run started (``CODE_ENV``); a run whose code changes
+under it stops. ``--force`` reruns every step; ``--only NAME`` picks steps.
 
 ``--dask ADDRESS`` (a ``dask.distributed`` scheduler, ``local`` for a cluster of this machine's cores) runs the
 evaluations on its workers, which must share this checkout (the same path); the steps whose speeds or latencies the
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import time
@@ -21,7 +24,7 @@ from pathlib import Path
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.extras import optional_module
-from hydro_ros.tooling.benchresults import RESULTS, ROOT, code_hash, require_clean_tree
+from hydro_ros.tooling.benchresults import CODE_ENV, RESULTS, ROOT, code_hash, require_clean_tree
 
 
 @dataclass(frozen=True)
@@ -46,7 +49,7 @@ def _step(name: str, *args: str, script: str | None = None, also: tuple[str, ...
 
 STEPS = (
     _step("results", script="run", also=("fdi_eval", "fdi_parity_eval", "gsa"), timed=True),
-    _step("discrepancy_suite", also=("discrepancy_independent",)),
+    _step("discrepancy_suite", also=("discrepancy_independent",), timed=True),  # reproduction.md quotes its time per bag
     _step("dp", timed=True, also=tuple(f"dp_compare_{case}" for case in (  # bench/dp.py's comparisons
         "k70m_horizontal", "k70m_vertical", "k70m_half_cycle", "k70m_horizontal_middle", "k70m_vertical_middle",
         "k70m_half_cycle_middle", "crane3dof_triangle", "excavator_level_cut", "excavator_lift_out"))),
@@ -74,18 +77,19 @@ STEPS = (
 )
 
 
-def stamped_code(name: str, results: Path = RESULTS) -> str | None:
-    """The code hash a result file records (None: no file, unreadable, or written before files recorded it)."""
+def current(name: str, code: str, results: Path = RESULTS) -> bool:
+    """Whether a result file holds ``code`` and is complete (no file, an unreadable one or one written before files
+    recorded their code is not)."""
     try:
         data = json.loads((results / f"{name}.json").read_text())
     except (OSError, ValueError):
-        return None
-    return data.get("code") if isinstance(data, dict) else None
+        return False
+    return isinstance(data, dict) and data.get("code") == code and data.get("complete", True) is not False
 
 
 def pending(steps: tuple[Step, ...], code: str, results: Path = RESULTS) -> list[Step]:
-    """The steps some of whose files do not hold ``code``."""
-    return [step for step in steps if any(stamped_code(name, results) != code for name in step.writes)]
+    """The steps some of whose files are not current."""
+    return [step for step in steps if not all(current(name, code, results) for name in step.writes)]
 
 
 def run_step(step: Step) -> tuple[str, int, float]:
@@ -102,10 +106,15 @@ def _on_dask(steps: list[Step], address: str) -> list[tuple[str, int, float]]:
         raise SystemExit(f"make bench --dask: {exc}") from None
     cluster = distributed.LocalCluster(threads_per_worker=1) if address == "local" else None
     with distributed.Client(cluster or address) as client:
-        futures = [client.submit(run_step, step, key=f"bench-{step.name}", pure=False) for step in steps]
+        futures = {client.submit(run_step, step, key=f"bench-{step.name}", pure=False): step.name for step in steps}
         done = []
-        for future in distributed.as_completed(futures):
-            done.append(future.result())
+        for future in distributed.as_completed(list(futures)):
+            try:
+                done.append(future.result())
+            except Exception as exc:  # a worker lost or a step that raised: the others' results stand
+                done.append((futures[future], 1, 0.0))
+                print(f"bench: {futures[future]} failed on dask: {exc}", file=sys.stderr, flush=True)
+                continue
             print(f"bench: {done[-1][0]} finished on dask (status {done[-1][1]}, {done[-1][2] / 60:.1f} min)", flush=True)
     if cluster is not None:
         cluster.close()
@@ -123,6 +132,9 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.allow_dirty or args.list):
         require_clean_tree()
     code = code_hash()
+    if code == "unknown":
+        raise SystemExit(f"make bench: {ROOT} is not a git checkout: a result could not say which code ran (clone the repository)")
+    os.environ[CODE_ENV] = code  # the steps' results carry the code the run started on
     chosen = tuple(s for s in STEPS if not args.only or s.name in args.only)
     todo = list(chosen) if args.force else pending(chosen, code, RESULTS)
     if args.list:
@@ -136,6 +148,9 @@ def main(argv: list[str] | None = None) -> int:
     for step in alone:
         print(f"bench: {step.name}: {' '.join(step.command()[1:])}", flush=True)
         results.append(run_step(step))
+        if code_hash() != code:
+            raise SystemExit(f"make bench: the code changed while {step.name} ran: its results carry the code the run started on; "
+                             "commit, then run make bench again")
     if args.dask and len(alone) < len(todo):
         results += _on_dask([s for s in todo if s not in alone], args.dask)
     failed = [name for name, status, _ in results if status != 0]

@@ -448,7 +448,7 @@ class NamedEffect:
     form: str | None = None  # None: the family has one form
 
     def to_json(self) -> dict[str, Any]:
-        return {"name": self.name, "parameters": {"value": self.value} | ({"form": self.form} if self.form else {})}
+        return {"name": self.name, "parameters": {"value": self.value} | ({"form": self.form} if self.form is not None else {})}
 
 
 @dataclass(frozen=True)

@@ -95,10 +95,6 @@ class Analysis:
     verdicts: list[Verdict] = field(default_factory=list)
     error: str | None = None
 
-    @property
-    def foreign(self) -> bool:
-        return self.error is not None and self.error.startswith("foreign:")
-
 
 @dataclass(frozen=True)
 class Failure:
@@ -210,7 +206,7 @@ def analyse_recording(unit: Unit) -> Analysis:
         fit, open_s = leak_estimate(SamModel(machine, actuator), samples, column)
         verdicts.append(Verdict(
             unit.bag, actuator, start, float(data.times[-1]) if len(data.times) else 0.0,
-            None if first is None or named is None else FirstAlarm(named.fault.value, first.time_s),
+            None if first is None else FirstAlarm(named.fault.value, first.time_s),
             {SHORT[k]: v for k, v in fit.leaks.items()}, {SHORT[k]: v for k, v in fit.errors.items()},
             {n: s >= MIN_OPEN_S for n, s in open_s.items()}, data.errors[:3]))
     return Analysis(unit, verdicts)
