@@ -92,21 +92,21 @@ def test_resuming_runs_only_the_pending_steps_timed_ones_here_first_the_rest_on_
     (tmp_path / "done.json").write_text(json.dumps({"code": "now"}))
     log = tmp_path / "ran.log"  # a file, not a list: dask hands its workers a copy of the function
 
-    def run_step(step: benchrun.Step) -> tuple[str, int, float]:
+    def run_step(step: benchrun.Step, code: str) -> tuple[str, int, float]:
         import threading
 
         with log.open("a") as f:
-            f.write(f"{step.name} {threading.current_thread().name}\n")
+            f.write(f"{step.name} {threading.current_thread().name} {code}\n")
         return step.name, 1 if step.name == "eval2" else 0, 0.0
 
     monkeypatch.setattr(benchrun, "STEPS", steps)
     monkeypatch.setattr(benchrun, "RESULTS", tmp_path)
     monkeypatch.setattr(benchrun, "code_hash", lambda: "now")
     monkeypatch.setattr(benchrun, "run_step", run_step)
-    monkeypatch.setenv(benchrun.CODE_ENV, "restored after the test")
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         status = benchrun.main(["--allow-dirty", "--dask", cluster.scheduler_address])
     assert status == 1  # eval2 failed
     ran = [line.split() for line in log.read_text().splitlines()]
-    assert len(ran) == 3 and ran[0] == ["speed", "MainThread"]  # "done" not rerun; the timed step first, and here
-    assert sorted(name for name, thread in ran[1:] if thread != "MainThread") == ["eval", "eval2"]
+    assert len(ran) == 3 and ran[0] == ["speed", "MainThread", "now"]  # "done" not rerun; the timed step first, and here
+    assert sorted(name for name, thread, _ in ran[1:] if thread != "MainThread") == ["eval", "eval2"]
+    assert {code for _, _, code in ran} == {"now"}  # each step told the code the run started on, on a worker too

@@ -53,7 +53,7 @@ def test_nothing_cites_files_the_repository_does_not_ship():
 def test_make_bench_refuses_a_tree_whose_code_differs_from_its_commit(monkeypatch):
     from hydro_ros.tooling import benchresults, benchrun
 
-    monkeypatch.setattr(benchrun, "run_step", lambda step: pytest.fail(f"{step.name} ran on a dirty tree"))
+    monkeypatch.setattr(benchrun, "run_step", lambda step, code: pytest.fail(f"{step.name} ran on a dirty tree"))
     monkeypatch.setattr(benchresults, "commit", lambda: "abc1234+changes")
     with pytest.raises(SystemExit, match=r"uncommitted changes outside bench/results, docs/ and README.md .*ALLOW_DIRTY=1"):
         benchrun.main(["--only", "mems"])

@@ -92,21 +92,22 @@ def pending(steps: tuple[Step, ...], code: str, results: Path = RESULTS) -> list
     return [step for step in steps if not all(current(name, code, results) for name in step.writes)]
 
 
-def run_step(step: Step) -> tuple[str, int, float]:
-    """Runs one step from the checkout's root: (name, exit status, seconds)."""
+def run_step(step: Step, code: str) -> tuple[str, int, float]:
+    """Runs one step from the checkout's root, its results stamped with ``code`` (on a Dask worker too, whose
+    environment is not this process's): (name, exit status, seconds)."""
     start = time.monotonic()
-    status = subprocess.run(step.command(), cwd=ROOT, check=False).returncode
+    status = subprocess.run(step.command(), cwd=ROOT, check=False, env={**os.environ, CODE_ENV: code}).returncode
     return step.name, status, time.monotonic() - start
 
 
-def _on_dask(steps: list[Step], address: str) -> list[tuple[str, int, float]]:
+def _on_dask(steps: list[Step], address: str, code: str) -> list[tuple[str, int, float]]:
     try:
         distributed = optional_module("distributed")
     except InputError as exc:
         raise SystemExit(f"make bench --dask: {exc}") from None
     cluster = distributed.LocalCluster(threads_per_worker=1) if address == "local" else None
     with distributed.Client(cluster or address) as client:
-        futures = {client.submit(run_step, step, key=f"bench-{step.name}", pure=False): step.name for step in steps}
+        futures = {client.submit(run_step, step, code, key=f"bench-{step.name}", pure=False): step.name for step in steps}
         done = []
         for future in distributed.as_completed(list(futures)):
             try:
@@ -134,7 +135,6 @@ def main(argv: list[str] | None = None) -> int:
     code = code_hash()
     if code == "unknown":
         raise SystemExit(f"make bench: {ROOT} is not a git checkout: a result could not say which code ran (clone the repository)")
-    os.environ[CODE_ENV] = code  # the steps' results carry the code the run started on
     chosen = tuple(s for s in STEPS if not args.only or s.name in args.only)
     todo = list(chosen) if args.force else pending(chosen, code, RESULTS)
     if args.list:
@@ -147,12 +147,12 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     for step in alone:
         print(f"bench: {step.name}: {' '.join(step.command()[1:])}", flush=True)
-        results.append(run_step(step))
+        results.append(run_step(step, code))
         if code_hash() != code:
             raise SystemExit(f"make bench: the code changed while {step.name} ran: its results carry the code the run started on; "
                              "commit, then run make bench again")
     if args.dask and len(alone) < len(todo):
-        results += _on_dask([s for s in todo if s not in alone], args.dask)
+        results += _on_dask([s for s in todo if s not in alone], args.dask, code)
     failed = [name for name, status, _ in results if status != 0]
     if failed:
         print(f"bench: failed: {', '.join(failed)} (their files are not current; make bench reruns only what is not)", file=sys.stderr)
