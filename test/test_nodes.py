@@ -210,10 +210,15 @@ STOP_ARGS = {  # each executable of setup.py with what it needs to start on its 
 }
 
 
+STOP_BOUND_S = 5.0  # [s] from the signal to the exit of one node
+
+
 @pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"])
-def test_every_node_stops_cleanly_within_two_seconds(ros_domain, signal_name):
-    """Every executable of setup.py up at once; then each in turn gets the signal and must exit 0 within 2 s, without a
-    traceback (plant_sim's publisher in an invalid context, the HMI's websockets held for a minute were the bugs)."""
+def test_every_node_stops_cleanly_and_promptly(ros_domain, signal_name):
+    """Every executable of setup.py up at once; then each in turn gets the signal and must exit 0 within STOP_BOUND_S,
+    without a traceback (plant_sim's publisher in an invalid context, the HMI's websockets held for a minute were the
+    bugs). The bound catches a hang, not a slow machine: alone the slowest (plant_sim) stops in ~0.8 s, beside the library
+    tests it once took 2.03 s."""
     import re
     import signal
     from contextlib import ExitStack
@@ -237,7 +242,7 @@ def test_every_node_stops_cleanly_within_two_seconds(ros_domain, signal_name):
     for name, (code, after, output) in stopped.items():
         assert "Traceback" not in output, (name, output[-2000:])
         assert code == 0, (name, code, output[-1000:])
-        assert after < 2.0, f"{name} took {after:.1f} s"
+        assert after < STOP_BOUND_S, f"{name} took {after:.1f} s"
 
 
 def test_statuses_name_the_machine_instance_as_their_hardware_id(ros_domain):
