@@ -25,6 +25,7 @@ from test.conftest import REPO, SAM_CONFIG
 from test.ros_graph import probe_node, spin_until
 
 CLI = [sys.executable, "-m", "hydro_ros.cli"]
+REFUSAL_BOUND_S = 10.0  # [s] a damaged config refused: a hang or an expansion would take far longer
 
 
 @pytest.fixture(scope="module")
@@ -156,7 +157,8 @@ def test_a_config_that_cannot_be_one_is_refused_in_one_line_at_once(tmp_path, ca
     with pytest.raises(ConfigError) as refused:
         load_machine_config(path)
     message = str(refused.value)
-    assert str(path) in message and "\n" not in message and time.monotonic() - started < 2.0
+    # refused before it is expanded (minutes and gigabytes), also beside the live tests: a bound, not a speed
+    assert str(path) in message and "\n" not in message and time.monotonic() - started < REFUSAL_BOUND_S
     expected = {"binary": "not UTF-8", "not_utf8": "not UTF-8", "folder": "is a folder", "oversized": "MB, more than",
                 "alias_bomb": "aliases expand"}[case]
     assert expected in message, message
