@@ -29,6 +29,7 @@ import numpy as np
 
 from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.models.crane import Crane, load_crane
+from hydro_ros.models.kinematics import cylinder_length, torque_arm
 from hydro_ros.studies.savings_map import savings
 
 MIN_DEAD_LENGTH = 0.15  # [m] closed length beyond the stroke: head, piston and gland (INFERRED, lenient: the config's own tilt
@@ -57,7 +58,7 @@ class TriangleMount:
     def arm_range(self, joint_range: tuple[float, float]) -> tuple[float, float]:
         """The least and the greatest torque arm [m] over the joint's range."""
         theta = self.sign * np.linspace(*joint_range, 201) + self.theta_offset
-        arm = self.l1 * self.l2 * np.sin(theta) / np.sqrt(self.l1 ** 2 + self.l2 ** 2 - 2 * self.l1 * self.l2 * np.cos(theta))
+        arm = torque_arm(theta, self.l1, self.l2)
         return float(arm.min()), float(arm.max())
 
 
@@ -67,13 +68,10 @@ def spanning_mount(joint_range: tuple[float, float], stroke: float, sign: int, t
     low, high = joint_range
     theta_open = theta_closed + (high - low)
 
-    def unit_length(theta: float) -> float:  # the cylinder's length per metre of l1
-        return math.sqrt(1.0 + side_ratio ** 2 - 2.0 * side_ratio * math.cos(theta))
-
-    l1 = stroke / (unit_length(theta_open) - unit_length(theta_closed))
+    closed, opened = (float(cylinder_length(theta, 1.0, side_ratio)) for theta in (theta_closed, theta_open))  # per metre of l1
+    l1 = stroke / (opened - closed)
     closed_joint = low if sign > 0 else high
-    return TriangleMount(l1, side_ratio * l1, l1 * unit_length(theta_closed), theta_closed - sign * closed_joint, sign,
-                         theta_closed, side_ratio)
+    return TriangleMount(l1, side_ratio * l1, l1 * closed, theta_closed - sign * closed_joint, sign, theta_closed, side_ratio)
 
 
 def why_not_buildable(mount: TriangleMount, joint_range: tuple[float, float], stroke: float) -> str:
