@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 
 import pytest
 
@@ -94,3 +95,70 @@ def test_every_test_the_reproduction_page_names_exists():
     for test in (test for entry in (*CLAIMS, *RESEARCH_PROBLEMS) for test in entry.tests):
         path, _, function = test.partition("::")
         assert f"def {function}(" in (REPO / "test" / path).read_text(), f"docs/reproduction.md names {test}, which does not exist"
+
+
+# a figure of the prose: a number with a decimal point, or a whole number of per cent or times
+FIGURE = re.compile(r"(?<![\w.\-/§])(?<!Section )[-+\u2212]?(\d+\.\d+(?:e[-+]?\d+)?(?![.\d])|\d+(?=\s?(?:%|x\b|\u00d7)))"
+                    r"(\s?(?:%|x\b|\u00d7|kJ|MJ|J\b|MPa|L/min|ms|s\b|min\b|h\b|rad|mm|m\b|Hz|MB))?")
+PROSE = re.compile(r"<!-- figures no result file holds[^:]*:(.*?)-->", re.S)
+
+
+def _figures(text: str) -> list[str]:
+    """The figures of a page's prose and tables, as written ("16.8 s", "1.050 x"): code, link targets and comments out."""
+    for code in (r"```.*?```", r"`[^`]*`", r"\]\([^)]*\)", r"<!--.*?-->"):
+        text = re.sub(code, " ", text, flags=re.S)
+    return [" ".join(m.group(0).replace("\u2212", "-").split()) for m in FIGURE.finditer(text)]
+
+
+def _values(text: str) -> set[float]:
+    return {abs(float(number)) for number in re.findall(r"\d+(?:\.\d+)?(?:e[-+]?\d+)?", text)}
+
+
+def _scaled(figure: str) -> tuple[float, ...]:
+    """What a result file may hold for a figure: itself, a share for a per cent, joules for kJ."""
+    return {"%": (1.0, 0.01), "kJ": (1.0, 1e3), "MJ": (1.0, 1e6)}.get(figure.split(" ")[-1].lstrip("0123456789.+-"), (1.0,))
+
+
+def unbacked_figures(page: str, results: Path) -> list[str]:
+    """The figures of a page that no result file named in their section (a heading's, else the page's) holds, at the
+    precision written, less the page's marked prose list (``<!-- figures no result file holds (whose): 2.5 s (why);
+    ... -->``); and the list's entries the page does not show."""
+    def named(text: str) -> set[str]:
+        return {name for name in re.findall(r"[\w-]+\.(?:json|md)\b", text) if (results / name).is_file()}
+
+    prose = {entry.split(" (")[0].strip() for listed in PROSE.findall(page) for entry in listed.split(";") if entry.strip()}
+    everywhere, shown, unbacked = named(page), [], []
+    for section in re.split(r"\n(?=#+ )", page):
+        files = named(section) or everywhere
+        values = sorted(set().union(*(_values((results / name).read_text()) for name in files)) if files else set())
+        for figure in _figures(section):
+            shown.append(figure)
+            number = re.match(r"[-+]?(\d+(?:\.(\d+))?)(?:e([-+]?\d+))?", figure)
+            exponent = 10.0 ** int(number.group(3) or 0)
+            target, half_step = float(number.group(1)) * exponent, (0.5 * 10.0 ** -len(number.group(2) or "") + 1e-9) * exponent
+            held = any(abs(v - target * scale) <= half_step * scale for v in values for scale in _scaled(figure))
+            if figure not in prose and not held:
+                unbacked.append(figure)
+    return unbacked + [f"{entry} (listed, not shown)" for entry in sorted(prose - set(shown))]
+
+
+def test_a_figure_no_result_file_holds_is_caught_unless_the_page_lists_it(tmp_path):
+    (tmp_path / "dp.json").write_text(json.dumps({"energy_j": 35548.0, "above": 0.0504, "notes": "best at 356 x 201"}))
+    page = "DP (LS) gives 35.55 kJ, 5.0 % above, on a 356 x 201 grid (`dp.json`); P-VI's 1.186 x."
+    assert unbacked_figures(page, tmp_path) == ["1.186 x"]
+    assert unbacked_figures(page.replace("35.55", "35.56"), tmp_path) == ["35.56 kJ", "1.186 x"]
+    assert unbacked_figures(page.replace("`dp.json`", "a run"), tmp_path) == ["35.55 kJ", "5.0 %", "356 x", "1.186 x"]
+    listed = page + "\n<!-- figures no result file holds (the thesis's): 1.186 x (P-VI); 2.5 s -->"
+    assert unbacked_figures(listed, tmp_path) == ["2.5 s (listed, not shown)"]
+
+
+def test_every_figure_in_the_readme_and_the_hand_written_docs_is_held_by_a_result_file_the_page_names_or_listed_as_prose():
+    """The generated pages (PAGES) read bench/results/ themselves; a hand-written page's figure must be in a result file
+    the page names, or in the page's marked list: the thesis's figures, a config's or a design value, and what a run
+    typed by hand left (each said so where it stands)."""
+    results = REPO / "bench" / "results"
+    pages = [REPO / "README.md", *(page for page in sorted((REPO / "docs").rglob("*.md")) if page.relative_to(REPO / "docs").as_posix() not in PAGES)]
+    assert len(pages) >= 10
+    for page in pages:
+        unbacked = unbacked_figures(page.read_text(), results)
+        assert not unbacked, f"{page.relative_to(REPO)}: {'; '.join(unbacked)}: no result file the page names holds these"
