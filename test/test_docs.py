@@ -9,14 +9,24 @@ from pathlib import Path
 
 import pytest
 
-from hydro_ros.tooling.docgen import PAGES, rendered
+from hydro_ros.tooling.docgen import PAGES, expected_pages, with_results
 from test.conftest import REPO
 
 
-def test_the_reference_pages_are_what_the_code_generates():
-    for name, generate in PAGES.items():
-        page = REPO / "docs" / name
-        assert page.read_text() == rendered(page, generate), f"{page}: run `make docs`"
+def test_the_reference_pages_and_the_result_tables_are_what_the_code_and_bench_results_generate():
+    for page, text in expected_pages(REPO / "docs").items():
+        assert page.read_text() == text, f"{page}: run `make docs`"
+
+
+def test_a_result_block_shows_its_result_file_as_it_is(tmp_path, monkeypatch):
+    from hydro_ros.tooling import benchresults
+
+    monkeypatch.setattr(benchresults, "RESULTS", tmp_path)
+    (tmp_path / "fdi_eval.md").write_text("| fault | delay |\n|---|---|\n| leak | 12.0 |\n")
+    page = "Prose.\n<!-- BEGIN RESULT fdi_eval.md (make docs) -->\n| fault | delay |\n| leak | 11.0 |\n<!-- END RESULT -->\nMore.\n"
+    assert with_results(page) == ("Prose.\n<!-- BEGIN RESULT fdi_eval.md (make docs) -->\n\n| fault | delay |\n|---|---|\n| leak | 12.0 |\n"
+                                  "\n<!-- END RESULT -->\nMore.\n")
+    assert "`mems.md` is not in bench/results: run `make bench`" in with_results(page.replace("fdi_eval.md", "mems.md"))
 
 
 def test_the_readme_is_short_and_its_links_lead_somewhere():
