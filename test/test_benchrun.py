@@ -30,6 +30,21 @@ def checkout(tmp_path) -> Path:
     return tmp_path
 
 
+def test_a_narrowed_code_hash_follows_only_the_code_it_names(checkout):
+    """bench/fault_free_hours.py keys its cache so: hours computed before a commit that changed only the layers above
+    the studies stay valid."""
+    def run_code() -> str:
+        return code_hash(checkout, paths=("hydro_ros",), excluding=("hydro_ros/nodes",))
+
+    before = run_code()
+    (checkout / "hydro_ros" / "nodes").mkdir()
+    (checkout / "hydro_ros" / "nodes" / "node.py").write_text("RATE = 10\n")
+    (checkout / "test_other.py").write_text("x = 1\n")
+    assert run_code() == before != code_hash(checkout)
+    (checkout / "hydro_ros" / "model.py").write_text("K = 3\n")
+    assert run_code() != before
+
+
 def test_the_code_hash_follows_the_code_committed_or_not_and_nothing_written_from_the_results(checkout):
     committed = code_hash(checkout)
     assert len(committed) == 40

@@ -28,12 +28,13 @@ def _git(*args: str, root: Path = ROOT, env: dict[str, str] | None = None) -> st
     return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, env=env).stdout.strip()
 
 
-def code_hash(root: Path = ROOT) -> str:
+def code_hash(root: Path = ROOT, paths: tuple[str, ...] = (".",), excluding: tuple[str, ...] = ()) -> str:
     """The git tree hash of the working tree as it is (uncommitted and new files included, ignored ones not) without
-    bench/results, docs/ and README.md: the code a result ran on, equal for equal code whatever the commit."""
+    bench/results, docs/ and README.md: the code a result ran on, equal for equal code whatever the commit. ``paths``
+    and ``excluding`` narrow it to the code one computation reads."""
     with tempfile.TemporaryDirectory() as tmp:
         env = {**os.environ, "GIT_INDEX_FILE": str(Path(tmp) / "index")}
-        _git("add", "--all", "--", ".", *(f":(exclude){path}" for path in NOT_CODE), root=root, env=env)
+        _git("add", "--all", "--", *paths, *(f":(exclude){path}" for path in (*NOT_CODE, *excluding)), root=root, env=env)
         return _git("write-tree", root=root, env=env) or "unknown"
 
 
