@@ -95,7 +95,7 @@ def row(report: DiscrepancyReport, effects: dict[str, float], forms: dict[str, s
     return {"hidden": effects, "forms": {name: _form(name, forms) for name in effects if _form(name, forms)},
             "named": named, "right": set(named) == set(effects),
             "form_right": all(named[n].get("form") == _form(n, forms) for n in effects if n in named),
-            "steps": [step.get("added") for step in report.selection.steps if step.get("kept")],
+            "steps": [step.added for step in report.selection.steps if step.kept],
             "validation_gap_before": report.validation_gap.before, "validation_gap_after": report.validation_gap.after,
             "plant_model_gap": plant_model_gap, "wall_s": wall}
 
@@ -123,8 +123,8 @@ def independent_row(config: Machine, overlap: float) -> dict:
 
     first = report.selection.steps[0]
     return row(report, effects, forms, floor(nearest_model(config, effects), config, data), wall) | {
-        "screened": [r for r in first["screened"] if r["name"] == "valve_deadzone"],
-        "refitted": [{k: c[k] for k in ("form", "value", "bic_gain")} for c in first["candidates"] if c["name"] == "valve_deadzone"],
+        "screened": [r for r in first.screened if r["name"] == "valve_deadzone"],
+        "refitted": [{"form": c.form, "value": c.value, "bic_gain": c.bic_gain} for c in first.candidates if c.name == "valve_deadzone"],
         "calibration": report.calibration, "joint_calibration": report.selection.calibration,
         "profile": {"values": PROFILE_VALUES.tolist(), "screened": [fit_gap(v, SCREEN_EVERY) for v in PROFILE_VALUES],
                     "all": [fit_gap(v, 1) for v in PROFILE_VALUES]}}

@@ -106,8 +106,8 @@ def test_discrepancy_names_variant_forms_and_pairs_by_family(sam_config, tmp_pat
         assert named[name].form == forms.get(name, first_form(name))
     assert report.validation_gap.after <= 0.5 * report.validation_gap.before
     steps = report.selection.steps
-    assert [s["added"] for s in steps if s.get("kept")] == list(named)
-    assert all(s["held_out_gap_after"] < s["held_out_gap_before"] for s in steps if s.get("kept"))
+    assert [s.added for s in steps if s.kept] == list(named)
+    assert all(s.held_out_gap_after < s.held_out_gap_before for s in steps if s.kept)
     model = load_machine_config(tmp_path / "out" / "model.yaml")
     assert dict(model.effect_forms) == {n: e.form for n, e in named.items() if e.form}
     page = (tmp_path / "out" / "report.html").read_text()
@@ -159,16 +159,20 @@ def test_an_independent_plants_plain_overlap_is_named_near_its_size_and_closes_t
     assert named["valve_deadzone"].form in ("overlap", "rescaled")
     assert report.validation_gap.after <= 0.4 * report.validation_gap.before
     first = report.selection.steps[0]
-    screened = {row["form"]: row["value"] for row in first["screened"] if row["name"] == "valve_deadzone"}
-    refitted = {c["form"]: c["value"] for c in first["candidates"] if c["name"] == "valve_deadzone"}
+    screened = {row["form"]: row["value"] for row in first.screened if row["name"] == "valve_deadzone"}
+    refitted = {c.form: c.value for c in first.candidates if c.name == "valve_deadzone"}
     assert refitted.keys() == screened.keys() and all(refitted[f] == pytest.approx(screened[f], rel=0.25) for f in screened)
 
 
 def test_the_report_json_keeps_the_contracts_layout_and_a_form_only_where_the_family_has_one():
-    from hydro_ros.workflows.discrepancy import DiscrepancyReport, Gap, NamedEffect, Selection
+    from hydro_ros.workflows.discrepancy import BackwardCheck, Candidate, DiscrepancyReport, Gap, NamedEffect, Selection, SelectionStep
 
+    candidate = Candidate("valve_deadzone", "overlap", 0.05, 120.0, 0.4, 1.0)
+    steps = [SelectionStep([candidate], [{"name": "valve_deadzone", "form": "overlap", "value": 0.05, "screen_gap": 1.2}], 3.0,
+                           "valve_deadzone", "overlap", 0.05, {"valve_deadzone": 0.06}, {"flow_gain": 1.1}, {}, 1.0, 1.5, True),
+             SelectionStep([], [], 1.5)]
     selection = Selection({"valve_deadzone": 0.06, "entrained_air": 0.02}, {"valve_deadzone": "overlap"}, {"flow_gain": 1.1},
-                          [{"added": "valve_deadzone", "kept": True}], [], [])
+                          steps, [BackwardCheck("valve_deadzone", 40.0, True)], [])
     report = DiscrepancyReport([NamedEffect("valve_deadzone", 0.06, "overlap"), NamedEffect("entrained_air", 0.02)], Gap(2.0, 1.0),
                                Gap(3.0, 1.5), 4.0, {"flow_gain": 1.0}, selection, {"valve_deadzone": 0.05}, {}, 40.0, 20.0,
                                ["v.png", "l.png"], [], False, "report.html")
@@ -179,4 +183,10 @@ def test_the_report_json_keeps_the_contracts_layout_and_a_form_only_where_the_fa
     assert data["gap"]["before"] == 2.0 and data["gap"]["after"] == 1.0 and data["gap"]["metric"]
     assert data["validation_gap"] == {"before": 3.0, "after": 1.5}
     assert data["joint_fit"] == {"calibration": {"flow_gain": 1.1}, "effects": selection.named, "separate_effects": {"valve_deadzone": 0.05}}
-    assert data["selection"]["steps"] == selection.steps and data["partial"] is False
+    assert data["partial"] is False
+    added, none = data["selection"]["steps"]  # a step that added nothing records no addition
+    assert added["added"] == "valve_deadzone" and added["kept"] is True and added["held_out_gap_after"] == 1.5
+    assert added["candidates"][0] == {"name": "valve_deadzone", "form": "overlap", "value": 0.05, "bic_gain": 120.0, "reduction": 0.4,
+                                      "signature": 1.0, "required_reduction": candidate.required_reduction, "significant": candidate.significant}
+    assert none == {"candidates": [], "screened": [], "held_out_gap_before": 1.5}
+    assert data["selection"]["backward"] == [{"effect": "valve_deadzone", "bic_gain": 40.0, "kept": True}]

@@ -415,8 +415,20 @@ def fit_effects(machine: Machine, calibration: dict[str, float], rec: Recording,
     return sorted(out, key=lambda c: (-c.bic_gain, -c.signature)), screened
 
 
+@dataclass(frozen=True)
+class BackwardCheck:
+    """One named effect's place beside the others: the information criterion's loss without it."""
+
+    effect: str
+    bic_gain: float
+    kept: bool
+
+    def to_json(self) -> dict[str, Any]:
+        return {"effect": self.effect, "bic_gain": self.bic_gain, "kept": self.kept}
+
+
 def backward_check(machine: Machine, calibration: dict[str, float], named: dict[str, float], forms: dict[str, str],
-                   rec: Recording) -> list[dict[str, Any]]:
+                   rec: Recording) -> list[BackwardCheck]:
     """Whether each named effect still earns its place beside the others: the information criterion without it
     (the others at their joint values) must be worse by more than BIC_MARGIN."""
     rate = SamModel(machine).sample_rate
@@ -425,20 +437,52 @@ def backward_check(machine: Machine, calibration: dict[str, float], named: dict[
     for name in named:
         rest = {other: value for other, value in named.items() if other != name}
         gain = _bic(simulate_recording(_with(machine, rest, calibration, forms), rec), len(rest), rate) - full_bic
-        rows.append({"effect": name, "bic_gain": gain, "kept": gain > BIC_MARGIN})
+        rows.append(BackwardCheck(name, gain, gain > BIC_MARGIN))
     return rows
+
+
+@dataclass
+class SelectionStep:
+    """One forward step of :func:`select`: every candidate fitted on top of the effects named so far, the one added (None:
+    none was significant) and what adding it did to the held-out gap."""
+
+    candidates: list[Candidate]
+    screened: list[dict[str, Any]]  # each family and form's value and gap on the screening segments (fit_effects)
+    held_out_gap_before: float
+    added: str | None = None
+    form: str | None = None  # the added family's form, chosen after the joint fit
+    separate_value: float | None = None  # the added effect fitted alone
+    joint_values: dict[str, float] = field(default_factory=dict)  # every named effect fitted jointly with it
+    joint_calibration: dict[str, float] = field(default_factory=dict)
+    forms_jointly: dict[str, float] = field(default_factory=dict)  # form -> fit gap, where several forms were tried jointly
+    fit_gap_after: float | None = None
+    held_out_gap_after: float | None = None
+    kept: bool = False  # lowered the held-out gap by HELD_OUT_GAIN
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"candidates": [c.__dict__ | {"significant": c.significant} for c in self.candidates],
+                               "screened": self.screened, "held_out_gap_before": self.held_out_gap_before}
+        if self.added is not None:
+            out |= {"added": self.added, "form": self.form, "separate_value": self.separate_value, "joint_values": self.joint_values,
+                    "joint_calibration": self.joint_calibration, "forms_jointly": self.forms_jointly,
+                    "fit_gap_after": self.fit_gap_after, "held_out_gap_after": self.held_out_gap_after, "kept": self.kept}
+        return out
 
 
 @dataclass(frozen=True)
 class Selection:
-    """What forward selection and the backward check kept (:func:`select`); each step as report.json records it."""
+    """What forward selection and the backward check kept (:func:`select`)."""
 
     named: dict[str, float]  # effect -> its value, fitted jointly
     forms: dict[str, str]  # effect -> its form, for families with several
     calibration: dict[str, float]  # the calibration fitted jointly with them
-    steps: list[dict[str, Any]]
-    backward: list[dict[str, Any]]
+    steps: list[SelectionStep]
+    backward: list[BackwardCheck]
     dropped: list[str]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"steps": [step.to_json() for step in self.steps], "backward": [check.to_json() for check in self.backward],
+                "dropped": self.dropped}
 
 
 @dataclass(frozen=True)
@@ -490,7 +534,7 @@ class DiscrepancyReport:
             "calibration": self.calibration,
             "joint_fit": {"calibration": self.selection.calibration, "effects": self.selection.named,
                           "separate_effects": self.separate_effects},
-            "selection": {"steps": self.selection.steps, "backward": self.selection.backward, "dropped": self.selection.dropped},
+            "selection": self.selection.to_json(),
             "localisation": self.localisation, "fit_s": self.fit_s, "validation_s": self.validation_s, "plots": self.plots,
             "bag_errors": self.bag_errors, "partial": self.partial, "html": self.html,
         }
@@ -510,11 +554,10 @@ def select(machine: Machine, calibration: dict[str, float], fit: Recording, held
     joint = calibration
     rate = SamModel(machine).sample_rate
     held_out_gap = gap(simulate_recording(_with(machine, {}, calibration), held_out))
-    steps: list[dict[str, Any]] = []
+    steps: list[SelectionStep] = []
     for _ in range(MAX_EFFECTS):
         candidates, screened = fit_effects(machine, joint, fit, named, forms, progress)
-        step: dict[str, Any] = {"candidates": [c.__dict__ | {"significant": c.significant} for c in candidates], "screened": screened,
-                                "held_out_gap_before": held_out_gap}
+        step = SelectionStep(candidates, screened, held_out_gap)
         steps.append(step)
         best = next((c for c in candidates if c.significant), None)
         if best is None:
@@ -534,14 +577,16 @@ def select(machine: Machine, calibration: dict[str, float], fit: Recording, held
         if progress is not None:
             progress(1)
         trial_gap = gap(simulate_recording(_with(machine, trial_named, trial_joint, trial_forms), held_out))
-        step.update({"added": best.name, "form": chosen.form, "separate_value": chosen.value, "joint_values": trial_named,
-                     "joint_calibration": trial_joint, "forms_jointly": {str(t[2].form): t[1] for t in trials} if len(trials) > 1 else {},
-                     "fit_gap_after": fit_gap, "held_out_gap_after": trial_gap, "kept": trial_gap <= (1.0 - HELD_OUT_GAIN) * held_out_gap})
-        if not step["kept"]:
+        step.added, step.form, step.separate_value, step.joint_values, step.joint_calibration = (
+            best.name, chosen.form, chosen.value, trial_named, trial_joint)
+        step.forms_jointly = {str(t[2].form): t[1] for t in trials} if len(trials) > 1 else {}
+        step.fit_gap_after, step.held_out_gap_after = fit_gap, trial_gap
+        step.kept = trial_gap <= (1.0 - HELD_OUT_GAIN) * held_out_gap
+        if not step.kept:
             break
         named, forms, joint, held_out_gap = trial_named, trial_forms, trial_joint, trial_gap
     backward = backward_check(machine, joint, named, forms, fit) if len(named) > 1 else []
-    dropped = [row["effect"] for row in backward if not row["kept"]]
+    dropped = [check.effect for check in backward if not check.kept]
     if dropped:
         joint, named = refine(machine, joint, {n: v for n, v in named.items() if n not in dropped},
                               {n: f for n, f in forms.items() if n not in dropped}, fit)
@@ -558,7 +603,7 @@ def run(data: BagData, machine: Machine, out: Path, progress: Callable[[int], No
         progress(1)
     selection = select(machine, calibration, fit, validation, progress)
     named, forms, joint_calibration = selection.named, selection.forms, selection.calibration
-    separate = {step["added"]: step["separate_value"] for step in selection.steps if step.get("kept")}
+    separate = {step.added: step.separate_value for step in selection.steps if step.kept and step.added and step.separate_value is not None}
     before_fit = simulate_recording(_with(machine, {}, calibration), fit)
     after_fit = simulate_recording(_with(machine, named, joint_calibration, forms), fit)
     raw_validation = simulate_recording(machine, validation)
@@ -608,11 +653,11 @@ def write_html(report: DiscrepancyReport, bag: Path | str, out: Path) -> Path:
     effects = [[e.name, e.form, e.value] for e in report.effects]
     steps = []
     for number, step in enumerate(report.selection.steps, start=1):
-        tried = ", ".join(f"{c['name']}{' (' + c['form'] + ')' if c['form'] else ''}: BIC {-c['bic_gain']:+.0f}, gap² {-c['reduction']:+.0%}"
-                          for c in step["candidates"])
-        steps.append([number, step.get("added", "none significant"), step.get("form"), step.get("separate_value"),
-                      (step.get("joint_values") or {}).get(step.get("added")), step["held_out_gap_before"], step.get("held_out_gap_after"),
-                      step.get("kept"), tried])
+        tried = ", ".join(f"{c.name}{' (' + c.form + ')' if c.form else ''}: BIC {-c.bic_gain:+.0f}, gap² {-c.reduction:+.0%}"
+                          for c in step.candidates)
+        steps.append([number, step.added or "none significant", step.form, step.separate_value,
+                      step.joint_values.get(step.added) if step.added else None, step.held_out_gap_before, step.held_out_gap_after,
+                      step.kept if step.added else None, tried])
     local = report.localisation["validation"]
     regimes = [[name, *(local[when]["by_regime"][name].get(channel) for when in ("before", "after") for channel in ("p_a", "p_b", "position"))]
                for name in local["before"]["by_regime"]]
@@ -627,7 +672,7 @@ td,th{{border:1px solid #999;padding:3px 6px;font-size:13px;vertical-align:top}}
 <h2>Named effects</h2>{table(["effect (family)", "form", "value"], effects) if effects else "<p>none: the data show no significant missing effect</p>"}
 <h2>Selection path</h2>{table(["step", "added", "form", "fitted alone", "fitted jointly", "held-out gap before", "after", "kept",
                               "candidates re-fitted on all segments"], steps)}
-<p>Backward check: {html.escape(", ".join(f"{r['effect']} (BIC +{r['bic_gain']:.0f} without it: {'kept' if r['kept'] else 'dropped'})"
+<p>Backward check: {html.escape(", ".join(f"{r.effect} (BIC +{r.bic_gain:.0f} without it: {'kept' if r.kept else 'dropped'})"
                                          for r in report.selection.backward) or "one effect or none, nothing to check")}.</p>
 <h2>Where the gap sits (validation part)</h2>{image(report.plots[1])}
 {table(["regime", "p_A before", "p_B before", "position before", "p_A after", "p_B after", "position after"], regimes)}
