@@ -425,7 +425,7 @@ class SimulationDiverged(InputError, FloatingPointError):
 
 @dataclass
 class SamModel:
-    """Parameters of one actuator of a SAM-type machine (contract section 3) as the model's vector."""
+    """Parameters of one actuator of a SAM-type machine (docs/interface.md section 3) as the model's vector."""
 
     machine: Machine
     actuator: str | None = None  # None: the machine's first actuator
