@@ -11,7 +11,7 @@ from hydro_ros.models.chamber import effective_bulk_modulus, leak_coefficient
 from hydro_ros.models.sam import Param, SamModel, SamPlant, valve_and_leak_flows
 from hydro_ros.models.steady_state import extension_steady_pressures, hydraulic_natural_frequency
 
-RETRACTED_JOINT = 0.728 - 1.6 + 0.005  # just off the retracted end stop (P-I GSA start, L4842)
+RETRACTED_JOINT = 0.728 - 1.6 + 0.005  # just off the retracted end stop (P-I GSA start, App. 2)
 
 
 def _frictionless(machine: Machine) -> Machine:
@@ -26,7 +26,7 @@ def _no_centre_leakage(machine: Machine) -> Machine:
 
 
 def test_leak_coefficient_matches_p1_calibration():
-    # P-I: K = 5.27e-9 m^3/(s Pa^0.5) gives 1 L/min at 10 MPa (digest claim 1)
+    # P-I: K = 5.27e-9 m^3/(s Pa^0.5) gives 1 L/min at 10 MPa (P-I Section 4.2, Table 5)
     assert leak_coefficient(1.0) == pytest.approx(5.27e-9, rel=2e-3)
 
 
@@ -36,7 +36,7 @@ def test_bulk_modulus_grows_with_extension(sam_config):
     fluid = (p[Param.OIL_MODULUS], p[Param.HOSE_MODULUS], p[Param.HOSE_VOLUME], 0.0)
     retracted = effective_bulk_modulus(0.0, p[Param.V0_A], *fluid)
     extended = effective_bulk_modulus(0.0, p[Param.V0_A] + p[Param.AREA_A] * p[Param.STROKE], *fluid)
-    # sam_nominal.yaml: ~0.42 GPa retracted, ~1.2 GPa extended, inside P-I's 300-1200 MPa
+    # config/sam.yaml: ~0.42 GPa retracted, ~1.2 GPa extended, inside P-I's 300-1200 MPa
     assert 0.38e9 < retracted < 0.46e9
     assert 1.1e9 < extended < 1.25e9
 
@@ -51,7 +51,7 @@ def test_step_extension_reaches_analytic_steady_pressures(sam_config):
     p_a, p_b, spool, x, v = (window[:, i].mean() for i in (0, 1, 2, 4, 5))
     assert spool == pytest.approx(0.25, abs=1e-6)
     fric = sam_config.actuator("boom").friction
-    # friction lumped into F_ext (P-I L3940): sliding LuGre force = F_C + (F_S-F_C) e^-(v/vs)^2 + b v
+    # friction lumped into F_ext (P-I eq. (39)): sliding LuGre force = F_C + (F_S-F_C) e^-(v/vs)^2 + b v
     sliding = fric.coulomb + (fric.static - fric.coulomb) * np.exp(-(v / fric.stribeck_velocity) ** 2) + fric.viscous * v
     expected_a, expected_b = extension_steady_pressures(model, 0.25, model.load_force(x) + sliding)
     assert p_a == pytest.approx(expected_a, rel=0.01)
@@ -153,7 +153,7 @@ def test_natural_frequency_matches_hydraulic_spring(sam_config, joint):
 
 
 def test_natural_frequency_within_seed_maximum_over_the_upper_stroke(sam_config):
-    """Seed (L2673): <= 4.5 Hz. sam_nominal's INFERRED hose values meet it for x >= 0.32 m;
+    """P-I Section 2.1: <= 4.5 Hz. config/sam.yaml's INFERRED hose values meet it for x >= 0.32 m;
     towards full retraction the small chamber-A volume gives up to 6.3 Hz (docs/reproduction.md)."""
     model = SamModel(sam_config)
     upper = [hydraulic_natural_frequency(model, x) for x in np.linspace(0.32, 0.45, 14)]

@@ -99,7 +99,7 @@ SLEW_DRIVES = {"rack": {"ratio": positive("m/rad", 10.0, hint="the plungers' str
                "motor": {"displacement": positive("m^3/rad", 1.0, hint="a 100 cm^3/rev motor is 1.59e-5 m^3/rad")}}
 PLANNER_FRICTION = {"coulomb": nonnegative("N"), "tanh_gain": positive("s/m")}
 PLANNER_ACTUATOR = {"velocity_max": positive("m/s", 10.0), "acceleration_max": positive("m/s^2", 100.0)}
-# the planner's optional sections, each key over its default: the closed loop's settings (P-VI App. A, L11659-L11666; K_p,
+# the planner's optional sections, each key over its default: the closed loop's settings (P-VI App. A; K_p,
 # eps_p, eps_v and the rate are NOT GIVEN: our choices)
 PLANNER_CONTROLLER = {
     "rate": Rule("Hz", 0.0, 1.0e3, open_low=True, hint="as trajectory_executor's rate", default=100.0),
@@ -110,7 +110,7 @@ PLANNER_CONTROLLER = {
     "log_rate": Rule("Hz", 0.0, 1.0e4, open_low=True, hint="of the recorded signals", default=100.0),
 }
 # the simulated machine's (``sim.closed_loop_crane``), PLACEHOLDERS. The mobile valves' static table (a controller inverts
-# it): dead zone as a fraction of the command (P-VI L11557: ~53 %) and the velocity at full command per unit of the
+# it): dead zone as a fraction of the command (P-VI App. A: ~53 %) and the velocity at full command per unit of the
 # cylinder's velocity limit; the plant spreads both per valve.
 PLANNER_PLANT = {
     "valve_dead_zone": Rule("", 0.0, 0.95, hint="a fraction of the command", default=0.53),

@@ -1,4 +1,4 @@
-"""Config files (contract section 3): read YAML with ``extends`` and ``fitted`` merged, coerce numbers, locate defaults.
+"""Config files (docs/interface.md section 3): read YAML with ``extends`` and ``fitted`` merged, coerce numbers, locate defaults.
 
 A valve-controlled machine's config is then typed by :mod:`hydro_ros.contract.machine`."""
 

@@ -1,4 +1,4 @@
-"""What the planner reads of a machine, parsed once into frozen dataclasses (P-V section 2, P-VI section 2).
+"""What the planner reads of a machine, parsed once into frozen dataclasses (P-V Section 2, P-VI Sections 2-3).
 
 A planar chain of three joints redundant in one of them along a planar tip path, optionally on a slewing base, each
 joint driven by a cylinder (a triangle mount or a linear mapping), masses on its links, the pump and valves of its

@@ -1,4 +1,4 @@
-"""The machine config of a valve-controlled machine (contract section 3), parsed once into frozen dataclasses.
+"""The machine config of a valve-controlled machine (docs/interface.md section 3), parsed once into frozen dataclasses.
 
 ``load_machine_config`` reads the YAML (``extends`` and ``fitted`` merged, numbers coerced) and
 returns a :class:`Machine`; every library takes the piece it needs (an :class:`Actuator`, its

@@ -15,7 +15,7 @@ from hydro_ros.contract.errors import InputError
 
 
 class Fault(str, enum.Enum):
-    """FDI output names (contract section 4)."""
+    """FDI output names (docs/interface.md section 4)."""
 
     EXTERNAL_LEAKAGE_A = "external_leakage_a"
     EXTERNAL_LEAKAGE_B = "external_leakage_b"
@@ -39,7 +39,7 @@ class Fault(str, enum.Enum):
 
 
 class Effect(str, enum.Enum):
-    """Physical effects of the model-discrepancy vocabulary (contract section 4)."""
+    """Physical effects of the model-discrepancy vocabulary (docs/interface.md section 4)."""
 
     INTERNAL_LEAKAGE = "internal_leakage"
     EXTERNAL_LEAKAGE_A = "external_leakage_a"

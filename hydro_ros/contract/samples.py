@@ -18,7 +18,7 @@ class Samples:
     pressure_b: np.ndarray
     supply_pressure: np.ndarray
     valve_command: np.ndarray
-    # pressure-compensated mobile valves only (contract section 1), else None
+    # pressure-compensated mobile valves only (docs/interface.md section 1), else None
     pilot_pressure_1: np.ndarray | None = None
     pilot_pressure_2: np.ndarray | None = None
     compensator_pressure: np.ndarray | None = None

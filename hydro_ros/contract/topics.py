@@ -1,4 +1,4 @@
-"""Topic names and types of the interface contract (section 1), in one place."""
+"""Topic names and types of the interface contract (docs/interface.md section 1), in one place."""
 
 from __future__ import annotations
 

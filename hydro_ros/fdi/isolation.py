@@ -1,4 +1,4 @@
-"""Fault isolation by residual-sign patterns: P-II Table 3 (digest section 4.9) and its procedure.
+"""Fault isolation by residual-sign patterns: P-II Table 3 and its procedure (P-II Section 3.5).
 
 A pattern code packs the four threshold-crossing flags as bits (r_pA up, r_pA down, r_pB up,
 r_pB down), written like the paper's columns: "0110" = r_pA below its negative threshold and r_pB

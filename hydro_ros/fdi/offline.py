@@ -33,7 +33,7 @@ class FdiRun:
     data: BagData | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """Contract section 5 layout, plus the bag's read errors and the latched patterns."""
+        """docs/interface.md section 5 layout, plus the bag's read errors and the latched patterns."""
         actuators = {}
         for i, name in enumerate(self.monitor.actuators):
             status = self.monitor.status(i)

@@ -1,4 +1,4 @@
-"""Parity-equation residuals for pressure-compensated mobile valves (P-IV style, digest section 6.3).
+"""Parity-equation residuals for pressure-compensated mobile valves (P-IV style, thesis §4.4).
 
 P-IV is known only from the thesis summary, so this design is INFERRED from its statements: no
 Kalman filter; a reduced-order, load-independent model (motion measured); the pilot pressures as
@@ -47,7 +47,7 @@ the spool faults), each built into the signature table by simulation (``hydro-ro
 
 Not named on the mobile SAM (bench/results/fdi_parity_eval.md): a locked or eroded compensator is never detected -
 the measured compensator pressure is the model's metering supply, so the model follows whatever the compensator
-does and the residual cannot see it (P-IV built no compensator model, digest 6.1). Left unnamed, detected: a
+does and the residual cannot see it (P-IV built no compensator model, thesis §6.4). Left unnamed, detected: a
 pilot-balance offset of 0.025-0.05 of travel keeps the real spool inside its overlap when closed and crosses like a
 velocity bias while metering (0110, quiet closed); a 0.15 MPa pilot bias does not open the closed spool and crosses
 like the internal leak (1001); a 0.3 MPa compensator bias crosses on retraction only (0010, the B leak's); a 0.15

@@ -1,11 +1,11 @@
-"""Load-independent unscented Kalman filter of P-II (digest section 4.3-4.5), batched over actuators.
+"""Load-independent unscented Kalman filter of P-II (Sections 3.2-3.3), batched over actuators.
 
 State x = [p_A, p_B, x_s, x_s'] with pressures carried in MPa inside the filter: the covariance
 then spans ~1e0..1e-10 instead of 1e12..1e-10, which keeps the 4x4 Cholesky well conditioned
 with the alpha = 0.001 weights (|W| ~ 1e6). Inputs u = [x, x', u_c, p_S] (piston position and
 velocity from the joint sensor, valve command, supply pressure [Pa]); measurement y = [p_A, p_B].
 
-Numerical guards (INFERRED, digest section 4.4 notes): the sigma-point mean is formed as
+Numerical guards (INFERRED, not in P-II): the sigma-point mean is formed as
 chi_0 + sum W_i (chi_i - chi_0), which is exact because the weights sum to one but avoids adding
 two 1e6-weighted numbers of size ~10 MPa; the covariance is symmetrised after every update and a
 failed Cholesky is repaired by re-seeding the covariance with its clipped diagonal (counted).

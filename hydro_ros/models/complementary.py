@@ -1,4 +1,4 @@
-"""Complementary filter of P-III (digest section 5.2): MEMS inclinometer + gyro -> angle and rate.
+"""Complementary filter of P-III (Section II, Fig. 3): MEMS inclinometer + gyro -> angle and rate.
 
     dz/dt = y_g - b + K_P (y_a - z),    db/dt = -K_I (y_a - z)
 

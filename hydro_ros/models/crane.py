@@ -1,4 +1,5 @@
-"""Kinematics and cylinder forces of an arm redundant in one joint along a planar tip path (P-V section 2, P-VI section 2).
+"""Kinematics and cylinder forces of an arm redundant in one joint along a planar tip path (P-V Sections 2, 5.1;
+P-VI Section 3).
 
 One model serves every chain the planner reads (``contract.crane``): three planar joints (P-V eqs. 1-8, P-VI eqs. 2-7 with
 the tilt offset L2), optionally turned about the vertical axis by a base joint (P-VI q1), one of them redundant. Given

@@ -34,7 +34,7 @@ def driven_pressure(
 ) -> float:
     """Pressure of the chamber the pump drives, P-VI eq. 41; 0 when idle or over-running.
 
-    Back-pressures with all valve-coefficient ratios 1 (PLACEHOLDER, dp.md Appendix P):
+    Back-pressures with all valve-coefficient ratios 1 (PLACEHOLDER: P-VI gives no valve coefficients):
     extension (A_B/A_A)^2 Delta p_c (eq. 23), retraction (A_A/A_B)^2 Delta p_c (eq. 24); the
     differential spool extends by eqs. 27-28 and retracts like the non-differential one (INFERRED).
     """

@@ -1,4 +1,5 @@
-"""LuGre seal friction, P-I eq. (17) (Canudas de Wit 1995), reconstructed per digest section 2.5."""
+"""LuGre seal friction, P-I eq. (17) (Canudas de Wit 1995), reconstructed as the standard LuGre model consistent with
+the seventh state equation of P-I eq. (19)."""
 
 from __future__ import annotations
 

@@ -4,12 +4,14 @@ State y = [p_A, p_B, x_s, x_s', x, x', z] (chamber pressures [Pa], normalised sp
 rate, piston position [m] and velocity [m/s], LuGre bristle deflection [m]).
 
 Deviations from the printed equations, each for a stated reason:
-* spool eq. uses K*omega_n^2 (digest section 8 #1), B-chamber volume uses A_B (#2), the s < 0
-  opening is -(x_s + offset) (#3), centre leakage is laminar in m^3/(s Pa) (#4);
+* corrections of typos in the printed equations: the spool eq. uses K*omega_n^2 as eq. (15) does
+  (eqs. (19), (22) print K*omega_n), the B-chamber volume uses A_B (eq. (22) prints A_A), the s < 0
+  opening is -(x_s + offset) (eqs. (10)-(11) print -x_s + offset), and centre leakage is laminar in
+  m^3/(s Pa) (eqs. (13)-(14) and App. 2 print the unit m^3/(s Pa^0.5) for a linear law);
 * the boom is integrated through the full eq. (7), x'' = (F - F_ext)/m_red + r' v^2 / r^2,
   rather than eq. (19)'s x'' = (F - F_ext)/m_red, so the rigid-body energy is consistent;
-* gravity torques tau = g cos(joint) (m L) are INFERRED (digest section 2.6), with the boom's
-  centre of gravity at `boom_cog_distance` and its parallel-axis inertia included;
+* gravity torques tau = g cos(joint) (m L) are INFERRED (P-I eqs. (16), (21) name the torques but give no
+  expressions), with the boom's centre of gravity at `boom_cog_distance` and its parallel-axis inertia included;
 * end stops are stiff penalty springs and pressures are floored at a cavitation pressure.
 
 Integration: classic fixed-step RK4 with `simulation.substeps` steps per sensor sample (0.1 ms
@@ -423,7 +425,7 @@ class SimulationDiverged(InputError, FloatingPointError):
 
 @dataclass
 class SamModel:
-    """Parameters of one actuator of a SAM-type machine (contract section 3) as the model's vector."""
+    """Parameters of one actuator of a SAM-type machine (docs/interface.md section 3) as the model's vector."""
 
     machine: Machine
     actuator: str | None = None  # None: the machine's first actuator

@@ -9,7 +9,8 @@ from hydro_ros.models.valve import BT, PA, flow_coefficient
 
 
 def extension_steady_pressures(model: SamModel, spool: float, external_force: float) -> tuple[float, float]:
-    """Eqs. (39, corrected: F_ext A_A^2 K_BT^2, digest section 8 #5) and (40).
+    """P-I eqs. (39) and (40), with (39)'s F_ext term F_ext A_A^2 K_BT^2 as its derivation gives (a typo in the
+    printed eq. (39): A_A A_B K_BT^2).
 
     Steady extension with PA and BT open by ``spool`` > 0 and friction lumped into F_ext.
     """
@@ -26,8 +27,8 @@ def extension_steady_pressures(model: SamModel, spool: float, external_force: fl
 def hydraulic_natural_frequency(model: SamModel, x: float, p_a: float = 0.0, p_b: float = 0.0) -> float:
     """omega_h / (2 pi) [Hz] of the closed-valve cylinder at piston position ``x``.
 
-    omega_h^2 = (B_A A_A^2 / V_A + B_B A_B^2 / V_B) / m_reduced (digest claim 25, INFERRED
-    formula; Merritt's two-chamber hydraulic spring against the boom's reduced mass).
+    omega_h^2 = (B_A A_A^2 / V_A + B_B A_B^2 / V_B) / m_reduced (INFERRED formula, not in
+    P-I, to check its Section 2.1's <= 4.5 Hz; Merritt's two-chamber hydraulic spring against the boom's reduced mass).
     """
     p = model.base
     volume_a, volume_b, bulk_a, bulk_b = chambers(p, x, p_a, p_b, 0.0)

@@ -1,7 +1,8 @@
 """4/3 proportional valve: spool dynamics and notch flows.
 
-P-I eq. (15) spool dynamics (with the K*omega_n^2 correction, digest section 8 #1), P-I
-eqs. (10)-(14) notch and centre-leakage flows with the opening-sign correction (#3), and
+P-I eq. (15) spool dynamics (K*omega_n^2 u as in eq. (15): the state-space forms P-I eqs. (19), (22) and
+P-II eq. (18) misprint it as K*omega_n u), P-I eqs. (10)-(14) notch and centre-leakage flows with the
+opening for x_s + offset < 0 taken as -(x_s + offset) (eqs. (10)-(11) print -x_s + offset), and
 P-II Table 1 flow-coefficient polynomials. Notch order in coefficient arrays: PA, PB, AT, BT.
 """
 

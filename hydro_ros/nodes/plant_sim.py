@@ -1,6 +1,6 @@
 """plant_sim: the machine of a config in (scaled) real time on the contract topics.
 
-Publishes the measured topics of contract section 1 (raw CDR, the same bytes a bag holds),
+Publishes the measured topics of docs/interface.md section 1 (raw CDR, the same bytes a bag holds),
 optionally /clock. Valve commands come from the simulated operator (`excitation: operator`,
 then they are published on /hydraulics/valve_commands as the machine would) or from that topic
 (`excitation: topic`). Every actuator of a config in the SAM's layout is simulated, each a boom of its

@@ -2,8 +2,8 @@
 
 ``hydro-ros bag record`` runs it. Each topic is subscribed with raw CDR (nothing is deserialised) and
 with the reliability its publishers offer, so a best-effort driver is recorded too; the publishers'
-QoS goes into the bag's ``offered_qos_profiles``. Log time is the message's header stamp (contract
-section 2). The bag is split by recording (wall) time, as ``ros2 bag record --max-bag-duration``
+QoS goes into the bag's ``offered_qos_profiles``. Log time is the message's header stamp
+(docs/interface.md section 2). The bag is split by recording (wall) time, as ``ros2 bag record --max-bag-duration``
 does, since header stamps need not arrive in order across topics, and/or by size (bags/writer.py).
 Stopping with Ctrl-C or SIGTERM closes the open part and writes metadata.yaml.
 """

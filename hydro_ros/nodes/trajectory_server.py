@@ -1,6 +1,6 @@
 """trajectory_server: serves the energy-optimal trajectories of the trajectory database.
 
-Topics (contract section 1, relative to the node, so ``/trajectory_server/...`` by default):
+Topics (docs/interface.md section 1, relative to the node, so ``/trajectory_server/...`` by default):
 ``~/catalog`` (latched String, JSON list of the stored paths and their solutions' energies),
 ``~/request`` (String: a path id, or JSON ``{"path": ..., "method": ..., "id": ...}``, or
 ``{"cancel": id}``), ``~/result`` (latched String, JSON ``{"path", "id", "ok", "error", ...}`` answering

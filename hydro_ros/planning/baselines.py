@@ -1,4 +1,4 @@
-"""The methods DP is compared with (dp.md section 8): SNS pseudo-inverses and direct collocation.
+"""The methods DP is compared with (P-V Section 6, P-VI Section 6): SNS pseudo-inverses and direct collocation.
 
 - ``pseudo_inverse``: instantaneous minimum-norm velocities in actuator space (P-V "Act. p-inv.",
   P-VI "P-inv. (a.)"; optionally weighted by the pump areas, P-V "weighted") or joint space

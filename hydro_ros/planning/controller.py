@@ -2,7 +2,7 @@
 
 One controller per cylinder (eqs. A1-A2): the desired cylinder velocity plus a P term on the
 position error, through the inverse of the valve's static dead-zone table (DZI). Tracking and
-regulation modes (L11659-L11666), INFERRED reading of dp.md section 10: outside the position band
+regulation modes (P-VI App. A), INFERRED reading of its wording: outside the position band
 eps_p the controller regulates; inside it, a desired velocity below eps_v leaves the valve closed
 so that numerically small references do not move the cylinder and raise the LS pressure. K_p,
 eps_p, eps_v and the rate are NOT GIVEN: ``planner.controller`` in the machine config holds our choices.

@@ -1,4 +1,4 @@
-"""Stage costs of the energy-optimal redundancy resolution (dp.md section 5).
+"""Stage costs of the energy-optimal redundancy resolution (P-V Section 5, P-VI Sections 4.2-4.3).
 
 - ``cp``: constant-pressure system, p_s Q_p / eta (P-V eq. 31, P-VI eq. 43); load-independent.
 - ``ls``: load-sensing system, (max driven chamber pressure + Delta p_LS) Q_p / eta (P-V eqs. 32-35,

@@ -11,7 +11,7 @@ nodes (``DpGrid``); a node whose next position falls less than one velocity cell
 window end counts as on it (``_bellman_step``). Both are ours, not P-VI's: P-VI's fixed grid and
 conservative interpolation kept the vertical path's optimum 4-5 cells off the edge it rides.
 
-Why it is fast (dp.md 6.2, "implementation notes"):
+Why it is fast (our reading of the structure of P-VI eqs. 29-31; the paper gives no implementation notes):
 - the IK, the cylinder velocities and the u-independent stage costs are evaluated once per state
   (N_c x N_v), not per state and control;
 - every cylinder acceleration and force is affine in u (q'' is affine in the extension
@@ -501,8 +501,9 @@ def _bellman_step(
 
 
 def terminal_cost(crane: Crane, samples: PathSamples, grid: DpGrid) -> np.ndarray:
-    """Rest-to-rest end (dp.md 6.5, INFERRED): infeasible positions are excluded and a final
-    velocity costs REST_PENALTY per m/s, a finite penalty that interpolates linearly to zero at rest."""
+    """Rest-to-rest end (INFERRED: P-V Section 3.2 omits the final cost, its Section 6.1 sets the final velocities to
+    zero): infeasible positions are excluded and a final velocity costs REST_PENALTY per m/s, a finite penalty that
+    interpolates linearly to zero at rest."""
     terms = stage_terms(crane, samples, samples.stages, grid.positions[-1][:, None], grid.velocities[None, :], Cost.CP)
     return np.where(terms.admissible, REST_PENALTY * np.abs(grid.velocities)[None, :], INFEASIBLE)
 

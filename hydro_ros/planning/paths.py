@@ -1,4 +1,4 @@
-"""Prescribed tip paths (P-V section 7.1, P-VI section 7.2): quintic rest-to-rest lines and clamped splines.
+"""Prescribed tip paths (P-V Section 6.1, P-VI Section 6): quintic rest-to-rest lines and clamped splines.
 
 A path is a chain of segments from ``start``; each segment ends at rest. Quintic segments follow
 s = 10 tau^3 - 15 tau^4 + 6 tau^5 (peak speed 1.875 |B - A| / T); spline segments are cubic

@@ -26,7 +26,7 @@ from hydro_ros.planning.trajectory import ExtensionTrajectory, evaluate
 
 ALL_LIMITS = ("position", "velocity", "acceleration")
 
-# method -> (DP cost or None, limits the method claims to keep); contract section 5 names first
+# method -> (DP cost or None, limits the method claims to keep); docs/interface.md section 5 names first
 METHODS: dict[str, tuple[Cost | None, tuple[str, ...]]] = {
     "dp_cp": (Cost.CP, ALL_LIMITS),
     "dp_ls": (Cost.LS, ALL_LIMITS),
@@ -38,7 +38,7 @@ METHODS: dict[str, tuple[Cost | None, tuple[str, ...]]] = {
     "dp_velocity": (Cost.VELOCITY, ALL_LIMITS),  # P-V "DP (Act. velocity)"
     "pinv_actuator_weighted": (None, ("position", "velocity")),  # P-V "Act. p-inv. (Weighted)"
 }
-# the method names of contract section 5, named rather than read off the dict order
+# the method names of docs/interface.md section 5, named rather than read off the dict order
 CONTRACT_METHODS = ("dp_cp", "dp_ls", "dp_actuator_energy", "dp_extension", "pinv_actuator", "pinv_joint", "direct_cp")
 
 

@@ -1,9 +1,10 @@
 """The straightforward vectorised NumPy DP: the yardstick of the fast solver (tests and ``make bench``).
 
 Every stage evaluates the full crane motion, stage cost, limits and interpolated cost-to-go on the
-whole state x control grid (N_c x N_v x N_u arrays) and minimises over the control axis: what the
-spec author's prototype did (dp.md 6.6: 138 s and 0.86 GB for the P-VI grid). It shares the crane,
-the costs and the terminal condition with ``dp.solve`` and nothing of its structure.
+whole state x control grid (N_c x N_v x N_u arrays) and minimises over the control axis: what a first
+prototype does (138 s and 0.86 GB for the P-VI grid, measured during development, not in the thesis: P-VI
+Section 6 says only that its Matlab run nearly maxed out 8 GB of RAM). It shares the crane, the costs and the
+terminal condition with ``dp.solve`` and nothing of its structure.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Serve stored trajectories, re-planned from the manipulator's actual state (no ROS here).
 
 The thesis solved every path offline from one initial configuration and left on-line use open
-(P-VI L11209-L11212: the backward pass can be reused, only a new forward simulation is needed).
+(P-VI Section 5: the backward pass can be reused, only a new forward simulation is needed).
 This closes it: when the current joint state differs from the stored start, a DP solution runs its
 stored policy forward from the actual extension (``DpSolution.follow``: compiled, under a
 millisecond for 200 stages), a pseudo-inverse simply runs again from there; a DP's result is filtered

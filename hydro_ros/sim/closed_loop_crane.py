@@ -1,12 +1,12 @@
 """Closed-loop crane plant: valve-controlled cylinders, pressure compensators and a CP or LS pump.
 
-What the planner leaves out, this has (P-VI Appendix A, L11557-L11559; P-V L9380-L9381):
+What the planner leaves out, this has (P-VI Appendix A; P-V Section 6.3):
 - valve input dead zone (~53 %), input delay (> 0.15 s) and spool lag (bandwidth < 10 Hz), each
   cylinder's valve a little different from the table its controller inverts (seeded);
 - a payload at the tip and Coulomb friction on the base, lift and tilt cylinders;
 - an LS pump whose pressure follows the highest load-sensed chamber pressure plus the margin with a
   first-order lag (0.20 s): while it lags, a compensator without enough pressure drop passes less
-  flow, which is where LS tracking loses to CP (P-VI L11444-L11447);
+  flow, which is where LS tracking loses to CP (P-VI Section 6.3, Table 4);
 - the CP pump's supply pressure is constant; both pumps are limited to their maximum flow.
 
 Cylinder motion follows the compensated valve flow through a first-order lag (the mechanics'

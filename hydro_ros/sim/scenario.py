@@ -28,7 +28,7 @@ class Scenario:
     actuator: str | None = None  # None: the machine's first actuator
 
     def truth(self, machine: Machine) -> dict[str, Any]:
-        """Ground truth stored in the bag's custom_data (contract section 2)."""
+        """Ground truth stored in the bag's custom_data (docs/interface.md section 2)."""
         return {
             "machine": machine.name,
             "config": machine.source.name,

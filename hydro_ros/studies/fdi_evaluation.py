@@ -390,7 +390,7 @@ def markdown_table(summary: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-# P-IV fault list (digest section 6.1) with the sizes the signature table is built at
+# P-IV fault list (as the thesis summarises P-IV in §4.4; P-IV itself is not in the compendium) with the sizes the signature table is built at
 PARITY_FAULTS = (
     ("external_leakage_a", 2.0), ("external_leakage_b", 2.0), ("internal_leakage", 2.0),
     ("velocity_sensor_bias", 0.02), ("pressure_sensor_bias_a", 5e5), ("pressure_sensor_bias_b", 5e5),

@@ -1,4 +1,4 @@
-"""Global sensitivity analysis of P-I (digest section 3): Sobol' indices of the SAM model.
+"""Global sensitivity analysis of P-I: Sobol' indices of the SAM model.
 
 Set-up as P-I: a 25 % valve step that extends the cylinder from retracted, outputs p_A, p_B and
 the piston velocity at transient instants and at 4 s (P-I's steady state, though the boom still moves
@@ -33,7 +33,7 @@ from hydro_ros.models.chamber import leak_coefficient
 from hydro_ros.models.kinematics import piston_position
 from hydro_ros.models.sam import Param, SamModel, SamPlant
 
-# P-I Table 1 (L3749-L3830); SI units
+# P-I Table 1; SI units
 PARAMETERS = {
     "offset": (-0.05, 0.05),
     "q_n_pa": (15.0 / 60000.0, 35.0 / 60000.0),
@@ -51,7 +51,7 @@ TIMES = (0.05, 0.10, 0.20, 0.30, 0.50, 0.75, 1.0, 2.0, 3.0, 4.0)
 OUTPUTS = ("p_a", "p_b", "velocity")
 STEP = 0.25
 SETTLE_S = 0.5  # at rest before the step, so the start is the centre-leakage equilibrium
-RETRACTED_THETA = 0.728 + 0.005  # P-I's triangle angle with the cylinder retracted (L4842), just off the end stop (INFERRED)
+RETRACTED_THETA = 0.728 + 0.005  # P-I's triangle angle with the cylinder retracted (P-I App. 2), just off the end stop (INFERRED)
 STEADY = "steady"  # the instant of the steady-state indices
 # P-I's total-order indices of p_A at 4 s: Table 4 (parameters) and Table 8 (leaks)
 P_I_P_A_TOTAL_4S = {
@@ -297,7 +297,7 @@ class Cause:
         return machine.with_overrides({**self.machine, "actuators": {machine.first.name: dict(self.actuator)}})
 
 
-MOUNT_OFFSET_P_I = 0.415  # P-I's alpha1 + alpha2 (L4824), read as boom angle = theta - (alpha1 + alpha2) (INFERRED)
+MOUNT_OFFSET_P_I = 0.415  # P-I's alpha1 + alpha2 (P-I App. 2, Fig. 3), read as boom angle = theta - (alpha1 + alpha2) (INFERRED)
 CAUSES = (
     Cause("step from p_B = 0", "the step at once from rest with p_B at tank pressure (p_A holding the load), not after "
           "0.5 s at the centre-leakage equilibrium (P-I gives no initial pressures)", initial_p_b=0.0),
