@@ -134,8 +134,8 @@ def main() -> int:
                "sizes_l_min": list(SIZES), "run_s": RUN_S, "onset_s": ONSET_S, "confidence": CONFIDENCE, "pooled": pooled,
                "wall_s": round(time.perf_counter() - start, 1), "per_rig": rigs}
     out = Path(args.out)
-    write_result(out, summary)
     plot(summary, out.with_suffix(".png"))
+    write_result(out, summary)  # last: a stamped file stands for a finished step
     print(json.dumps(pooled, indent=2))
     return 0
 

@@ -131,8 +131,8 @@ def main() -> int:
         "wall_s": round(time.perf_counter() - start, 1), "per_plant": plants,
     }
     out = Path(args.out)
-    write_result(out, summary)
     plot(summary, out.with_suffix(".png"))
+    write_result(out, summary)  # last: a stamped file stands for a finished step
     print(json.dumps({k: v for k, v in summary.items() if k != "per_plant"}, indent=2))
     return 0
 

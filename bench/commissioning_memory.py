@@ -89,8 +89,8 @@ def main() -> int:
     shown = config.resolve().relative_to(REPO) if config.resolve().is_relative_to(REPO) else config
     summary = {"commit": commit(), "config": str(shown), "target_mb": TARGET_MB, "runs": runs,
                "growth_mb_per_recorded_hour": round(growth, 1), "within_target": longest["peak_mb"] < TARGET_MB}
-    write_result(out, summary)
     plot(summary, out.with_suffix(".png"))
+    write_result(out, summary)  # last: a stamped file stands for a finished step
     print(json.dumps(summary, indent=2))
     return 0 if summary["within_target"] else 1
 

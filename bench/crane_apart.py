@@ -158,8 +158,8 @@ def main() -> int:
                "confidence": CONFIDENCE, "pooled": pooled, "effects_rig": args.rigs[0], "effects": effects,
                "wall_s": round(time.perf_counter() - start, 1), "per_rig": rigs}
     out = Path(args.out)
-    write_result(out, summary)
     plot(summary, out.with_suffix(".png"))
+    write_result(out, summary)  # last: a stamped file stands for a finished step
     print(json.dumps({k: v for k, v in summary.items() if k != "per_rig"}, indent=2))
     return 0
 

@@ -113,9 +113,9 @@ def main() -> int:
     summary["false_alarm_runs"] = [{"seed": o.case.seed, "mismatch": o.case.mismatch, "path": o.case.path or "operator", "alarms": o.alarms}
                                    for o in free_outcomes + doubled_outcomes if o.alarms]
     out = Path(args.out)
-    write_result(out, summary)
     out.with_suffix(".md").write_text(markdown(summary))
     plot(summary, out.with_suffix(".png"))
+    write_result(out, summary)  # last: a stamped file stands for a finished step
     print(markdown(summary))
     return 0
 

@@ -132,10 +132,10 @@ def independent_row(config: Machine, overlap: float) -> dict:
 
 def independent(config: Machine, out_dir: Path) -> list[dict]:
     rows = [independent_row(config, overlap) for overlap in tqdm(INDEPENDENT_OVERLAPS, desc="independent plant", unit="bag")]
-    write_result(out_dir / "discrepancy_independent.json", {"plant": "hydro_ros.studies.independent_plant", "rows": rows})
     plot_gap_profiles([r["profile"] | {"title": f"plain overlap {r['hidden']['valve_deadzone']:g}", "truth": r["hidden"]["valve_deadzone"],
                                        "named": r["named"].get("valve_deadzone", {}).get("value")} for r in rows],
                       out_dir / "discrepancy_independent.png")
+    write_result(out_dir / "discrepancy_independent.json", {"plant": "hydro_ros.studies.independent_plant", "rows": rows})  # last
     print(table(rows))
     return rows
 

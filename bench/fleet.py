@@ -81,12 +81,12 @@ def main() -> None:
     result = {"recording_s": RECORDING_S, "recordings": RECORDINGS, "cpu_count": os.cpu_count(), "runs": runs,
               "fleet": {"machines": FLEET_MACHINES, "hours_per_day": HOURS_PER_DAY, "recording_hours_per_day": daily,
                         "cores_for_a_day_in_a_day": daily / (best * 24.0)}}
-    write_result(Path(args.out), result)
     fig, ax = plt.subplots(figsize=(7, 3))
     ax.barh(list(runs), [r["one_hour_recordings_per_core_hour"] for r in runs.values()])
     ax.set_xlabel("1 h recordings of 1 kHz data analysed per core-hour")
     fig.tight_layout()
     fig.savefig(Path(args.out).with_suffix(".png"), dpi=100)
+    write_result(Path(args.out), result)  # last: a stamped file stands for a finished step
     print(json.dumps(result["fleet"]))
 
 

@@ -39,7 +39,7 @@ from hydro_ros.studies.gsa import (
     sobol_indices,
     steady_state_indices,
 )
-from hydro_ros.tooling.benchresults import write_result
+from hydro_ros.tooling.benchresults import commit, write_result
 
 REPO = Path(__file__).resolve().parent.parent
 P_I_SAMPLES = 10000
@@ -179,9 +179,9 @@ def main() -> int:
         "p_i_p_a_total_4s": P_I_P_A_TOTAL_4S,
         "convergence": {space: {str(n): result for n, result in results[space].items()} for space in SPACES},
     }
-    written = json.loads(write_result(out, summary).read_text())
-    plot_convergence(written, out.with_suffix(".png"))
-    plot_causes(written, out.with_name(out.stem + "_causes.png"))
+    plot_convergence({**summary, "commit": commit()}, out.with_suffix(".png"))
+    plot_causes(summary, out.with_name(out.stem + "_causes.png"))
+    written = json.loads(write_result(out, summary).read_text())  # last: a stamped file stands for a finished step
     print(json.dumps({key: written[key] for key in ("commit", "runs", "wall_s", "cpu_s", "p_i_samples_cpu_s_estimate",
                                                     "stable_from_4s", "leader_stable_from_4s")}, indent=2))
     for cause in written["causes"]:

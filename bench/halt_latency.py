@@ -166,8 +166,8 @@ def main() -> None:
     args = parser.parse_args()
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     result = run(args.trials)
-    write_result(args.out, result)
     plot(result, args.out.with_suffix(".png"))
+    write_result(args.out, result)  # last: a stamped file stands for a finished step
     print(json.dumps(result["latency_s"], indent=2))
 
 

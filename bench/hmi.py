@@ -132,8 +132,8 @@ def main() -> None:
     args = parser.parse_args()
     result = measure(args.phase, (0, 1, 4))
     out = Path(args.out)
-    write_result(out, result)
     _plot(result, out.with_suffix(".png"))
+    write_result(out, result)  # last: a stamped file stands for a finished step
     for phase in result["phases"]:
         latency = phase["diagnostics_to_dom_latency_ms"]
         print(f"{phase['clients']} page(s): hmi {100 * phase['cpu_share_of_one_core']['hmi']:.1f} % of a core "

@@ -23,7 +23,6 @@ def main() -> None:
     args = parser.parse_args()
     result = tables(args.seeds)
     out = Path(args.out)
-    write_result(out, result)
     out.with_suffix(".md").write_text(markdown(result))
     cases = [("I fault-free", result["table_1"], result["paper"]["table_1"])] + [
         (f"II {fault}", rows, result["paper"]["table_2"][fault]) for fault, rows in result["table_2"].items()]
@@ -39,6 +38,7 @@ def main() -> None:
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out.with_suffix(".png"), dpi=100)
+    write_result(out, result)  # last: a stamped file stands for a finished step
     print(markdown(result))
 
 

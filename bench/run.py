@@ -174,9 +174,9 @@ def fdi_evaluation(config: Machine, out_dir: Path, name: str = "fdi_eval") -> di
 
     with tqdm(unit="run", desc="fdi-eval") as bar:
         summary = evaluate(config, progress=bar.update)
-    write_result(out_dir / f"{name}.json", summary)
     (out_dir / f"{name}.md").write_text(markdown_table(summary))
     plot_fdi_evaluation(summary, out_dir / f"{name}.png")
+    write_result(out_dir / f"{name}.json", summary)  # last: a stamped file stands for a finished step
     return {"threshold": summary["threshold"], "false_alarms_per_hour": summary["fault_free"]["false_alarms_per_hour"],
             "smallest_detectable": summary["smallest_detectable"], "table": f"bench/{name}.md"}
 
@@ -207,7 +207,6 @@ def main() -> int:
                "fdi_evaluation": fdi_evaluation(config, out.parent),
                "fdi_parity_evaluation": fdi_evaluation(load_machine_config(default_config_path("sam_mobile")), out.parent,
                                                        "fdi_parity_eval")}
-    write_result(out, results)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -230,6 +229,7 @@ def main() -> int:
     d.set_ylabel("x real time (SAM, 1 kHz)")
     fig.tight_layout()
     fig.savefig(out.with_suffix(".png"), dpi=100)
+    write_result(out, results)  # last: a stamped file stands for a finished step
     print(json.dumps(results, indent=2))
     return 0
 

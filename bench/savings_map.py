@@ -33,7 +33,6 @@ def main() -> None:
     with tqdm(total=len(paths), unit="line", desc="savings map") as bar:
         rows = savings(crane, config, paths, progress=lambda _: bar.update())
     out = Path(args.out)
-    write_result(out, {"machine": "k70m", "rows": rows})
     lines = ["| line | from | to | DP saving CP | DP saving LS | pseudo-inverses within limits |", "|---|---|---|---|---|---|"]
     for row in rows:
         if row["feasible"]:
@@ -62,6 +61,7 @@ def main() -> None:
     axes[0].set_ylabel("y, up [m]")
     fig.colorbar(plt.cm.ScalarMappable(cmap="viridis", norm=plt.Normalize(0, 40)), ax=axes, label="saving [%] (grey dotted: not followed)")
     fig.savefig(out.with_suffix(".png"), dpi=100)
+    write_result(out, {"machine": "k70m", "rows": rows})  # last: a stamped file stands for a finished step
     print(out.with_suffix(".md").read_text())
 
 
