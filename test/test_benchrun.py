@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from hydro_ros.tooling import benchrun
-from hydro_ros.tooling.benchresults import code_hash, write_result
+from hydro_ros.tooling.benchresults import code_hash, moved, write_result
 
 
 def _git(root: Path, *args: str) -> None:
@@ -125,3 +125,18 @@ def test_resuming_runs_only_the_pending_steps_timed_ones_here_first_the_rest_on_
     assert len(ran) == 3 and ran[0] == ["speed", "MainThread", "now"]  # "done" not rerun; the timed step first, and here
     assert sorted(name for name, thread, _ in ran[1:] if thread != "MainThread") == ["eval", "eval2"]
     assert {code for _, _, code in ran} == {"now"}  # each step told the code the run started on, on a worker too
+
+
+def test_a_rerun_names_the_figures_it_moved_and_not_the_machine_bound_ones(tmp_path, capsys):
+    before = {"commit": "a", "code": "x", "wall_s": 10.0, "rows": [{"gap": 0.781, "named": "leak", "delays_s": [3.0]}],
+              "runs_per_s": 50.0, "hours": 7.2}
+    after = {"commit": "b", "code": "y", "wall_s": 14.0, "rows": [{"gap": 0.7835, "named": "leak", "delays_s": [3.1]}],
+             "runs_per_s": 30.0, "hours": 7.2, "extra": 1}
+    assert moved(before, after) == ["rows[0].delays_s[0]: 3 -> 3.1", "extra: added"]  # 0.781 -> 0.7835 is within 0.5 %
+    assert moved(before, {**after, "rows": []}) == ["rows: 1 -> 0 entries", "extra: added"]
+    (tmp_path / "mems.json").write_text(json.dumps(after))
+    step = benchrun.Step("mems", "mems")
+    assert benchrun.report_moves(step, {"mems": before}, tmp_path, tmp_path / "moved") == ["mems: rows[0].delays_s[0]: 3 -> 3.1",
+                                                                                           "mems: extra: added"]
+    assert json.loads((tmp_path / "moved" / "mems.json").read_text())["moved"][0] == "mems: rows[0].delays_s[0]: 3 -> 3.1"
+    assert "2 figures moved by more than 0.5 %" in capsys.readouterr().out

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import tempfile
 from collections.abc import Callable
@@ -52,6 +53,34 @@ def write_result(path: str | Path, result: dict[str, Any]) -> Path:
     stamps = {"commit": commit(), "code": os.environ.get(CODE_ENV) or code_hash()}
     path.write_text(json.dumps({**stamps, **{k: v for k, v in result.items() if k not in stamps}}, indent=2) + "\n")
     return path
+
+
+# keys whose numbers are times, speeds or memory: they move with the machine's load, not with the code
+MACHINE_BOUND = re.compile(r"(^|_)(wall|seconds|cpu|rss|mb|latency|elapsed|speed|ms)($|_)|per_s($|_)|per_core|real_time", re.I)
+
+
+def moved(before: Any, after: Any, tolerance: float = 0.005, where: str = "") -> list[str]:
+    """The figures of a result that a rerun moved by more than ``tolerance`` of their size, and what it added or dropped
+    ("rows[3].gap: 0.781 -> 0.79"), leaving out the stamps and the machine-bound figures (MACHINE_BOUND)."""
+    if isinstance(before, dict) and isinstance(after, dict):
+        out = []
+        for key in dict.fromkeys([*before, *after]):
+            if key in ("commit", "code", "part_commits") or MACHINE_BOUND.search(str(key)):
+                continue
+            if key not in after or key not in before:
+                out.append(f"{where}{key}: {'dropped' if key not in after else 'added'}")
+            else:
+                out += moved(before[key], after[key], tolerance, f"{where}{key}.")
+        return out
+    if isinstance(before, list) and isinstance(after, list):
+        if len(before) != len(after):
+            return [f"{where.rstrip('.')}: {len(before)} -> {len(after)} entries"]
+        return [line for k, (b, a) in enumerate(zip(before, after)) for line in moved(b, a, tolerance, f"{where.rstrip('.')}[{k}].")]
+    numbers = (int, float)
+    if isinstance(before, numbers) and isinstance(after, numbers) and not isinstance(before, bool) and not isinstance(after, bool):
+        same = before == after or abs(after - before) <= tolerance * max(abs(before), abs(after))
+        return [] if same else [f"{where.rstrip('.')}: {before:.6g} -> {after:.6g}"]
+    return [] if before == after else [f"{where.rstrip('.')}: {str(before)[:40]} -> {str(after)[:40]}"]
 
 
 def read_results() -> dict[str, Any]:

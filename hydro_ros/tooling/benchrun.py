@@ -24,7 +24,9 @@ from pathlib import Path
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.extras import optional_module
-from hydro_ros.tooling.benchresults import CODE_ENV, RESULTS, ROOT, code_hash, require_clean_tree
+from hydro_ros.tooling.benchresults import CODE_ENV, RESULTS, ROOT, code_hash, moved, require_clean_tree
+
+MOVES = ROOT / "out" / "bench-moved"  # per step, what its rerun moved against the files it replaced
 
 
 @dataclass(frozen=True)
@@ -100,6 +102,34 @@ def run_step(step: Step, code: str) -> tuple[str, int, float]:
     return step.name, status, time.monotonic() - start
 
 
+def _previous(step: Step, results: Path = RESULTS) -> dict[str, object]:
+    previous = {}
+    for name in step.writes:
+        try:
+            previous[name] = json.loads((results / f"{name}.json").read_text())
+        except (OSError, ValueError):
+            continue
+    return previous
+
+
+def report_moves(step: Step, previous: dict[str, object], results: Path = RESULTS, out: Path = MOVES) -> list[str]:
+    """What the step's rerun moved by more than 0.5 % against the files it replaced (issue 56: refactors leave the published
+    numbers as they were), printed and kept in out/bench-moved/<step>.json."""
+    lines = []
+    for name, before in previous.items():
+        try:
+            after = json.loads((results / f"{name}.json").read_text())
+        except (OSError, ValueError):
+            continue
+        lines += [f"{name}: {line}" for line in moved(before, after)]
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{step.name}.json").write_text(json.dumps({"compared": list(previous), "moved": lines}, indent=1) + "\n")
+    shown = "; ".join(lines[:6]) + (f"; ... ({len(lines)} in {out / step.name}.json)" if len(lines) > 6 else "")
+    print(f"bench: {step.name}: " + (f"{len(lines)} figures moved by more than 0.5 % from the files it replaced: {shown}" if lines
+                                     else f"every figure within 0.5 % of the files it replaced ({', '.join(previous) or 'none'})"), flush=True)
+    return lines
+
+
 def _on_dask(steps: list[Step], address: str, code: str) -> list[tuple[str, int, float]]:
     try:
         distributed = optional_module("distributed")
@@ -147,12 +177,18 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     for step in alone:
         print(f"bench: {step.name}: {' '.join(step.command()[1:])}", flush=True)
+        previous = _previous(step)
         results.append(run_step(step, code))
+        report_moves(step, previous)
         if code_hash() != code:
             raise SystemExit(f"make bench: the code changed while {step.name} ran: its results carry the code the run started on; "
                              "commit, then run make bench again")
     if args.dask and len(alone) < len(todo):
-        results += _on_dask([s for s in todo if s not in alone], args.dask, code)
+        remote = [s for s in todo if s not in alone]
+        previous = {s.name: _previous(s) for s in remote}
+        results += _on_dask(remote, args.dask, code)
+        for step in remote:
+            report_moves(step, previous[step.name])
     failed = [name for name, status, _ in results if status != 0]
     if failed:
         print(f"bench: failed: {', '.join(failed)} (their files are not current; make bench reruns only what is not)", file=sys.stderr)
