@@ -34,8 +34,8 @@ RIGS = (1, 2, 3)
 RUN_S = 120.0
 BATCH = 8  # runs per batch between cache writes
 # what a run reads: the package up to its studies (test_layers holds that nothing there imports the layers above), the
-# configs and this script; a commit that changes only the nodes, the CLI or the docs tooling keeps the cached hours
-RUN_CODE = ("hydro_ros", "config", "bench/fault_free_hours.py")
+# configs, this script and the pinned libraries; a commit that changes only the nodes, the CLI or the docs tooling keeps the cached hours
+RUN_CODE = ("hydro_ros", "config", "bench/fault_free_hours.py", "requirements.txt")  # the pins: numpy, scipy and numba compute too
 ABOVE_THE_STUDIES = ("hydro_ros/nodes", "hydro_ros/demo.py", "hydro_ros/processes.py", "hydro_ros/cli", "hydro_ros/tooling")
 
 

@@ -43,6 +43,8 @@ def test_a_narrowed_code_hash_follows_only_the_code_it_names(checkout):
     assert run_code() == before != code_hash(checkout)
     (checkout / "hydro_ros" / "model.py").write_text("K = 3\n")
     assert run_code() != before
+    with pytest.raises(ValueError, match=r"requirements\.txt not in"):  # never the empty tree's hash for a path that is not there
+        code_hash(checkout, paths=("hydro_ros", "requirements.txt"))
 
 
 def test_the_code_hash_follows_the_code_committed_or_not_and_nothing_written_from_the_results(checkout):
@@ -136,7 +138,9 @@ def test_a_rerun_names_the_figures_it_moved_and_not_the_machine_bound_ones(tmp_p
     assert moved(before, {**after, "rows": []}) == ["rows: 1 -> 0 entries", "extra: added"]
     (tmp_path / "mems.json").write_text(json.dumps(after))
     step = benchrun.Step("mems", "mems")
-    assert benchrun.report_moves(step, {"mems": before}, tmp_path, tmp_path / "moved") == ["mems: rows[0].delays_s[0]: 3 -> 3.1",
-                                                                                           "mems: extra: added"]
+    assert benchrun.report_moves(step, {"mems": before}, 0, tmp_path, tmp_path / "moved") == ["mems: rows[0].delays_s[0]: 3 -> 3.1",
+                                                                                              "mems: extra: added"]
     assert json.loads((tmp_path / "moved" / "mems.json").read_text())["moved"][0] == "mems: rows[0].delays_s[0]: 3 -> 3.1"
     assert "2 figures moved by more than 0.5 %" in capsys.readouterr().out
+    assert benchrun.report_moves(step, {"mems": before}, 1, tmp_path, tmp_path / "moved") == []
+    assert "failed (status 1): its files are not compared" in capsys.readouterr().out

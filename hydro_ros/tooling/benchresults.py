@@ -35,7 +35,10 @@ def code_hash(root: Path = ROOT, paths: tuple[str, ...] = (".",), excluding: tup
     and ``excluding`` narrow it to the code one computation reads."""
     with tempfile.TemporaryDirectory() as tmp:
         env = {**os.environ, "GIT_INDEX_FILE": str(Path(tmp) / "index")}
-        _git("add", "--all", "--", *paths, *(f":(exclude){path}" for path in (*NOT_CODE, *excluding)), root=root, env=env)
+        named = [path for path in paths if (root / path).exists()]
+        if len(named) < len(paths):  # git would refuse the whole list and hash an empty tree
+            raise ValueError(f"code_hash: {', '.join(sorted(set(paths) - set(named)))} not in {root}")
+        _git("add", "--all", "--", *named, *(f":(exclude){path}" for path in (*NOT_CODE, *excluding)), root=root, env=env)
         return _git("write-tree", root=root, env=env) or "unknown"
 
 
@@ -55,8 +58,12 @@ def write_result(path: str | Path, result: dict[str, Any]) -> Path:
     return path
 
 
-# keys whose numbers are times, speeds or memory: they move with the machine's load, not with the code
-MACHINE_BOUND = re.compile(r"(^|_)(wall|seconds|cpu|rss|mb|latency|elapsed|speed|ms)($|_)|per_s($|_)|per_core|real_time", re.I)
+# keys whose numbers are wall-clock times, speeds, speed-ups or memory: they move with the machine and its load, not with the
+# code (checked against every key of bench/results: a physical peak, ratio or speed, e.g. pump_flow_peak_m3s, side_ratio,
+# telescope_speed_m_s, is compared)
+MACHINE_BOUND = re.compile(r"(^|_)(wall|seconds|cpu|cores|rss|mb|memory|latency|elapsed|runtime|speedup|ms)($|_)|per_s($|_)|per_core"
+                           r"|real_time|peak_(rss|mb|vs)|ratio_(to|blocks)|^(commission|open_check|samples|measured|duration|server_ready)_s",
+                           re.I)
 
 
 def moved(before: Any, after: Any, tolerance: float = 0.005, where: str = "") -> list[str]:

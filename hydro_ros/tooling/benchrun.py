@@ -112,9 +112,12 @@ def _previous(step: Step, results: Path = RESULTS) -> dict[str, object]:
     return previous
 
 
-def report_moves(step: Step, previous: dict[str, object], results: Path = RESULTS, out: Path = MOVES) -> list[str]:
+def report_moves(step: Step, previous: dict[str, object], status: int = 0, results: Path = RESULTS, out: Path = MOVES) -> list[str]:
     """What the step's rerun moved by more than 0.5 % against the files it replaced (issue 56: refactors leave the published
-    numbers as they were), printed and kept in out/bench-moved/<step>.json."""
+    numbers as they were), printed and kept in out/bench-moved/<step>.json; nothing for a step that failed."""
+    if status != 0:
+        print(f"bench: {step.name} failed (status {status}): its files are not compared", flush=True)
+        return []
     lines = []
     for name, before in previous.items():
         try:
@@ -179,16 +182,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench: {step.name}: {' '.join(step.command()[1:])}", flush=True)
         previous = _previous(step)
         results.append(run_step(step, code))
-        report_moves(step, previous)
+        report_moves(step, previous, results[-1][1])
         if code_hash() != code:
             raise SystemExit(f"make bench: the code changed while {step.name} ran: its results carry the code the run started on; "
                              "commit, then run make bench again")
     if args.dask and len(alone) < len(todo):
         remote = [s for s in todo if s not in alone]
         previous = {s.name: _previous(s) for s in remote}
-        results += _on_dask(remote, args.dask, code)
+        finished = _on_dask(remote, args.dask, code)
+        exit_status = {name: status for name, status, _ in finished}
         for step in remote:
-            report_moves(step, previous[step.name])
+            report_moves(step, previous[step.name], exit_status.get(step.name, 1))
+        results += finished
     failed = [name for name, status, _ in results if status != 0]
     if failed:
         print(f"bench: failed: {', '.join(failed)} (their files are not current; make bench reruns only what is not)", file=sys.stderr)
