@@ -12,6 +12,7 @@ import pytest
 
 from hydro_ros.tooling import benchrun
 from hydro_ros.tooling.benchresults import code_hash, moved, write_result
+from test.conftest import REPO
 
 
 def _git(root: Path, *args: str) -> None:
@@ -144,3 +145,19 @@ def test_a_rerun_names_the_figures_it_moved_and_not_the_machine_bound_ones(tmp_p
     assert "2 figures moved by more than 0.5 %" in capsys.readouterr().out
     assert benchrun.report_moves(step, {"mems": before}, 1, tmp_path, tmp_path / "moved") == []
     assert "failed (status 1): its files are not compared" in capsys.readouterr().out
+
+
+def test_same_outputs_names_each_output_that_differs_and_nothing_else(tmp_path, monkeypatch):
+    """hydro_ros.tooling.same_outputs compares two commits' outputs exactly, places and times left out."""
+    from hydro_ros.tooling import same_outputs
+
+    for run, (delay, wall, threshold) in {"a": (12.0, 3.1, 0.063), "b": (12.0, 9.9, 0.064)}.items():
+        (tmp_path / run / "discrepancy").mkdir(parents=True)
+        for name in ("leak_fdi.json", "mobile_fdi.json", "discrepancy/report.json"):
+            (tmp_path / run / name).write_text(json.dumps({"bag": f"/{run}/bag", "wall_s": wall, "first_alarm_s": delay}))
+        (tmp_path / run / "commissioned.yaml").write_text(f"extends: /{run}/sam.yaml\nfdi:\n  threshold_constant: {threshold}\n")
+    monkeypatch.setattr(same_outputs, "BAGS", ())
+    assert same_outputs.differences(tmp_path / "a", tmp_path / "b") == ["commissioned.yaml: fdi.threshold_constant: 0.063 -> 0.064"]
+    shipped = REPO / "bags"
+    assert same_outputs.bag_digest(shipped / "fault_free") == same_outputs.bag_digest(shipped / "fault_free")
+    assert same_outputs.bag_digest(shipped / "fault_free") != same_outputs.bag_digest(shipped / "external_leakage_a")
