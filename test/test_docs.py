@@ -165,8 +165,10 @@ def unbacked_figures(page: str, results: Path, generated: str = "") -> list[str]
         text = re.sub(r"\]\([^)]*\)|docs/[\w/.-]+", " ", text)  # a link or a docs page names no result
         return {name for name in re.findall(r"[\w-]+\.(?:json|md)\b", text) if (results / name).is_file()}
 
-    def values(files: set[str]) -> list[float]:
-        return sorted(set().union(_values(generated), *(_values((results / name).read_text()) for name in files)))
+    read: dict[str, set[float]] = {}  # each named file read once
+
+    def values(files: set[str]) -> set[float]:
+        return set().union(_values(generated), *(read.setdefault(name, _values((results / name).read_text())) for name in files))
 
     prose = {entry.split(" (")[0].strip() for listed in PROSE.findall(page) for entry in listed.split(";") if entry.strip()}
     everywhere, shown, unbacked = named(page), [], []

@@ -79,13 +79,18 @@ STEPS = (
 )
 
 
+def _read(name: str, results: Path = RESULTS) -> object:
+    """A result file's content; None where there is no file or it cannot be read."""
+    try:
+        return json.loads((results / f"{name}.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
 def current(name: str, code: str, results: Path = RESULTS) -> bool:
     """Whether a result file holds ``code`` and is complete (no file, an unreadable one or one written before files
     recorded their code is not)."""
-    try:
-        data = json.loads((results / f"{name}.json").read_text())
-    except (OSError, ValueError):
-        return False
+    data = _read(name, results)
     return isinstance(data, dict) and data.get("code") == code and data.get("complete", True) is not False
 
 
@@ -103,13 +108,7 @@ def run_step(step: Step, code: str) -> tuple[str, int, float]:
 
 
 def _previous(step: Step, results: Path = RESULTS) -> dict[str, object]:
-    previous = {}
-    for name in step.writes:
-        try:
-            previous[name] = json.loads((results / f"{name}.json").read_text())
-        except (OSError, ValueError):
-            continue
-    return previous
+    return {name: data for name in step.writes if (data := _read(name, results)) is not None}
 
 
 def report_moves(step: Step, previous: dict[str, object], status: int = 0, results: Path = RESULTS, out: Path = MOVES) -> list[str]:
@@ -118,13 +117,8 @@ def report_moves(step: Step, previous: dict[str, object], status: int = 0, resul
     if status != 0:
         print(f"bench: {step.name} failed (status {status}): its files are not compared", flush=True)
         return []
-    lines = []
-    for name, before in previous.items():
-        try:
-            after = json.loads((results / f"{name}.json").read_text())
-        except (OSError, ValueError):
-            continue
-        lines += [f"{name}: {line}" for line in moved(before, after)]
+    lines = [f"{name}: {line}" for name, before in previous.items() if (after := _read(name, results)) is not None
+             for line in moved(before, after)]
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{step.name}.json").write_text(json.dumps({"compared": list(previous), "moved": lines}, indent=1) + "\n")
     shown = "; ".join(lines[:6]) + (f"; ... ({len(lines)} in {out / step.name}.json)" if len(lines) > 6 else "")

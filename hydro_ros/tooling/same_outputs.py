@@ -81,7 +81,9 @@ def run(commit: str, work: Path) -> Path:
     """The commands at ``commit`` (a worktree of this checkout under ``work``); their output folder."""
     tree, out = work / f"tree-{commit}", work / f"out-{commit}"
     if not tree.exists():
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "-q", "--detach", str(tree), commit], check=True)
+        added = subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "-q", "--detach", str(tree), commit], capture_output=True, text=True)
+        if added.returncode != 0:
+            raise SystemExit(f"same_outputs: {commit}: {(added.stderr.strip().splitlines() or ['not a commit of this checkout'])[-1]}")
     out.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "PYTHONPATH": str(tree)}
     for command in COMMANDS:
