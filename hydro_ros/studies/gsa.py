@@ -173,7 +173,8 @@ def analyse(space: dict[str, tuple[float, float]], outputs: np.ndarray, samples:
             y = outputs[:rows, o * len(instants) + t]
             if np.ptp(y) == 0.0:
                 continue  # no variance at this instant (e.g. every run still at rest)
-            result = analyze.analyze(spec, y, calc_second_order=False, num_resamples=resamples, conf_level=0.95, seed=seed)
+            # seed + 1: SALib (1.6) takes a seed of 0 for none (`if seed:`) and bootstraps from numpy's global state
+            result = analyze.analyze(spec, y, calc_second_order=False, num_resamples=resamples, conf_level=0.95, seed=seed + 1)
             per_time[instant] = {
                 name: {"S1": float(result["S1"][i]), "S1_conf": float(result["S1_conf"][i]),
                        "ST": float(result["ST"][i]), "ST_conf": float(result["ST_conf"][i])}
