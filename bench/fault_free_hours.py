@@ -6,8 +6,8 @@ Plants: each config built apart from the model (hydro_ros.studies.independent_ar
 tabulated notches drawn off, lines, Stribeck friction, warming oil, its own operator and sensors), commissioned on 4
 minutes of its own fault-free work (the documented minimum), then monitored on fresh fault-free work (RUN_S runs of the
 random operator, every other one picking up a payload), the rigs in turn, until --hours per config or --budget-min of
-wall time. Finished runs are kept in out/bench-cache/ under the hash of the code a run reads (the package below the nodes,
-the configs and this script: RUN_CODE), so a run stopped by its budget (or killed) goes on where it stopped when started
+wall time. Finished runs are kept in out/bench-cache/ under the hash of the code a run reads (RUN_CODE: this script, the
+package's files it imports, the configs and the pins), so a run stopped by its budget (or killed) goes on where it stopped when started
 again on a commit that changed none of it. Writes --out and a PNG beside it.
 """
 
@@ -27,16 +27,16 @@ from hydro_ros.fdi.offline import run_monitor
 from hydro_ros.fdi.rates import CONFIDENCE, false_alarm_rate
 from hydro_ros.studies import independent_arm as plant
 from hydro_ros.studies.fdi_evaluation import commissioned_apart, parallel_map
-from hydro_ros.tooling.benchresults import ROOT, code_hash, write_result
+from hydro_ros.tooling.benchresults import ROOT, code_hash, imported_by, write_result
 
 CONFIGS = ("config/sam.yaml", "config/sam_mobile.yaml", "config/boom_arm.yaml")
 RIGS = (1, 2, 3)
 RUN_S = 120.0
 BATCH = 8  # runs per batch between cache writes
-# what a run reads: the package up to its studies (test_layers holds that nothing there imports the layers above), the
-# configs, this script and the pinned libraries; a commit that changes only the nodes, the CLI or the docs tooling keeps the cached hours
-RUN_CODE = ("hydro_ros", "config", "bench/fault_free_hours.py", "requirements.txt")  # the pins: numpy, scipy and numba compute too
-ABOVE_THE_STUDIES = ("hydro_ros/nodes", "hydro_ros/demo.py", "hydro_ros/processes.py", "hydro_ros/cli", "hydro_ros/tooling")
+# what a run reads: this script, the package's files it imports (the tooling that stamps results computes nothing), the
+# configs and the pinned libraries (numpy, scipy and numba compute too); a commit that changes none of them (the planner,
+# the nodes, the CLI, the docs) keeps the cached hours
+RUN_CODE = (*imported_by("bench/fault_free_hours.py", leaving=("hydro_ros/tooling",)), "config", "requirements.txt")
 
 
 def _monitored(job: tuple[Machine, Machine, int, plant.ArmWork]) -> dict:
@@ -109,7 +109,7 @@ def main() -> int:
     if not args.hours > 0 or not args.budget_min > 0:
         parser.error(f"--hours {args.hours} and --budget-min {args.budget_min}: both must be > 0")
     configs = args.config or list(CONFIGS)
-    cache_root = ROOT / "out" / "bench-cache" / "fault_free_hours" / code_hash(paths=RUN_CODE, excluding=ABOVE_THE_STUDIES)[:16]
+    cache_root = ROOT / "out" / "bench-cache" / "fault_free_hours" / code_hash(paths=RUN_CODE)[:16]
     start = time.monotonic()
     results = {}
     for index, config in enumerate(configs):

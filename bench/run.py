@@ -169,16 +169,16 @@ def can_bridge_live(config_path: Path, measure_s: float = 15.0) -> dict:
 def fdi_evaluation(config: Machine, out_dir: Path, name: str = "fdi_eval") -> dict:
     from tqdm import tqdm
 
-    from hydro_ros.studies.fdi_evaluation import evaluate, markdown_table
-    from hydro_ros.workflows.plots import plot_fdi_evaluation
+    from hydro_ros.studies.fdi_evaluation import evaluate, markdown_table, plot_summary
 
     with tqdm(unit="run", desc="fdi-eval") as bar:
         summary = evaluate(config, progress=bar.update)
     (out_dir / f"{name}.md").write_text(markdown_table(summary))
-    plot_fdi_evaluation(summary, out_dir / f"{name}.png")
-    write_result(out_dir / f"{name}.json", summary)  # last: a stamped file stands for a finished step
-    return {"threshold": summary["threshold"], "false_alarms_per_hour": summary["fault_free"]["false_alarms_per_hour"],
-            "smallest_detectable": summary["smallest_detectable"], "table": f"bench/{name}.md"}
+    plot_summary(summary, out_dir / f"{name}.png")
+    record = summary.to_json()
+    write_result(out_dir / f"{name}.json", record)  # last: a stamped file stands for a finished step
+    return {"threshold": record["threshold"], "false_alarms_per_hour": summary.fault_free.false_alarms_per_hour,
+            "smallest_detectable": record["smallest_detectable"], "table": f"bench/{name}.md"}
 
 
 def gsa(config_path: Path, out_dir: Path, samples: int = 1024) -> dict:

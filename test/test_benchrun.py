@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from hydro_ros.tooling import benchrun
-from hydro_ros.tooling.benchresults import code_hash, moved, write_result
+from hydro_ros.tooling.benchresults import code_hash, imported_by, moved, write_result
 from test.conftest import REPO
 
 
@@ -46,6 +46,31 @@ def test_a_narrowed_code_hash_follows_only_the_code_it_names(checkout):
     assert run_code() != before
     with pytest.raises(ValueError, match=r"requirements\.txt not in"):  # never the empty tree's hash for a path that is not there
         code_hash(checkout, paths=("hydro_ros", "requirements.txt"))
+
+
+def test_the_code_a_script_reads_is_what_it_imports_through_the_package_and_nothing_else(tmp_path):
+    files = {
+        "bench/job.py": "import numpy\nfrom hydro_ros.lower import kernel\n",
+        "hydro_ros/__init__.py": "",
+        "hydro_ros/lower/__init__.py": "",
+        "hydro_ros/lower/kernel.py": "def f():\n    from hydro_ros import helper  # lazily\n",
+        "hydro_ros/helper.py": "import hydro_ros.stamps.write\n",
+        "hydro_ros/stamps/__init__.py": "",
+        "hydro_ros/stamps/write.py": "",
+        "hydro_ros/planner.py": "from hydro_ros.lower import kernel\n",  # imports the job's code, is not imported by it
+    }
+    for name, text in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    assert imported_by("bench/job.py", tmp_path, leaving=("hydro_ros/stamps",)) == (
+        "bench/job.py", "hydro_ros/__init__.py", "hydro_ros/helper.py", "hydro_ros/lower/__init__.py", "hydro_ros/lower/kernel.py")
+    (tmp_path / "hydro_ros/helper.py").write_text("from .kernel import g\n")
+    with pytest.raises(ValueError, match=r"helper\.py:1: a relative import"):
+        imported_by("bench/job.py", tmp_path)
+    # the fault-free hours' key: the monitor and the plants, not the planner, the nodes or the tooling
+    hours = imported_by("bench/fault_free_hours.py", leaving=("hydro_ros/tooling",))
+    assert {"hydro_ros/fdi/ukf.py", "hydro_ros/studies/independent_arm.py", "hydro_ros/models/chamber.py"} <= set(hours)
+    assert not [f for f in hours if f.startswith(("hydro_ros/planning", "hydro_ros/nodes", "hydro_ros/cli", "hydro_ros/tooling"))]
 
 
 def test_the_code_hash_follows_the_code_committed_or_not_and_nothing_written_from_the_results(checkout):

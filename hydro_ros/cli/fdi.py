@@ -89,8 +89,7 @@ def cmd_fdi_run(args: argparse.Namespace) -> int:
 def cmd_fdi_eval(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hydro_ros.studies.fdi_evaluation import evaluate, markdown_table
-    from hydro_ros.workflows.plots import plot_fdi_evaluation
+    from hydro_ros.studies.fdi_evaluation import evaluate, markdown_table, plot_summary
 
     machine = load_machine_config(args.config)
     at_least_one(args, "seeds", "calibration_seeds", "workers")
@@ -99,10 +98,10 @@ def cmd_fdi_eval(args: argparse.Namespace) -> int:
     with tqdm(unit="run", desc="fdi eval", disable=args.quiet) as bar:
         summary = evaluate(machine, seeds=args.seeds, calibration_seeds=args.calibration_seeds, duration_s=args.duration,
                            fault_free_minutes=args.fault_free_minutes, workers=args.workers, progress=bar.update)
-    write_json(out / "fdi_eval.json", summary)
+    write_json(out / "fdi_eval.json", summary.to_json())
     table = markdown_table(summary)
     (out / "fdi_eval.md").write_text(table)
-    plot_fdi_evaluation(summary, out / "fdi_eval.png")
+    plot_summary(summary, out / "fdi_eval.png")
     print(table)
     return 0
 

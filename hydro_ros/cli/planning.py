@@ -142,8 +142,7 @@ def cmd_dp_compare(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from hydro_ros.planning.problem import CONTRACT_METHODS, METHODS
-    from hydro_ros.studies.dp_compare import compare, markdown_table
-    from hydro_ros.workflows.plots import plot_dp_compare
+    from hydro_ros.studies.dp_compare import compare, markdown_table, plot_comparison
 
     problem, out = dp_problem(args)
     methods = tuple(METHODS) if args.all_methods else CONTRACT_METHODS
@@ -155,7 +154,7 @@ def cmd_dp_compare(args: argparse.Namespace) -> int:
 
         result = compare(problem, methods, progress=done)
     table = markdown_table(result)
-    result["plot"] = str(plot_dp_compare(result, out.with_suffix(".png")))
+    result["plot"] = str(plot_comparison(result, out.with_suffix(".png")))
     write_json(out, result)
     out.with_suffix(".md").write_text(table + "\n")
     print(table)

@@ -35,8 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_gsa(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hydro_ros.studies.gsa import LEAKS, PARAMETERS, interaction, ranking, sobol_indices
-    from hydro_ros.workflows.plots import plot_gsa
+    from hydro_ros.studies.gsa import LEAKS, PARAMETERS, interaction, plot_indices, ranking, sobol_indices
 
     machine = one_actuator(load_machine_config(args.config), args.actuator, "gsa")
     if args.samples < 2 or args.samples & (args.samples - 1):
@@ -51,7 +50,7 @@ def cmd_gsa(args: argparse.Namespace) -> int:
             results[name] = sobol_indices(machine, space, args.samples, workers=args.workers, progress=bar.update)
         results[name]["ranking_4s"] = {o: ranking(results[name], o) for o in ("p_a", "p_b", "velocity")}
         results[name]["interaction_4s"] = {o: interaction(results[name], o) for o in ("p_a", "p_b", "velocity")}
-    plot = plot_gsa(results, out.with_suffix(".png"))
+    plot = plot_indices(results, out.with_suffix(".png"))
     results["plot"] = str(plot)
     write_json(out, results)
     for name in ("parameters", "leakages"):

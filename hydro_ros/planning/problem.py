@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from hydro_ros.planning.baselines import direct_collocation, pseudo_inverse
 from hydro_ros.planning.costs import Cost
 from hydro_ros.planning.dp import DpGrid, DpSolution, solve, start_position
 from hydro_ros.planning.paths import PathSamples, TipPath, path_from_config
-from hydro_ros.planning.trajectory import ExtensionTrajectory, evaluate
+from hydro_ros.planning.trajectory import Evaluation, ExtensionTrajectory, evaluate
 
 ALL_LIMITS = ("position", "velocity", "acceleration")
 
@@ -69,13 +69,13 @@ class Problem:
 class Plan:
     method: str
     trajectory: ExtensionTrajectory
-    evaluation: dict[str, Any]
+    evaluation: Evaluation
     seconds: float
     solution: DpSolution | None = None
     info: dict[str, Any] | None = None
 
 
-def smoothed(problem: Problem, raw: ExtensionTrajectory) -> tuple[ExtensionTrajectory, dict[str, Any], bool]:
+def smoothed(problem: Problem, raw: ExtensionTrajectory) -> tuple[ExtensionTrajectory, Evaluation, bool]:
     """A DP reference low-pass filtered, with its evaluation and True, unless the filter breaks a limit the DP kept: the
     filter averages the redundant cylinder's accelerations, which keeps them, but the joints solved for the tip follow it
     nonlinearly, and one of theirs can come out past its limit (up to 0.8 % on the excavator's lift_out with the actuator
@@ -133,10 +133,28 @@ def run_method(problem: Problem, method: str, *, progress: bool = False, seed: E
     return _plan_other(problem, method, seed)
 
 
-def method_record(plan: Plan) -> dict[str, Any]:
+class MethodRecord(TypedDict):
+    """A plan as the comparisons, the savings map and the trajectory database keep it."""
+    cp_energy_J: float
+    ls_energy_J: float
+    limits_ok: bool  # every limit the method claims to keep, kept, on the path
+    limits_claimed: list[str]
+    limits: dict[str, bool]
+    limit_margins: dict[str, float]
+    actuator_energy_J: float
+    tip_error_max_m: float
+    ls_supply_pressure_peak_Pa: float
+    pump_flow_peak_m3s: float
+    seconds: float
+    info: NotRequired[dict[str, Any]]
+    relative_cp: NotRequired[float]  # to the best of a comparison (studies.dp_compare)
+    relative_ls: NotRequired[float]
+
+
+def method_record(plan: Plan) -> MethodRecord:
     claims = METHODS[plan.method][1]
     evaluation = plan.evaluation
-    record = {
+    record: MethodRecord = {
         "cp_energy_J": evaluation["cp_energy_J"],
         "ls_energy_J": evaluation["ls_energy_J"],
         "limits_ok": all(evaluation["limits"][kind] for kind in claims) and evaluation["tip_error_max_m"] < 1e-6,

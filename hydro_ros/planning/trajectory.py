@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
@@ -67,7 +67,21 @@ def crane_motion(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajec
     )
 
 
-def evaluate(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory) -> dict[str, Any]:
+class Evaluation(TypedDict):
+    """One trajectory scored: energies over the stages, peaks, the tip error and each limit kind kept or not."""
+    cp_energy_J: float
+    ls_energy_J: float
+    actuator_energy_J: float
+    extension_velocity_cost: float
+    pump_flow_peak_m3s: float
+    ls_supply_pressure_peak_Pa: float
+    tip_error_max_m: float
+    final_velocity: float
+    limits: dict[str, bool]
+    limit_margins: dict[str, float]  # the largest use of a limit kind, 1.0 at the limit
+
+
+def evaluate(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory) -> Evaluation:
     """Energies (sum over stages k < N of T_s times the stage power), limit checks and tip error."""
     motion = crane_motion(crane, samples, trajectory)
     ts = trajectory.sample_time
@@ -78,7 +92,7 @@ def evaluate(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory
     tip_error = np.linalg.norm(crane.forward(q) - samples.position, axis=-1)
     flow = total_pump_flow(crane, motion)
     supply = ls_supply_pressure(crane, motion)
-    result: dict[str, Any] = {
+    return {
         "cp_energy_J": float(ts * stage_power(Cost.CP, crane, motion)[stages].sum()),
         "ls_energy_J": float(ts * stage_power(Cost.LS, crane, motion)[stages].sum()),
         "actuator_energy_J": float(ts * stage_power(Cost.ACTUATOR, crane, motion)[stages].sum()),
@@ -88,9 +102,8 @@ def evaluate(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory
         "tip_error_max_m": float(np.nanmax(tip_error)) if np.isfinite(tip_error).all() else float("inf"),
         "final_velocity": float(np.abs(np.stack(motion.qd, axis=-1)[-1]).max()),
         "limits": {kind: bool(mask.all()) for kind, mask in checks.items()},
+        "limit_margins": _margins(crane, motion),
     }
-    result["limit_margins"] = _margins(crane, motion)
-    return result
 
 
 def _margins(crane: Crane, motion: Motion) -> dict[str, float]:

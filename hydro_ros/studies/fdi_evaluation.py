@@ -270,46 +270,113 @@ def scenario_matrix(seeds: Iterable[int], leak_sizes: Iterable[float] = LEAK_SIZ
     return cases
 
 
-def summarise(outcomes: list[Outcome], fault_free: list[Outcome]) -> dict[str, Any]:
+@dataclass
+class SummaryRow:
+    """One fault at one size over its runs."""
+    fault: str | None
+    value: float
+    runs: int
+    detection_rate: float
+    isolation_accuracy: float
+    median_delay_s: float | None
+    median_named_s: float | None
+    mean_leak_flow_l_min: float | None  # the flow that leaked after onset, from the true pressures (P-II's units)
+    early_alarms: int
+    isolated_as: list[str]
+
+
+@dataclass
+class FaultFreeTally:
+    hours: float
+    crossing_episodes: int
+    false_alarms_per_hour: float
+    runs_with_alarm: int
+    runs: int
+
+
+@dataclass
+class SmallestLeak:
+    value_l_min_at_10mpa: float
+    mean_flow_l_min: float | None
+
+
+@dataclass
+class CalibratedThreshold:
+    """The adaptive threshold's c0 calibrated on training seeds, beside P-II's and the config's."""
+    calibrated_constant_mpa: float
+    paper_constant_mpa: float
+    config_constant_mpa: float
+    quadratic_per_mpa: float
+    paper_threshold_false_alarms_per_hour: float
+
+
+@dataclass
+class ParityThreshold:
+    """The parity method's fitted thresholds: |mu| + factor sigma per bin of the opening."""
+    factor: float
+    opening_edges: list[float]
+    method: str = "parity"
+
+
+@dataclass
+class EvaluationSummary:
+    """What ``hydro-ros fdi eval`` reports; ``to_json`` is the layout of fdi_eval.json."""
+    rows: list[SummaryRow]
+    fault_free: FaultFreeTally
+    smallest_detectable: dict[str, SmallestLeak | None]
+    mismatch: dict[str, float]
+    outcomes: list[Outcome]
+    threshold: CalibratedThreshold | ParityThreshold
+    settings: dict[str, float]
+
+    def to_json(self) -> dict[str, Any]:
+        threshold = asdict(self.threshold)
+        if isinstance(self.threshold, ParityThreshold):  # the method first, as the file has always had it
+            threshold = {"method": threshold.pop("method"), **threshold}
+        return {**{k: v for k, v in asdict(self).items() if k not in ("threshold", "settings")}, "threshold": threshold,
+                "settings": self.settings}
+
+
+def summarise(outcomes: list[Outcome], fault_free: list[Outcome], threshold: CalibratedThreshold | ParityThreshold,
+              settings: dict[str, float]) -> EvaluationSummary:
     """Per fault type and size: detection rate, isolation accuracy, median delay; FA per hour."""
     rows = []
     keys = sorted({(o.fault, o.value) for o in outcomes}, key=lambda k: (k[0], k[1]))
     for fault, value in keys:
         group = [o for o in outcomes if o.fault == fault and o.value == value]
         delays = [o.delay_s for o in group if o.delay_s is not None]
-        named = [o.named_s for o in group if o.correct]
+        named = [o.named_s for o in group if o.correct and o.named_s is not None]
         leaks = [o.mean_leak_l_min for o in group if o.mean_leak_l_min is not None]
-        rows.append({
-            "fault": fault, "value": value, "runs": len(group),
-            "detection_rate": sum(o.detected for o in group) / len(group),
-            "isolation_accuracy": sum(o.correct for o in group) / len(group),
-            "median_delay_s": float(np.median(delays)) if delays else None,
-            "median_named_s": float(np.median(named)) if named else None,
-            "mean_leak_flow_l_min": float(np.mean(leaks)) if leaks else None,
-            "early_alarms": sum(o.early_alarm for o in group),
-            "isolated_as": sorted({o.isolated or "none" for o in group}),
-        })
+        rows.append(SummaryRow(
+            fault=fault, value=value, runs=len(group),
+            detection_rate=sum(o.detected for o in group) / len(group),
+            isolation_accuracy=sum(o.correct for o in group) / len(group),
+            median_delay_s=float(np.median(delays)) if delays else None,
+            median_named_s=float(np.median(named)) if named else None,
+            mean_leak_flow_l_min=float(np.mean(leaks)) if leaks else None,
+            early_alarms=sum(o.early_alarm for o in group),
+            isolated_as=sorted({o.isolated or "none" for o in group}),
+        ))
     hours = sum(o.monitored_s for o in fault_free) / 3600.0
     episodes = sum(o.crossing_episodes for o in fault_free)
-    smallest = {}
+    smallest: dict[str, SmallestLeak | None] = {}
     for fault in LEAKS:
-        ok = [r for r in rows if r["fault"] == fault and r["detection_rate"] >= 0.8 and r["isolation_accuracy"] >= 0.8]
-        best = min(ok, key=lambda r: r["value"]) if ok else None
-        smallest[fault] = None if best is None else {"value_l_min_at_10mpa": best["value"], "mean_flow_l_min": best["mean_leak_flow_l_min"]}
-    return {
-        "rows": rows,
-        "fault_free": {"hours": hours, "crossing_episodes": episodes,
-                       "false_alarms_per_hour": episodes / hours if hours > 0 else math.nan,
-                       "runs_with_alarm": sum(o.crossing_episodes > 0 for o in fault_free), "runs": len(fault_free)},
-        "smallest_detectable": smallest,
-        "mismatch": MISMATCH,
-        "outcomes": [asdict(o) for o in outcomes + fault_free],
-    }
+        ok = [r for r in rows if r.fault == fault and r.detection_rate >= 0.8 and r.isolation_accuracy >= 0.8]
+        best = min(ok, key=lambda r: r.value) if ok else None
+        smallest[fault] = None if best is None else SmallestLeak(best.value, best.mean_leak_flow_l_min)
+    return EvaluationSummary(
+        rows=rows,
+        fault_free=FaultFreeTally(hours=hours, crossing_episodes=episodes,
+                                  false_alarms_per_hour=episodes / hours if hours > 0 else math.nan,
+                                  runs_with_alarm=sum(o.crossing_episodes > 0 for o in fault_free), runs=len(fault_free)),
+        smallest_detectable=smallest, mismatch=dict(MISMATCH), outcomes=outcomes + fault_free,
+        threshold=threshold, settings=settings,
+    )
 
 
 def evaluate(machine: Machine, *, seeds: int = 5, calibration_seeds: int = 10, duration_s: float = 90.0,
              fault_free_minutes: float = 60.0, workers: int = 2, progress: Callable[[int], None] | None = None,
-             leak_sizes: Iterable[float] = LEAK_SIZES) -> dict[str, Any]:
+             leak_sizes: Iterable[float] = LEAK_SIZES) -> EvaluationSummary:
     """Calibrate c0 on training seeds, then score the scenario matrix and long fault-free runs on others.
 
     A parity config (fitted by `fdi fit` on seeds 100+ and 300+) is scored on the P-IV fault list instead.
@@ -327,18 +394,14 @@ def evaluate(machine: Machine, *, seeds: int = 5, calibration_seeds: int = 10, d
     outcomes = run_cases(calibrated, cases + free, workers=workers, progress=progress)
     paper_c0 = FdiSettings().threshold_constant  # P-II's own, whatever the config ships
     paper = run_cases(machine.with_overrides({"fdi": {"threshold_constant": paper_c0}}), paper_free, workers=workers, progress=progress)
-    summary = summarise(outcomes[: len(cases)], outcomes[len(cases):])
     paper_hours = sum(o.monitored_s for o in paper) / 3600.0
-    summary["threshold"] = {
-        "calibrated_constant_mpa": c0,
-        "paper_constant_mpa": paper_c0,
-        "config_constant_mpa": settings.threshold_constant,
-        "quadratic_per_mpa": settings.threshold_quadratic,
-        "paper_threshold_false_alarms_per_hour": sum(o.crossing_episodes for o in paper) / paper_hours,
-    }
-    summary["settings"] = {"seeds": seeds, "calibration_seeds": calibration_seeds, "duration_s": duration_s,
-                           "onset_s": cases[0].onset_s, "fault_free_minutes": fault_free_minutes}
-    return summary
+    threshold = CalibratedThreshold(
+        calibrated_constant_mpa=c0, paper_constant_mpa=paper_c0, config_constant_mpa=settings.threshold_constant,
+        quadratic_per_mpa=settings.threshold_quadratic,
+        paper_threshold_false_alarms_per_hour=sum(o.crossing_episodes for o in paper) / paper_hours)
+    return summarise(outcomes[: len(cases)], outcomes[len(cases):], threshold,
+                     {"seeds": seeds, "calibration_seeds": calibration_seeds, "duration_s": duration_s,
+                      "onset_s": cases[0].onset_s, "fault_free_minutes": fault_free_minutes})
 
 
 def parity_matrix(seeds: Iterable[int], duration_s: float, actuators: Sequence[str | None] = (None,)) -> list[Case]:
@@ -354,40 +417,61 @@ def parity_matrix(seeds: Iterable[int], duration_s: float, actuators: Sequence[s
 
 
 def evaluate_parity(machine: Machine, *, seeds: int, duration_s: float, fault_free_minutes: float, workers: int,
-                    progress: Callable[[int], None] | None) -> dict[str, Any]:
+                    progress: Callable[[int], None] | None) -> EvaluationSummary:
     cases = parity_matrix(range(seeds), duration_s, machine.actuator_names)
     runs = max(1, int(round(fault_free_minutes * 60.0 / 600.0)))
     free = [Case(None, 0.0, 200 + s, duration_s=fault_free_minutes * 60.0 / runs) for s in range(runs)]
     outcomes = run_cases(machine, cases + free, workers=workers, progress=progress)
-    summary = summarise(outcomes[: len(cases)], outcomes[len(cases):])
     fitted = FdiSettings.from_machine(machine).parity_thresholds
-    summary["threshold"] = {"method": "parity", "factor": fitted.factor, "opening_edges": list(fitted.edges)}
-    summary["settings"] = {"seeds": seeds, "duration_s": duration_s, "onset_s": cases[0].onset_s,
-                           "fault_free_minutes": fault_free_minutes}
-    return summary
+    return summarise(outcomes[: len(cases)], outcomes[len(cases):], ParityThreshold(fitted.factor, list(fitted.edges)),
+                     {"seeds": seeds, "duration_s": duration_s, "onset_s": cases[0].onset_s,
+                      "fault_free_minutes": fault_free_minutes})
 
 
-def markdown_table(summary: dict[str, Any]) -> str:
+def markdown_table(summary: EvaluationSummary) -> str:
     lines = ["| fault | size | detected | isolated correctly | median delay [s] | median delay to the right name [s] | actual leak [L/min] "
              "| isolated as |", "|---|---|---|---|---|---|---|---|"]
-    for row in summary["rows"]:
-        unit = "L/min@10MPa" if row["fault"] in LEAKS else (INJECTION_UNITS_SHORT.get(row["fault"], ""))
-        delay = "-" if row["median_delay_s"] is None else f"{row['median_delay_s']:.1f}"
-        named = "-" if row.get("median_named_s") is None else f"{row['median_named_s']:.1f}"
-        leak = "-" if row["mean_leak_flow_l_min"] is None else f"{row['mean_leak_flow_l_min']:.2f}"
-        lines.append(f"| {row['fault']} | {row['value']:g} {unit} | {row['detection_rate']:.0%} | {row['isolation_accuracy']:.0%} "
-                     f"| {delay} | {named} | {leak} | {', '.join(row['isolated_as'])} |")
-    free = summary["fault_free"]
+    for row in summary.rows:
+        unit = "L/min@10MPa" if row.fault in LEAKS else (INJECTION_UNITS_SHORT.get(row.fault or "", ""))
+        delay = "-" if row.median_delay_s is None else f"{row.median_delay_s:.1f}"
+        named = "-" if row.median_named_s is None else f"{row.median_named_s:.1f}"
+        leak = "-" if row.mean_leak_flow_l_min is None else f"{row.mean_leak_flow_l_min:.2f}"
+        lines.append(f"| {row.fault} | {row.value:g} {unit} | {row.detection_rate:.0%} | {row.isolation_accuracy:.0%} "
+                     f"| {delay} | {named} | {leak} | {', '.join(row.isolated_as)} |")
+    free, threshold = summary.fault_free, summary.threshold
     lines.append("")
-    threshold = summary["threshold"]
-    if threshold.get("method") == "parity":
-        how = f"with the fitted parity thresholds (|mu| + {threshold['factor']:g} sigma per opening bin)."
+    if isinstance(threshold, ParityThreshold):
+        how = f"with the fitted parity thresholds (|mu| + {threshold.factor:g} sigma per opening bin)."
     else:
-        how = (f"with the calibrated c0 = {threshold['calibrated_constant_mpa']:.3f} MPa; the paper's c0 = "
-               f"{threshold['paper_constant_mpa']:.3f} MPa gives {threshold['paper_threshold_false_alarms_per_hour']:.0f} "
+        how = (f"with the calibrated c0 = {threshold.calibrated_constant_mpa:.3f} MPa; the paper's c0 = "
+               f"{threshold.paper_constant_mpa:.3f} MPa gives {threshold.paper_threshold_false_alarms_per_hour:.0f} "
                "per hour on the same plants.")
-    lines.append(f"Fault-free: {false_alarm_text(free['crossing_episodes'], free['hours'], 'threshold-crossing episode')} {how}")
+    lines.append(f"Fault-free: {false_alarm_text(free.crossing_episodes, free.hours, 'threshold-crossing episode')} {how}")
     return "\n".join(lines) + "\n"
+
+
+def plot_summary(summary: EvaluationSummary, out: str | Path) -> Path:
+    """Detection rate and isolation accuracy against the flow that leaked, one line per leak type."""
+    from hydro_ros.workflows.plots import plt
+
+    out = Path(out)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
+    for fault in sorted({row.fault for row in summary.rows if row.fault in LEAKS}):
+        rows = sorted((r for r in summary.rows if r.fault == fault), key=lambda r: r.value)
+        sizes = [r.mean_leak_flow_l_min for r in rows]
+        axes[0].plot(sizes, [r.detection_rate for r in rows], marker="o", label=fault)
+        axes[1].plot(sizes, [r.isolation_accuracy for r in rows], marker="o", label=fault)
+    for ax, title in zip(axes, ("detection rate", "isolation accuracy"), strict=True):
+        ax.set_xscale("log")
+        ax.set_xlabel("mean actual leak flow after onset [L/min]")
+        ax.set_title(title)
+        ax.axvspan(0.17, 0.40, color="grey", alpha=0.2, label="P-II external leaks detected")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
 
 
 # P-IV fault list (as the thesis summarises P-IV in §4.4; P-IV itself is not in the compendium) with the sizes the signature table is built at

@@ -21,7 +21,8 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 
@@ -136,8 +137,28 @@ def simulate(machine: Machine, space: dict[str, tuple[float, float]], matrix: np
     return np.concatenate(results)
 
 
+class SobolIndex(TypedDict):
+    S1: float
+    S1_conf: float  # 95 % bootstrap half-width
+    ST: float
+    ST_conf: float
+
+
+class SobolResult(TypedDict):
+    """Indices per output, per instant (seconds as text), per parameter; what ``hydro-ros gsa`` writes per analysis."""
+    parameters: list[str]
+    bounds: list[list[float]]
+    samples: int
+    runs: int
+    indices: dict[str, dict[str, dict[str, SobolIndex]]]
+    times_s: NotRequired[list[float]]
+    held_force_n: NotRequired[float]
+    ranking_4s: NotRequired[dict[str, list[str]]]
+    interaction_4s: NotRequired[dict[str, float]]
+
+
 def analyse(space: dict[str, tuple[float, float]], outputs: np.ndarray, samples: int, *, instants: Sequence[str],
-            seed: int = 0, resamples: int = 200) -> dict[str, Any]:
+            seed: int = 0, resamples: int = 200) -> SobolResult:
     """Indices from the first ``samples`` (k + 2) rows of ``outputs``, whose columns are OUTPUTS x ``instants``,
     output-major: per output and instant, S1 and ST with their 95 % bootstrap half-widths."""
     analyze = optional_module("SALib.analyze.sobol")
@@ -145,14 +166,15 @@ def analyse(space: dict[str, tuple[float, float]], outputs: np.ndarray, samples:
     rows = samples * (len(space) + 2)
     if rows > len(outputs):
         raise InputError(f"{samples} samples need {rows} runs; {len(outputs)} given")
-    indices: dict[str, Any] = {}
+    indices: dict[str, dict[str, dict[str, SobolIndex]]] = {}
     for o, output in enumerate(OUTPUTS):
         per_time = {}
         for t, instant in enumerate(instants):
             y = outputs[:rows, o * len(instants) + t]
             if np.ptp(y) == 0.0:
                 continue  # no variance at this instant (e.g. every run still at rest)
-            result = analyze.analyze(spec, y, calc_second_order=False, num_resamples=resamples, conf_level=0.95, seed=seed)
+            # seed + 1: SALib (1.6) takes a seed of 0 for none (`if seed:`) and bootstraps from numpy's global state
+            result = analyze.analyze(spec, y, calc_second_order=False, num_resamples=resamples, conf_level=0.95, seed=seed + 1)
             per_time[instant] = {
                 name: {"S1": float(result["S1"][i]), "S1_conf": float(result["S1_conf"][i]),
                        "ST": float(result["ST"][i]), "ST_conf": float(result["ST_conf"][i])}
@@ -164,7 +186,7 @@ def analyse(space: dict[str, tuple[float, float]], outputs: np.ndarray, samples:
 
 def sobol_indices(machine: Machine, space: dict[str, tuple[float, float]], samples: int, *, workers: int = 2,
                   seed: int = 0, resamples: int = 200, initial_p_b: float | None = None,
-                  progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+                  progress: Callable[[int], None] | None = None) -> SobolResult:
     """First- and total-order indices with 95 % bootstrap intervals, per output and instant."""
     matrix = saltelli_sample(space, samples, seed)
     outputs = simulate(machine, space, matrix, workers=workers, initial_p_b=initial_p_b, progress=progress)
@@ -173,27 +195,27 @@ def sobol_indices(machine: Machine, space: dict[str, tuple[float, float]], sampl
 
 
 def indices_at_sizes(space: dict[str, tuple[float, float]], outputs: np.ndarray, sizes: Sequence[int], *,
-                     instants: Sequence[str], seed: int = 0, resamples: int = 200) -> dict[int, dict[str, Any]]:
+                     instants: Sequence[str], seed: int = 0, resamples: int = 200) -> dict[int, SobolResult]:
     """analyse at each N of ``sizes`` from the outputs of the sample at the largest (its first N (k + 2) rows are the
     sample at N)."""
     return {n: analyse(space, outputs, n, instants=instants, seed=seed, resamples=resamples) for n in sorted(sizes)}
 
 
 def convergence(machine: Machine, space: dict[str, tuple[float, float]], sizes: Sequence[int], *, workers: int = 2,
-                seed: int = 0, resamples: int = 200, progress: Callable[[int], None] | None = None) -> dict[int, dict[str, Any]]:
+                seed: int = 0, resamples: int = 200, progress: Callable[[int], None] | None = None) -> dict[int, SobolResult]:
     """sobol_indices at each N of ``sizes``, from one set of runs at the largest."""
     matrix = saltelli_sample(space, max(sizes), seed)
     outputs = simulate(machine, space, matrix, workers=workers, progress=progress)
     return indices_at_sizes(space, outputs, sizes, instants=[f"{t:g}" for t in TIMES], seed=seed, resamples=resamples)
 
 
-def ranking(result: dict[str, Any], output: str, instant: str = "4", order: str = "S1") -> list[str]:
+def ranking(result: SobolResult, output: str, instant: str = "4", order: str = "S1") -> list[str]:
     """Parameter names by decreasing index at one instant (P-I Tables 2 and 6 use 4 s)."""
     table = result["indices"][output][instant]
     return sorted(table, key=lambda name: -table[name][order])
 
 
-def ranking_convergence(results: dict[int, dict[str, Any]], output: str, instant: str = "4",
+def ranking_convergence(results: dict[int, SobolResult], output: str, instant: str = "4",
                         order: str = "S1") -> dict[str, Any]:
     """How the ranking at one instant settles with N: at each N the order of the parameters that carry at least
     NEGLIGIBLE of the variance at the largest N, the leader, and the smallest N from which every larger N ranks
@@ -217,7 +239,7 @@ def ranking_convergence(results: dict[int, dict[str, Any]], output: str, instant
                                 for n in sizes}}
 
 
-def interaction(result: dict[str, Any], output: str, instant: str = "4") -> float:
+def interaction(result: SobolResult, output: str, instant: str = "4") -> float:
     """1 - sum S_i (P-I Table 3)."""
     return 1.0 - sum(v["S1"] for v in result["indices"][output][instant].values())
 
@@ -272,7 +294,7 @@ def steady_state(machine: Machine, values: Mapping[str, np.ndarray], force: floa
 
 
 def steady_state_indices(machine: Machine, space: dict[str, tuple[float, float]], samples: int, *, seed: int = 0,
-                         resamples: int = 200) -> dict[str, Any]:
+                         resamples: int = 200) -> SobolResult:
     """Indices of the true steady state (instant STEADY) with the nominal run's 4 s force held."""
     force = held_force(machine)
     matrix = saltelli_sample(space, samples, seed)
@@ -342,3 +364,35 @@ def cause_summary(results: Mapping[str, dict[str, Any]], instant: str = "4") -> 
         summary["leak_ranking_p_a"] = ranking(results["leakages"], "p_a", instant, "ST")
         summary["leak_spread_p_a"] = max(min(totals), 0.0) / max(totals)
     return summary
+
+
+def plot_indices(results: dict[str, SobolResult], out: str | Path) -> Path:
+    """Total-order Sobol' indices against time per output (P-I Table 4 / Table 8 as curves), 95 % bands."""
+    from hydro_ros.workflows.plots import plt
+
+    out = Path(out)
+    analyses = [name for name in ("parameters", "leakages") if name in results]
+    outputs = ("p_a", "p_b", "velocity")
+    fig, axes = plt.subplots(len(analyses), 3, figsize=(14, 3.6 * len(analyses)), squeeze=False, sharex=True)
+    for row, name in enumerate(analyses):
+        result = results[name]
+        for col, output in enumerate(outputs):
+            ax = axes[row, col]
+            instants = sorted(result["indices"][output], key=float)
+            times = [float(t) for t in instants]
+            for parameter in result["parameters"]:
+                st = np.array([result["indices"][output][t][parameter]["ST"] for t in instants])
+                conf = np.array([result["indices"][output][t][parameter]["ST_conf"] for t in instants])
+                ax.plot(times, st, marker="o", ms=3, label=parameter)
+                ax.fill_between(times, st - conf, st + conf, alpha=0.15)
+            ax.set_xscale("log")
+            ax.set_title(f"{name}: {output}")
+            ax.set_ylabel("total-order index")
+            ax.grid(alpha=0.3)
+        axes[row, 0].legend(fontsize=7)
+    for ax in axes[-1]:
+        ax.set_xlabel("time after the 25 % step [s]")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

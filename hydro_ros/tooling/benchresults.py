@@ -8,6 +8,7 @@ its ``code`` the hash of the code that ran (:func:`code_hash`), which ``make ben
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import re
@@ -40,6 +41,40 @@ def code_hash(root: Path = ROOT, paths: tuple[str, ...] = (".",), excluding: tup
             raise ValueError(f"code_hash: {', '.join(sorted(set(paths) - set(named)))} not in {root}")
         _git("add", "--all", "--", *named, *(f":(exclude){path}" for path in (*NOT_CODE, *excluding)), root=root, env=env)
         return _git("write-tree", root=root, env=env) or "unknown"
+
+
+def imported_by(script: str, root: Path = ROOT, leaving: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """``script`` and every file of the package it imports, directly or through others (imports inside functions too,
+    and each package's ``__init__`` on the way), as paths under ``root``, less those under ``leaving``: the code a
+    computation reads, for :func:`code_hash`, so that a commit elsewhere in the package keeps its cache."""
+
+    def module_file(name: str) -> Path | None:
+        base = root.joinpath(*name.split("."))
+        return next((path for path in (base.with_suffix(".py"), base / "__init__.py") if path.is_file()), None)
+
+    def named(path: Path) -> set[str]:
+        found: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                raise ValueError(f"imported_by: {path.relative_to(root)}:{node.lineno}: a relative import; the package writes them absolute")
+            if isinstance(node, ast.ImportFrom) and node.module:
+                found |= {node.module, *(f"{node.module}.{alias.name}" for alias in node.names)}
+            elif isinstance(node, ast.Import):
+                found |= {alias.name for alias in node.names}
+        return {name for name in found if name.split(".")[0] == "hydro_ros"}
+
+    seen: set[Path] = set()
+    todo = [root / script]
+    while todo:
+        path = todo.pop()
+        if path in seen:
+            continue
+        seen.add(path)
+        for name in named(path):
+            parts = name.split(".")
+            todo += [f for f in (module_file(".".join(parts[:i])) for i in range(1, len(parts) + 1)) if f is not None]
+    files = sorted(str(path.relative_to(root)) for path in seen)
+    return tuple(f for f in files if not any(f == place or f.startswith(place.rstrip("/") + "/") for place in leaving))
 
 
 def commit() -> str:

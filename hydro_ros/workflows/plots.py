@@ -10,7 +10,7 @@ import matplotlib
 import numpy as np
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt
+import matplotlib.pyplot as plt  # files, no display: the studies' plots take it from here too
 
 from hydro_ros.bags.reader import BagData
 from hydro_ros.contract.machine import Machine
@@ -76,59 +76,6 @@ def plot_fdi(run: FdiRun, out: str | Path) -> Path:
             ax.grid(alpha=0.3)
             ax.legend(loc="lower left", fontsize=7)
     axes[-1, 0].set_xlabel("time from first sample [s]  (red dotted: true onset, orange: alarm)")
-    fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
-
-
-def plot_fdi_evaluation(summary: dict, out: str | Path) -> Path:
-    """Detection rate and isolation accuracy against leak size, one line per leak type."""
-    out = Path(out)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
-    faults = sorted({row["fault"] for row in summary["rows"] if row["fault"] and "leakage" in row["fault"]})
-    for fault in faults:
-        rows = sorted((r for r in summary["rows"] if r["fault"] == fault), key=lambda r: r["value"])
-        sizes = [r["mean_leak_flow_l_min"] for r in rows]
-        axes[0].plot(sizes, [r["detection_rate"] for r in rows], marker="o", label=fault)
-        axes[1].plot(sizes, [r["isolation_accuracy"] for r in rows], marker="o", label=fault)
-    for ax, title in zip(axes, ("detection rate", "isolation accuracy")):
-        ax.set_xscale("log")
-        ax.set_xlabel("mean actual leak flow after onset [L/min]")
-        ax.set_title(title)
-        ax.axvspan(0.17, 0.40, color="grey", alpha=0.2, label="P-II external leaks detected")
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
-
-
-def plot_gsa(results: dict, out: str | Path) -> Path:
-    """Total-order Sobol' indices against time per output (P-I Table 4 / Table 8 as curves), 95 % bands."""
-    out = Path(out)
-    analyses = [name for name in ("parameters", "leakages") if name in results]
-    outputs = ("p_a", "p_b", "velocity")
-    fig, axes = plt.subplots(len(analyses), 3, figsize=(14, 3.6 * len(analyses)), squeeze=False, sharex=True)
-    for row, name in enumerate(analyses):
-        result = results[name]
-        for col, output in enumerate(outputs):
-            ax = axes[row, col]
-            instants = sorted(result["indices"][output], key=float)
-            times = [float(t) for t in instants]
-            for parameter in result["parameters"]:
-                st = np.array([result["indices"][output][t][parameter]["ST"] for t in instants])
-                conf = np.array([result["indices"][output][t][parameter]["ST_conf"] for t in instants])
-                ax.plot(times, st, marker="o", ms=3, label=parameter)
-                ax.fill_between(times, st - conf, st + conf, alpha=0.15)
-            ax.set_xscale("log")
-            ax.set_title(f"{name}: {output}")
-            ax.set_ylabel("total-order index")
-            ax.grid(alpha=0.3)
-        axes[row, 0].legend(fontsize=7)
-    for ax in axes[-1]:
-        ax.set_xlabel("time after the 25 % step [s]")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
@@ -213,30 +160,6 @@ def plot_gap_profiles(profiles: list[dict], out: str | Path) -> Path:
     axes[0][0].set_ylabel("fit gap (RMS of the 0.1 s mean error)")
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
-
-
-def plot_dp_compare(result: dict, out: str | Path) -> Path:
-    """Bar chart of CP and LS energy per method, like P-VI Figs. 10-12 (a)."""
-    methods = sorted(result["methods"], key=lambda name: result["methods"][name]["cp_energy_J"])
-    cp = [result["methods"][name]["cp_energy_J"] / 1e3 for name in methods]
-    ls = [result["methods"][name]["ls_energy_J"] / 1e3 for name in methods]
-    x = np.arange(len(methods))
-    fig, ax = plt.subplots(figsize=(1.1 * len(methods) + 3, 4))
-    ax.bar(x - 0.2, cp, 0.4, label="CP system")
-    ax.bar(x + 0.2, ls, 0.4, label="LS system")
-    for xi, name in zip(x, methods):
-        if not result["methods"][name]["limits_ok"]:
-            ax.annotate("limits!", (xi, max(cp[xi], ls[xi])), ha="center", va="bottom", color="red")
-    ax.set_xticks(x, methods, rotation=30, ha="right")
-    ax.set_ylabel("hydraulic energy [kJ]")
-    ax.set_title(f"{result['machine']} / {result['path']}: energy per method")
-    ax.legend()
-    ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    out = Path(out)
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
