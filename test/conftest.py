@@ -28,12 +28,19 @@ def k70m() -> dict:
     return load_crane(K70M)[1]
 
 
+SHARED_ENV = "HYDRO_ROS_TEST_SHARED"  # make test's folder for what its three pytest runs build once (it empties it first)
+
+
 def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], Any]) -> Any:
-    """What ``build(folder)`` returns, built by the first pytest-xdist worker that asks and read back by the others: a module
-    fixture is otherwise built once per worker that runs one of its tests (the fleet's month of recordings: 40 s each)."""
-    shared = tmp_path_factory.getbasetemp()
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        shared = shared.parent  # the workers' base directories are siblings under the run's own
+    """What ``build(folder)`` returns, built by the first pytest process that asks and read back by the others: a module
+    fixture is otherwise built once per xdist worker that runs one of its tests (the fleet's month of recordings: 40 s
+    each), and again by each tier of ``make test`` that has a test on it (SHARED_ENV: the tiers share one folder)."""
+    if os.environ.get(SHARED_ENV):
+        shared = Path(os.environ[SHARED_ENV])
+    else:
+        shared = tmp_path_factory.getbasetemp()
+        if os.environ.get("PYTEST_XDIST_WORKER"):
+            shared = shared.parent  # the workers' base directories are siblings under the run's own
     folder, result = shared / f"once-{name}", shared / f"once-{name}.pickle"
     with open(shared / f"once-{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -34,7 +35,7 @@ from hydro_ros.workflows.commissioning import (
     threshold_excess,
     threshold_refusal,
 )
-from test.conftest import REPO
+from test.conftest import REPO, built_once
 
 RIG = 2  # the SAM as built: config/sam.yaml's data sheet, each notch's table, moduli, friction and centre leakage drawn off
 LEVER = 0.8  # the recordings' operator never pushes the lever further than this
@@ -55,12 +56,17 @@ def _samples(machine, seed: int, duration: float, injections=()) -> Samples:
 
 
 @pytest.fixture(scope="module")
-def commissioned(sam_config):
-    """Three days of 2 minutes on the SAM built apart, 300 kg picked up and set down in one."""
-    recordings = [FaultFreeRecording(f"day{seed}", _built(sam_config, seed, 120.0, payload=PAYLOAD if seed == 2 else ()))
-                  for seed in (1, 2, 3)]
-    block, report = commission(sam_config, recordings)
-    return sam_config.with_overrides(block["model"]), block, report, recordings
+def commissioned(sam_config, tmp_path_factory):
+    """Three days of 2 minutes on the SAM built apart, 300 kg picked up and set down in one (built once for the library's
+    workers and the live tier)."""
+
+    def build(_folder: Path) -> tuple:
+        recordings = [FaultFreeRecording(f"day{seed}", _built(sam_config, seed, 120.0, payload=PAYLOAD if seed == 2 else ()))
+                      for seed in (1, 2, 3)]
+        block, report = commission(sam_config, recordings)
+        return sam_config.with_overrides(block["model"]), block, report, recordings
+
+    return built_once(tmp_path_factory, "sam_commissioned", build)
 
 
 @pytest.mark.slow  # three 2-minute days of the machine built apart, commissioned (~40 s)

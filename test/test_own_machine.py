@@ -28,7 +28,7 @@ from sensor_msgs.msg import FluidPressure, JointState
 from hydro_ros.can.codec import MachineBus, sample_values
 from hydro_ros.contract.machine import Machine, load_machine_config
 from hydro_ros.studies import independent_arm
-from test.conftest import REPO
+from test.conftest import REPO, built_once
 from test.ros_graph import node_process, probe_node, spin_until, spinning, wait_for
 
 # J1939: priority 3, PDU2 PGNs 0xFF10.. of the proprietary range, source address 0x21; DBC ids carry bit 31 for extended
@@ -102,9 +102,12 @@ def write_log(bus: MachineBus, machine: Machine, path: Path, work: independent_a
 
 @pytest.fixture(scope="module")
 def excavator(tmp_path_factory) -> Path:
+    return described_excavator(tmp_path_factory.mktemp("own_machine"))
+
+
+def described_excavator(folder: Path) -> Path:
     """`machine new --like boom_arm`, then made into another machine: other cylinders, mounts and masses, 18 MPa, 250 Hz,
     its actuators renamed, its own bus, and a threshold derived from its description."""
-    folder = tmp_path_factory.mktemp("own_machine")
     config = folder / "excavator.yaml"
     made = hydro_ros("machine", "new", "--like", "boom_arm", "--out", str(config))
     assert made.returncode == 0, made.stderr
@@ -185,10 +188,15 @@ def test_a_described_machine_is_checked_and_a_bad_one_refused_in_one_line_per_pr
 
 
 @pytest.fixture(scope="module")
-def commissioned(excavator, tmp_path_factory) -> tuple[Path, Path, Machine]:
+def commissioned(tmp_path_factory) -> tuple[Path, Path, Machine]:
+    """Built once for the library tier and the solo tier's live bus (make test)."""
+    return built_once(tmp_path_factory, "own_machine_commissioned", lambda folder: commissioned_excavator(described_excavator(folder)))
+
+
+def commissioned_excavator(excavator: Path) -> tuple[Path, Path, Machine]:
     """The maker's way: a safe threshold derived, then commissioned from converted recordings of the built machine
     (independent_arm's rig RIG of the description); (commissioned config, leak log, the description the rig is built from)."""
-    folder = tmp_path_factory.mktemp("commissioned")
+    folder = excavator.parent
     derived = excavator.with_name("excavator_safe.yaml")
     threshold = hydro_ros("machine", "threshold", str(excavator), "--variants", "3", "--duration", "60", "--out", str(derived))
     assert threshold.returncode == 0, threshold.stderr
