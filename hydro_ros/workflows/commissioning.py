@@ -33,7 +33,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -105,6 +105,26 @@ OVERLAP_STEPS = 9  # ... on this grid, refined by a parabola through the best an
 # where 0.015 of overlap is 30 % of the flow, and a fit holding the sheet's value read it as a 0.5-0.9 L/min leak
 MOTION_HINT = {"PA": "extending moves (positive valve command)", "BT": "extending moves (positive valve command)",
                "PB": "retracting moves (negative valve command)", "AT": "retracting moves (negative valve command)"}
+
+
+class CommissionedBlock(TypedDict):
+    """The config's ``commissioned:`` block, as ``write_config`` writes it."""
+    model: dict[str, Any]  # overrides of the machine's own model: each actuator's valve and fluid, fdi's threshold and coverage
+    date: str
+    recordings: list[str]
+    identified_s: float
+    held_out_s: float
+    fit: dict[str, dict[str, Any]]  # per actuator: flow errors, notch gains, notches kept, leaks fitted
+    threshold: dict[str, Any]  # how the threshold was found (adaptive_threshold's or parity_threshold's record)
+    record_next: dict[str, list[str]]  # per actuator: what to record to widen where detection holds
+
+
+class CommissioningReport(TypedDict):
+    """What people read beside the block (``commission --report``: commissioning.json and its plots)."""
+    identification: list[dict[str, Any]]  # each actuator's Identification, as its fields
+    threshold: dict[str, Any]  # the block's, with the threshold the config had before
+    held_out_s: float
+    block: CommissionedBlock
 
 
 @dataclass
@@ -456,7 +476,7 @@ def left_out_models(machine: Machine, recordings: Sequence[FaultFreeRecording],
 
 
 def commission(machine: Machine, recordings: Sequence[FaultFreeRecording], progress: Callable[[str], None] | None = None, *,
-               force: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
+               force: bool = False) -> tuple[CommissionedBlock, CommissioningReport]:
     """(the config's ``commissioned`` block, the report) from fault-free recordings of ``machine``.
 
     Refused (InputError, with the reason) when a leak fits the identified or the held-out part, when the residual
@@ -531,7 +551,7 @@ def commission(machine: Machine, recordings: Sequence[FaultFreeRecording], progr
     overrides["fdi"] = threshold.pop("fdi")
     coverage = Coverage.seen(machine.actuator_names, [r.samples for r in recordings])
     overrides["fdi"]["coverage"] = coverage.to_config()
-    block = {
+    block: CommissionedBlock = {
         "model": overrides,
         "date": datetime.date.today().isoformat(),
         "recordings": [r.name for r in recordings],
@@ -545,11 +565,12 @@ def commission(machine: Machine, recordings: Sequence[FaultFreeRecording], progr
         # outside what the recordings held, detection holds (hydro_ros.fdi.coverage); what to record to widen it
         "record_next": {a: coverage.advice(a, machine.supply_pressure) for a in machine.actuator_names},
     }
-    report = {"identification": [i.__dict__ for i in identified], "threshold": threshold, "held_out_s": held_out_s, "block": block}
+    report: CommissioningReport = {"identification": [i.__dict__ for i in identified], "threshold": threshold,
+                                   "held_out_s": held_out_s, "block": block}
     return block, report
 
 
-def write_config(config: Path, out: Path, block: dict[str, Any]) -> None:
+def write_config(config: Path, out: Path, block: CommissionedBlock) -> None:
     """A machine config that extends ``config`` with the commissioned block, written whole or not at all."""
     write_extending(config, out, f"# commissioned by `hydro-ros commission` on {block['date']} from {len(block['recordings'])} "
                                  "recording(s).\n# The commissioned block replaces the monitor's model (commissioned.model) on top of "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -15,6 +16,7 @@ import matplotlib.pyplot as plt  # files, no display: the studies' plots take it
 from hydro_ros.bags.reader import BagData
 from hydro_ros.contract.machine import Machine
 from hydro_ros.models.sam import Param, SamModel
+from hydro_ros.workflows.commissioning import CommissioningReport, FaultFreeRecording
 
 if TYPE_CHECKING:
     from hydro_ros.fdi.offline import FdiRun
@@ -165,7 +167,7 @@ def plot_gap_profiles(profiles: list[dict], out: str | Path) -> Path:
     return out
 
 
-def plot_commissioning(report: dict, machine: Machine, out: str | Path) -> Path:
+def plot_commissioning(report: CommissioningReport, machine: Machine, out: str | Path) -> Path:
     """Fitted against nominal flow coefficient per notch, and the threshold it gives."""
     out = Path(out)
     fig, axes = plt.subplots(len(report["identification"]), 5, figsize=(16, 3.2 * len(report["identification"])), squeeze=False)
@@ -205,7 +207,8 @@ def plot_commissioning(report: dict, machine: Machine, out: str | Path) -> Path:
     return out
 
 
-def plot_coverage(recordings: list, coverage: dict, record_next: dict, machine: Machine, out: str | Path) -> Path:
+def plot_coverage(recordings: Sequence[FaultFreeRecording], coverage: dict[str, dict[str, list[float]]],
+                  record_next: dict[str, list[str]], machine: Machine, out: str | Path) -> Path:
     """Where commissioning saw each actuator work: the recordings' valve command against each chamber's pressure (time
     density), the commanded openings the monitor trusts (``fdi.coverage`` widened by its margin; beyond them it holds),
     and what to record next."""
