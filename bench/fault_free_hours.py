@@ -8,7 +8,8 @@ minutes of its own fault-free work (the documented minimum), then monitored on f
 random operator, every other one picking up a payload), the rigs in turn, until --hours per config or --budget-min of
 wall time. Finished runs are kept in out/bench-cache/ under the hash of the code a run reads (RUN_CODE: this script, the
 package's files it imports, the configs and the pins), so a run stopped by its budget (or killed) goes on where it stopped when started
-again on a commit that changed none of it. Writes --out and a PNG beside it.
+again on a commit that changed none of it. A new cache adopts an older one's runs where this code computes its commissioned
+models and first batch of runs again bit for bit (the result names it: adopted_from_code). Writes --out and a PNG beside it.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ CONFIGS = ("config/sam.yaml", "config/sam_mobile.yaml", "config/boom_arm.yaml")
 RIGS = (1, 2, 3)
 RUN_S = 120.0
 BATCH = 8  # runs per batch between cache writes
+FIRST_SEED = 1000
 # what a run reads: this script, the package's files it imports (the tooling that stamps results computes nothing), the
 # configs and the pinned libraries (numpy, scipy and numba compute too); a commit that changes none of them (the planner,
 # the nodes, the CLI, the docs) keeps the cached hours
@@ -52,6 +54,20 @@ def _cached(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.is_file() else []
 
 
+def _adopted(cache: Path, models: dict, first: list[dict]) -> tuple[str | None, list[dict]]:
+    """(the key, its runs) of the cache of another code whose commissioned models and first batch of runs this code computes
+    again bit for bit, the one with the most runs; else (None, ``first``). A change to the code a run reads that leaves the
+    runs as they were (a refactor, a type) keeps the hours, shown to on the runs it computes again."""
+    others = [c for c in cache.parent.parent.glob(f"*/{cache.name}") if c != cache and (c / "models.json").is_file()]
+    for other in sorted(others, key=lambda c: -len(_cached(c / "runs.jsonl"))):
+        runs = _cached(other / "runs.jsonl")
+        if json.loads((other / "models.json").read_text()) == models and runs[:len(first)] == first:
+            print(f"{cache.name}: {len(runs)} runs of code {other.parent.name} adopted: its models and first {len(first)} runs are "
+                  "this code's, bit for bit", flush=True)
+            return other.parent.name, runs
+    return None, first
+
+
 def hours_of(config: str, target_h: float, deadline: float, workers: int, cache: Path) -> dict:
     """One config's fault-free hours, resumed from ``cache``, until ``target_h`` or the wall-clock ``deadline``."""
     base = load_machine_config(ROOT / config)
@@ -64,16 +80,28 @@ def hours_of(config: str, target_h: float, deadline: float, workers: int, cache:
     machines = {rig: base.with_overrides(models[str(rig)]) for rig in RIGS}
     runs_file = cache / "runs.jsonl"
     runs = _cached(runs_file)
+
+    def batch_from(seed: int) -> list[dict]:
+        jobs = []
+        for k in range(BATCH):
+            rig = RIGS[(seed + k) % len(RIGS)]
+            jobs.append((base, machines[rig], rig, plant.work_day(base, [seed + k], RUN_S)[0]))
+        return json.loads(json.dumps(parallel_map(_monitored, jobs, workers=workers)))  # as the cache holds them
+
+    adopted_file = cache / "adopted_from"
+    if not runs and time.monotonic() < deadline:
+        first = batch_from(FIRST_SEED)
+        adopted, runs = _adopted(cache, models, first)
+        if adopted:
+            adopted_file.write_text(adopted)
+        runs_file.write_text("".join(json.dumps(r) + "\n" for r in runs))
+    adopted = adopted_file.read_text() if adopted_file.is_file() else None
     done = sum(r["seconds"] for r in runs) / 3600.0
-    seed = 1000 + len(runs)
+    seed = FIRST_SEED + len(runs)
     with tqdm(total=target_h, initial=done, desc=Path(config).stem,
               bar_format="{l_bar}{bar}| {n:.1f}/{total:g} h [{elapsed}<{remaining}]") as bar:
         while done < target_h and time.monotonic() < deadline:
-            jobs = []
-            for k in range(BATCH):
-                rig = RIGS[(seed + k) % len(RIGS)]
-                jobs.append((base, machines[rig], rig, plant.work_day(base, [seed + k], RUN_S)[0]))
-            batch = parallel_map(_monitored, jobs, workers=workers)
+            batch = batch_from(seed)
             with runs_file.open("a") as stream:
                 stream.writelines(json.dumps(r) + "\n" for r in batch)
             runs += batch
@@ -94,7 +122,8 @@ def hours_of(config: str, target_h: float, deadline: float, workers: int, cache:
                              "c0_mpa": models[str(rig)].get("fdi", {}).get("threshold_constant")}  # None: parity thresholds
     return {"config": config, "target_hours": target_h, "hours": round(hours, 3), "runs": len(runs), "false_alarms": len(alarms),
             "per_hour": rate, "per_hour_interval": [low, high], "reached_target": hours >= target_h, "per_rig": per_rig,
-            "alarmed_runs": len({(a["rig"], a["seed"]) for a in alarms}), "alarms": alarms}
+            "alarmed_runs": len({(a["rig"], a["seed"]) for a in alarms}), "alarms": alarms,
+            "adopted_from_code": adopted}
 
 
 def main() -> int:

@@ -73,6 +73,34 @@ def test_the_code_a_script_reads_is_what_it_imports_through_the_package_and_noth
     assert not [f for f in hours if f.startswith(("hydro_ros/planning", "hydro_ros/nodes", "hydro_ros/cli", "hydro_ros/tooling"))]
 
 
+def test_fault_free_hours_adopt_another_codes_runs_only_where_this_code_computes_them_again_bit_for_bit(tmp_path):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("fault_free_hours", REPO / "bench" / "fault_free_hours.py")
+    hours = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hours)
+    models = {"1": {"fdi": {"threshold_constant": 0.05}}}
+    runs = [{"rig": 1, "seed": 1000 + k, "seconds": 120.0, "alarms": []} for k in range(5)]
+
+    def cache(key: str, models: dict, runs: list[dict]) -> Path:
+        folder = tmp_path / key / "sam"
+        folder.mkdir(parents=True)
+        (folder / "models.json").write_text(json.dumps(models))
+        (folder / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in runs))
+        return folder
+
+    cache("short", models, runs[:3])
+    cache("other_models", {"1": {"fdi": {"threshold_constant": 0.06}}}, runs)
+    mine = (tmp_path / "now" / "sam")
+    mine.mkdir(parents=True)
+    first = runs[:2]
+    assert hours._adopted(mine, models, first) == ("short", runs[:3])  # the longest whose models are this code's
+    cache("long", models, runs)
+    assert hours._adopted(mine, models, first) == ("long", runs)
+    moved = [dict(runs[0], alarms=[{"time_s": 12.0}]), runs[1]]  # this code alarms where the cached did not
+    assert hours._adopted(mine, models, moved) == (None, moved)
+
+
 def test_the_code_hash_follows_the_code_committed_or_not_and_nothing_written_from_the_results(checkout):
     committed = code_hash(checkout)
     assert len(committed) == 40
