@@ -3,6 +3,7 @@ from __future__ import annotations
 import fcntl
 import os
 import pickle
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -28,25 +29,38 @@ def k70m() -> dict:
     return load_crane(K70M)[1]
 
 
-SHARED_ENV = "HYDRO_ROS_TEST_SHARED"  # make test's folder for what its three pytest runs build once (it empties it first)
+SHARED_ENV = "HYDRO_ROS_TEST_SHARED"  # make test's folder for what its three pytest runs build once (it empties it first;
+# set by hand, emptying it after a code change is yours to do: a build is named, not keyed by the code)
 
 
 def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], Any]) -> Any:
     """What ``build(folder)`` returns, built by the first pytest process that asks and read back by the others: a module
     fixture is otherwise built once per xdist worker that runs one of its tests (the fleet's month of recordings: 40 s
-    each), and again by each tier of ``make test`` that has a test on it (SHARED_ENV: the tiers share one folder)."""
+    each), and again by each tier of ``make test`` that has a test on it (SHARED_ENV: the tiers share one folder). A build
+    that failed fails the others at once with its error; a half-written result is never read (written aside, then moved)."""
     if os.environ.get(SHARED_ENV):
         shared = Path(os.environ[SHARED_ENV])
+        shared.mkdir(parents=True, exist_ok=True)
     else:
         shared = tmp_path_factory.getbasetemp()
         if os.environ.get("PYTEST_XDIST_WORKER"):
             shared = shared.parent  # the workers' base directories are siblings under the run's own
-    folder, result = shared / f"once-{name}", shared / f"once-{name}.pickle"
+    folder, result, failed = shared / f"once-{name}", shared / f"once-{name}.pickle", shared / f"once-{name}.failed"
     with open(shared / f"once-{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
+        if failed.exists():
+            pytest.fail(f"built_once({name!r}) failed in another process: {failed.read_text()}", pytrace=False)
         if not result.exists():
-            folder.mkdir(exist_ok=True)
-            result.write_bytes(pickle.dumps(build(folder)))
+            shutil.rmtree(folder, ignore_errors=True)
+            folder.mkdir()
+            try:
+                built = build(folder)
+            except BaseException as exc:
+                failed.write_text(f"{type(exc).__name__}: {exc}"[:2000])
+                raise
+            aside = result.with_suffix(".writing")
+            aside.write_bytes(pickle.dumps(built))
+            os.replace(aside, result)
         return pickle.loads(result.read_bytes())
 
 

@@ -231,19 +231,29 @@ def test_the_grid_around_a_baseline_holds_it_on_finer_nodes_within_the_windows_a
     spacing = np.diff(tube.positions, axis=1)
     assert np.allclose(spacing, spacing[:, :1])  # even per stage: the DP interpolates on it
     v_max = crane.extension.velocity_max
-    assert tube.velocities[0] == pytest.approx(max(-v_max, baseline.velocity.min() - 0.05))
-    assert tube.velocities[-1] == pytest.approx(min(v_max, baseline.velocity.max() + 0.05))
+    assert tube.velocities[0] <= max(-v_max, baseline.velocity.min() - 0.05) and tube.velocities[0] < 0.0
+    assert tube.velocities[-1] >= min(v_max, baseline.velocity.max() + 0.05)
+    assert np.diff(tube.velocities).max() < 0.5 * np.diff(problem.grid.velocities).min()  # finer than the full grid's
+    assert 0.0 in tube.velocities  # rest on a node, as on the full grid: the DP's start and its end penalty read it there
+    assert np.allclose(np.diff(tube.velocities), tube.velocities[1] - tube.velocities[0])
     assert np.array_equal(tube.controls, problem.grid.controls)
     with pytest.raises(ValueError, match="stages"):
         DpGrid.around(crane, problem.samples, baseline.__class__(*(x[:-1] for x in (baseline.position, baseline.velocity,
                       baseline.acceleration)), baseline.sample_time), COARSE)
+    with pytest.raises(InputError, match="half width 0"):
+        DpGrid.around(crane, problem.samples, baseline, COARSE, half_width=0.0)
+    outside = baseline.__class__(baseline.position + np.where(np.arange(len(baseline.position)) == 40, 10.0, 0.0),
+                                 baseline.velocity, baseline.acceleration, baseline.sample_time)
+    with pytest.raises(InputError, match=r"more than 0\.05 m outside the feasible extension window"):
+        DpGrid.around(crane, problem.samples, outside, COARSE)
 
 
+@pytest.mark.slow
 def test_on_a_line_where_the_full_grid_dp_is_above_a_pseudo_inverse_the_dp_around_it_is_not() -> None:
     """The savings map's vertical line at x = 7.5 m, y = 0.5 m in LS: the full grid's DP 6.8 % above the actuator-space
     pseudo-inverse (its velocity nodes too coarse for this optimum); planned again around that pseudo-inverse, within
-    0.5 % of it, keeping every limit. Its own trajectory, which comes out within a fraction of a millimetre of the
-    pseudo-inverse's: on the finer nodes the DP finds nothing better near it (the polish does, bench/dp.py)."""
+    0.5 % of it, keeping every limit. Its own trajectory, which comes out within half a millimetre of the
+    pseudo-inverse's: on the finer nodes the DP finds nothing better near it."""
     from dataclasses import replace
 
     from hydro_ros.planning.problem import plan_dp
@@ -260,7 +270,7 @@ def test_on_a_line_where_the_full_grid_dp_is_above_a_pseudo_inverse_the_dp_aroun
     assert full.evaluation["ls_energy_J"] > 1.05 * best
     assert refined.evaluation["ls_energy_J"] < 1.005 * best and all(refined.evaluation["limits"].values())
     apart = np.abs(refined.trajectory.position - baseline.trajectory.position).max()
-    assert 0.0 < apart < 1e-3, apart  # the DP's answer on the tube, not the baseline handed back
+    assert 0.0 < apart < 5e-4, apart  # the DP's answer on the tube, not the baseline handed back
 
 
 @pytest.mark.parametrize("start", ["smallest", "middle"])

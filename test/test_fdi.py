@@ -215,3 +215,37 @@ def test_an_internal_leak_from_b_to_a_is_isolated_by_table_3_row_4(sam_config):
     named = [a for a in alarms if a.fault is not None and a.fault.value != "unisolated"]
     assert alarms and alarms[0].time_s > 20.0 and named and named[0].fault == Fault.INTERNAL_LEAKAGE, [a.to_json() for a in alarms]
     assert monitor.status(0).code == "1001"  # A up, B down
+
+
+def test_the_evaluation_summary_is_the_layout_of_fdi_eval_json_and_its_table_says_what_it_counted():
+    """`fdi eval`'s records against the committed bench/results/fdi_eval.json: the same keys in the same order, at every
+    level a reader looks, and a table built from what was counted (a named run's delay only where an alarm named it)."""
+    import json
+
+    from hydro_ros.studies.fdi_evaluation import CalibratedThreshold, Outcome, ParityThreshold, markdown_table, summarise
+
+    def outcome(fault, value, seed, delay, named, isolated):
+        return Outcome(fault, value, seed, delay is not None, False, delay, named, isolated, isolated == fault,
+                       0.9 if fault else None, 0, 60.0)
+
+    leaks = [outcome("external_leakage_a", 1.0, 0, 3.0, 4.0, "external_leakage_a"),
+             outcome("external_leakage_a", 1.0, 1, 5.0, None, "external_leakage_a"),  # named by the status, no alarm named it
+             outcome("external_leakage_a", 1.0, 2, None, None, None)]
+    free = [Outcome(None, 0.0, 200, False, True, None, None, None, False, None, 2, 3600.0)]
+    summary = summarise(leaks, free, CalibratedThreshold(0.05, 0.012, 0.075, 0.0, 10.0), {"seeds": 3})
+    record = summary.to_json()
+    shipped = json.loads((REPO / "bench" / "results" / "fdi_eval.json").read_text())
+    assert list(record) == [key for key in shipped if key not in ("commit", "code")]
+    for key in ("fault_free", "threshold"):
+        assert list(record[key]) == list(shipped[key]), key
+    assert list(record["rows"][0]) == list(shipped["rows"][0]) and list(record["outcomes"][0]) == list(shipped["outcomes"][0])
+    row = record["rows"][0]
+    assert row["detection_rate"] == pytest.approx(2 / 3) and row["isolation_accuracy"] == pytest.approx(2 / 3)
+    assert row["median_delay_s"] == 4.0 and row["median_named_s"] == 4.0
+    assert record["fault_free"]["false_alarms_per_hour"] == 2.0 and record["smallest_detectable"]["external_leakage_a"] is None
+    table = markdown_table(summary)
+    assert "| external_leakage_a | 1 L/min@10MPa | 67% | 67% | 4.0 | 4.0 | 0.90 | external_leakage_a, none |" in table
+    assert "2 threshold-crossing episodes in 1.00 h" in table and "the paper's c0 = 0.012 MPa gives 10 per hour" in table
+    parity = summarise(leaks, free, ParityThreshold(3.0, [0.0, 0.1]), {"seeds": 3})
+    assert list(parity.to_json()["threshold"]) == ["method", "factor", "opening_edges"]
+    assert "(|mu| + 3 sigma per opening bin)" in markdown_table(parity)

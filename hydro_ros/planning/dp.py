@@ -54,7 +54,8 @@ _FEASIBLE_BELOW = 1.0e12  # any interpolation weight on an infeasible node shows
 REST_PENALTY = 1.0e10  # J per m/s of final velocity: far above any path's energy, finite for interpolation
 SNAP = 1e-9  # interpolation weights closer than this to 0 or 1 are rounding noise
 # the tube of DpGrid.around: +-5 cm of stroke and 5 cm/s beyond the reference's speeds (on the K70M's vertical lines
-# about 4x finer positions and 3x finer velocities than the full grid; the certificate's cases were tried at 5, 10, 20 cm)
+# positions over 10 cm instead of the window's metres and velocities about 3x finer than the full grid's; the
+# certificate's cases were tried at 5, 10 and 20 cm)
 TUBE_HALF_WIDTH = 0.05  # [m]
 TUBE_VELOCITY_PAD = 0.05  # [m/s]
 EDGE_SLACK = 0.999  # velocity cells' step a next position may fall past a window end (_bellman_step)
@@ -97,25 +98,34 @@ class DpGrid:
     def around(cls, crane: Crane, samples: PathSamples, reference: ExtensionTrajectory, sizes: tuple[int, int, int], *,
                half_width: float = TUBE_HALF_WIDTH, velocity_pad: float = TUBE_VELOCITY_PAD) -> DpGrid:
         """The grid of ``sizes`` narrowed to a tube around ``reference`` (a trajectory that keeps the limits): each stage's
-        positions within ``half_width`` of it (and its window), the velocities over its range widened by ``velocity_pad``
-        (and the limit), the controls over the whole limit. The same nodes, several times finer: where the full grid's
-        discrete problem is worse than a feasible baseline (a vertical line's LS optimum needs a finer velocity grid than
-        356 x 101 x 151 gives over the whole stroke and speed), the DP on the tube around that baseline has the baseline
-        among its candidates, and its answer is still the DP's own."""
+        positions within ``half_width`` of it (and its window), the velocities over its range and rest widened by
+        ``velocity_pad``, with a node at rest as the full grid has, the controls over the whole limit. The same node counts,
+        finer: where the full grid's discrete problem is worse than a feasible baseline (a vertical line's LS optimum needs
+        a finer velocity grid than 356 x 101 x 151 gives over the whole stroke and speed), the DP on the tube around that
+        baseline searches its neighbourhood finely, and its answer is still the DP's own."""
         n_c, n_v, n_u = (int(size) for size in sizes)
         if min(n_c, n_v, n_u) < DP_GRID_MIN:
             raise InputError(f"DP grid {sizes}: at least {DP_GRID_MIN} points per axis")
+        if not (half_width > 0 and velocity_pad >= 0):
+            raise InputError(f"DP tube: half width {half_width} m must be > 0 and velocity pad {velocity_pad} m/s >= 0")
         if len(reference.position) != samples.stages + 1:
             raise ValueError(f"reference of {len(reference.position) - 1} stages, path of {samples.stages}")
         ext = crane.extension
         windows = extension_windows(crane, samples)
         low = np.maximum(windows[:, 0], reference.position - half_width)
         high = np.minimum(windows[:, 1], reference.position + half_width)
-        fastest_down = max(-ext.velocity_max, float(reference.velocity.min()) - velocity_pad)
-        fastest_up = min(ext.velocity_max, float(reference.velocity.max()) + velocity_pad)
+        if np.any(high <= low):
+            k = int(np.argmax(high <= low))
+            raise InputError(f"DP tube: the reference at t = {samples.time[k]:.2f} s ({reference.position[k]:.4f} m) is more than "
+                             f"{half_width} m outside the feasible extension window {windows[k].round(4).tolist()} m")
+        slowest = max(-ext.velocity_max, min(float(reference.velocity.min()), 0.0) - velocity_pad)
+        fastest = min(ext.velocity_max, max(float(reference.velocity.max()), 0.0) + velocity_pad)
+        # n_v nodes a whole number of steps from rest: one step wider than the range, so that rest is a node
+        step = (fastest - slowest) / (n_v - 2)
+        first = step * math.floor(slowest / step)
         return cls(
             positions=low[:, None] + (high - low)[:, None] * np.linspace(0.0, 1.0, n_c),
-            velocities=np.linspace(fastest_down, fastest_up, n_v),
+            velocities=first + step * np.arange(n_v),
             controls=np.linspace(-ext.acceleration_max, ext.acceleration_max, n_u),
         )
 

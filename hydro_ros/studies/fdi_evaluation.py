@@ -345,6 +345,7 @@ def summarise(outcomes: list[Outcome], fault_free: list[Outcome], threshold: Cal
     for fault, value in keys:
         group = [o for o in outcomes if o.fault == fault and o.value == value]
         delays = [o.delay_s for o in group if o.delay_s is not None]
+        # a run whose final status names the fault but none of whose alarms did has no delay to the name
         named = [o.named_s for o in group if o.correct and o.named_s is not None]
         leaks = [o.mean_leak_l_min for o in group if o.mean_leak_l_min is not None]
         rows.append(SummaryRow(

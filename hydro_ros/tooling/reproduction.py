@@ -260,7 +260,8 @@ def _certificate(*files: dict) -> str:
             still = sorted(f"{r['case']} {r['cost'].upper()}" for r in rows if r["certified_over_baseline"] > CERTIFIED)
             text += (f". Planned again on a grid narrowed to a tube around that baseline (`DpGrid.around`: +-{tube['half_width_m']:g} m, "
                      f"its speeds +-{tube['velocity_pad_m_s']:g} m/s, the same node counts): the DP's answer "
-                     f"{_signed([r['refined_over_baseline'] for r in rows], '+.1f')}, polished "
+                     f"{_signed([r['refined_over_baseline'] for r in rows], '+.1f')} (within {CERTIFIED:.1%} on "
+                     f"{sum(r['refined_over_baseline'] <= CERTIFIED for r in rows)} of {len(rows)}), polished "
                      f"{_signed([r['refined_polished_over_baseline'] for r in rows], '+.1f')}; the better of the two polished DP answers "
                      + (f"still above on {len(still)} ({', '.join(still)})" if still else f"within {CERTIFIED:.1%} on all {len(rows)}"))
     return text
