@@ -126,13 +126,37 @@ def test_a_step_is_pending_until_every_file_it_writes_holds_the_code(tmp_path):
     (tmp_path / "b.json").write_text(json.dumps({"commit": "x", "code": "new"}))
     (tmp_path / "b_more.json").write_text(json.dumps({"commit": "x", "code": "old"}))  # half of b from an older run
     (tmp_path / "c.json").write_text("{not json")  # an interrupted write
-    assert [s.name for s in benchrun.pending(steps, "new", tmp_path)] == ["b", "c"]
-    assert [s.name for s in benchrun.pending(steps, "old", tmp_path)] == ["a", "b", "c"]
+    new, old = dict.fromkeys("abc", "new"), dict.fromkeys("abc", "old")
+    assert [s.name for s in benchrun.pending(steps, new, tmp_path)] == ["b", "c"]
+    assert [s.name for s in benchrun.pending(steps, old, tmp_path)] == ["a", "b", "c"]
+    assert [s.name for s in benchrun.pending(steps, {**new, "a": "old"}, tmp_path)] == ["a", "b", "c"]  # a's own code changed
     (tmp_path / "b_more.json").write_text(json.dumps({"commit": "x"}))  # written before files recorded their code
-    assert [s.name for s in benchrun.pending(steps, "new", tmp_path)] == ["b", "c"]
+    assert [s.name for s in benchrun.pending(steps, new, tmp_path)] == ["b", "c"]
     (tmp_path / "b_more.json").write_text(json.dumps({"code": "new"}))
     (tmp_path / "a.json").write_text(json.dumps({"code": "new", "complete": False}))  # stopped by its own budget: goes on
-    assert [s.name for s in benchrun.pending(steps, "new", tmp_path)] == ["a", "c"]
+    assert [s.name for s in benchrun.pending(steps, new, tmp_path)] == ["a", "c"]
+
+
+def test_a_steps_code_is_what_its_script_imports_or_the_whole_tree_where_it_starts_other_processes(tmp_path):
+    files = {
+        "bench/quiet.py": "from hydro_ros.model import f\n",
+        "bench/spawning.py": "from hydro_ros.runner import go\n",
+        "hydro_ros/__init__.py": "",
+        "hydro_ros/model.py": "def f():\n    return 1\n",
+        "hydro_ros/runner.py": "import subprocess\n\ndef go():\n    subprocess.run(['python', '-m', 'hydro_ros.nodes.x'])\n",
+        "hydro_ros/tooling/benchresults.py": "import subprocess  # git, to stamp\n",
+    }
+    for name, text in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    (tmp_path / "bench/quiet.py").write_text("from hydro_ros.model import f\nfrom hydro_ros.tooling.benchresults import x\n")
+    assert benchrun.Step("quiet", "quiet").reads(tmp_path) == (
+        "bench/quiet.py", "hydro_ros/__init__.py", "hydro_ros/model.py", "hydro_ros/tooling/benchresults.py", *benchrun.DATA)
+    assert benchrun.Step("spawning", "spawning").reads(tmp_path) is None
+    # the shipped steps: the long evaluations follow their own code, what runs nodes or the CLI the whole tree
+    shipped = {step.name: step.reads() for step in benchrun.STEPS}
+    assert shipped["fault_free_hours"] and shipped["gsa_convergence"] and shipped["savings_map"] and shipped["hmi"] is None
+    assert not [f for f in shipped["savings_map"] if f.startswith(("hydro_ros/fdi", "hydro_ros/nodes", "hydro_ros/cli"))]
 
 
 def test_a_result_file_records_the_code_that_wrote_it(tmp_path, monkeypatch):
@@ -173,6 +197,7 @@ def test_resuming_runs_only_the_pending_steps_timed_ones_here_first_the_rest_on_
     monkeypatch.setattr(benchrun, "STEPS", steps)
     monkeypatch.setattr(benchrun, "RESULTS", tmp_path)
     monkeypatch.setattr(benchrun, "code_hash", lambda: "now")
+    monkeypatch.setattr(benchrun, "step_code", lambda step: "now")
     monkeypatch.setattr(benchrun, "run_step", run_step)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         status = benchrun.main(["--allow-dirty", "--dask", cluster.scheduler_address])

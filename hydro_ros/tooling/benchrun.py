@@ -1,10 +1,13 @@
 """`make bench` (``python -m hydro_ros.tooling.benchrun``): every benchmark, each skipped when its result files already hold the code as it is (resumable).
 
-A step is done when every file it writes in bench/results carries ``code`` equal to :func:`code_hash` of the tree now
-(the code without bench/results and the docs written from them) and none says ``"complete": false`` (a step stopped by its
-own budget, which goes on when run again); an interrupted ``make bench`` therefore goes on where it stopped, and a change
-of code reruns everything. Results carry the hash taken when the run started (``CODE_ENV``); a run whose code changes
-under it stops. ``--force`` reruns every step; ``--only NAME`` picks steps.
+A step is done when every file it writes in bench/results carries ``code`` equal to the hash of the code the step reads
+now (:func:`step_code`: its script, the package's files it imports followed through the package, the configs, the bags
+and the pins; the whole tree, less bench/results and the docs written from them, for a script that runs other processes,
+whose imports no walk sees) and none says ``"complete": false`` (a step stopped by its own budget, which goes on when run
+again). An interrupted ``make bench`` therefore goes on where it stopped, and a commit reruns only the steps whose code it
+changed: the full run can be gathered over several sittings, each file backed by the code as it is. Results carry the
+hash taken when the step started (``CODE_ENV``); a run whose code changes under a step stops. ``--force`` reruns every
+step; ``--only NAME`` picks steps.
 
 ``--dask ADDRESS`` (a ``dask.distributed`` scheduler, ``local`` for a cluster of this machine's cores) runs the
 evaluations on its workers, which must share this checkout (the same path); the steps whose speeds or latencies the
@@ -16,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -24,7 +28,7 @@ from pathlib import Path
 
 from hydro_ros.contract.errors import InputError
 from hydro_ros.contract.extras import optional_module
-from hydro_ros.tooling.benchresults import CODE_ENV, RESULTS, ROOT, code_hash, moved, require_clean_tree
+from hydro_ros.tooling.benchresults import CODE_ENV, RESULTS, ROOT, code_hash, imported_by, moved, require_clean_tree
 
 MOVES = ROOT / "out" / "bench-moved"  # per step, what its rerun moved against the files it replaced
 
@@ -43,6 +47,25 @@ class Step:
 
     def command(self) -> list[str]:
         return [sys.executable, str(ROOT / "bench" / f"{self.script}.py"), *self.args, "--out", f"bench/results/{self.name}.json"]
+
+    def reads(self, root: Path = ROOT) -> tuple[str, ...] | None:
+        """The paths whose code the step runs (see the module's docstring); None for the whole tree: its script, or a
+        package file it imports, starts other processes (the CLI, the nodes), git's calls that stamp the results aside."""
+        files = imported_by(f"bench/{self.script}.py", root)
+        if any(SPAWNS.search((root / f).read_text()) for f in files if f not in STAMPING):
+            return None
+        return (*files, *DATA)
+
+
+SPAWNS = re.compile(r"\bsubprocess\b|\bPopen\b|\bos\.system\b|\bexecv")
+STAMPING = ("hydro_ros/tooling/benchresults.py",)  # runs git to stamp what ran, computes nothing
+DATA = ("config", "bags", "requirements.txt")  # what every step may read beside code: the configs, the bags, the pins
+
+
+def step_code(step: Step) -> str:
+    """The hash of the code ``step`` runs now, which its result files must carry to be current."""
+    reads = step.reads()
+    return code_hash() if reads is None else code_hash(paths=reads)
 
 
 def _step(name: str, *args: str, script: str | None = None, also: tuple[str, ...] = (), timed: bool = False) -> Step:
@@ -94,9 +117,9 @@ def current(name: str, code: str, results: Path = RESULTS) -> bool:
     return isinstance(data, dict) and data.get("code") == code and data.get("complete", True) is not False
 
 
-def pending(steps: tuple[Step, ...], code: str, results: Path = RESULTS) -> list[Step]:
-    """The steps some of whose files are not current."""
-    return [step for step in steps if not all(current(name, code, results) for name in step.writes)]
+def pending(steps: tuple[Step, ...], codes: dict[str, str], results: Path = RESULTS) -> list[Step]:
+    """The steps some of whose files do not hold their step's code (``codes``: per step name) or are not complete."""
+    return [step for step in steps if not all(current(name, codes[step.name], results) for name in step.writes)]
 
 
 def run_step(step: Step, code: str) -> tuple[str, int, float]:
@@ -127,14 +150,14 @@ def report_moves(step: Step, previous: dict[str, object], status: int = 0, resul
     return lines
 
 
-def _on_dask(steps: list[Step], address: str, code: str) -> list[tuple[str, int, float]]:
+def _on_dask(steps: list[Step], address: str, codes: dict[str, str]) -> list[tuple[str, int, float]]:
     try:
         distributed = optional_module("distributed")
     except InputError as exc:
         raise SystemExit(f"make bench --dask: {exc}") from None
     cluster = distributed.LocalCluster(threads_per_worker=1) if address == "local" else None
     with distributed.Client(cluster or address) as client:
-        futures = {client.submit(run_step, step, code, key=f"bench-{step.name}", pure=False): step.name for step in steps}
+        futures = {client.submit(run_step, step, codes[step.name], key=f"bench-{step.name}", pure=False): step.name for step in steps}
         done = []
         for future in distributed.as_completed(list(futures)):
             try:
@@ -159,31 +182,31 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not (args.allow_dirty or args.list):
         require_clean_tree()
-    code = code_hash()
-    if code == "unknown":
+    if code_hash() == "unknown":
         raise SystemExit(f"make bench: {ROOT} is not a git checkout: a result could not say which code ran (clone the repository)")
     chosen = tuple(s for s in STEPS if not args.only or s.name in args.only)
-    todo = list(chosen) if args.force else pending(chosen, code, RESULTS)
+    codes = {step.name: step_code(step) for step in chosen}
+    todo = list(chosen) if args.force else pending(chosen, codes, RESULTS)
     if args.list:
         for step in chosen:
             print(f"{step.name:28s} {'to run' if step in todo else 'current'}  ({', '.join(step.writes)})")
         return 0
-    print(f"bench: {len(todo)} of {len(chosen)} steps to run on code {code[:12]}"
+    print(f"bench: {len(todo)} of {len(chosen)} steps to run"
           + (f"; current, skipped: {', '.join(s.name for s in chosen if s not in todo)}" if len(todo) < len(chosen) else ""), flush=True)
     alone = [s for s in todo if s.timed or not args.dask]
     results = []
     for step in alone:
         print(f"bench: {step.name}: {' '.join(step.command()[1:])}", flush=True)
         previous = _previous(step)
-        results.append(run_step(step, code))
+        results.append(run_step(step, codes[step.name]))
         report_moves(step, previous, results[-1][1])
-        if code_hash() != code:
+        if step_code(step) != codes[step.name]:
             raise SystemExit(f"make bench: the code changed while {step.name} ran: its results carry the code the run started on; "
                              "commit, then run make bench again")
     if args.dask and len(alone) < len(todo):
         remote = [s for s in todo if s not in alone]
         previous = {s.name: _previous(s) for s in remote}
-        finished = _on_dask(remote, args.dask, code)
+        finished = _on_dask(remote, args.dask, codes)
         exit_status = {name: status for name, status, _ in finished}
         for step in remote:
             report_moves(step, previous[step.name], exit_status.get(step.name, 1))
