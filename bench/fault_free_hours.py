@@ -9,7 +9,7 @@ random operator, every other one picking up a payload), the rigs in turn, until 
 wall time. Finished runs are kept in out/bench-cache/ under the hash of the code a run reads (RUN_CODE: this script, the
 package's files it imports, the configs and the pins), so a run stopped by its budget (or killed) goes on where it stopped when started
 again on a commit that changed none of it. A new cache adopts an older one's runs where this code computes its commissioned
-models and first batch of runs again bit for bit (the result names it: adopted_from_code). Writes --out and a PNG beside it.
+models, first batch of runs and every run that alarmed again bit for bit (the result names it: adopted_from_code). Writes --out and a PNG beside it.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -54,17 +55,28 @@ def _cached(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.is_file() else []
 
 
-def _adopted(cache: Path, models: dict, first: list[dict]) -> tuple[str | None, list[dict]]:
-    """(the key, its runs) of the cache of another code whose commissioned models and first batch of runs this code computes
-    again bit for bit, the one with the most runs; else (None, ``first``). A change to the code a run reads that leaves the
-    runs as they were (a refactor, a type) keeps the hours, shown to on the runs it computes again."""
-    others = [c for c in cache.parent.parent.glob(f"*/{cache.name}") if c != cache and (c / "models.json").is_file()]
-    for other in sorted(others, key=lambda c: -len(_cached(c / "runs.jsonl"))):
-        runs = _cached(other / "runs.jsonl")
-        if json.loads((other / "models.json").read_text()) == models and runs[:len(first)] == first:
-            print(f"{cache.name}: {len(runs)} runs of code {other.parent.name} adopted: its models and first {len(first)} runs are "
-                  "this code's, bit for bit", flush=True)
-            return other.parent.name, runs
+def _adopted(cache: Path, models: dict, first: list[dict], computed: Callable[[list[int]], list[dict]]) -> tuple[str | None, list[dict]]:
+    """(the key, its runs) of the cache of another code, the one with the most runs, whose commissioned models, first
+    batch of runs (``first``) and every run that alarmed this code computes again bit for bit (``computed(seeds)``);
+    else (None, ``first``). A change to the code a run reads that leaves the runs as they were (a refactor, a type) keeps
+    the hours; one that moves an alarm, or the first batch, does not. A run that had no alarm and would now have one is
+    seen only in the first batch: the check is the first batch's and the alarms', not every run's."""
+    others = []
+    for other in cache.parent.parent.glob(f"*/{cache.name}"):
+        try:
+            if other != cache and json.loads((other / "models.json").read_text()) == models:
+                others.append((other, _cached(other / "runs.jsonl")))
+        except (OSError, ValueError):  # another code's cache that is not whole: not a candidate
+            continue
+    for other, runs in sorted(others, key=lambda pair: -len(pair[1])):
+        if runs[:len(first)] != first:
+            continue
+        alarmed = [r for r in runs[len(first):] if r["alarms"]]
+        if computed([r["seed"] for r in alarmed]) != alarmed:
+            continue
+        print(f"{cache.name}: {len(runs)} runs of code {other.parent.name} adopted: its models, first {len(first)} runs and "
+              f"{len(alarmed)} alarmed runs are this code's, bit for bit", flush=True)
+        return other.parent.name, runs
     return None, first
 
 
@@ -81,20 +93,23 @@ def hours_of(config: str, target_h: float, deadline: float, workers: int, cache:
     runs_file = cache / "runs.jsonl"
     runs = _cached(runs_file)
 
-    def batch_from(seed: int) -> list[dict]:
-        jobs = []
-        for k in range(BATCH):
-            rig = RIGS[(seed + k) % len(RIGS)]
-            jobs.append((base, machines[rig], rig, plant.work_day(base, [seed + k], RUN_S)[0]))
+    def computed(seeds: list[int]) -> list[dict]:
+        jobs = [(base, machines[RIGS[seed % len(RIGS)]], RIGS[seed % len(RIGS)], plant.work_day(base, [seed], RUN_S)[0])
+                for seed in seeds]
         return json.loads(json.dumps(parallel_map(_monitored, jobs, workers=workers)))  # as the cache holds them
+
+    def batch_from(seed: int) -> list[dict]:
+        return computed(list(range(seed, seed + BATCH)))
 
     adopted_file = cache / "adopted_from"
     if not runs and time.monotonic() < deadline:
-        first = batch_from(FIRST_SEED)
-        adopted, runs = _adopted(cache, models, first)
+        adopted_file.unlink(missing_ok=True)
+        adopted, runs = _adopted(cache, models, batch_from(FIRST_SEED), computed)
+        aside = runs_file.with_suffix(".writing")
+        aside.write_text("".join(json.dumps(r) + "\n" for r in runs))
+        aside.replace(runs_file)
         if adopted:
             adopted_file.write_text(adopted)
-        runs_file.write_text("".join(json.dumps(r) + "\n" for r in runs))
     adopted = adopted_file.read_text() if adopted_file.is_file() else None
     done = sum(r["seconds"] for r in runs) / 3600.0
     seed = FIRST_SEED + len(runs)

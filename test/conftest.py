@@ -55,7 +55,7 @@ def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Calla
             folder.mkdir()
             try:
                 built = build(folder)
-            except BaseException as exc:
+            except Exception as exc:  # not an interrupt or a skip: those say nothing of the build
                 failed.write_text(f"{type(exc).__name__}: {exc}"[:2000])
                 raise
             aside = result.with_suffix(".writing")

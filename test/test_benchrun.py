@@ -80,7 +80,11 @@ def test_fault_free_hours_adopt_another_codes_runs_only_where_this_code_computes
     hours = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(hours)
     models = {"1": {"fdi": {"threshold_constant": 0.05}}}
-    runs = [{"rig": 1, "seed": 1000 + k, "seconds": 120.0, "alarms": []} for k in range(5)]
+    runs = [{"rig": 1, "seed": 1000 + k, "seconds": 120.0, "alarms": [{"time_s": 30.0}] if k == 3 else []} for k in range(5)]
+    by_seed = {r["seed"]: r for r in runs}
+
+    def same(seeds):  # this code computes the runs as they were
+        return [by_seed[seed] for seed in seeds]
 
     def cache(key: str, models: dict, runs: list[dict]) -> Path:
         folder = tmp_path / key / "sam"
@@ -91,14 +95,17 @@ def test_fault_free_hours_adopt_another_codes_runs_only_where_this_code_computes
 
     cache("short", models, runs[:3])
     cache("other_models", {"1": {"fdi": {"threshold_constant": 0.06}}}, runs)
+    (cache("torn", models, runs) / "runs.jsonl").write_text('{"rig": 1, "se')  # a killed writer's: skipped, not fatal
     mine = (tmp_path / "now" / "sam")
     mine.mkdir(parents=True)
     first = runs[:2]
-    assert hours._adopted(mine, models, first) == ("short", runs[:3])  # the longest whose models are this code's
+    assert hours._adopted(mine, models, first, same) == ("short", runs[:3])  # the longest whose models are this code's
     cache("long", models, runs)
-    assert hours._adopted(mine, models, first) == ("long", runs)
+    assert hours._adopted(mine, models, first, same) == ("long", runs)
+    quiet = lambda seeds: [dict(by_seed[seed], alarms=[]) for seed in seeds]  # noqa: E731  this code no longer alarms at 1003
+    assert hours._adopted(mine, models, first, quiet) == ("short", runs[:3])
     moved = [dict(runs[0], alarms=[{"time_s": 12.0}]), runs[1]]  # this code alarms where the cached did not
-    assert hours._adopted(mine, models, moved) == (None, moved)
+    assert hours._adopted(mine, models, moved, same) == (None, moved)
 
 
 def test_the_code_hash_follows_the_code_committed_or_not_and_nothing_written_from_the_results(checkout):
@@ -184,7 +191,7 @@ def test_resuming_runs_only_the_pending_steps_timed_ones_here_first_the_rest_on_
 
     steps = (benchrun.Step("speed", "s", timed=True), benchrun.Step("eval", "e"), benchrun.Step("done", "d"),
              benchrun.Step("eval2", "e2"))
-    (tmp_path / "done.json").write_text(json.dumps({"code": "now"}))
+    (tmp_path / "done.json").write_text(json.dumps({"code": "now-done"}))
     log = tmp_path / "ran.log"  # a file, not a list: dask hands its workers a copy of the function
 
     def run_step(step: benchrun.Step, code: str) -> tuple[str, int, float]:
@@ -197,15 +204,35 @@ def test_resuming_runs_only_the_pending_steps_timed_ones_here_first_the_rest_on_
     monkeypatch.setattr(benchrun, "STEPS", steps)
     monkeypatch.setattr(benchrun, "RESULTS", tmp_path)
     monkeypatch.setattr(benchrun, "code_hash", lambda: "now")
-    monkeypatch.setattr(benchrun, "step_code", lambda step: "now")
+    monkeypatch.setattr(benchrun, "step_code", lambda step: f"now-{step.name}")
     monkeypatch.setattr(benchrun, "run_step", run_step)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         status = benchrun.main(["--allow-dirty", "--dask", cluster.scheduler_address])
     assert status == 1  # eval2 failed
     ran = [line.split() for line in log.read_text().splitlines()]
-    assert len(ran) == 3 and ran[0] == ["speed", "MainThread", "now"]  # "done" not rerun; the timed step first, and here
+    assert len(ran) == 3 and ran[0] == ["speed", "MainThread", "now-speed"]  # "done" not rerun; the timed step first, and here
     assert sorted(name for name, thread, _ in ran[1:] if thread != "MainThread") == ["eval", "eval2"]
-    assert {code for _, _, code in ran} == {"now"}  # each step told the code the run started on, on a worker too
+    assert all(code == f"now-{name}" for name, _, code in ran)  # each step told its own code as the run started, on a worker too
+
+
+def test_a_steps_code_includes_its_arguments_and_a_run_stops_when_a_steps_code_changes_before_or_while_it_runs(tmp_path, monkeypatch):
+    plain, mobile = benchrun.Step("c", "commissioning"), benchrun.Step("c", "commissioning", ("--config", "config/sam_mobile.yaml"))
+    assert benchrun.step_code(plain) != benchrun.step_code(mobile) and benchrun.step_code(plain) == benchrun.step_code(plain)
+    steps = (benchrun.Step("first", "f"), benchrun.Step("second", "s"))
+    edits = {"first": 0, "second": 0}  # how many times each step's code was read: "second" is edited while "first" runs
+
+    def step_code(step: benchrun.Step) -> str:
+        edits[step.name] += 1
+        return f"{step.name}-{'edited' if step.name == 'second' and edits['second'] > 1 else 'as started'}"
+
+    ran = []
+    monkeypatch.setattr(benchrun, "STEPS", steps)
+    monkeypatch.setattr(benchrun, "RESULTS", tmp_path)
+    monkeypatch.setattr(benchrun, "step_code", step_code)
+    monkeypatch.setattr(benchrun, "run_step", lambda step, code: ran.append(step.name) or (step.name, 0, 0.0))
+    with pytest.raises(SystemExit, match="the code second runs changed before it ran"):
+        benchrun.main(["--allow-dirty"])
+    assert ran == ["first"]
 
 
 def test_a_rerun_names_the_figures_it_moved_and_not_the_machine_bound_ones(tmp_path, capsys):

@@ -242,6 +242,10 @@ def test_the_grid_around_a_baseline_holds_it_on_finer_nodes_within_the_windows_a
                       baseline.acceleration)), baseline.sample_time), COARSE)
     with pytest.raises(InputError, match="half width 0"):
         DpGrid.around(crane, problem.samples, baseline, COARSE, half_width=0.0)
+    fast = baseline.__class__(baseline.position, baseline.velocity * (0.995 * v_max / np.abs(baseline.velocity).max()),
+                              baseline.acceleration, baseline.sample_time)  # a reference at the velocity limit
+    near = DpGrid.around(crane, problem.samples, fast, COARSE)
+    assert -v_max <= near.velocities[0] and near.velocities[-1] <= v_max and 0.0 in near.velocities
     outside = baseline.__class__(baseline.position + np.where(np.arange(len(baseline.position)) == 40, 10.0, 0.0),
                                  baseline.velocity, baseline.acceleration, baseline.sample_time)
     with pytest.raises(InputError, match=r"more than 0\.05 m outside the feasible extension window"):

@@ -106,8 +106,8 @@ class DpGrid:
         n_c, n_v, n_u = (int(size) for size in sizes)
         if min(n_c, n_v, n_u) < DP_GRID_MIN:
             raise InputError(f"DP grid {sizes}: at least {DP_GRID_MIN} points per axis")
-        if not (half_width > 0 and velocity_pad >= 0):
-            raise InputError(f"DP tube: half width {half_width} m must be > 0 and velocity pad {velocity_pad} m/s >= 0")
+        if not (half_width > 0 and velocity_pad > 0):
+            raise InputError(f"DP tube: half width {half_width} m and velocity pad {velocity_pad} m/s must be > 0")
         if len(reference.position) != samples.stages + 1:
             raise ValueError(f"reference of {len(reference.position) - 1} stages, path of {samples.stages}")
         ext = crane.extension
@@ -120,12 +120,15 @@ class DpGrid:
                              f"{half_width} m outside the feasible extension window {windows[k].round(4).tolist()} m")
         slowest = max(-ext.velocity_max, min(float(reference.velocity.min()), 0.0) - velocity_pad)
         fastest = min(ext.velocity_max, max(float(reference.velocity.max()), 0.0) + velocity_pad)
-        # n_v nodes a whole number of steps from rest: one step wider than the range, so that rest is a node
+        # n_v nodes a whole number of steps from rest: one step wider than the range, so that rest is a node; where that
+        # passes a velocity limit (a reference near it) the tube is no narrower than the full grid, whose axis is taken
         step = (fastest - slowest) / (n_v - 2)
-        first = step * math.floor(slowest / step)
+        velocities = step * math.floor(slowest / step) + step * np.arange(n_v)
+        if velocities[0] < -ext.velocity_max or velocities[-1] > ext.velocity_max:
+            velocities = np.linspace(-ext.velocity_max, ext.velocity_max, n_v)
         return cls(
             positions=low[:, None] + (high - low)[:, None] * np.linspace(0.0, 1.0, n_c),
-            velocities=first + step * np.arange(n_v),
+            velocities=velocities,
             controls=np.linspace(-ext.acceleration_max, ext.acceleration_max, n_u),
         )
 

@@ -1,8 +1,8 @@
 """`make bench` (``python -m hydro_ros.tooling.benchrun``): every benchmark, each skipped when its result files already hold the code as it is (resumable).
 
 A step is done when every file it writes in bench/results carries ``code`` equal to the hash of the code the step reads
-now (:func:`step_code`: its script, the package's files it imports followed through the package, the configs, the bags
-and the pins; the whole tree, less bench/results and the docs written from them, for a script that runs other processes,
+now and its arguments (:func:`step_code`: its script, the package's files it imports followed through the package, the
+configs, the bags and the pins; the whole tree, less bench/results and the docs written from them, for a script that runs other processes,
 whose imports no walk sees) and none says ``"complete": false`` (a step stopped by its own budget, which goes on when run
 again). An interrupted ``make bench`` therefore goes on where it stopped, and a commit reruns only the steps whose code it
 changed: the full run can be gathered over several sittings, each file backed by the code as it is. Results carry the
@@ -17,6 +17,7 @@ benchmark page reads run here, one at a time, before them, so no other work skew
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import re
@@ -57,15 +58,16 @@ class Step:
         return (*files, *DATA)
 
 
-SPAWNS = re.compile(r"\bsubprocess\b|\bPopen\b|\bos\.system\b|\bexecv")
+SPAWNS = re.compile(r"\bsubprocess\b|\bPopen\b|\bos\.system\b|\bexecv|\bspawn|\bcreate_subprocess")
 STAMPING = ("hydro_ros/tooling/benchresults.py",)  # runs git to stamp what ran, computes nothing
 DATA = ("config", "bags", "requirements.txt")  # what every step may read beside code: the configs, the bags, the pins
 
 
 def step_code(step: Step) -> str:
-    """The hash of the code ``step`` runs now, which its result files must carry to be current."""
+    """The hash of the code ``step`` runs now and of its arguments, which its result files must carry to be current."""
     reads = step.reads()
-    return code_hash() if reads is None else code_hash(paths=reads)
+    tree = code_hash() if reads is None else code_hash(paths=reads)
+    return hashlib.sha1(f"{tree} {step.script} {step.args!r}".encode()).hexdigest()
 
 
 def _step(name: str, *args: str, script: str | None = None, also: tuple[str, ...] = (), timed: bool = False) -> Step:
@@ -172,6 +174,13 @@ def _on_dask(steps: list[Step], address: str, codes: dict[str, str]) -> list[tup
     return done
 
 
+def _unchanged(step: Step, codes: dict[str, str], when: str) -> None:
+    """Stops the run where ``step``'s code is no longer what the run started on: its results would carry the wrong code."""
+    if step_code(step) != codes[step.name]:
+        raise SystemExit(f"make bench: the code {step.name} runs changed {when} it ran: its results carry the code the run "
+                         "started on; commit, then run make bench again")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--force", action="store_true", help="rerun every step, current or not")
@@ -196,20 +205,22 @@ def main(argv: list[str] | None = None) -> int:
     alone = [s for s in todo if s.timed or not args.dask]
     results = []
     for step in alone:
+        _unchanged(step, codes, "before")
         print(f"bench: {step.name}: {' '.join(step.command()[1:])}", flush=True)
         previous = _previous(step)
         results.append(run_step(step, codes[step.name]))
         report_moves(step, previous, results[-1][1])
-        if step_code(step) != codes[step.name]:
-            raise SystemExit(f"make bench: the code changed while {step.name} ran: its results carry the code the run started on; "
-                             "commit, then run make bench again")
+        _unchanged(step, codes, "while")
     if args.dask and len(alone) < len(todo):
         remote = [s for s in todo if s not in alone]
         previous = {s.name: _previous(s) for s in remote}
+        for step in remote:
+            _unchanged(step, codes, "before")
         finished = _on_dask(remote, args.dask, codes)
         exit_status = {name: status for name, status, _ in finished}
         for step in remote:
             report_moves(step, previous[step.name], exit_status.get(step.name, 1))
+            _unchanged(step, codes, "while")
         results += finished
     failed = [name for name, status, _ in results if status != 0]
     if failed:
