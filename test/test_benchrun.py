@@ -32,8 +32,8 @@ def checkout(tmp_path) -> Path:
 
 
 def test_a_narrowed_code_hash_follows_only_the_code_it_names(checkout):
-    """bench/fault_free_hours.py keys its cache so: hours computed before a commit that changed only the layers above
-    the studies stay valid."""
+    """A hash narrowed to some paths, less some of them, moves only with the code it names (make bench narrows each
+    step to its imports with ``paths``)."""
     def run_code() -> str:
         return code_hash(checkout, paths=("hydro_ros",), excluding=("hydro_ros/nodes",))
 
