@@ -349,12 +349,13 @@ def polish_part() -> dict:
 
     from hydro_ros.contract.config import default_config_path
     from hydro_ros.models.crane import load_crane
+    from hydro_ros.planning.certify import CERTIFIED
     from hydro_ros.planning.costs import Cost
     from hydro_ros.planning.dp import TUBE_HALF_WIDTH, TUBE_VELOCITY_PAD, DpGrid
     from hydro_ros.planning.polish import polish
     from hydro_ros.planning.problem import Problem, plan_dp, run_method
     from hydro_ros.studies.savings_map import line_paths
-    from hydro_ros.tooling.reproduction import CERTIFIED, DP_MIDDLE_START, DP_SMALLEST_START, best_feasible_baseline
+    from hydro_ros.tooling.reproduction import DP_MIDDLE_START, DP_SMALLEST_START, best_feasible_baseline
 
     crane, config = load_crane(default_config_path("k70m"))
     results = Path(__file__).resolve().parent / "results"

@@ -15,6 +15,7 @@ from hydro_ros.contract.config import default_config_path
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane, load_crane
 from hydro_ros.planning.baselines import multistart_seeds
+from hydro_ros.planning.certify import CERTIFIED, CERTIFYING_BASELINES, keeps_every_limit, served_plan
 from hydro_ros.planning.costs import Cost
 from hydro_ros.planning.dp import DpGrid, InfeasibleStart, extension_windows, solve, start_position
 from hydro_ros.planning.paths import path_from_config
@@ -275,6 +276,28 @@ def test_on_a_line_where_the_full_grid_dp_is_above_a_pseudo_inverse_the_dp_aroun
     assert refined.evaluation["ls_energy_J"] < 1.005 * best and all(refined.evaluation["limits"].values())
     apart = np.abs(refined.trajectory.position - baseline.trajectory.position).max()
     assert 0.0 < apart < 5e-4, apart  # the DP's answer on the tube, not the baseline handed back
+
+
+def test_a_served_dp_is_held_to_the_best_feasible_pseudo_inverse_by_refining_never_by_handing_it_back() -> None:
+    """K70M's vertical path on a coarse grid: the full grid's DP (CP) is over 30 % above the best pseudo-inverse that keeps
+    every limit; what is served (certify.served_plan) is the DP on the tube around it, within the bound, keeping every
+    limit, scored by its own realised cost and not the baseline's trajectory. A cost no baseline is scored in is said
+    unchecked; what is compared (run_method) stays the plain DP."""
+    crane, config = load_crane(default_config_path("k70m"))
+    problem = Problem.build(crane, config, "vertical", grid=(80, 31, 31))
+    plain = run_method(problem, "dp_cp")
+    feasible = [p for p in (run_method(problem, m) for m in CERTIFYING_BASELINES) if keeps_every_limit(p.evaluation)]
+    best = min(feasible, key=lambda p: p.evaluation["cp_energy_J"])
+    assert plain.evaluation["cp_energy_J"] > 1.3 * best.evaluation["cp_energy_J"]
+    served = served_plan(problem, "dp_cp")
+    certificate = served.info["certificate"]
+    assert certificate["certified"] and certificate["served"] == "tube" and certificate["baseline"] == best.method
+    assert served.method == "dp_cp" and keeps_every_limit(served.evaluation)
+    assert served.evaluation["cp_energy_J"] <= (1.0 + CERTIFIED) * best.evaluation["cp_energy_J"]
+    assert served.evaluation == evaluate(crane, problem.samples, served.trajectory)
+    assert np.max(np.abs(served.trajectory.position - best.trajectory.position)) > 0.0
+    assert np.array_equal(served.solution.cost_to_go, plain.solution.cost_to_go)  # the full grid's policy serves other starts
+    assert served_plan(problem, "dp_extension").info["certificate"] == {"checked": False, "reason": "no baseline is scored in extension"}
 
 
 @pytest.mark.parametrize("start", ["smallest", "middle"])

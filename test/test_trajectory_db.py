@@ -14,7 +14,8 @@ import pytest
 
 from hydro_ros.cli import main as cli_main
 from hydro_ros.planning.catalog import build, compute_entry, plan_units
-from hydro_ros.planning.database import DatabaseError, TrajectoryDatabase
+from hydro_ros.planning.certify import CERTIFIED
+from hydro_ros.planning.database import DatabaseError, TrajectoryDatabase, inputs_hash
 from hydro_ros.planning.serving import JointStateSample, ServeError, TrajectoryService, path_start_state
 from test.conftest import K70M
 
@@ -22,12 +23,42 @@ SMALL_GRID = (60, 21, 21)
 
 
 @pytest.fixture(scope="module")
-def small_db(tmp_path_factory, k70m):
+def small_build(tmp_path_factory, k70m):
     path = tmp_path_factory.mktemp("db") / "catalog.db"
     units = plan_units(k70m, methods=("dp_cp", "pinv_joint"), grid=SMALL_GRID, paths=("horizontal", "vertical"))
     with TrajectoryDatabase(path, writable=True) as db:
-        build(db, units, workers=1)
-    return path
+        report = build(db, units, workers=1)
+    return path, report
+
+
+@pytest.fixture(scope="module")
+def small_db(small_build):
+    return small_build[0]
+
+
+def test_a_stored_dp_carries_its_certificate_and_the_build_names_each_one_above_its_bound(small_build, k70m):
+    """On the coarse grid the vertical path's DP is over 30 % above the weighted pseudo-inverse; the catalog stores it
+    refined (certify.certified), its record says so, and the build's report names every DP still above the bound."""
+    path, report = small_build
+    above = []
+    with TrajectoryDatabase(path) as db:
+        for path_id in ("horizontal", "vertical"):
+            record = db.solution(path_id, "dp_cp").record
+            certificate = record["info"]["certificate"]
+            assert certificate["checked"] and certificate["served_J"] == record["cp_energy_J"]
+            assert certificate["over_baseline"] == pytest.approx(certificate["served_J"] / certificate["baseline_J"] - 1.0)
+            assert certificate["certified"] == (certificate["over_baseline"] <= CERTIFIED)
+            if not certificate["certified"]:
+                above.append(f"{path_id}/dp_cp ({certificate['over_baseline']:+.1%})")
+            if path_id == "vertical":
+                assert "tube" in certificate["tried"] and certificate["served"] != "full_grid"
+                assert certificate["full_grid_J"] > 1.3 * certificate["baseline_J"] and certificate["served_J"] < 1.02 * certificate["baseline_J"]
+    assert report.uncertified == above
+    assert all(name in report.summary() for name in above)
+    # the certificate is among a DP's inputs: one stored before the planner held it to one is planned again
+    dp, pinv = plan_units(k70m, methods=("dp_cp", "pinv_joint"), grid=SMALL_GRID, paths=("vertical",))
+    assert dp.inputs_hash != inputs_hash(k70m, "vertical", "dp_cp", SMALL_GRID)
+    assert pinv.inputs_hash == inputs_hash(k70m, "vertical", "pinv_joint", SMALL_GRID)
 
 
 def test_stored_solution_equals_a_fresh_computation(small_db, k70m):

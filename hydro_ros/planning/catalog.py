@@ -18,7 +18,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -27,8 +27,9 @@ from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import BuildError, InputError
 from hydro_ros.contract.extras import optional_module
 from hydro_ros.models.crane import Crane
+from hydro_ros.planning.certify import CERTIFIED, certificate_share, served_plan
 from hydro_ros.planning.database import TrajectoryDatabase, inputs_hash, pack_arrays
-from hydro_ros.planning.problem import METHODS, Problem, method_record, run_method
+from hydro_ros.planning.problem import METHODS, Problem, method_record
 from hydro_ros.planning.trajectory import joint_trajectory
 
 # what a catalog holds unless the config's `catalog.methods` says otherwise: the served optimum for
@@ -49,7 +50,7 @@ class WorkUnit:
 
     @property
     def inputs_hash(self) -> str:
-        return inputs_hash(self.config, self.path_id, self.method, self.grid)
+        return inputs_hash(self.config, self.path_id, self.method, self.grid, certificate_share(self.method))
 
 
 def plan_units(config: CraneConfig, *, methods: tuple[str, ...] | None = None, grid: tuple[int, int, int] | None = None,
@@ -71,7 +72,7 @@ def compute_entry(unit: WorkUnit) -> dict[str, Any]:
     """Solve one unit (runs in a worker): the row ``TrajectoryDatabase.put_solution`` writes."""
     crane = Crane(unit.config)
     problem = Problem.build(crane, unit.config, unit.path_id, grid=unit.grid)
-    plan = run_method(problem, unit.method)
+    plan = served_plan(problem, unit.method)
     joints = joint_trajectory(crane, problem.samples, plan.trajectory)
     trajectory = pack_arrays(
         time=joints.time, positions=joints.positions, velocities=joints.velocities, accelerations=joints.accelerations,
@@ -103,13 +104,24 @@ class BuildReport:
     skipped: list[tuple[str, str, str]]
     seconds: float
     scheduler: str
+    # "path/method (+x.x %)" of each DP computed that stayed above the best feasible pseudo-inverse by more than CERTIFIED
+    uncertified: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
         rate = len(self.computed) / self.seconds if self.seconds > 0 else 0.0
         return (
             f"{len(self.computed)} solution(s) computed, {len(self.skipped)} already stored, "
             f"{self.seconds:.1f} s ({rate:.2f} per s) on {self.scheduler}"
+            + (f"; above the best feasible pseudo-inverse by more than {CERTIFIED:.1%} even refined: {', '.join(self.uncertified)}"
+               if self.uncertified else "")
         )
+
+
+def _uncertified(entry: dict[str, Any]) -> str | None:
+    certificate = (entry["record"].get("info") or {}).get("certificate") or {}
+    if certificate.get("checked") and not certificate["certified"]:
+        return f"{entry['path_id']}/{entry['method']} ({certificate['over_baseline']:+.1%})"
+    return None
 
 
 def _single_threaded_worker() -> None:
@@ -146,11 +158,17 @@ def build(
     todo = [unit for unit in units if stored.get(unit.key) != unit.inputs_hash]
     skipped = [unit.key for unit in units if stored.get(unit.key) == unit.inputs_hash]
     computed: list[tuple[str, str, str]] = []
+    uncertified: list[str] = []
+
+    def store(entry: dict[str, Any]) -> None:
+        db.put_solution(entry)
+        uncertified.extend(filter(None, [_uncertified(entry)]))
+
     with ExitStack() as stack:
         executor, name = work_executor(stack, scheduler, workers, len(todo))
         if executor is None:
             for unit in todo:
-                db.put_solution(compute_entry(unit))
+                store(compute_entry(unit))
                 computed.append(unit.key)
                 if progress:
                     progress(unit)
@@ -162,11 +180,11 @@ def build(
                     entry = future.result()
                 except InputError as exc:  # one unit refused by its input names itself; committed ones stay
                     raise BuildError(f"{unit.path_id}/{unit.method}: {type(exc).__name__}: {exc}") from exc
-                db.put_solution(entry)
+                store(entry)
                 computed.append(unit.key)
                 if progress:
                     progress(unit)
-    return BuildReport(computed, skipped, time.perf_counter() - began, name)
+    return BuildReport(computed, skipped, time.perf_counter() - began, name, uncertified)
 
 
 def work_executor(stack: ExitStack, scheduler: str | None, workers: int | None, n_units: int) -> tuple[Executor | None, str]:

@@ -77,13 +77,15 @@ class StoredSolution:
     has_policy: bool
 
 
-def inputs_hash(config: CraneConfig, path_id: str, method: str, grid: tuple[int, int, int]) -> str:
+def inputs_hash(config: CraneConfig, path_id: str, method: str, grid: tuple[int, int, int], certificate: float | None = None) -> str:
     """What a solution depends on, as the planner read it (the chain, its cylinders and limits, the hydraulics, the DP's
-    sample time and filter, the path): a change to a cylinder's bore or mount in ``actuators:`` counts, the monitor's
-    valves and sensors, another path and the controller's and plant's settings do not."""
+    sample time and filter, the path, and the share above the best feasible baseline a DP is held to, ``certify.certified``):
+    a change to a cylinder's bore or mount in ``actuators:`` counts, the monitor's valves and sensors, another path and the
+    controller's and plant's settings do not. A DP stored before it was held to a certificate is planned again."""
     read = [[asdict(joint) for joint in config.joints], asdict(config.arm), config.redundant, config.base_rotation, config.gravity,
             asdict(config.extension_friction), dict(config.hydraulics), config.dp.sample_time, config.dp.filter_cutoff]
-    payload = json.dumps([read, config.path(path_id), path_id, method, list(grid)], sort_keys=True, default=str)
+    planned = [read, config.path(path_id), path_id, method, list(grid)] + ([] if certificate is None else [{"certificate": certificate}])
+    payload = json.dumps(planned, sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 

@@ -71,7 +71,8 @@ def polish(crane: Crane, samples: PathSamples, trajectory: ExtensionTrajectory, 
             if len(seen) > 4 * len(weights):
                 seen.clear()
             motion = crane_motion(crane, samples, moved(weights), forces=cost.depends_on_control)
-            seen[key] = float(ts * stage_power(cost, crane, motion)[stages].sum()), _limit_margins(crane, motion)
+            with np.errstate(invalid="ignore"):  # a state the IK cannot reach: NaN motion, its margins UNREACHABLE
+                seen[key] = float(ts * stage_power(cost, crane, motion)[stages].sum()), _limit_margins(crane, motion)
         return seen[key]
 
     before, start_margins = scored(np.zeros(basis.shape[1]))

@@ -8,7 +8,9 @@ millisecond for 200 stages), a pseudo-inverse simply runs again from there; a DP
 (unless the filter would break a limit, ``problem.smoothed``), completed by IK and checked against every limit
 before it is served. The redundant joint may be
 anywhere; the tip must be at the path's start. ``prepare`` loads the tables and compiles the pass
-before the first request, so the first re-plan is as fast as the rest.
+before the first request, so the first re-plan is as fast as the rest. From the stored start a DP's trajectory is the
+one stored, held to the certificate (``certify.certified``); a re-plan from another state follows the full grid's
+policy and is not held to it (the certificate's refinement takes seconds, a re-plan milliseconds).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import numpy as np
 from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import InputError
 from hydro_ros.models.crane import Crane
+from hydro_ros.planning.certify import served_plan
 from hydro_ros.planning.costs import Cost
 from hydro_ros.planning.database import StoredSolution, TrajectoryDatabase
 from hydro_ros.planning.dp import DpGrid, DpSolution, InfeasibleStart, start_position
@@ -251,5 +254,5 @@ def executable_trajectory(
     problem = Problem.build(crane, config, path_id, grid=grid)
     if start_extension is not None:
         problem = replace(problem, start=start_extension)
-    plan = run_method(problem, method)
+    plan = served_plan(problem, method)
     return joint_trajectory(crane, problem.samples, plan.trajectory), method_record(plan)
