@@ -155,15 +155,20 @@ def test_each_main_spools_overlap_is_identified_on_the_crane_built_apart(k70m, r
 def test_the_flow_tables_lookup_is_np_interps_arithmetic_bit_for_bit():
     """_table replaces np.interp in the rates' inner loop for speed; the runs the fault-free hours cached stay valid only
     while it gives np.interp's every bit: at and between the knots, past both ends and on a NaN."""
+    from numba import njit
+
+    compiled = njit(lambda opening, table: np.interp(opening, plant.TABLE_OPENINGS, table))  # what the rates called before
     rng = np.random.default_rng(7)
     row = rng.uniform(0.1, 2.0, len(plant.TABLE_OPENINGS))
-    flat = np.full(len(plant.TABLE_OPENINGS), 0.7)
+    infinite, flat_infinite = row.copy(), row.copy()
+    infinite[3] = np.inf  # a non-finite slope: np.interp's way out
+    flat_infinite[3:5] = np.inf
     openings = np.concatenate([plant.TABLE_OPENINGS, np.nextafter(plant.TABLE_OPENINGS, 2.0), np.nextafter(plant.TABLE_OPENINGS, -1.0),
-                               rng.uniform(-0.1, 1.1, 2000), [-np.inf, np.inf]])
-    for table in (row, flat):
+                               rng.uniform(-0.1, 1.1, 2000), [-np.inf, np.inf, np.nan, -0.0]])
+    for table in (row, np.full(len(plant.TABLE_OPENINGS), 0.7), infinite, flat_infinite):
         for opening in openings:
-            assert np.float64(plant._table(table, opening)).tobytes() == np.interp(opening, plant.TABLE_OPENINGS, table).tobytes(), opening
-    assert np.isnan(plant._table(row, np.nan))
+            bits = np.float64(plant._table(table, opening)).tobytes()
+            assert bits == np.interp(opening, plant.TABLE_OPENINGS, table).tobytes() == np.float64(compiled(opening, table)).tobytes(), opening
 
 
 def test_the_plant_refuses_what_it_cannot_build(boom_arm, k70m):

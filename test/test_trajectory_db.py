@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from hydro_ros.cli import main as cli_main
-from hydro_ros.planning.catalog import build, compute_entry, plan_units
+from hydro_ros.planning.catalog import build, compute_entry, plan_units, uncovered
 from hydro_ros.planning.certify import CERTIFIED
 from hydro_ros.planning.database import DatabaseError, TrajectoryDatabase, inputs_hash
 from hydro_ros.planning.serving import JointStateSample, ServeError, TrajectoryService, path_start_state
@@ -36,25 +36,33 @@ def small_db(small_build):
     return small_build[0]
 
 
-def test_a_stored_dp_carries_its_certificate_and_the_build_names_each_one_above_its_bound(small_build, k70m):
+def test_a_stored_dp_carries_its_certificate_and_the_build_names_each_one_it_does_not_cover(small_build, k70m):
     """On the coarse grid the vertical path's DP is over 30 % above the weighted pseudo-inverse; the catalog stores it
-    refined (certify.certified), its record says so, and the build's report names every DP still above the bound."""
+    refined (certify.certified), its record says so, and the build's report names every DP its certificate does not
+    cover, with why (above the bound, or a limit broken)."""
     path, report = small_build
-    above = []
     with TrajectoryDatabase(path) as db:
-        for path_id in ("horizontal", "vertical"):
-            record = db.solution(path_id, "dp_cp").record
-            certificate = record["info"]["certificate"]
-            assert certificate["checked"] and certificate["served_J"] == record["cp_energy_J"]
-            assert certificate["over_baseline"] == pytest.approx(certificate["served_J"] / certificate["baseline_J"] - 1.0)
-            assert certificate["certified"] == (certificate["over_baseline"] <= CERTIFIED)
-            if not certificate["certified"]:
-                above.append(f"{path_id}/dp_cp ({certificate['over_baseline']:+.1%})")
-            if path_id == "vertical":
-                assert "tube" in certificate["tried"] and certificate["served"] != "full_grid"
-                assert certificate["full_grid_J"] > 1.3 * certificate["baseline_J"] and certificate["served_J"] < 1.02 * certificate["baseline_J"]
-    assert report.uncertified == above
-    assert all(name in report.summary() for name in above)
+        entries = {path_id: db.solution(path_id, "dp_cp").record for path_id in ("horizontal", "vertical")}
+    for record in entries.values():
+        certificate = record["info"]["certificate"]
+        assert certificate["checked"] and certificate["served_J"] == record["cp_energy_J"]
+        assert certificate["over_baseline"] == pytest.approx(certificate["served_J"] / certificate["baseline_J"] - 1.0)
+        assert certificate["certified"] == (certificate["over_baseline"] <= CERTIFIED and certificate["limits_kept"])
+    vertical = entries["vertical"]["info"]
+    tried = {t["candidate"]: t for t in vertical["certificate"]["tried"]}
+    assert tried["full_grid"]["energy_J"] > 1.3 * vertical["certificate"]["baseline_J"] and "tube" in tried
+    assert vertical["certificate"]["served"] != "full_grid" and vertical["certificate"]["served_J"] < 1.02 * vertical["certificate"]["baseline_J"]
+    assert vertical["full_grid"]["unfiltered"]["cp_energy_J"] > 1.3 * vertical["certificate"]["baseline_J"]
+    assert report.uncertified == [name for name in (uncovered({"path_id": p, "method": "dp_cp", "record": r}) for p, r in entries.items()) if name]
+    assert all(name in report.summary() for name in report.uncertified)
+
+    def entry(**certificate) -> dict:
+        return {"path_id": "p", "method": "dp_ls", "record": {"info": {"certificate": certificate}}}
+
+    assert uncovered(entry(checked=True, certified=True, over_baseline=-0.1, limits_kept=True)) is None
+    assert uncovered(entry(checked=False, reason="no pseudo-inverse keeps every limit")) is None
+    assert uncovered(entry(checked=True, certified=False, over_baseline=0.0051, limits_kept=True)) == "p/dp_ls (+0.51%)"
+    assert uncovered(entry(checked=True, certified=False, over_baseline=-0.2, limits_kept=False)) == "p/dp_ls (-20.00%, breaks a limit)"
     # the certificate is among a DP's inputs: one stored before the planner held it to one is planned again
     dp, pinv = plan_units(k70m, methods=("dp_cp", "pinv_joint"), grid=SMALL_GRID, paths=("vertical",))
     assert dp.inputs_hash != inputs_hash(k70m, "vertical", "dp_cp", SMALL_GRID)

@@ -27,7 +27,7 @@ from hydro_ros.contract.crane import CraneConfig
 from hydro_ros.contract.errors import BuildError, InputError
 from hydro_ros.contract.extras import optional_module
 from hydro_ros.models.crane import Crane
-from hydro_ros.planning.certify import CERTIFIED, certificate_share, served_plan
+from hydro_ros.planning.certify import CERTIFIED, certificate_inputs, served_plan
 from hydro_ros.planning.database import TrajectoryDatabase, inputs_hash, pack_arrays
 from hydro_ros.planning.problem import METHODS, Problem, method_record
 from hydro_ros.planning.trajectory import joint_trajectory
@@ -50,7 +50,7 @@ class WorkUnit:
 
     @property
     def inputs_hash(self) -> str:
-        return inputs_hash(self.config, self.path_id, self.method, self.grid, certificate_share(self.method))
+        return inputs_hash(self.config, self.path_id, self.method, self.grid, certificate_inputs(self.method))
 
 
 def plan_units(config: CraneConfig, *, methods: tuple[str, ...] | None = None, grid: tuple[int, int, int] | None = None,
@@ -104,7 +104,7 @@ class BuildReport:
     skipped: list[tuple[str, str, str]]
     seconds: float
     scheduler: str
-    # "path/method (+x.x %)" of each DP computed that stayed above the best feasible pseudo-inverse by more than CERTIFIED
+    # "path/method (why)" of each DP computed in this build that its certificate does not cover (``uncovered``)
     uncertified: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
@@ -112,16 +112,18 @@ class BuildReport:
         return (
             f"{len(self.computed)} solution(s) computed, {len(self.skipped)} already stored, "
             f"{self.seconds:.1f} s ({rate:.2f} per s) on {self.scheduler}"
-            + (f"; above the best feasible pseudo-inverse by more than {CERTIFIED:.1%} even refined: {', '.join(self.uncertified)}"
+            + (f"; not within {CERTIFIED:.1%} of the best feasible pseudo-inverse even refined: {', '.join(self.uncertified)}"
                if self.uncertified else "")
         )
 
 
-def _uncertified(entry: dict[str, Any]) -> str | None:
+def uncovered(entry: dict[str, Any]) -> str | None:
+    """"path/method (why)" of a stored DP that its certificate does not cover; None for one it covers or a method without."""
     certificate = (entry["record"].get("info") or {}).get("certificate") or {}
-    if certificate.get("checked") and not certificate["certified"]:
-        return f"{entry['path_id']}/{entry['method']} ({certificate['over_baseline']:+.1%})"
-    return None
+    if not certificate.get("checked") or certificate["certified"]:
+        return None
+    why = f"{certificate['over_baseline']:+.2%}" + ("" if certificate["limits_kept"] else ", breaks a limit")
+    return f"{entry['path_id']}/{entry['method']} ({why})"
 
 
 def _single_threaded_worker() -> None:
@@ -158,11 +160,11 @@ def build(
     todo = [unit for unit in units if stored.get(unit.key) != unit.inputs_hash]
     skipped = [unit.key for unit in units if stored.get(unit.key) == unit.inputs_hash]
     computed: list[tuple[str, str, str]] = []
-    uncertified: list[str] = []
+    above: list[str] = []
 
     def store(entry: dict[str, Any]) -> None:
         db.put_solution(entry)
-        uncertified.extend(filter(None, [_uncertified(entry)]))
+        above.extend(filter(None, [uncovered(entry)]))
 
     with ExitStack() as stack:
         executor, name = work_executor(stack, scheduler, workers, len(todo))
@@ -184,7 +186,7 @@ def build(
                 computed.append(unit.key)
                 if progress:
                     progress(unit)
-    return BuildReport(computed, skipped, time.perf_counter() - began, name, uncertified)
+    return BuildReport(computed, skipped, time.perf_counter() - began, name, above)
 
 
 def work_executor(stack: ExitStack, scheduler: str | None, workers: int | None, n_units: int) -> tuple[Executor | None, str]:

@@ -13,9 +13,12 @@ import time
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
+
+from hydro_ros.contract.errors import InputError
 from hydro_ros.planning.costs import Cost
-from hydro_ros.planning.dp import DpGrid
-from hydro_ros.planning.polish import polish
+from hydro_ros.planning.dp import TUBE_HALF_WIDTH, TUBE_VELOCITY_PAD, DpGrid
+from hydro_ros.planning.polish import POLISH_ITERATIONS, POLISH_KNOTS, polish
 from hydro_ros.planning.problem import METHODS, Plan, Problem, plan_dp, run_method
 from hydro_ros.planning.trajectory import Evaluation, ExtensionTrajectory, evaluate
 
@@ -32,11 +35,13 @@ def keeps_every_limit(evaluation: Evaluation) -> bool:
 
 def certified(problem: Problem, plan: Plan, cost: Cost) -> Plan:
     """``plan``, a DP's in ``cost``, held to the certificate: its realised energy in that cost at most CERTIFIED above the
-    best pseudo-inverse that keeps every limit. Where the full grid's DP is further above, the DP is planned again on a
-    grid narrowed to a tube around that baseline (``DpGrid.around``); where neither is within, both are polished
-    (``planning.polish``). The least of them that keeps every limit is returned: always a DP's trajectory, never the
-    baseline's. ``info["certificate"]`` says what was tried and whether the bound was reached; the full grid's solution
-    stays the plan's (its policy serves other starts, not held to the certificate)."""
+    best pseudo-inverse that keeps every limit. Where the full grid's DP is further above, or breaks a limit, the DP is
+    planned again on a grid narrowed to a tube around that baseline (``DpGrid.around``); where neither is within, both
+    are polished (``planning.polish``). The least of them that keeps every limit is returned (the full grid's where none
+    does): always a DP's trajectory, never the baseline's. A refinement that fails is recorded and the best so far kept.
+    ``info`` is the served candidate's own (the full grid's under ``info["full_grid"]`` when another is served), and
+    ``info["certificate"]`` says what was tried and whether the bound was reached; the plan's solution stays the full
+    grid's (its policy serves other starts, not held to the certificate)."""
     if cost not in CERTIFIED_COSTS:
         return _with(plan, {"checked": False, "reason": f"no baseline is scored in {cost.value}"})
     began = time.perf_counter()
@@ -46,30 +51,47 @@ def certified(problem: Problem, plan: Plan, cost: Cost) -> Plan:
         return _with(plan, {"checked": False, "reason": "no pseudo-inverse keeps every limit"})
     baseline = min(feasible, key=lambda p: p.evaluation[key])
     bound = baseline.evaluation[key] * (1.0 + CERTIFIED)
-    served = ("full_grid", plan.trajectory, plan.evaluation)
-    tried = ["full_grid"]
-    record: dict[str, Any] = {"checked": True, "baseline": baseline.method, "baseline_J": baseline.evaluation[key],
-                              "full_grid_J": plan.evaluation[key]}
+    served = ("full_grid", plan.trajectory, plan.evaluation, plan.info or {})
+    tried: list[dict[str, Any]] = [{"candidate": "full_grid", "energy_J": plan.evaluation[key], "limits_kept": keeps_every_limit(plan.evaluation)}]
+    record: dict[str, Any] = {"checked": True, "baseline": baseline.method, "baseline_J": baseline.evaluation[key]}
 
-    def take(name: str, trajectory: ExtensionTrajectory, evaluation: Evaluation) -> None:
+    def take(name: str, trajectory: ExtensionTrajectory, evaluation: Evaluation, info: dict[str, Any]) -> None:
         nonlocal served
-        tried.append(name)
+        tried.append({"candidate": name, "energy_J": evaluation[key], "limits_kept": keeps_every_limit(evaluation)})
         if keeps_every_limit(evaluation) and (evaluation[key] < served[2][key] or not keeps_every_limit(served[2])):
-            served = (name, trajectory, evaluation)
+            served = (name, trajectory, evaluation, info)
 
-    if served[2][key] > bound:
-        tube = plan_dp(replace(problem, grid=DpGrid.around(problem.crane, problem.samples, baseline.trajectory, problem.grid.shape)), cost)
-        record["tube_predicted_J"] = tube.info["predicted_cost"] if tube.info else None
-        take("tube", tube.trajectory, tube.evaluation)
-        if served[2][key] > bound:
-            for name, trajectory in (("full_grid", plan.trajectory), ("tube", tube.trajectory)):
+    def short(served_now: tuple) -> bool:
+        return not keeps_every_limit(served_now[2]) or served_now[2][key] > bound
+
+    sources = [("full_grid", plan.trajectory)]
+    if short(served):
+        try:
+            tube = plan_dp(replace(problem, grid=DpGrid.around(problem.crane, problem.samples, baseline.trajectory, problem.grid.shape)), cost)
+            sources.append(("tube", tube.trajectory))
+            take("tube", tube.trajectory, tube.evaluation, tube.info or {})
+        except (InputError, ValueError, np.linalg.LinAlgError) as exc:  # InfeasibleStart is an InputError
+            tried.append({"candidate": "tube", "error": f"{type(exc).__name__}: {exc}"})
+    if short(served):
+        for source, trajectory in sources:
+            name = f"{source}_polished"
+            try:
                 moved, info = polish(problem.crane, problem.samples, trajectory, cost)
-                if info["improved"]:
-                    take(f"{name}_polished", moved, evaluate(problem.crane, problem.samples, moved))
-    name, trajectory, evaluation = served
+            except (ValueError, np.linalg.LinAlgError) as exc:
+                tried.append({"candidate": name, "error": f"{type(exc).__name__}: {exc}"})
+                continue
+            if info["improved"]:
+                take(name, moved, evaluate(problem.crane, problem.samples, moved), {"polished_from": source, "polish": info})
+            else:
+                tried.append({"candidate": name, "improved": False, "status": info["status"]})
+    name, trajectory, evaluation, info = served
     record |= {"tried": tried, "served": name, "served_J": evaluation[key], "over_baseline": evaluation[key] / record["baseline_J"] - 1.0,
-               "certified": keeps_every_limit(evaluation) and evaluation[key] <= bound, "seconds": round(time.perf_counter() - began, 3)}
-    return _with(replace(plan, trajectory=trajectory, evaluation=evaluation, seconds=plan.seconds + record["seconds"]), record)
+               "limits_kept": keeps_every_limit(evaluation), "certified": not short(served),
+               "seconds": round(time.perf_counter() - began, 3)}
+    if name != "full_grid":
+        info = info | {"full_grid": plan.info or {}}
+    return replace(plan, trajectory=trajectory, evaluation=evaluation, seconds=plan.seconds + record["seconds"],
+                   info=info | {"certificate": record})
 
 
 def _with(plan: Plan, certificate: dict[str, Any]) -> Plan:
@@ -83,6 +105,10 @@ def served_plan(problem: Problem, method: str) -> Plan:
     return certified(problem, plan, cost) if cost is not None else plan
 
 
-def certificate_share(method: str) -> float | None:
-    """The share ``method``'s served plans are held to; None for a method that is not (what a stored plan's inputs name)."""
-    return CERTIFIED if METHODS[method][0] in CERTIFIED_COSTS else None
+def certificate_inputs(method: str) -> dict[str, Any] | None:
+    """What ``method``'s served plans are held to and how (a stored plan's inputs name it: a database planned under
+    another certificate is planned again); None for a method that is not held to one."""
+    if METHODS[method][0] not in CERTIFIED_COSTS:
+        return None
+    return {"share": CERTIFIED, "baselines": list(CERTIFYING_BASELINES), "tube": [TUBE_HALF_WIDTH, TUBE_VELOCITY_PAD],
+            "polish": [POLISH_KNOTS, POLISH_ITERATIONS]}

@@ -77,9 +77,10 @@ class StoredSolution:
     has_policy: bool
 
 
-def inputs_hash(config: CraneConfig, path_id: str, method: str, grid: tuple[int, int, int], certificate: float | None = None) -> str:
+def inputs_hash(config: CraneConfig, path_id: str, method: str, grid: tuple[int, int, int],
+                certificate: dict[str, Any] | None = None) -> str:
     """What a solution depends on, as the planner read it (the chain, its cylinders and limits, the hydraulics, the DP's
-    sample time and filter, the path, and the share above the best feasible baseline a DP is held to, ``certify.certified``):
+    sample time and filter, the path, and what a DP is held to, ``certify.certificate_inputs``):
     a change to a cylinder's bore or mount in ``actuators:`` counts, the monitor's valves and sensors, another path and the
     controller's and plant's settings do not. A DP stored before it was held to a certificate is planned again."""
     read = [[asdict(joint) for joint in config.joints], asdict(config.arm), config.redundant, config.base_rotation, config.gravity,

@@ -200,7 +200,7 @@ class TrajectoryService:
             "ls_energy_J": evaluation["ls_energy_J"],
             "limits": evaluation["limits"],
             "limits_ok": True,
-            "info": {"filtered": filtered},
+            "info": {"filtered": filtered, "certificate": {"checked": False, "reason": "re-planned from another start on the full grid's policy"}},
         }
         return trajectory, record
 
