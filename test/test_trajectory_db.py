@@ -166,7 +166,11 @@ def test_dask_local_cluster_builds_the_same_catalog(tmp_path, small_db, k70m):
         on_dask = {(m, p, meth): cp for m, p, meth, _, cp, *_ in db.rows()}
     with TrajectoryDatabase(small_db) as local:
         on_local = {(m, p, meth): cp for m, p, meth, _, cp, *_ in local.rows()}
-    assert on_dask == pytest.approx(on_local)
+        polished = {key for key in on_local if "polished" in local.solution(key[1], key[2]).record.get("info", {}).get("certificate", {}).get("served", "")}
+    # a polished DP (certify.certified) is SLSQP's, whose last bits follow BLAS's thread count, which a Dask worker sets
+    # apart from this process (4e-6 of the energy measured); the rest is computed the same everywhere
+    assert polished and {k: v for k, v in on_dask.items() if k not in polished} == pytest.approx({k: v for k, v in on_local.items() if k not in polished})
+    assert {k: on_dask[k] for k in polished} == pytest.approx({k: on_local[k] for k in polished}, rel=1e-4)
 
 
 def test_bad_databases_are_refused_with_one_line(tmp_path, capsys):
