@@ -14,11 +14,14 @@ the telescope whenever the executor is not moving. Impairments are injected at r
 The observer records every valve command (stamped by the executor's clock, the system clock here) and the joint
 states, and counts a violation for each non-neutral command stamped later than the documented bound after the monitor
 lost sight (a freeze, kill or gap began: ``HEARTBEAT_TIMEOUT_S`` + one control period + ``stale_timeout`` for a gap),
-until the impairment ended; and for a killed executor, the telescope still moving ``VALVE_COMMAND_TIMEOUT_S`` + 0.3 s
-after the kill (the plant's deadman). A severe fault is not a loss of sight: whether the monitor named it and stopped
-the machine within ``DETECTION_BUDGET_S`` is measured and listed (``severe_faults_still_moving_after_budget``), a
-statement about detection on this machine, not about the safety core. The machine must move at
-least half of the fault-free time (outside impairments and the re-arming after them), or the soak proves nothing.
+until the impairment ended; and for a killed executor, a non-neutral command the plant still applied (its sample
+blocks carry what its valves got) later than ``VALVE_COMMAND_TIMEOUT_S`` + one control period + one plant tick after
+the kill (the plant's deadman). What the telescope does on neutral valves is the plant's, not the deadman's: its speed
+then is measured and listed (``telescope_creep_m_s``: the valves' centre leakage under load). A severe fault is not a
+loss of sight: whether the monitor named it and stopped the machine within ``DETECTION_BUDGET_S`` is measured and
+listed (``severe_faults_still_moving_after_budget``), a statement about detection on this machine, not about the
+safety core. The machine must move at least half of the fault-free time (outside impairments and the re-arming after
+them), or the soak proves nothing.
 
     python bench/safety_soak.py --duration 1800 --out bench/results/safety_soak.json
 """
@@ -46,7 +49,7 @@ CONFIG = REPO / "config" / "k70m.yaml"
 CONTROL_PERIOD_S = 0.01
 STALE_TIMEOUT_S = 0.5  # fdi_node's default
 DETECTION_BUDGET_S = 20.0  # a severe fault named and the machine stopped within this of its onset (window 5 s + isolation)
-DRIFT_M_S = 0.005  # a telescope on neutral valves creeps slower than this (leakage); the commanded motion was 0.05 m/s
+PLANT_TICK_S = 0.01  # plant_sim's default tick_period: its deadman is read once a tick, for the samples due then
 REARM_ALLOWANCE_S = 8.0  # after an impairment, time for the monitor to re-arm before "fault-free" time counts again
 KINDS = ("monitor_freeze", "monitor_kill", "plant_gap", "executor_kill", "severe_fault")
 
@@ -66,11 +69,12 @@ def run(duration: float, seed: int) -> dict:
     from builtin_interfaces.msg import Duration
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient
-    from sensor_msgs.msg import JointState
+    from sensor_msgs.msg import JointState, PointCloud2
     from std_msgs.msg import String
     from std_srvs.srv import Trigger
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+    from hydro_ros.bags.cdr import decode_sample_block
     from hydro_ros.contract import topics
     from hydro_ros.nodes.common import LATCHED_QOS
     from hydro_ros.safety.motion import HEARTBEAT_TIMEOUT_S, VALVE_COMMAND_TIMEOUT_S
@@ -78,6 +82,7 @@ def run(duration: float, seed: int) -> dict:
     rng = random.Random(seed)
     commands: list[tuple[float, float]] = []  # (executor's stamp, largest |command|)
     joints: list[tuple[float, float]] = []  # (plant's stamp, telescope extension)
+    applied: list[tuple[np.ndarray, np.ndarray]] = []  # per sample block: (plant's stamps, largest |command| its valves got)
     status: list[dict] = []
     rclpy.init()
     node = rclpy.create_node("soak")
@@ -86,6 +91,13 @@ def run(duration: float, seed: int) -> dict:
     node.create_subscription(JointState, topics.JOINT_STATES, lambda m: joints.append(
         (m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, m.position[list(m.name).index("extension")] if "extension" in m.name else np.nan)),
         5000)
+
+    def on_block(data: bytes) -> None:
+        fields, stamps, rows = decode_sample_block(data)
+        valves = [k for k, name in enumerate(fields) if name.endswith("/valve_command")]
+        applied.append((stamps * 1e-9, np.abs(rows[:, valves]).max(axis=1)))
+
+    node.create_subscription(PointCloud2, topics.SAMPLE_BLOCK, on_block, 1000, raw=True)
     node.create_subscription(String, "/trajectory_executor/status", lambda m: status.append(json.loads(m.data)), LATCHED_QOS)
     trajectories = node.create_publisher(JointTrajectory, "/trajectory_executor/joint_trajectory", 10)
 
@@ -179,30 +191,40 @@ def run(duration: float, seed: int) -> dict:
                 process.kill()
         node.destroy_node()
         rclpy.shutdown()
-    return judge(commands, joints, events, started, HEARTBEAT_TIMEOUT_S, VALVE_COMMAND_TIMEOUT_S)
+    applied_at, applied_command = (np.concatenate(part) for part in zip(*applied)) if applied else (np.zeros(0), np.zeros(0))
+    return judge(commands, joints, (applied_at, applied_command), events, started, HEARTBEAT_TIMEOUT_S, VALVE_COMMAND_TIMEOUT_S)
 
 
-def judge(commands: list[tuple[float, float]], joints: list[tuple[float, float]], events: list[dict], started: float,
-          heartbeat_timeout: float, valve_timeout: float) -> dict:
-    """Violations, measured latencies and the moving share of the fault-free time, from the records alone."""
+def judge(commands: list[tuple[float, float]], joints: list[tuple[float, float]], applied: tuple[np.ndarray, np.ndarray],
+          events: list[dict], started: float, heartbeat_timeout: float, valve_timeout: float) -> dict:
+    """Violations, measured latencies, the telescope's creep on neutral valves and the moving share of the fault-free
+    time, from the records alone (``applied``: the plant's sample stamps and the largest |command| its valves got)."""
     stamps = np.array([t for t, _ in commands])
     moving = np.array([c > 1e-6 for _, c in commands])
+    applied_at, applied_open = applied[0], applied[1] > 1e-6
+    t = np.array([s for s, _ in joints])
+    x = np.array([q for _, q in joints])
     bounds = {"monitor_freeze": heartbeat_timeout + CONTROL_PERIOD_S, "monitor_kill": heartbeat_timeout + CONTROL_PERIOD_S,
-              "plant_gap": STALE_TIMEOUT_S + heartbeat_timeout + CONTROL_PERIOD_S, "severe_fault": DETECTION_BUDGET_S}
-    violations, undetected, latencies = [], [], {kind: [] for kind in KINDS}
+              "plant_gap": STALE_TIMEOUT_S + heartbeat_timeout + CONTROL_PERIOD_S, "severe_fault": DETECTION_BUDGET_S,
+              "executor_kill": valve_timeout + CONTROL_PERIOD_S + PLANT_TICK_S}
+    violations, undetected, creep, latencies = [], [], [], {kind: [] for kind in KINDS}
     for event in events:
         kind, begin, end = event["kind"], event["begin"], event["end"]
         if kind == "executor_kill":
-            # the telescope's speed over the window, the least-squares slope of its position: a difference of two noisy
-            # samples (the first soak's estimate) reads sensor noise as motion
-            t = np.array([s for s, _ in joints])
-            x = np.array([q for _, q in joints])
-            window = (t > begin + valve_timeout + 0.3) & (t < begin + 1.2)
-            if window.sum() > 2:
-                speed = float(abs(np.polyfit(t[window] - begin, x[window], 1)[0]))
-                latencies[kind].append(speed)
-                if speed > DRIFT_M_S:
-                    violations.append({**event, "telescope_speed_m_s": speed})
+            after = (applied_at > begin) & (applied_at < end)
+            if not after.any():
+                violations.append({**event, "no_plant_samples": True})  # the deadman cannot be judged blind
+                continue
+            still_open = after & applied_open
+            latency = float(applied_at[still_open].max() - begin) if still_open.any() else 0.0
+            latencies[kind].append(latency)
+            if latency > bounds[kind]:
+                violations.append({**event, "last_applied_command_after_s": latency})
+            # on neutral valves: the least-squares slope of the position (a difference of two noisy samples reads the
+            # sensor's noise as motion), until the executor's restart commands again
+            window = (t > begin + bounds[kind] + 0.3) & (t < begin + 1.2)
+            if window.sum() > 2 and not (applied_open & (applied_at > begin + bounds[kind]) & (applied_at < begin + 1.2)).any():
+                creep.append(float(abs(np.polyfit(t[window] - begin, x[window], 1)[0])))
             continue
         inside = (stamps > begin) & (stamps < end)
         moving_inside = inside & moving
@@ -229,9 +251,9 @@ def judge(commands: list[tuple[float, float]], joints: list[tuple[float, float]]
         "impairments": {kind: sum(e["kind"] == kind for e in events) for kind in KINDS},
         "violations": violations,
         "severe_faults_still_moving_after_budget": undetected,
-        "bounds_s": bounds | {"executor_kill": valve_timeout + 0.3},
-        "measured_s": {kind: {"max": max(v), "median": float(np.median(v))} for kind, v in latencies.items() if v}
-        | ({"executor_kill": {"telescope_speed_m_s_max": max(latencies["executor_kill"])}} if latencies["executor_kill"] else {}),
+        "bounds_s": {kind: round(bound, 3) for kind, bound in bounds.items()},
+        "measured_s": {kind: {"max": max(v), "median": float(np.median(v))} for kind, v in latencies.items() if v},
+        "telescope_creep_m_s": {"max": max(creep), "median": float(np.median(creep)), "kills": len(creep)} if creep else None,
         "fault_free_s": float(free.sum() * 0.05),
         "moving_share_of_fault_free": float(moving_now[free].mean()) if free.any() else 0.0,
         "commands": len(commands),

@@ -8,6 +8,7 @@ import json
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hydro_ros.tooling import benchrun
@@ -266,3 +267,29 @@ def test_same_outputs_names_each_output_that_differs_and_nothing_else(tmp_path, 
     shipped = REPO / "bags"
     assert same_outputs.bag_digest(shipped / "fault_free") == same_outputs.bag_digest(shipped / "fault_free")
     assert same_outputs.bag_digest(shipped / "fault_free") != same_outputs.bag_digest(shipped / "external_leakage_a")
+
+
+def test_the_soak_judges_the_plants_deadman_by_what_its_valves_got_and_lists_creep_on_neutral_valves_apart():
+    """A killed executor: a command the plant applied after the deadman's bound is a violation, whatever the telescope
+    did; a telescope creeping on neutral valves is the plant's leakage, measured and listed, not a violation."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("safety_soak", REPO / "bench" / "safety_soak.py")
+    soak = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(soak)
+    kill = {"kind": "executor_kill", "begin": 100.0, "end": 101.6}
+    commands = [(t, 0.3) for t in np.arange(90.0, 100.0, 0.01)]  # the executor moved until killed
+    t = np.arange(90.0, 101.6, 0.001)
+    creeping = [(s, 0.004 * (s - 100.0)) for s in t]  # 4 mm/s on neutral valves
+
+    def judged(neutral_after_s: float) -> dict:
+        return soak.judge(commands, creeping, (t, np.where(t < 100.0 + neutral_after_s, 0.3, 0.0)), [kill], 90.0, 0.5, 0.5)
+
+    kept = judged(0.505)
+    assert kept["violations"] == [] and kept["measured_s"]["executor_kill"]["max"] == pytest.approx(0.505, abs=2e-3)
+    assert kept["telescope_creep_m_s"]["max"] == pytest.approx(0.004, rel=1e-6)
+    late = judged(0.6)
+    assert [v["last_applied_command_after_s"] for v in late["violations"]] == [pytest.approx(0.6, abs=2e-3)]
+    assert late["telescope_creep_m_s"] is None  # valves open past the bound: no creep on neutral valves to measure
+    blind = soak.judge(commands, creeping, (np.zeros(0), np.zeros(0)), [kill], 90.0, 0.5, 0.5)
+    assert blind["violations"] == [{**kill, "no_plant_samples": True}]  # a deadman never seen is not passed
