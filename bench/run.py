@@ -120,7 +120,7 @@ def fdi_offline(config: Machine, seconds: float = 60.0) -> dict:
 
 def fdi_node_live(config_path: Path, measure_s: float = 20.0) -> dict:
     """plant_sim at 1 kHz -> fdi_node, both real processes on a private localhost domain."""
-    commands = [[f"hydro_ros.nodes.{name}", "-p", f"config:={config_path}"] for name in ("plant_sim", "fdi_node")]
+    commands = [[module, "-p", f"config:={config_path}"] for module in ("hydro_ros.nodes.plant_sim", "hydro_ros.nodes.fdi_node")]
     cpu, wall, v0, v1 = live_cpu_share(151, commands, "hydro_ros/fdi/boom", "samples", measure_s)
     processed = int(v1["samples"]) - int(v0["samples"])
     return {"cpu_share_of_one_core": cpu, "samples_processed_per_s": processed / wall,

@@ -55,7 +55,7 @@ KINDS = ("monitor_freeze", "monitor_kill", "plant_gap", "executor_kill", "severe
 
 
 def _start(module: str, *args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", f"hydro_ros.nodes.{module}", "--ros-args", *args], stdout=subprocess.DEVNULL,
+    return subprocess.Popen([sys.executable, "-m", module, "--ros-args", *args], stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
 
 
@@ -128,17 +128,18 @@ def run(duration: float, seed: int) -> dict:
     node.create_subscription(JointState, topics.JOINT_STATES, lambda m: latest["q"].append(list(m.position)) or
                              (len(latest["q"]) > 10 and latest["q"].pop(0)), 10)
 
-    plant = _start("plant_sim", "-p", f"config:={CONFIG}", "-p", "excitation:=topic", "-p", "seed:=11",
+    plant = _start("hydro_ros.nodes.plant_sim", "-p", f"config:={CONFIG}", "-p", "excitation:=topic", "-p", "seed:=11",
                          "-p", "sensor_topics:=joint_states", "-p", "sample_blocks:=true", "-p", "initial_path:=horizontal",
                          "-p", "initial_extension:=0.8")
     monitor_args = ["-p", f"config:={CONFIG}", "-p", "input:=sample_block"]
-    processes = {"plant": plant, "monitor": _start("fdi_node", *monitor_args), "executor": _start("trajectory_executor", *_executor_args(names))}
+    processes = {"plant": plant, "monitor": _start("hydro_ros.nodes.fdi_node", *monitor_args),
+                 "executor": _start("hydro_ros.nodes.trajectory_executor", *_executor_args(names))}
     events: list[dict] = []
     reset = node.create_client(Trigger, "/fdi_node/reset")
     plant_params = AsyncParameterClient(node, "plant_sim")
 
     def restart(role: str) -> None:
-        module, args = {"monitor": ("fdi_node", monitor_args), "executor": ("trajectory_executor", _executor_args(names))}[role]
+        module, args = {"monitor": ("hydro_ros.nodes.fdi_node", monitor_args), "executor": ("hydro_ros.nodes.trajectory_executor", _executor_args(names))}[role]
         processes[role] = _start(module, *args)
 
     def set_fault(value: float) -> None:

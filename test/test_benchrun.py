@@ -161,9 +161,20 @@ def test_a_steps_code_is_what_its_script_imports_or_the_whole_tree_where_it_star
     assert benchrun.Step("quiet", "quiet").reads(tmp_path) == (
         "bench/quiet.py", "hydro_ros/__init__.py", "hydro_ros/model.py", "hydro_ros/tooling/benchresults.py", *benchrun.DATA)
     assert benchrun.Step("spawning", "spawning").reads(tmp_path) is None
+    # named, what the processes run is read as the script is, and nothing of the package beyond it
+    (tmp_path / "hydro_ros/nodes").mkdir()
+    (tmp_path / "hydro_ros/nodes/__init__.py").write_text("")
+    (tmp_path / "hydro_ros/nodes/x.py").write_text("from hydro_ros.model import f\n")
+    (tmp_path / "hydro_ros/unused.py").write_text("")
+    assert benchrun.Step("spawning", "spawning", starts=("hydro_ros.nodes.x",)).reads(tmp_path) == (
+        "bench/spawning.py", "hydro_ros/__init__.py", "hydro_ros/runner.py", "hydro_ros/model.py", "hydro_ros/nodes/__init__.py",
+        "hydro_ros/nodes/x.py", *benchrun.DATA)
+    with pytest.raises(ValueError, match="hydro_ros.nodes.gone is not a module"):
+        benchrun.Step("spawning", "spawning", starts=("hydro_ros.nodes.gone",)).reads(tmp_path)
     # the shipped steps: the long evaluations follow their own code, what runs nodes or the CLI the whole tree
     shipped = {step.name: step.reads() for step in benchrun.STEPS}
-    assert shipped["fault_free_hours"] and shipped["gsa_convergence"] and shipped["savings_map"] and shipped["hmi"] is None
+    assert shipped["fault_free_hours"] and shipped["gsa_convergence"] and shipped["savings_map"] and shipped["mutants"] is None
+    assert "hydro_ros/nodes/hmi.py" in shipped["hmi"] and not [f for f in shipped["hmi"] if f.startswith("test/")]
     assert not [f for f in shipped["savings_map"] if f.startswith(("hydro_ros/fdi", "hydro_ros/nodes", "hydro_ros/cli"))]
 
 
@@ -293,3 +304,32 @@ def test_the_soak_judges_the_plants_deadman_by_what_its_valves_got_and_lists_cre
     assert late["telescope_creep_m_s"] is None  # valves open past the bound: no creep on neutral valves to measure
     blind = soak.judge(commands, creeping, (np.zeros(0), np.zeros(0)), [kill], 90.0, 0.5, 0.5)
     assert blind["violations"] == [{**kill, "no_plant_samples": True}]  # a deadman never seen is not passed
+
+
+def test_a_step_that_names_what_its_processes_run_names_every_module_its_script_starts():
+    """Each module a bench script names as a string (``python -m hydro_ros...``) or imports in code it hands a process
+    (``python -c``) is among what its step reads; a module named by an f-string cannot be checked, so none is."""
+    import ast
+    import re
+
+    for step in (step for step in benchrun.STEPS if step.starts is not None):
+        reads = set(step.reads())
+        script = REPO / "bench" / f"{step.script}.py"
+        named: set[str] = set()
+        for node in ast.walk(ast.parse(script.read_text())):
+            if isinstance(node, ast.JoinedStr):
+                text = "".join(part.value for part in node.values if isinstance(part, ast.Constant))
+                assert not re.match(r"hydro_ros\.\w*\.?$", text), f"{script.name}: a module named by an f-string ({text}...)"
+            elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+                if re.fullmatch(r"hydro_ros(\.\w+)+", node.value):
+                    named.add(node.value)
+                elif "import" in node.value:
+                    try:
+                        code = ast.parse(node.value)
+                    except SyntaxError:
+                        continue
+                    named |= {name for inner in ast.walk(code) for name in (
+                        [inner.module] if isinstance(inner, ast.ImportFrom) and inner.module else
+                        [alias.name for alias in inner.names] if isinstance(inner, ast.Import) else []) if name.startswith("hydro_ros")}
+        missing = [module for module in named if not set(benchrun.module_entries(module)) <= reads]
+        assert not missing, f"{step.name}: starts {missing} but does not read them"

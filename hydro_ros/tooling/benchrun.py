@@ -2,8 +2,9 @@
 
 A step is done when every file it writes in bench/results carries ``code`` equal to the hash of the code the step reads
 now and its arguments (:func:`step_code`: its script, the package's files it imports followed through the package, the
-configs, the bags and the pins; the whole tree, less bench/results and the docs written from them, for a script that runs other processes,
-whose imports no walk sees) and none says ``"complete": false`` (a step stopped by its own budget, which goes on when run
+configs, the bags and the pins; for a script that runs other processes, whose imports no walk sees, the same of every
+module it names as what they run (``Step.starts``), or the whole tree, less bench/results and the docs written from
+them, where it names none) and none says ``"complete": false`` (a step stopped by its own budget, which goes on when run
 again). An interrupted ``make bench`` therefore goes on where it stopped, and a commit reruns only the steps whose code it
 changed: the full run can be gathered over several sittings, each file backed by the code as it is. Results carry the
 hash taken when the step started (``CODE_ENV``); a run whose code changes under a step stops. ``--force`` reruns every
@@ -41,6 +42,10 @@ class Step:
     args: tuple[str, ...] = ()
     also: tuple[str, ...] = ()  # the other stamped files it writes in bench/results
     timed: bool = False  # the benchmark page reads a speed or a latency from it: run alone
+    # the package's modules any process the step starts runs (``python -m``, ``-c``), each read as its script is; None:
+    # not named, so a step whose code starts processes reads the whole tree. () for processes of its own code only (a
+    # multiprocessing pool). test_benchrun holds each name to the modules its scripts start.
+    starts: tuple[str, ...] | None = None
 
     @property
     def writes(self) -> tuple[str, ...]:
@@ -51,11 +56,27 @@ class Step:
 
     def reads(self, root: Path = ROOT) -> tuple[str, ...] | None:
         """The paths whose code the step runs (see the module's docstring); None for the whole tree: its script, or a
-        package file it imports, starts other processes (the CLI, the nodes), git's calls that stamp the results aside."""
+        package file it imports, starts other processes (the CLI, the nodes) and the step does not name what they run
+        (``starts``), git's calls that stamp the results aside."""
         files = imported_by(f"bench/{self.script}.py", root)
         if any(SPAWNS.search((root / f).read_text()) for f in files if f not in STAMPING):
-            return None
+            if self.starts is None:
+                return None
+            started = {f for module in self.starts for entry in module_entries(module, root) for f in imported_by(entry, root)}
+            files = (*files, *sorted(started - set(files)))
         return (*files, *DATA)
+
+
+def module_entries(module: str, root: Path = ROOT) -> tuple[str, ...]:
+    """The files ``python -m module`` runs first: the module's file, or its package's ``__init__`` and ``__main__``, after
+    the ``__init__`` of every package above it."""
+    parts = module.split(".")
+    base = root.joinpath(*parts)
+    entries = [path for path in (base.with_suffix(".py"), base / "__init__.py", base / "__main__.py") if path.is_file()]
+    if not entries:
+        raise ValueError(f"Step.starts: {module} is not a module under {root}")
+    above = (root.joinpath(*parts[:i], "__init__.py") for i in range(1, len(parts)))
+    return tuple(str(path.relative_to(root)) for path in (*(path for path in above if path.is_file()), *entries))
 
 
 SPAWNS = re.compile(r"\bsubprocess\b|\bPopen\b|\bos\.system\b|\bexecv|\bspawn|\bcreate_subprocess")
@@ -70,36 +91,39 @@ def step_code(step: Step) -> str:
     return hashlib.sha1(f"{tree} {step.script} {step.args!r}".encode()).hexdigest()
 
 
-def _step(name: str, *args: str, script: str | None = None, also: tuple[str, ...] = (), timed: bool = False) -> Step:
-    return Step(name, script or name, args, also, timed)
+def _step(name: str, *args: str, script: str | None = None, also: tuple[str, ...] = (), timed: bool = False,
+          starts: tuple[str, ...] | None = None) -> Step:
+    return Step(name, script or name, args, also, timed, starts)
 
 
 STEPS = (
-    _step("results", script="run", also=("fdi_eval", "fdi_parity_eval", "gsa"), timed=True),
+    _step("results", script="run", also=("fdi_eval", "fdi_parity_eval", "gsa"), timed=True,
+          starts=("hydro_ros.nodes.plant_sim", "hydro_ros.nodes.fdi_node", "hydro_ros.nodes.can_bridge", "hydro_ros.cli")),
     _step("discrepancy_suite", also=("discrepancy_independent",), timed=True),  # reproduction.md quotes its time per bag
-    _step("dp", timed=True, also=tuple(f"dp_compare_{case}" for case in (  # bench/dp.py's comparisons
+    _step("dp", timed=True, starts=("hydro_ros.cli", "hydro_ros.planning.reference"), also=tuple(f"dp_compare_{case}" for case in (  # bench/dp.py's comparisons
         "k70m_horizontal", "k70m_vertical", "k70m_half_cycle", "k70m_horizontal_middle", "k70m_vertical_middle",
         "k70m_half_cycle_middle", "crane3dof_triangle", "excavator_level_cut", "excavator_lift_out"))),
-    _step("trajectories", timed=True),
-    _step("hmi", timed=True),
+    _step("trajectories", timed=True, starts=("hydro_ros.nodes.trajectory_server",)),
+    _step("hmi", timed=True, starts=("hydro_ros.nodes.plant_sim", "hydro_ros.nodes.fdi_node", "hydro_ros.nodes.hmi")),
     _step("commissioning"),
     _step("commissioning_mobile", "--config", "config/sam_mobile.yaml", script="commissioning"),
-    _step("commissioning_memory", timed=True),
+    _step("commissioning_memory", timed=True, starts=("hydro_ros.cli",)),
     _step("arm_commissioning"),
     _step("sam_commissioning_apart", "--config", "config/sam.yaml", script="arm_commissioning"),
     _step("roc"),
     _step("fault_free_hours", "--budget-min", "600"),
     _step("crane_monitoring"),
-    _step("crane_cpu", timed=True),
+    _step("crane_cpu", timed=True, starts=("hydro_ros.nodes.plant_sim", "hydro_ros.nodes.fdi_node")),
     _step("crane_commissioning"),
     _step("crane_apart"),
-    _step("fleet", timed=True),
+    _step("fleet", timed=True, starts=()),
     _step("mems"),
     _step("savings_map"),
     _step("mount_sweep"),
     _step("gsa_convergence"),
-    _step("safety_soak", "--duration", "1800", timed=True),
-    _step("halt_latency", "--trials", "40", timed=True),
+    _step("safety_soak", "--duration", "1800", timed=True,
+          starts=("hydro_ros.nodes.plant_sim", "hydro_ros.nodes.fdi_node", "hydro_ros.nodes.trajectory_executor")),
+    _step("halt_latency", "--trials", "40", timed=True, starts=("hydro_ros.nodes.trajectory_executor",)),
     _step("mutants"),
 )
 
