@@ -169,9 +169,9 @@ def test_a_steps_code_is_what_its_script_imports_or_the_whole_tree_where_it_star
     assert benchrun.Step("spawning", "spawning", starts=("hydro_ros.nodes.x",)).reads(tmp_path) == (
         "bench/spawning.py", "hydro_ros/__init__.py", "hydro_ros/runner.py", "hydro_ros/model.py", "hydro_ros/nodes/__init__.py",
         "hydro_ros/nodes/x.py", *benchrun.DATA)
-    with pytest.raises(ValueError, match="hydro_ros.nodes.gone is not a module"):
+    with pytest.raises(ValueError, match=r"hydro_ros\.nodes\.gone is not a module"):
         benchrun.Step("spawning", "spawning", starts=("hydro_ros.nodes.gone",)).reads(tmp_path)
-    # the shipped steps: the long evaluations follow their own code, what runs nodes or the CLI the whole tree
+    # the shipped steps: the long evaluations follow their own code, what runs nodes or the CLI theirs too, mutants the whole tree
     shipped = {step.name: step.reads() for step in benchrun.STEPS}
     assert shipped["fault_free_hours"] and shipped["gsa_convergence"] and shipped["savings_map"] and shipped["mutants"] is None
     assert "hydro_ros/nodes/hmi.py" in shipped["hmi"] and not [f for f in shipped["hmi"] if f.startswith("test/")]
