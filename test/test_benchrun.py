@@ -145,7 +145,7 @@ def test_a_step_is_pending_until_every_file_it_writes_holds_the_code(tmp_path):
     assert [s.name for s in benchrun.pending(steps, new, tmp_path)] == ["a", "c"]
 
 
-def test_a_steps_code_is_what_its_script_imports_or_the_whole_tree_where_it_starts_other_processes(tmp_path):
+def test_a_steps_code_is_what_its_script_and_the_processes_it_names_import_or_else_the_whole_tree(tmp_path):
     files = {
         "bench/quiet.py": "from hydro_ros.model import f\n",
         "bench/spawning.py": "from hydro_ros.runner import go\n",
