@@ -28,7 +28,7 @@ from hydro_ros.tooling.benchresults import write_result  # noqa: E402
 from hydro_ros.workflows.execution import execute  # noqa: E402
 
 METHODS = ("dp_cp", "dp_ls", "pinv_actuator", "pinv_joint")  # of the throughput builds
-THROUGHPUT_GRID = (178, 51, 76)  # half the P-VI grid per axis: three builds stay within minutes
+THROUGHPUT_GRID = (179, 51, 75)  # about half the P-VI grid per axis (odd counts: DpGrid), so three builds stay within minutes
 
 
 def throughput(config: dict, workdir: Path) -> dict:

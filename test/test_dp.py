@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -406,3 +407,21 @@ def test_random_cylinder_limits_are_kept_by_the_dp_or_its_start_is_refused(facto
         return
     result = evaluate(crane, samples, trajectory)
     assert all(result["limits"].values()) and result["tip_error_max_m"] < 1e-9, (factors, result["limits"], result["limit_margins"])
+
+
+def test_a_grid_without_rest_or_zero_acceleration_as_a_node_is_refused_in_one_line(tmp_path):
+    """An even velocity or control count leaves rest or zero acceleration off the symmetric axes: refused, with a grid
+    that has them, by the full grid, the tube and the CLI alike."""
+    crane, config, samples, _ = _setup("k70m", "horizontal")
+    reference = run_method(Problem.build(crane, config, "horizontal", grid=COARSE), "pinv_actuator").trajectory
+    for sizes, needle in (((60, 21, 30), "controls need an odd count, so that zero acceleration is a node (e.g. (60, 21, 31))"),
+                          ((60, 20, 31), "velocities need an odd count, so that rest is a node (e.g. (60, 21, 31))"),
+                          ((60, 20, 30), "velocities and controls need an odd count")):
+        with pytest.raises(InputError, match=re.escape(needle)):
+            Problem.build(crane, config, "horizontal", grid=sizes)
+        with pytest.raises(InputError, match=re.escape(needle)):
+            DpGrid.around(crane, samples, reference, sizes)
+    out = tmp_path / "x.json"
+    assert main(["dp", "solve", "--config", str(default_config_path("k70m")), "--path", "horizontal", "--grid", "60", "21", "30", "--cost", "cp",
+                 "--out", str(out), "--quiet"]) == 1
+    assert not out.exists()
