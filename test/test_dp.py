@@ -425,3 +425,16 @@ def test_a_grid_without_rest_or_zero_acceleration_as_a_node_is_refused_in_one_li
     assert main(["dp", "solve", "--config", str(default_config_path("k70m")), "--path", "horizontal", "--grid", "60", "21", "30", "--cost", "cp",
                  "--out", str(out), "--quiet"]) == 1
     assert not out.exists()
+    db = tmp_path / "catalog.db"
+    assert main(["db", "build", "--config", str(default_config_path("k70m")), "--grid", "60", "21", "30", "--db", str(db), "--quiet"]) == 1
+    assert not db.exists()  # refused before the file is made
+
+
+def test_machine_check_refuses_a_grid_the_planner_would_refuse(tmp_path, capsys):
+    text = default_config_path("k70m").read_text()
+    assert "grid: [356, 101, 151]" in text
+    even = tmp_path / "k70m_even.yaml"
+    even.write_text(text.replace("grid: [356, 101, 151]", "grid: [356, 100, 151]"))
+    assert main(["machine", "check", str(even)]) == 1
+    out = capsys.readouterr().out
+    assert "velocities need an odd count, so that rest is a node (e.g. (356, 101, 151))" in out and "planned along" not in out

@@ -129,6 +129,8 @@ def test_record_in_a_namespace_takes_the_sample_blocks_and_the_bag_reads_whole(r
     import subprocess
     import sys
 
+    import yaml
+
     from hydro_ros.bags.reader import read_bag
 
     bag = tmp_path / "recorded"
@@ -145,6 +147,8 @@ def test_record_in_a_namespace_takes_the_sample_blocks_and_the_bag_reads_whole(r
     assert recorder.returncode == 0, err
     summary = json.loads(out)
     assert summary["topics"][topics.SAMPLE_BLOCK] > 10 and summary["topics"][topics.pressure_a("boom")] == 0
+    listed = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]["topics_with_message_count"]
+    assert {entry["topic_metadata"]["name"]: entry["message_count"] for entry in listed}[topics.pressure_a("boom")] == 0
     data = read_bag(bag)
     assert len(data.stamps_ns) > 1000 and not data.errors
     assert np.all(np.isfinite(data.pressure_a["boom"])) and np.all(np.isfinite(data.valve_command["boom"]))

@@ -163,6 +163,7 @@ def planner_checks(config: dict, source: str) -> list[str]:
     from hydro_ros.contract.check import DP_GRID_MIN
     from hydro_ros.contract.crane import parse_planning
     from hydro_ros.models.crane import Crane
+    from hydro_ros.planning.dp import grid_sizes
     from hydro_ros.planning.problem import Problem
 
     try:
@@ -170,6 +171,11 @@ def planner_checks(config: dict, source: str) -> list[str]:
     except InputError as exc:
         return [str(exc)]
     problems = []
+    for grid in {crane.config.dp.grid, tuple(crane.config.catalog.get("grid") or crane.config.dp.grid)}:
+        try:  # the planner refuses it when it builds the grid; a check says so before any plan is asked for
+            grid_sizes(grid)
+        except InputError as exc:
+            problems.append(str(exc))
     for path_id in crane.config.paths:
         try:
             Problem.build(crane, crane.config, path_id, grid=(DP_GRID_MIN,) * 3)

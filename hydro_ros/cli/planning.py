@@ -192,12 +192,15 @@ def cmd_db_build(args: argparse.Namespace) -> int:
     from hydro_ros.models.crane import load_crane
     from hydro_ros.planning.catalog import build, plan_units
     from hydro_ros.planning.database import TrajectoryDatabase
+    from hydro_ros.planning.dp import grid_sizes
 
     _, config = load_crane(args.config)
     units = plan_units(
         config, methods=tuple(args.methods) if args.methods else None, grid=tuple(args.grid) if args.grid else None,
         paths=tuple(args.paths) if args.paths else None,
     )
+    for grid in {unit.grid for unit in units}:  # refused before the database file is made
+        grid_sizes(grid)
     with TrajectoryDatabase(args.db, writable=True) as db, tqdm(total=len(units), unit="solution", desc="db build", disable=args.quiet) as bar:
         stored = db.committed()
         bar.update(sum(1 for unit in units if stored.get(unit.key) == unit.inputs_hash))

@@ -54,24 +54,33 @@ class Recorder(Node):
         self._handles: dict[str, int] = {}
         self._subscribed: dict[str, Any] = {}
 
-    def subscribe_all(self, *, unseen_too: bool = False) -> None:
+    def subscribe_all(self) -> None:
         """Subscribe to each wanted topic once a publisher offers it, with a QoS that matches what it offers (a reliable
         subscription never matches a best-effort publisher: subscribing before the publisher is known lost every
-        message of a loaded machine's slow discovery). ``unseen_too``: the rest as well, so the bag lists them."""
+        message of a loaded machine's slow discovery)."""
         for topic, type_name in self.wanted.items():
             if topic in self._subscribed:
                 continue
             name = self.resolve_topic_name(relative(topic))
             offered = self.get_publishers_info_by_topic(name)
-            if not offered and not unseen_too:
+            if not offered:
                 continue
             qos = SENSOR_QOS
-            if offered and all(info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for info in offered):
+            if all(info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for info in offered):
                 qos = QoSProfile(depth=SENSOR_QOS.depth, reliability=ReliabilityPolicy.BEST_EFFORT)
             self._handles[topic] = self.writer.add_topic(topic, type_name, [_offered(info) for info in offered[:1]])
             self.counts[topic] = 0
             self._subscribed[topic] = self.create_subscription(
                 message_class(type_name), relative(topic), lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+
+    def list_unseen(self) -> None:
+        """List each wanted topic no publisher offered in the bag, with 0 messages. Without subscribing: a subscription
+        created while the node is being stopped is of no use, and one made just before destroy_node is the suspect of a
+        recorder that crashed (SIGSEGV) on SIGTERM under load."""
+        for topic, type_name in self.wanted.items():
+            if topic not in self._handles:
+                self._handles[topic] = self.writer.add_topic(topic, type_name)
+                self.counts[topic] = 0
 
     def take_sample_blocks(self) -> None:
         """Subscribe to /hydraulics/sample_block once a node publishes it."""
@@ -126,7 +135,7 @@ def record(machine: Machine, out: Path, *, duration_s: float | None, split_durat
                     if progress is not None:
                         progress(writer.messages)
             finally:
-                node.subscribe_all(unseen_too=True)  # every wanted topic is listed in the bag, with 0 messages if none came
+                node.list_unseen()
                 counts = dict(node.counts)
                 node.destroy_node()
     finally:
