@@ -8,13 +8,14 @@ effect at its true value), the best any fitted model can do on that bag. The val
 entrained air also run at a second, larger size: at the first, little more than the plant's
 mismatch, half the gap before lies near that floor.
 
-Writes bench/results/discrepancy_suite.json and bench/results/discrepancy_example.html (the report of EXAMPLE) and prints a
-markdown table (``python bench/discrepancy_suite.py --table`` prints it from the file).
+Writes bench/results/discrepancy_suite.json, its table and what it shows (.md beside it, which docs/discrepancy.md
+shows) and bench/results/discrepancy_example.html (the report of EXAMPLE); ``--table`` writes the .md files from the
+.json files and runs nothing.
 
 Then the same workflow on data it was not written with: plain overlaps of 4, 6 and 8 % on the independent plant
 (studies/independent_plant: its own forms, integrator and numbers), each with the fit gap along the overlap on the
 screened segments and on all of them (bench/results/discrepancy_independent.json and .png; ``--independent`` runs only
-these). Its floor is the model with the rig's numbers (``nearest_model``).
+these), and their table (.md). Its floor is the model with the rig's numbers (``nearest_model``).
 """
 
 from __future__ import annotations
@@ -136,7 +137,6 @@ def independent(config: Machine, out_dir: Path) -> list[dict]:
                                        "named": r["named"].get("valve_deadzone", {}).get("value")} for r in rows],
                       out_dir / "discrepancy_independent.png")
     write_result(out_dir / "discrepancy_independent.json", {"plant": "hydro_ros.studies.independent_plant", "rows": rows})  # last
-    print(table(rows))
     return rows
 
 
@@ -144,38 +144,88 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, default=RESULTS / "discrepancy_suite.json",
                         help="the suite's file; discrepancy_independent.{json,png} and discrepancy_example.html are written beside it")
-    parser.add_argument("--table", action="store_true", help="print the tables from the files, run nothing")
+    parser.add_argument("--table", action="store_true", help="write the .md files from the .json files, run nothing")
     parser.add_argument("--independent", action="store_true", help="the independent plant's rows only")
     args = parser.parse_args()
     out_dir = args.out.parent
-    if args.table:
-        for path in (args.out, out_dir / "discrepancy_independent.json"):
-            print(table(json.loads(path.read_text())["rows"]))
-        return 0
-    config = load_machine_config(default_config_path("sam"))
-    if not args.independent:
-        rows = []
-        for effects, forms in tqdm(SUITE, desc="discrepancy suite", unit="bag"):
-            rows.append(run_row(config, effects, forms, out_dir))
-            tqdm.write(json.dumps(rows[-1]))
-        write_result(args.out, {"rows": rows})
-        print(table(rows))
-    independent(config, out_dir)
+    if not args.table:
+        config = load_machine_config(default_config_path("sam"))
+        if not args.independent:
+            rows = []
+            for effects, forms in tqdm(SUITE, desc="discrepancy suite", unit="bag"):
+                rows.append(run_row(config, effects, forms, out_dir))
+                tqdm.write(json.dumps(rows[-1]))
+            write_result(args.out, {"rows": rows})
+        independent(config, out_dir)
+    for path, markdown in ((args.out, suite_markdown), (out_dir / "discrepancy_independent.json", independent_markdown)):
+        path.with_suffix(".md").write_text(markdown(json.loads(path.read_text())["rows"]) + "\n")
+        print(path.with_suffix(".md").read_text())
     return 0
 
 
-def table(rows: list[dict]) -> str:
+def _hidden(r: dict) -> str:
+    return ", ".join(f"{n} ({r['forms'][n]})" if n in r["forms"] else n for n in r["hidden"]) or "none"
+
+
+def _named(r: dict) -> str:
+    return ", ".join(f"{n} ({p['form']})" if "form" in p else n for n, p in r["named"].items()) or "none"
+
+
+def _fitted(r: dict) -> str:
+    return ", ".join(f"{p['value']:.3g}" for p in r["named"].values()) or "-"
+
+
+def _gap(r: dict) -> str:
+    return f"{r['validation_gap_before']:.2f} -> {r['validation_gap_after']:.2f}"
+
+
+def _change(r: dict) -> float:
+    return r["validation_gap_after"] / r["validation_gap_before"] - 1.0
+
+
+def _size(r: dict) -> str:
+    return ", ".join(f"{v:g}" for v in r["hidden"].values()) or "-"
+
+
+def suite_markdown(rows: list[dict]) -> str:
+    """The suite's table, then what it shows: families and forms named, the gap closed against the floor, the runtime."""
     lines = ["| hidden effect(s) (form) | size | named (form) | fitted | validation gap before -> after | change | plant's own model | "
              "runtime (60 s bag) |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        hidden = ", ".join(f"{n} ({r['forms'][n]})" if n in r["forms"] else n for n in r["hidden"]) or "none"
-        named = ", ".join(f"{n} ({p['form']})" if "form" in p else n for n, p in r["named"].items()) or "none"
-        change = r["validation_gap_after"] / r["validation_gap_before"] - 1.0
-        fitted = ", ".join(f"{p['value']:.3g}" for p in r["named"].values()) or "-"
-        lines.append(f"| {hidden} | {', '.join(f'{v:g}' for v in r['hidden'].values()) or '-'} | {named} | "
-                     f"{fitted} | "
-                     f"{r['validation_gap_before']:.2f} -> {r['validation_gap_after']:.2f} | {change:+.0%} | {r['plant_model_gap']:.2f} | "
+        lines.append(f"| {_hidden(r)} | {_size(r)} | {_named(r)} | {_fitted(r)} | {_gap(r)} | {_change(r):+.0%} | "
+                     f"{r['plant_model_gap']:.2f} | {r['wall_s']:.0f} s |")
+    effects = [r for r in rows if r["hidden"]]
+    clean = [r for r in rows if not r["hidden"]]
+    wrong_family = [f"{_hidden(r)}: named {_named(r)}" for r in rows if not r["right"]]
+    wrong_form = [f"{_hidden(r)} {_size(r)}: named {_named(r)} at {_fitted(r)}, gap {_change(r):+.0%}, "
+                  f"{r['validation_gap_after'] - r['plant_model_gap']:.2f} above the floor" for r in rows if not r["form_right"]]
+    closed = [(r["validation_gap_before"] - r["validation_gap_after"]) / (r["validation_gap_before"] - r["plant_model_gap"]) for r in effects]
+    not_halved = [f"{_hidden(r)} {_size(r)}: {_gap(r)}, floor {r['plant_model_gap']:.2f}" for r in effects
+                  if r["validation_gap_after"] > 0.5 * r["validation_gap_before"]]
+    above = [r["validation_gap_after"] - r["plant_model_gap"] for r in effects]
+    wall = [r["wall_s"] for r in rows]
+    lines += ["", f"- the right family, and nothing else, in **{sum(r['right'] for r in rows)} of {len(rows)}** rows"
+              + (f"; not in: {'; '.join(wrong_family)}" if wrong_family else ""),
+              f"- the right form in {sum(r['form_right'] for r in rows)} of {len(rows)}" + (f"; not in: {'; '.join(wrong_form)}" if wrong_form else ""),
+              f"- the removable gap (before minus the floor) closed by {min(closed):.0%} to {max(closed):.0%} in the {len(effects)} rows "
+              f"with effects; the gap at least halved in {len(effects) - len(not_halved)} of them"
+              + (f" (not in: {'; '.join(not_halved)})" if not_halved else ""),
+              f"- after the fit the validation gap lies {min(above):+.2f} to {max(above):+.2f} from the floor"
+              + "".join(f" ({r['validation_gap_after'] - r['plant_model_gap']:+.2f} on clean data)" for r in clean),
+              f"- runtime {min(wall):.0f} to {max(wall):.0f} s per 60 s bag"]
+    return "\n".join(lines)
+
+
+def independent_markdown(rows: list[dict]) -> str:
+    """The independent plant's table: what was named at each overlap, the held-out gap and its floor."""
+    lines = ["| plain overlap | named (form) | fitted | held-out gap before -> after | change | floor | runtime (60 s bag) |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {_size(r)} | {_named(r)} | {_fitted(r)} | {_gap(r)} | {_change(r):+.0%} | {r['plant_model_gap']:.2f} | "
                      f"{r['wall_s']:.0f} s |")
+    off = [abs(p["value"] / r["hidden"][n] - 1.0) for r in rows for n, p in r["named"].items() if n in r["hidden"]]
+    lines += ["", f"- the right family in {sum(r['right'] for r in rows)} of {len(rows)}, the form configured (overlap) in "
+              f"{sum(r['form_right'] for r in rows)}; the size named within {max(off):.1%} of the truth"]
     return "\n".join(lines)
 
 
