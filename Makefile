@@ -47,7 +47,7 @@ test: lint $(CHROMIUM)
 
 # the library tests without a ROS graph, a browser or a long study: the loop while changing code
 test-fast: lint
-	$(PY) -m pytest -q -n 2 --dist loadscope -m "not ros_graph and not browser and not slow" test
+	$(PY) -m pytest -q -n 2 -m "not ros_graph and not browser and not slow" test
 
 demo: setup
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-42} $(VENV)/bin/hydro-ros demo --out out/demo --linger $(HMI_LINGER)

@@ -158,8 +158,9 @@ def main() -> int:
             write_result(args.out, {"rows": rows})
         independent(config, out_dir)
     for path, markdown in ((args.out, suite_markdown), (out_dir / "discrepancy_independent.json", independent_markdown)):
-        path.with_suffix(".md").write_text(markdown(json.loads(path.read_text())["rows"]) + "\n")
-        print(path.with_suffix(".md").read_text())
+        if path.is_file():
+            path.with_suffix(".md").write_text(markdown(json.loads(path.read_text())["rows"]) + "\n")
+            print(path.with_suffix(".md").read_text())
     return 0
 
 
@@ -196,22 +197,29 @@ def suite_markdown(rows: list[dict]) -> str:
                      f"{r['plant_model_gap']:.2f} | {r['wall_s']:.0f} s |")
     effects = [r for r in rows if r["hidden"]]
     clean = [r for r in rows if not r["hidden"]]
+    with_forms = [r for r in rows if r["forms"]]
     wrong_family = [f"{_hidden(r)}: named {_named(r)}" for r in rows if not r["right"]]
     wrong_form = [f"{_hidden(r)} {_size(r)}: named {_named(r)} at {_fitted(r)}, gap {_change(r):+.0%}, "
-                  f"{r['validation_gap_after'] - r['plant_model_gap']:.2f} above the floor" for r in rows if not r["form_right"]]
-    closed = [(r["validation_gap_before"] - r["validation_gap_after"]) / (r["validation_gap_before"] - r["plant_model_gap"]) for r in effects]
+                  f"{r['validation_gap_after'] - r['plant_model_gap']:+.2f} from the floor" for r in with_forms if not r["form_right"]]
+    # the share of the gap above the floor that the fit removed, where there was some to remove
+    removable = [r for r in effects if r["validation_gap_before"] > r["plant_model_gap"]]
+    closed = [(r["validation_gap_before"] - r["validation_gap_after"]) / (r["validation_gap_before"] - r["plant_model_gap"]) for r in removable]
     not_halved = [f"{_hidden(r)} {_size(r)}: {_gap(r)}, floor {r['plant_model_gap']:.2f}" for r in effects
                   if r["validation_gap_after"] > 0.5 * r["validation_gap_before"]]
     above = [r["validation_gap_after"] - r["plant_model_gap"] for r in effects]
     wall = [r["wall_s"] for r in rows]
     lines += ["", f"- the right family, and nothing else, in **{sum(r['right'] for r in rows)} of {len(rows)}** rows"
               + (f"; not in: {'; '.join(wrong_family)}" if wrong_family else ""),
-              f"- the right form in {sum(r['form_right'] for r in rows)} of {len(rows)}" + (f"; not in: {'; '.join(wrong_form)}" if wrong_form else ""),
-              f"- the removable gap (before minus the floor) closed by {min(closed):.0%} to {max(closed):.0%} in the {len(effects)} rows "
-              f"with effects; the gap at least halved in {len(effects) - len(not_halved)} of them"
+              f"- the right form in {sum(r['form_right'] for r in with_forms)} of the {len(with_forms)} rows whose effects have forms"
+              + (f"; not in: {'; '.join(wrong_form)}" if wrong_form else "")]
+    if closed:
+        lines.append(f"- the removable gap (before minus the floor) closed by {min(closed):.0%} to {max(closed):.0%} in the {len(removable)} "
+                     f"rows with effects that had one (of {len(effects)})")
+    lines += [f"- the gap at least halved in {len(effects) - len(not_halved)} of the {len(effects)} rows with effects"
               + (f" (not in: {'; '.join(not_halved)})" if not_halved else ""),
               f"- after the fit the validation gap lies {min(above):+.2f} to {max(above):+.2f} from the floor"
-              + "".join(f" ({r['validation_gap_after'] - r['plant_model_gap']:+.2f} on clean data)" for r in clean),
+              + f" ({sum(x < 0 for x in above)} below it)"
+              + "".join(f"; on clean data {_gap(r)} against {r['plant_model_gap']:.2f}" for r in clean),
               f"- runtime {min(wall):.0f} to {max(wall):.0f} s per 60 s bag"]
     return "\n".join(lines)
 
@@ -224,8 +232,9 @@ def independent_markdown(rows: list[dict]) -> str:
         lines.append(f"| {_size(r)} | {_named(r)} | {_fitted(r)} | {_gap(r)} | {_change(r):+.0%} | {r['plant_model_gap']:.2f} | "
                      f"{r['wall_s']:.0f} s |")
     off = [abs(p["value"] / r["hidden"][n] - 1.0) for r in rows for n, p in r["named"].items() if n in r["hidden"]]
-    lines += ["", f"- the right family in {sum(r['right'] for r in rows)} of {len(rows)}, the form configured (overlap) in "
-              f"{sum(r['form_right'] for r in rows)}; the size named within {max(off):.1%} of the truth"]
+    forms = sorted({form for r in rows for form in r["forms"].values()})
+    lines += ["", f"- the right family in {sum(r['right'] for r in rows)} of {len(rows)}, the plant's form ({', '.join(forms)}) in "
+              f"{sum(r['form_right'] for r in rows)}" + (f"; the size named within {max(off):.1%} of the truth" if off else "")]
     return "\n".join(lines)
 
 

@@ -437,4 +437,17 @@ def test_machine_check_refuses_a_grid_the_planner_would_refuse(tmp_path, capsys)
     even.write_text(text.replace("grid: [356, 101, 151]", "grid: [356, 100, 151]"))
     assert main(["machine", "check", str(even)]) == 1
     out = capsys.readouterr().out
-    assert "velocities need an odd count, so that rest is a node (e.g. (356, 101, 151))" in out and "planned along" not in out
+    assert "planner.dp.grid: DP grid (356, 100, 151): velocities need an odd count, so that rest is a node (e.g. (356, 101, 151))" in out
+    assert "planned along" not in out
+    # the catalog's own grid, where given, as well: an even one, and one that is not three whole numbers
+    for grid, needle in (("[60, 21, 30]", "planner.catalog.grid: DP grid (60, 21, 30): controls need an odd count"),
+                         ("51", "planner.catalog.grid 51: expected three whole numbers"),
+                         ("[60, [21], 31]", "planner.catalog.grid [60, [21], 31]: expected three whole numbers")):
+        catalog = tmp_path / "k70m_catalog.yaml"
+        catalog.write_text(text.replace("  dp:\n", f"  catalog:\n    grid: {grid}\n  dp:\n", 1))
+        if grid != "[60, [21], 31]":  # (each check plans every path's start: a few seconds)
+            assert main(["machine", "check", str(catalog)]) == 1
+            assert needle in capsys.readouterr().out
+        db = tmp_path / "catalog.db"
+        assert main(["db", "build", "--config", str(catalog), "--db", str(db), "--quiet"]) == 1
+        assert needle in capsys.readouterr().err and not db.exists()

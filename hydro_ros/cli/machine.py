@@ -163,19 +163,13 @@ def planner_checks(config: dict, source: str) -> list[str]:
     from hydro_ros.contract.check import DP_GRID_MIN
     from hydro_ros.contract.crane import parse_planning
     from hydro_ros.models.crane import Crane
-    from hydro_ros.planning.dp import grid_sizes
     from hydro_ros.planning.problem import Problem
 
     try:
         crane = Crane(parse_planning(config, Path(source).resolve()))
     except InputError as exc:
         return [str(exc)]
-    problems = []
-    for grid in {crane.config.dp.grid, tuple(crane.config.catalog.get("grid") or crane.config.dp.grid)}:
-        try:  # the planner refuses it when it builds the grid; a check says so before any plan is asked for
-            grid_sizes(grid)
-        except InputError as exc:
-            problems.append(str(exc))
+    problems = grid_problems(crane.config)
     for path_id in crane.config.paths:
         try:
             Problem.build(crane, crane.config, path_id, grid=(DP_GRID_MIN,) * 3)
@@ -185,6 +179,26 @@ def planner_checks(config: dict, source: str) -> list[str]:
         print(f"{source}: {crane.name}: planned along {', '.join(crane.config.paths)} (each within reach), redundant joint "
               f"{crane.extension.name}, the tip solved by {' and '.join(crane.solved_names)}"
               + (f", {crane.names[0]} turning the chain" if crane.base_rotation else "") + ": ok")
+    return problems
+
+
+def grid_problems(config) -> list[str]:
+    """The DP grids a crane config plans on (``dp.grid``, and ``catalog.grid`` where given) as the planner would refuse
+    them (an even velocity or control count), each named by its key, so that a check says so before a plan is asked for."""
+    from hydro_ros.planning.dp import grid_sizes
+
+    prefix = "planner." if "planner" in config.mapping else ""  # the machine form's section, or the crane form's top level
+    problems = []
+    for key, grid in (("dp.grid", config.dp.grid), ("catalog.grid", config.catalog.get("grid"))):
+        if grid is None:
+            continue
+        if not (isinstance(grid, list | tuple) and len(grid) == 3 and all(isinstance(n, int) and not isinstance(n, bool) for n in grid)):
+            problems.append(f"{prefix}{key} {grid!r}: expected three whole numbers [positions, velocities, controls]")
+            continue
+        try:
+            grid_sizes(tuple(grid))
+        except InputError as exc:
+            problems.append(f"{prefix}{key}: {exc}")
     return problems
 
 

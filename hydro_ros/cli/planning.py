@@ -189,12 +189,16 @@ def cmd_dp_execute(args: argparse.Namespace) -> int:
 def cmd_db_build(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from hydro_ros.cli.machine import grid_problems
     from hydro_ros.models.crane import load_crane
     from hydro_ros.planning.catalog import build, plan_units
     from hydro_ros.planning.database import TrajectoryDatabase
     from hydro_ros.planning.dp import grid_sizes
 
     _, config = load_crane(args.config)
+    problems = [] if args.grid else grid_problems(config)
+    if problems:
+        raise InputError(f"{args.config}: {problems[0]}")
     units = plan_units(
         config, methods=tuple(args.methods) if args.methods else None, grid=tuple(args.grid) if args.grid else None,
         paths=tuple(args.paths) if args.paths else None,

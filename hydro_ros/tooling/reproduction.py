@@ -468,11 +468,13 @@ def _discrepancy(suite: dict) -> str:
     own = [r for r in single if all(r["forms"].get(n) == first_form(n) for n in r["hidden"])]
     clean = [r for r in rows if not r["hidden"]]
     closed = [(r["validation_gap_before"] - r["validation_gap_after"]) / (r["validation_gap_before"] - r["plant_model_gap"])
-              for r in rows if r["hidden"]]
+              for r in rows if r["hidden"] and r["validation_gap_before"] > r["plant_model_gap"]]
+    with_forms = [r for r in rows if r["forms"]]
     return (f"the right families in {sum(r['right'] for r in rows)}/{len(rows)} rows ({len({n for r in own for n in r['hidden']})} "
             f"effects in their own form, {len(single) - len(own)} other forms, {len(rows) - len(single) - len(clean)} pairs, "
             f"clean data: {'none named' if not any(r['named'] for r in clean) else 'effects named'}), the right form in "
-            f"{sum(r['form_right'] for r in rows)}/{len(rows)}, removable gap closed {_pct(closed)} % in every row with an effect, "
+            f"{sum(r['form_right'] for r in with_forms)}/{len(with_forms)} rows whose effects have forms, removable gap closed "
+            f"{_pct(closed)} % in every row with an effect, "
             f"{span([r['wall_s'] for r in rows], '.0f')} s per 60 s bag")
 
 
