@@ -34,14 +34,13 @@ lint: setup
 # them the library and browser tests on two workers at nice 5, so the nodes' real-time work comes first and the library
 # takes what the two cores have left (all on two workers took 13 min here, this 11); each run on ROS domains of its own.
 # Then the CAN bridge's bus tests alone (the "solo" mark): their frames over UDP multicast are lost whenever anything else runs
-# the three runs build a fixture they share once (test/conftest.py built_once), in a folder emptied first; a module's
-# tests run on one worker (--dist loadscope), so a module fixture is built once, not once per worker
+# the three runs build a fixture they share once (test/conftest.py built_once), in a folder emptied first
 test: export HYDRO_ROS_TEST_SHARED = $(CURDIR)/out/test-shared
 test: lint $(CHROMIUM)
 	@rm -rf out/test-shared; mkdir -p out/test-shared; echo "the live-graph tests run beside these; their report follows (out/test-live.log)"; \
 	TEST_ROS_DOMAINS=10-119 $(PY) -m pytest -q -p no:cacheprovider --durations=12 -m "ros_graph and not browser and not solo" test \
 		> out/test-live.log 2>&1 & live=$$!; \
-	TEST_ROS_DOMAINS=120-229 nice -n 5 $(PY) -m pytest -q -n 2 --dist loadscope --durations=12 -m "(not ros_graph or browser) and not solo" test; library=$$?; \
+	TEST_ROS_DOMAINS=120-229 nice -n 5 $(PY) -m pytest -q -n 2 --durations=12 -m "(not ros_graph or browser) and not solo" test; library=$$?; \
 	wait $$live; graph=$$?; cat out/test-live.log; [ $$library = 0 ] && [ $$graph = 0 ]
 	$(PY) -m pytest -q --durations=12 -m solo test
 
